@@ -1,0 +1,338 @@
+"""Robust two-view bundle adjustment over (R, t, g, points) with the bending model.
+
+Implements the refinement of SPEC section 5 (paper eq. 15): Huber loss on
+angular (tangent-plane) residuals of both views, gravity on the sphere
+(2 d.o.f., |g| fixed), rotation as a right perturbation R Exp(dr), points in
+view 1's body frame. The points are eliminated per correspondence by a Schur
+complement of 3x3 blocks, so one Levenberg-Marquardt iteration is O(N).
+Optionally, measured gravity in both views enters as a prior (4pt-bending).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .deformation import deformation_jacobians
+from .rig import Rig
+from .so3 import exp_so3, normalize, skew, tangent_basis
+
+
+@dataclass
+class GravityPrior:
+    """Measured gravity of both views (body frames) with angular std sigma_rad."""
+
+    g1: np.ndarray
+    g2: np.ndarray
+    sigma_rad: float
+
+
+@dataclass
+class BundleResult:
+    R: np.ndarray
+    t: np.ndarray
+    g: np.ndarray | None
+    points: np.ndarray
+    cost: float
+    iterations: int
+    sigma_rad: float  # robust estimate of the angular noise (rad)
+    covariance: np.ndarray  # (nc, nc) over (dr, t[, dg]) in rad, m, rad
+    info: dict = field(default_factory=dict)
+
+
+class TwoViewProblem:
+    """Residuals and Jacobians of the two-view problem for fixed observations."""
+
+    def __init__(self, rig: Rig, f1, f2, cam, optimize_gravity: bool, prior: GravityPrior | None = None):
+        self.rig = rig
+        self.f1, self.f2, self.cam = f1, f2, cam
+        self.T1 = tangent_basis(f1)
+        self.T2 = tangent_basis(f2)
+        self.optimize_gravity = optimize_gravity
+        self.prior = prior
+        self.nc = 8 if optimize_gravity else 6
+        self.gm = rig.gravity_magnitude
+        if prior is not None:
+            self.P1 = tangent_basis(normalize(prior.g1))
+            self.P2 = tangent_basis(normalize(prior.g2))
+
+    # -- model --------------------------------------------------------------
+    def _view(self, g):
+        w, W, D, K = deformation_jacobians(self.rig, g)
+        return w[self.cam], W[self.cam], D[self.cam], K[self.cam]
+
+    @staticmethod
+    def _residual_jac(p, T):
+        """e = T^T p/|p| and de/dp = T^T (I - n n^T)/|p|."""
+        r = np.linalg.norm(p, axis=1)
+        n = p / r[:, None]
+        e = np.einsum("nik,ni->nk", T, n)
+        Tt = np.swapaxes(T, 1, 2)
+        J = (Tt - e[:, :, None] * n[:, None, :]) / r[:, None, None]
+        return e, J
+
+    @staticmethod
+    def _dp_dg(Wt, y, D, K):
+        """d(W^T (y - ...))/dg = W^T ([y]_x K - D) for per-point blocks."""
+        return Wt @ (skew(y) @ K - D)
+
+    def evaluate(self, R, t, g, P, want_jacobian=True):
+        """Residuals e (N, 4) and, if asked, Jc (N, 4, nc), Jp (N, 4, 3)."""
+        gg = g if g is not None else np.array([0.0, 0.0, -self.gm])
+        w1, W1, D1, K1 = self._view(gg)
+        W1t = np.swapaxes(W1, 1, 2)
+        y1 = P - w1
+        p1 = np.einsum("nij,nj->ni", W1t, y1)
+        g2 = R.T @ gg
+        w2, W2, D2, K2 = self._view(g2)
+        W2t = np.swapaxes(W2, 1, 2)
+        z = (P - t) @ R  # R^T (P - t)
+        y2 = z - w2
+        p2 = np.einsum("nij,nj->ni", W2t, y2)
+        e1, Je1 = self._residual_jac(p1, self.T1)
+        e2, Je2 = self._residual_jac(p2, self.T2)
+        e = np.concatenate([e1, e2], axis=1)
+        if not want_jacobian:
+            return e, None, None
+        N = len(P)
+        Jc = np.zeros((N, 4, self.nc))
+        Jp = np.empty((N, 4, 3))
+        W2tRt = W2t @ R.T
+        Jp[:, :2] = Je1 @ W1t
+        Jp[:, 2:] = Je2 @ W2tRt
+        dp2_dg2 = self._dp_dg(W2t, y2, D2, K2)
+        dp2_dr = W2t @ skew(z) + dp2_dg2 @ skew(g2)
+        Jc[:, 2:, 0:3] = Je2 @ dp2_dr
+        Jc[:, 2:, 3:6] = -Jp[:, 2:]
+        if self.optimize_gravity:
+            B = self.gm * tangent_basis(normalize(gg))
+            dp1_dg = self._dp_dg(W1t, y1, D1, K1)
+            Jc[:, :2, 6:8] = Je1 @ (dp1_dg @ B)
+            Jc[:, 2:, 6:8] = Je2 @ (dp2_dg2 @ (R.T @ B))
+        return e, Jc, Jp
+
+    def prior_terms(self, R, g):
+        """Prior residuals (4,) and Jacobian (4, nc), already divided by sigma."""
+        pr = self.prior
+        gh = normalize(g)
+        B = tangent_basis(gh)
+        g2h = R.T @ gh
+        r = np.concatenate([self.P1.T @ gh, self.P2.T @ g2h]) / pr.sigma_rad
+        J = np.zeros((4, self.nc))
+        J[2:, 0:3] = self.P2.T @ skew(g2h)
+        J[:2, 6:8] = self.P1.T @ B
+        J[2:, 6:8] = self.P2.T @ (R.T @ B)
+        return r, J / pr.sigma_rad
+
+    def update(self, R, t, g, P, dc, dP):
+        R = R @ exp_so3(dc[0:3])
+        t = t + dc[3:6]
+        if self.optimize_gravity:
+            gh = normalize(g)
+            g = self.gm * normalize(gh + tangent_basis(gh) @ dc[6:8])
+        return R, t, g, P + dP
+
+
+def inv3(A: np.ndarray) -> np.ndarray:
+    """Inverse of a batch of 3x3 matrices (N, 3, 3) by the adjugate (much faster than np.linalg.inv)."""
+    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
+    d, e, f = A[:, 1, 0], A[:, 1, 1], A[:, 1, 2]
+    g, h, i = A[:, 2, 0], A[:, 2, 1], A[:, 2, 2]
+    co = np.stack([e * i - f * h, c * h - b * i, b * f - c * e,
+                   f * g - d * i, a * i - c * g, c * d - a * f,
+                   d * h - e * g, b * g - a * h, a * e - b * d], axis=1).reshape(-1, 3, 3)
+    det = a * co[:, 0, 0] + b * co[:, 1, 0] + c * co[:, 2, 0]
+    return co / det[:, None, None]
+
+
+def _sum_outer(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """sum_n A_n B_n^T for batches (N, k, 3) -> (k, k)."""
+    return np.swapaxes(A, 0, 1).reshape(A.shape[1], -1) @ np.swapaxes(B, 0, 1).reshape(B.shape[1], -1).T
+
+
+def _huber(r_norm, delta):
+    """Huber cost and IRLS weights of residual norms."""
+    quad = r_norm <= delta
+    cost = np.where(quad, 0.5 * r_norm**2, delta * (r_norm - 0.5 * delta))
+    weight = np.where(quad, 1.0, delta / np.maximum(r_norm, 1e-300))
+    return cost, weight
+
+
+def robust_sigma(e: np.ndarray, num_params: int = 0, floor: float = 1e-7) -> float:
+    """MAD-based std (rad) of the angular noise behind residual components e (N, 4).
+
+    Each point absorbs 3 of its 4 residuals, so the residual spread is
+    corrected by sqrt(n_res / (n_res - n_params)) with n_params = 3N + num_params.
+    """
+    n_res = e.size
+    dof = max(n_res - 3 * len(e) - num_params, 1)
+    med = np.median(np.abs(e))
+    return max(1.4826 * float(med) * np.sqrt(n_res / dof), floor)
+
+
+class _Solver:
+    def __init__(self, prob: TwoViewProblem, sigma: float, huber_k: float):
+        self.prob = prob
+        self.sigma = sigma
+        self.delta = huber_k  # Huber threshold in units of sigma
+
+    def cost(self, R, t, g, P):
+        e, _, _ = self.prob.evaluate(R, t, g, P, want_jacobian=False)
+        return self._cost_from(e, R, g)
+
+    def _cost_from(self, e, R, g):
+        e = e / self.sigma
+        r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
+        c, _ = _huber(r, self.delta)
+        total = float(c.sum())
+        if self.prob.prior is not None:
+            rp, _ = self.prob.prior_terms(R, g)
+            total += 0.5 * float(rp @ rp)
+        return total
+
+    def normal_equations(self, R, t, g, P):
+        e, Jc, Jp = self.prob.evaluate(R, t, g, P)
+        e = e / self.sigma
+        Jc = Jc / self.sigma
+        Jp = Jp / self.sigma
+        r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
+        c, wts = _huber(r, self.delta)
+        sw = np.sqrt(np.repeat(wts, 2, axis=1))  # (N, 4)
+        ew = e * sw
+        Jcw = Jc * sw[:, :, None]
+        Jpw = Jp * sw[:, :, None]
+        Jc2 = Jcw.reshape(-1, Jcw.shape[2])
+        Hcc = Jc2.T @ Jc2
+        bc = -(Jc2.T @ ew.reshape(-1))
+        JcT = np.swapaxes(Jcw, 1, 2)
+        JpT = np.swapaxes(Jpw, 1, 2)
+        Hcp = JcT @ Jpw
+        Hpp = JpT @ Jpw
+        bp = -(JpT @ ew[:, :, None])[:, :, 0]
+        cost = float(c.sum())
+        if self.prob.prior is not None:
+            rp, Jpr = self.prob.prior_terms(R, g)
+            Hcc = Hcc + Jpr.T @ Jpr
+            bc = bc - Jpr.T @ rp
+            cost += 0.5 * float(rp @ rp)
+        return cost, Hcc, bc, Hcp, Hpp, bp
+
+    @staticmethod
+    def solve_damped(Hcc, bc, Hcp, Hpp, bp, lam):
+        nc = len(bc)
+        Hcc_d = Hcc + lam * np.diag(np.diag(Hcc)) + 1e-12 * np.eye(nc)
+        dpp = np.diagonal(Hpp, axis1=1, axis2=2)
+        Hpp_d = Hpp + (lam * dpp + 1e-12)[:, :, None] * np.eye(3)
+        Hpp_inv = inv3(Hpp_d)
+        HcpHi = Hcp @ Hpp_inv  # (N, nc, 3)
+        S = Hcc_d - _sum_outer(HcpHi, Hcp)
+        rhs = bc - np.swapaxes(HcpHi, 0, 1).reshape(nc, -1) @ bp.reshape(-1)
+        try:
+            dc = np.linalg.solve(S, rhs)
+        except np.linalg.LinAlgError:
+            dc = np.linalg.lstsq(S, rhs, rcond=None)[0]
+        dP = (Hpp_inv @ (bp - np.swapaxes(Hcp, 1, 2) @ dc)[:, :, None])[:, :, 0]
+        return dc, dP
+
+    def reduced_information(self, R, t, g, P):
+        """Schur complement of the undamped normal equations (Fisher information of the camera block)."""
+        _, Hcc, _, Hcp, Hpp, _ = self.normal_equations(R, t, g, P)
+        Hpp_inv = inv3(Hpp + 1e-12 * np.eye(3))
+        return Hcc - _sum_outer(Hcp @ Hpp_inv, Hcp)
+
+    def run(self, R, t, g, P, max_iter, tol=1e-6):
+        lam = 1e-4
+        cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
+        it = 0
+        for it in range(1, max_iter + 1):
+            dc, dP = self.solve_damped(Hcc, bc, Hcp, Hpp, bp, lam)
+            Rn, tn, gn, Pn = self.prob.update(R, t, g, P, dc, dP)
+            new_cost = self.cost(Rn, tn, gn, Pn)
+            if np.isfinite(new_cost) and new_cost <= cost:
+                rel = (cost - new_cost) / max(cost, 1e-300)
+                R, t, g, P = Rn, tn, gn, Pn
+                lam = max(lam / 10.0, 1e-9)
+                small_step = np.linalg.norm(dc) < tol
+                cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
+                if rel < tol or small_step:
+                    break
+            else:
+                lam *= 10.0
+                if lam > 1e8:
+                    break
+        return R, t, g, P, cost, it
+
+
+def refine_two_view(
+    rig: Rig,
+    f1,
+    f2,
+    cam,
+    R,
+    t,
+    g=None,
+    points=None,
+    optimize_gravity: bool = True,
+    prior: GravityPrior | None = None,
+    max_iter: int = 30,
+    huber_k: float = 3.0,
+    sigma_rad: float | None = None,
+) -> BundleResult:
+    """Robust bundle adjustment of (R, t[, g], points) on correspondences (f1, f2, cam).
+
+    g is the starting gravity (body frame of view 1); it is kept with
+    |g| = gravity_magnitude. With optimize_gravity=False, g stays fixed (and
+    for a rigid rig is irrelevant). ``sigma_rad`` is the angular noise used to
+    scale residuals and the Huber threshold (huber_k * sigma); by default it is
+    estimated robustly from the residuals, first at the start and again after
+    a first pass. Returns the covariance of (dr, t[, dg]) from the reduced
+    normal equations.
+    """
+    from .residuals import triangulate_midpoint
+    from .deformation import rays
+
+    R = np.asarray(R, dtype=float)
+    t = np.asarray(t, dtype=float)
+    gm = rig.gravity_magnitude
+    if g is None:
+        optimize_gravity = False
+    else:
+        g = gm * normalize(np.asarray(g, dtype=float))
+    if prior is not None and not optimize_gravity:
+        prior = None
+    prob = TwoViewProblem(rig, f1, f2, cam, optimize_gravity, prior)
+    if points is None:
+        g_model = g if g is not None else np.array([0.0, 0.0, -gm])
+        o1, d1 = rays(rig, f1, cam, g_model)
+        o2, d2 = rays(rig, f2, cam, R.T @ g_model)
+        points, s, u, par = triangulate_midpoint(o1, d1, o2, d2, R, t)
+        bad = par | (s <= 0) | (u <= 0)
+        if bad.any():  # far or behind: put the point far along the view-1 ray
+            points = np.where(bad[:, None], o1 + 1e3 * d1, points)
+    P = np.array(points, dtype=float)
+    fixed_sigma = sigma_rad is not None
+    if not fixed_sigma:  # a few iterations at the starting noise level, then at the re-estimated one
+        e0, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)
+        solver = _Solver(prob, robust_sigma(e0, prob.nc), huber_k)
+        R, t, g, P, _, it0 = solver.run(R, t, g, P, min(3, max_iter))
+        e1, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)
+        sigma_rad = robust_sigma(e1, prob.nc)
+    else:
+        it0 = 0
+    solver = _Solver(prob, sigma_rad, huber_k)
+    R, t, g, P, cost, it = solver.run(R, t, g, P, max_iter)
+    it += it0
+    info_mat = solver.reduced_information(R, t, g, P)
+    try:
+        cov = np.linalg.inv(info_mat)
+    except np.linalg.LinAlgError:
+        cov = np.full_like(info_mat, np.inf)
+    return BundleResult(R=R, t=t, g=g if optimize_gravity else None, points=P, cost=cost, iterations=it,
+                        sigma_rad=float(sigma_rad), covariance=cov)
+
+
+def gravity_covariance(g, cov_dg) -> np.ndarray:
+    """3x3 covariance of g (m^2/s^4) from the 2x2 tangent covariance of the chart (rad^2)."""
+    B = np.linalg.norm(g) * tangent_basis(normalize(g))
+    return B @ cov_dg @ B.T

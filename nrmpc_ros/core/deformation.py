@@ -1,0 +1,128 @@
+"""Static cantilever deformation model and Plücker lines (SPEC sections 3 and 4).
+
+Everything is vectorised over cameras and, where useful, over a batch of
+gravity vectors, so RANSAC can evaluate many gravity hypotheses at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .rig import Rig
+from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
+
+
+def bar_coefficients(rig: Rig):
+    """Per camera: u_i (M, 3), displacement c_d = m L^3/(3 EI) and rotation c_r = m L^2/(2 EI) (M,).
+
+    delta_i = c_d g_perp (m per m/s^2), phi_i = c_r (u_i x g) (rad per m/s^2).
+    """
+    v = rig.positions
+    L = np.linalg.norm(v, axis=1)
+    u = np.where(L[:, None] > 0, v / np.maximum(L, 1e-300)[:, None], 0.0)
+    k = rig.compliance
+    return u, k * L**3 / 3.0, k * L**2 / 2.0
+
+
+def deformed_extrinsics(rig: Rig, g):
+    """Bent extrinsics (w_i(g), W_i(g)) of all cameras (SPEC section 3).
+
+    g: gravity in the body frame (m/s^2), shape (3,) or a batch (K, 3); used
+    as given (the model is linear in g).
+    Returns w (M, 3) and W (M, 3, 3), or (K, M, 3) and (K, M, 3, 3) for a batch.
+    """
+    g = np.asarray(g, dtype=float)
+    if g.shape[-1:] != (3,):
+        raise ValueError(f"gravity must have shape (3,) or (K, 3), got {g.shape}")
+    u, cd, cr = bar_coefficients(rig)
+    gb = g[..., None, :]  # (..., 1, 3)
+    ug = np.sum(u * gb, axis=-1, keepdims=True)  # (..., M, 1)
+    delta = cd[:, None] * (gb - ug * u)
+    phi = cr[:, None] * cross(u, gb)
+    w = rig.positions + delta
+    W = exp_so3(phi) @ rig.rotations
+    return w, W
+
+
+def deformation_jacobians(rig: Rig, g):
+    """Derivatives of the model at a single g (3,), for the bundle adjustment.
+
+    Returns w, W and per-camera matrices D (M, 3, 3), K (M, 3, 3) with
+        d w_i / d g          = D_i
+        d (W_i^T y) / d g    = W_i^T [y]_x K_i        for any fixed y.
+    (W^T y = V^T Exp(-phi) y; differentiate Exp with its right Jacobian.)
+    """
+    u, cd, cr = bar_coefficients(rig)
+    w, W = deformed_extrinsics(rig, g)
+    phi = cr[:, None] * cross(u, np.asarray(g, dtype=float)[None, :])
+    D = cd[:, None, None] * (np.eye(3) - u[:, :, None] * u[:, None, :])
+    K = cr[:, None, None] * (right_jacobian(-phi) @ skew(u))
+    return w, W, D, K
+
+
+def rays(rig: Rig, f, cam, g=None):
+    """Ray origins w_j(g) and unit directions W_j(g) f in the body frame, (N, 3) each.
+
+    g=None uses the canonical (unbent) extrinsics.
+    """
+    if g is None:
+        w, W = rig.positions, rig.rotations
+    else:
+        w, W = deformed_extrinsics(rig, g)
+    d = np.einsum("nij,nj->ni", W[cam], f)
+    return w[cam], d
+
+
+def plucker_lines(rig: Rig, f, cam, g=None) -> np.ndarray:
+    """Plücker lines l = (d, w x d) of bearings f seen by cameras cam (SPEC section 3), (N, 6)."""
+    o, d = rays(rig, f, cam, g)
+    return np.concatenate([d, cross(o, d)], axis=1)
+
+
+def gravity_from_camera(rig: Rig, camera_index: int, g_cam) -> np.ndarray:
+    """Body-frame gravity from a gravity direction measured in camera i's frame (paper eq. 14).
+
+    Minimises |W_i(g)^T g - g_cam|^2 over g with |g| = gravity_magnitude,
+    started from V_i g_cam (SPEC section 4). Only the direction of g_cam is used.
+    """
+    g_cam = np.asarray(g_cam, dtype=float)
+    if g_cam.shape != (3,) or not np.all(np.isfinite(g_cam)) or np.linalg.norm(g_cam) < 1e-12:
+        raise InputError("gravity measurement", f"needs a finite non-zero 3-vector, got {g_cam!r}", "g_cam")
+    if not 0 <= camera_index < rig.num_cameras:
+        raise InputError("gravity measurement", f"camera index {camera_index} out of range", "g_cam_index")
+    gm = rig.gravity_magnitude
+    target = gm * normalize(g_cam)
+    g0 = rig.rotations[camera_index] @ target
+    if not rig.cameras[camera_index].is_flexible:
+        return g0
+    g = g0
+    for _ in range(20):  # Gauss-Newton on the sphere; dr/dg = W^T ([g]_x K + I)
+        _, W, _, K = deformation_jacobians(rig, g)
+        Wi = W[camera_index]
+        r = Wi.T @ g - target
+        B = gm * tangent_basis(normalize(g))
+        J = Wi.T @ (skew(g) @ K[camera_index] + np.eye(3)) @ B
+        step = np.linalg.lstsq(J, -r, rcond=None)[0]
+        g = gm * normalize(g + B @ step)
+        if np.linalg.norm(step) < 1e-14:
+            break
+    return g
+
+
+def gravity_from_accelerometer(rig: Rig, accel) -> np.ndarray:
+    """Body-frame gravity (m/s^2) from a static accelerometer reading a = -g (SPEC section 4).
+
+    Uses the rig's IMU mount: at the body centre, g = -R_body_imu a; inside a
+    camera, the camera-frame gravity goes through :func:`gravity_from_camera`.
+    """
+    a = np.asarray(accel, dtype=float)
+    if rig.imu is None:
+        raise InputError(rig.source, "the rig has no 'imu' block, so accelerometer readings cannot be used", "imu")
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-6:
+        raise InputError(rig.imu.topic, f"accelerometer reading must be a finite non-zero 3-vector, got {a!r}",
+                         "linear_acceleration")
+    g_mount = -rig.imu.rotation @ a
+    if rig.imu.mount == "body":
+        return rig.gravity_magnitude * normalize(g_mount)
+    return gravity_from_camera(rig, rig.camera_index(rig.imu.mount), g_mount)

@@ -1,0 +1,371 @@
+"""The three estimators of SPEC section 5: 6pt-nonbending, 6pt-bending, 4pt-bending.
+
+Each is RANSAC (ours, with a PoseLib minimal solver) followed by the robust
+bundle adjustment of :mod:`.bundle`. ``estimate`` is the stable entry point.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import EstimationError, InputError
+from .bundle import GravityPrior, gravity_covariance, refine_two_view
+from .deformation import deformed_extrinsics, rays
+from .gravity_init import camera_rotations, gravity_rotation_hypotheses, translation_given_rotation
+from .matches import Matches
+from .minimal import UprightFrames, solve_6pt
+from .ransac import RansacOptions, ransac
+from .residuals import two_view_angular_errors
+from .rig import Rig
+from .so3 import angle_between, fibonacci_sphere, normalize
+
+METHODS = ("6pt-nonbending", "6pt-bending", "4pt-bending")
+
+
+@dataclass
+class EstimatorOptions:
+    """Tuning of the estimators. Thresholds are in pixels, turned into angles with the rig's mean focal length."""
+
+    loose_threshold_px: float = 20.0  # 6-point RANSAC with canonical extrinsics (model error of bending)
+    threshold_px: float = 2.0  # inliers under the bending model (4pt RANSAC, final inliers)
+    confidence: float = 0.999
+    max_iterations_6pt: int = 150  # gen_relpose_6pt costs ~1 ms a call
+    max_iterations_4pt: int = 1000
+    patience_6pt: int = 30  # stop once the best 6pt model has not improved for this many samples
+    patience_4pt: int = 200
+    gravity_hypotheses: int = 200  # directions scored cheaply in 6pt-bending before refining
+    gravity_refine_starts: int = 3  # best distinct hypotheses refined by bundle adjustment
+    gravity_prior_sigma: float = 0.005  # rad, 4pt-bending prior on measured gravity; inf drops it
+    huber_k: float = 3.0  # Huber threshold on the 2D residual norm, in robust sigmas
+    max_ba_iterations: int = 30
+    subset_size: int = 300  # correspondences used while comparing gravity starts
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "EstimatorOptions":
+        d = dict(d or {})
+        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise InputError("estimator options", f"unknown option (allowed: {', '.join(cls.__dataclass_fields__)})",
+                             unknown[0])
+        return cls(**{k: float(v) if isinstance(getattr(cls, k, None), float) else v for k, v in d.items()})
+
+
+@dataclass
+class Estimate:
+    """Result of :func:`estimate`: (R, t) maps view 2 into view 1; gravity in view 1's body frame (m/s^2)."""
+
+    method: str
+    success: bool
+    R: np.ndarray | None = None
+    t: np.ndarray | None = None
+    gravity: np.ndarray | None = None
+    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    time_s: float = 0.0
+    info: dict = field(default_factory=dict)
+
+    @property
+    def num_inliers(self) -> int:
+        return int(len(self.inliers))
+
+    @property
+    def gravity2(self) -> np.ndarray | None:
+        """Gravity in view 2's body frame, g' = R^T g."""
+        if self.gravity is None or self.R is None:
+            return None
+        return self.R.T @ self.gravity
+
+    def to_json(self, matches_path: str | None = None) -> dict:
+        """The SPEC section 7 result object."""
+        return {
+            "matches": matches_path,
+            "method": self.method,
+            "success": bool(self.success),
+            "R": None if self.R is None else self.R.tolist(),
+            "t": None if self.t is None else self.t.tolist(),
+            "gravity": None if self.gravity is None else self.gravity.tolist(),
+            "num_inliers": self.num_inliers,
+            "inliers": [int(i) for i in self.inliers],
+            "time_s": self.time_s,
+        }
+
+
+# ---------------------------------------------------------------------------
+# RANSAC problems
+# ---------------------------------------------------------------------------
+
+class _RayProblem:
+    """Rays of both views fixed (extrinsics at given gravity); errors are angular (rad)."""
+
+    def __init__(self, o1, d1, o2, d2):
+        self.o1, self.d1, self.o2, self.d2 = o1, d1, o2, d2
+        self.num_data = len(o1)
+
+    def errors(self, models, idx=None):
+        R = np.array([m[0] for m in models])
+        t = np.array([m[1] for m in models])
+        if idx is None:
+            return two_view_angular_errors(self.o1, self.d1, self.o2, self.d2, R, t)
+        return two_view_angular_errors(self.o1[idx], self.d1[idx], self.o2[idx], self.d2[idx], R, t)
+
+
+class SixPointProblem(_RayProblem):
+    sample_size = 6
+
+    def generate(self, s):
+        return solve_6pt(self.o1[s], self.d1[s], self.o2[s], self.d2[s])
+
+
+class UprightFourPointProblem(_RayProblem):
+    sample_size = 4
+
+    def __init__(self, o1, d1, o2, d2, g1, g2):
+        super().__init__(o1, d1, o2, d2)
+        self.frames = UprightFrames(g1, g2)
+
+    def generate(self, s):
+        return self.frames.solve(self.o1[s], self.d1[s], self.o2[s], self.d2[s])
+
+
+# ---------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------
+
+def _thresholds(rig: Rig, opts: EstimatorOptions):
+    focal = float(np.mean([c.focal_px for c in rig.cameras]))
+    return opts.loose_threshold_px / focal, opts.threshold_px / focal
+
+
+def _bending_errors(rig, m: Matches, R, t, g):
+    """Angular errors of all correspondences under the bending model at (R, t, g)."""
+    o1, d1 = rays(rig, m.f1, m.cam, g)
+    o2, d2 = rays(rig, m.f2, m.cam, None if g is None else R.T @ g)
+    return two_view_angular_errors(o1, d1, o2, d2, R, t)
+
+
+def _subset(rng, idx, k):
+    return idx if len(idx) <= k else np.sort(rng.choice(idx, size=k, replace=False))
+
+
+def _ransac_6pt(rig_rays: Rig, m: Matches, threshold, opts, rng, g=None):
+    """6-point RANSAC on rays of rig_rays; g=None canonical, else (g1, g2) bends each view."""
+    g1, g2 = (None, None) if g is None else g
+    o1, d1 = rays(rig_rays, m.f1, m.cam, g1)
+    o2, d2 = rays(rig_rays, m.f2, m.cam, g2)
+    ro = RansacOptions(threshold=threshold, confidence=opts.confidence, max_iterations=opts.max_iterations_6pt,
+                       patience=opts.patience_6pt, local_optimization=False)
+    return ransac(SixPointProblem(o1, d1, o2, d2), ro, rng, groups=m.cam)
+
+
+def _refine_loop(rig, m, R, t, g, threshold, opts, prior=None, optimize_gravity=True, inliers=None):
+    """Bundle adjustment on the inliers, re-score all correspondences, repeat while the inlier set grows."""
+    if inliers is None:
+        inliers = _bending_errors(rig, m, R, t, g) < threshold
+    res = None
+    for _ in range(3):
+        idx = np.flatnonzero(inliers)
+        if len(idx) < 6:
+            break
+        res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R, t, g, optimize_gravity=optimize_gravity,
+                              prior=prior, max_iter=int(opts.max_ba_iterations), huber_k=opts.huber_k)
+        R, t = res.R, res.t
+        g = res.g if optimize_gravity else g
+        new_inliers = _bending_errors(rig, m, R, t, g) < threshold
+        changed = int(np.count_nonzero(new_inliers != inliers))
+        inliers = new_inliers
+        if changed <= max(2, 0.01 * inliers.sum()):
+            break
+    return R, t, g, inliers, res
+
+
+def _pose_info(res, optimize_gravity):
+    info = {}
+    if res is None:
+        return info
+    cov = res.covariance
+    info["sigma_rad"] = res.sigma_rad
+    info["ba_iterations"] = res.iterations
+    info["cov_rotation"] = cov[0:3, 0:3].tolist()
+    info["cov_translation"] = cov[3:6, 3:6].tolist()
+    if optimize_gravity and res.g is not None:
+        cg = cov[6:8, 6:8]
+        info["cov_gravity_tangent"] = cg.tolist()
+        info["cov_gravity"] = gravity_covariance(res.g, cg).tolist()
+        info["gravity_sigma_rad"] = float(math.sqrt(max(np.linalg.eigvalsh(cg).max(), 0.0)))
+    return info
+
+
+_RIGID_REASON = "the rig has no flexible bar (every EI is inf or mass 0), so gravity is unobservable from vision"
+
+
+# ---------------------------------------------------------------------------
+# methods
+# ---------------------------------------------------------------------------
+
+def _six_point_nonbending(rig, m, opts, rng):
+    loose, _ = _thresholds(rig, opts)
+    rigid = rig.as_rigid()
+    rr = _ransac_6pt(rigid, m, loose, opts, rng)
+    if rr is None:
+        return None
+    R, t = rr.model
+    R, t, _, inliers, res = _refine_loop(rigid, m, R, t, None, loose, opts, optimize_gravity=False,
+                                         inliers=rr.inliers)
+    info = {"ransac_iterations": rr.iterations, **_pose_info(res, False)}
+    return R, t, None, inliers, info
+
+
+def score_gravity_hypotheses(rig, m: Matches, idx, R, t, hypotheses, threshold):
+    """MSAC cost of each gravity hypothesis (K, 3) on correspondences idx at fixed (R, t)."""
+    f1, f2, cam = m.f1[idx], m.f2[idx], m.cam[idx]
+    w1, W1 = deformed_extrinsics(rig, hypotheses)
+    w2, W2 = deformed_extrinsics(rig, hypotheses @ R)  # rows R^T g_k
+    o1, d1 = w1[:, cam], np.einsum("knij,nj->kni", W1[:, cam], f1)
+    o2, d2 = w2[:, cam], np.einsum("knij,nj->kni", W2[:, cam], f2)
+    err = two_view_angular_errors(o1, d1, o2, d2, R, t)
+    return np.minimum(err * err, threshold**2).sum(axis=1)
+
+
+def _starts_from_rigid_fit(rig, m, opts, rng, loose):
+    """The paper's route: 6-point RANSAC with canonical extrinsics, then gravity hypotheses scored at that pose."""
+    rr = _ransac_6pt(rig.as_rigid(), m, loose, opts, rng)
+    if rr is None:
+        return [], {}
+    R0, t0 = rr.model
+    idx = _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size))
+    hyp = rig.gravity_magnitude * fibonacci_sphere(int(opts.gravity_hypotheses))
+    costs = score_gravity_hypotheses(rig, m, idx, R0, t0, hyp, loose)
+    starts = []
+    for k in np.argsort(costs):
+        if all(angle_between(hyp[k], s[2]) > 0.5 for s in starts):
+            starts.append((R0, t0, hyp[k], idx))
+        if len(starts) >= int(opts.gravity_refine_starts):
+            break
+    return starts, {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers}
+
+
+def _starts_from_camera_rotations(rig, m, opts, rng, tight):
+    """Starts (R, t, g, idx) from per-camera rotations (see :mod:`.gravity_init`)."""
+    cams, Rc, counts, cam_inl = camera_rotations(m, rig.num_cameras, 3.0 * tight, seed=int(rng.integers(1 << 30)))
+    if len(cams) < 2:
+        return [], {"cameras_with_rotation": int(len(cams))}
+    idx = _subset(rng, np.flatnonzero(cam_inl), int(opts.subset_size))
+    starts = []
+    for g0, R0, _ in gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses),
+                                                 int(opts.gravity_refine_starts)):
+        starts.append((R0, translation_given_rotation(rig, m, idx, R0, g0), g0, idx))
+    return starts, {"cameras_with_rotation": int(len(cams))}
+
+
+def _six_point_bending(rig, m, opts, rng):
+    loose, tight = _thresholds(rig, opts)
+    if not rig.is_flexible:
+        rr = _ransac_6pt(rig, m, loose, opts, rng)
+        if rr is None:
+            return None
+        R, t, _, inliers, res = _refine_loop(rig, m, *rr.model, None, tight, opts, optimize_gravity=False)
+        return R, t, None, inliers, {"ransac_iterations": rr.iterations, **_pose_info(res, False),
+                                     "gravity_unobservable": _RIGID_REASON}
+    starts, info = _starts_from_camera_rotations(rig, m, opts, rng, tight)
+    if not starts:
+        starts, more = _starts_from_rigid_fit(rig, m, opts, rng, loose)
+        info.update(more)
+    if not starts:
+        return None
+    best = None
+    for R0, t0, g0, idx in starts:
+        res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R0, t0, g0, max_iter=15,
+                              huber_k=opts.huber_k, sigma_rad=tight / 2.0)
+        if best is None or res.cost < best.cost:
+            best = res
+    info["gravity_starts"] = len(starts)
+    # 6-point RANSAC on the Plücker lines bent at the best gravity: robust pose and inliers under the model
+    rr = _ransac_6pt(rig, m, loose, opts, rng, g=(best.g, best.R.T @ best.g))
+    R, t, g = best.R, best.t, best.g
+    if rr is not None:
+        e_best = _bending_errors(rig, m, R, t, g)
+        e_rr = _bending_errors(rig, m, *rr.model, g)
+        if np.minimum(e_rr, tight).sum() < np.minimum(e_best, tight).sum():
+            R, t = rr.model
+        info["ransac_iterations"] = rr.iterations
+    R, t, g, inliers, res = _refine_loop(rig, m, R, t, g, tight, opts)
+    info.update(_pose_info(res, True))
+    return R, t, g, inliers, info
+
+
+def _four_point_bending(rig, m, opts, rng):
+    meas = m.body_gravity(rig)
+    if meas is None:
+        raise EstimationError(f"{m.source}: 4pt-bending needs gravity measurements in both views "
+                              "(g1/g2 or g1_cam/g2_cam); use 6pt-bending for vision only")
+    g1m, g2m = meas
+    _, tight = _thresholds(rig, opts)
+    o1, d1 = rays(rig, m.f1, m.cam, g1m)
+    o2, d2 = rays(rig, m.f2, m.cam, g2m)
+    ro = RansacOptions(threshold=tight, confidence=opts.confidence, max_iterations=int(opts.max_iterations_4pt),
+                       patience=int(opts.patience_4pt), local_optimization=False)
+    rr = ransac(UprightFourPointProblem(o1, d1, o2, d2, g1m, g2m), ro, rng, groups=m.cam)
+    if rr is None:
+        return None
+    R, t = rr.model
+    info = {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers,
+            "measured_gravity": [g1m.tolist(), g2m.tolist()]}
+    flexible = rig.is_flexible
+    prior = None
+    if flexible and math.isfinite(opts.gravity_prior_sigma):
+        prior = GravityPrior(g1m, g2m, float(opts.gravity_prior_sigma))
+    R, t, g, inliers, res = _refine_loop(rig, m, R, t, g1m, tight, opts, prior=prior, optimize_gravity=flexible,
+                                         inliers=rr.inliers)
+    info.update(_pose_info(res, flexible))
+    if not flexible:
+        info["gravity_unobservable"] = _RIGID_REASON
+        g = None
+    return R, t, g, inliers, info
+
+
+_METHODS = {
+    "6pt-nonbending": _six_point_nonbending,
+    "6pt-bending": _six_point_bending,
+    "4pt-bending": _four_point_bending,
+}
+
+
+def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int = 0,
+             options: EstimatorOptions | dict | None = None) -> Estimate:
+    """Relative pose (R, t) and, for the bending methods, gravity from two views (SPEC section 5).
+
+    ``seed`` makes RANSAC deterministic. Raises EstimationError / InputError for
+    an unknown method, 4pt-bending without gravity measurements, or matches
+    that do not fit the rig. A run that cannot produce a pose returns
+    ``success=False`` with the reason in ``info['reason']``.
+    """
+    if method not in _METHODS:
+        raise EstimationError(f"unknown method {method!r} (choose one of {', '.join(METHODS)})")
+    opts = options if isinstance(options, EstimatorOptions) else EstimatorOptions.from_dict(options)
+    matches.check_rig(rig)
+    t_start = time.perf_counter()
+    need = 4 if method == "4pt-bending" else 6
+    if method == "4pt-bending" and not matches.has_gravity:
+        _four_point_bending(rig, matches, opts, None)  # raises the clear error
+    cams_seen = int(np.count_nonzero(np.bincount(matches.cam)))
+    if len(matches) < need + 2 or cams_seen < 2:
+        return Estimate(method=method, success=False, time_s=time.perf_counter() - t_start,
+                        info={"reason": f"needs at least {need + 2} correspondences seen by at least 2 cameras, "
+                                        f"got {len(matches)} from {cams_seen} camera(s)"})
+    rng = np.random.default_rng(seed)
+    out = _METHODS[method](rig, matches, opts, rng)
+    elapsed = time.perf_counter() - t_start
+    if out is None:
+        return Estimate(method=method, success=False, time_s=elapsed,
+                        info={"reason": "no minimal sample gave a valid pose"})
+    R, t, g, inliers, info = out
+    if g is not None:
+        g = rig.gravity_magnitude * normalize(g)
+    return Estimate(method=method, success=True, R=R, t=t, gravity=g, inliers=np.flatnonzero(inliers),
+                    time_s=elapsed, info=info)
+
+
+__all__ = ["METHODS", "Estimate", "EstimatorOptions", "estimate"]

@@ -1,0 +1,77 @@
+"""Two-view residuals: generalized epipolar constraint, triangulation, angular errors.
+
+All functions broadcast over leading dimensions, so one call scores every
+correspondence against a batch of pose (or gravity) hypotheses.
+Rays are given as origins o and unit directions d in each view's body frame;
+(R, t) maps view 2 into view 1 (SPEC section 2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .so3 import angle_between, cross
+
+
+def generalized_epipolar_residuals(l1, l2, R, t) -> np.ndarray:
+    """l1^T G l2 with G = [[[t]_x R, R], [R, 0]] (SPEC section 3), for Plücker lines (..., N, 6)."""
+    R = np.asarray(R, dtype=float)
+    t = np.asarray(t, dtype=float)
+    d1, m1 = l1[..., :3], l1[..., 3:]
+    d2, m2 = l2[..., :3], l2[..., 3:]
+    Rd2 = np.einsum("...ij,...nj->...ni", R, d2)
+    Rm2 = np.einsum("...ij,...nj->...ni", R, m2)
+    tx_Rd2 = cross(t[..., None, :], Rd2)
+    return np.sum(d1 * (tx_Rd2 + Rm2), axis=-1) + np.sum(m1 * Rd2, axis=-1)
+
+
+def triangulate_midpoint(o1, d1, o2, d2, R, t):
+    """Midpoint of the common perpendicular of the two rays, in view 1's body frame.
+
+    Returns (P, s, u, parallel): points (..., N, 3), depths along d1 and along
+    the view-2 ray, and a mask of (near) parallel rays.
+    """
+    R = np.asarray(R, dtype=float)
+    t = np.asarray(t, dtype=float)
+    c2 = np.einsum("...ij,...nj->...ni", R, o2) + t[..., None, :]
+    e2 = np.einsum("...ij,...nj->...ni", R, d2)
+    b = c2 - o1
+    k = np.sum(d1 * e2, axis=-1)
+    p = np.sum(d1 * b, axis=-1)
+    q = np.sum(e2 * b, axis=-1)
+    denom = 1.0 - k * k
+    parallel = denom < 1e-12
+    denom = np.where(parallel, 1.0, denom)
+    s = (p - k * q) / denom
+    u = (k * p - q) / denom
+    P = 0.5 * ((o1 + s[..., None] * d1) + (c2 + u[..., None] * e2))
+    return P, s, u, parallel
+
+
+def two_view_angular_errors(o1, d1, o2, d2, R, t) -> np.ndarray:
+    """RMS over both views of the angular reprojection error (rad) of the triangulated point.
+
+    Points that triangulate behind either camera, or from parallel rays, get
+    the error of the best point at infinity (half the angle between the rays),
+    so far points are not punished and wrong poses are.
+    """
+    P, s, u, parallel = triangulate_midpoint(o1, d1, o2, d2, R, t)
+    R = np.asarray(R, dtype=float)
+    c2 = np.einsum("...ij,...nj->...ni", R, o2) + np.asarray(t, dtype=float)[..., None, :]
+    e2 = np.einsum("...ij,...nj->...ni", R, d2)
+    err1 = angle_between(d1, P - o1)
+    err2 = angle_between(e2, P - c2)
+    rms = np.sqrt(0.5 * (err1 * err1 + err2 * err2))
+    at_inf = 0.5 * angle_between(d1, e2)
+    bad = parallel | (s <= 0) | (u <= 0)
+    return np.where(bad, at_inf, rms)
+
+
+def reprojection_angles(P, o, d, R=None, t=None) -> np.ndarray:
+    """Angle (rad) between observed ray directions d (body frame) and points P (view 1 frame).
+
+    With (R, t) the rays belong to view 2 and P is moved there first.
+    """
+    if R is not None:
+        P = np.einsum("ji,...nj->...ni", R, P - t)
+    return angle_between(d, P - o)

@@ -1,0 +1,23 @@
+"""Errors users see: every one names the file, topic or field that is wrong."""
+
+
+class NrmpcError(Exception):
+    """Base class of the errors nrmpc_ros raises on purpose."""
+
+
+class InputError(NrmpcError, ValueError):
+    """Bad input: a file, a field, a topic or a message that cannot be used.
+
+    The message always starts with where the problem is (``source``) and, when
+    known, which field.
+    """
+
+    def __init__(self, source: str, message: str, field: str | None = None):
+        self.source = str(source)
+        self.field = field
+        where = f"{self.source}: field '{field}'" if field else self.source
+        super().__init__(f"{where}: {message}")
+
+
+class EstimationError(NrmpcError, RuntimeError):
+    """An estimator cannot run on the given data (e.g. 4pt-bending without gravity)."""
