@@ -1,0 +1,34 @@
+"""``nrmpc solve``: run an estimator on matches files (SPEC section 9)."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from ..core import METHODS, estimate, load_matches, load_rig
+
+
+def register(sub):
+    p = sub.add_parser("solve", help="estimate relative pose (and gravity) from matches .npz files",
+                       description="Prints one SPEC section 7 result object (JSON) per matches file, in order.")
+    p.add_argument("--rig", required=True, help="rig YAML file (SPEC section 7)")
+    p.add_argument("--method", required=True, choices=METHODS)
+    p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default 0)")
+    p.add_argument("--out", help="write results to this file (one JSON object per line) instead of stdout")
+    p.add_argument("matches", nargs="+", metavar="MATCHES.npz")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    rig = load_rig(args.rig)
+    out = open(args.out, "w") if args.out else sys.stdout
+    try:
+        for path in args.matches:
+            m = load_matches(path, rig)
+            est = estimate(rig, m, method=args.method, seed=args.seed)
+            out.write(json.dumps(est.to_json(path)) + "\n")
+            out.flush()
+    finally:
+        if args.out:
+            out.close()
+    return 0
