@@ -36,7 +36,7 @@ def pixels_to_bearings(cam: Camera, uv) -> np.ndarray:
         xy = cv2.fisheye.undistortPoints(uv, K, d)
     else:
         crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-        xy = cv2.undistortPointsIter(uv, K, d, None, None, crit) if np.any(d) else cv2.undistortPoints(uv, K, None)
+        xy = cv2.undistortPoints(uv, K, d, None, None, None, crit) if np.any(d) else cv2.undistortPoints(uv, K, None)
     xy = xy.reshape(-1, 2)
     f = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
     return f / np.linalg.norm(f, axis=1, keepdims=True)
