@@ -29,7 +29,7 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        "test": ["pytest>=7", "ruff>=0.5"],
+        "test": ["pytest>=7", "ruff>=0.5", "colcon-core", "colcon-ros"],
         "dask": ["dask[distributed]>=2024.1"],
     },
     zip_safe=True,

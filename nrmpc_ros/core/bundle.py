@@ -245,7 +245,8 @@ class _Solver:
         lam = 1e-4
         cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
         it = 0
-        for it in range(1, max_iter + 1):
+        while it < max_iter:
+            it += 1
             dc, dP = self.solve_damped(Hcc, bc, Hcp, Hpp, bp, lam)
             Rn, tn, gn, Pn = self.prob.update(R, t, g, P, dc, dP)
             new_cost = self.cost(Rn, tn, gn, Pn)
@@ -289,8 +290,8 @@ def refine_two_view(
     a first pass. Returns the covariance of (dr, t[, dg]) from the reduced
     normal equations.
     """
-    from .residuals import triangulate_midpoint
     from .deformation import rays
+    from .residuals import triangulate_midpoint
 
     R = np.asarray(R, dtype=float)
     t = np.asarray(t, dtype=float)

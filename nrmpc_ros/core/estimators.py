@@ -45,7 +45,7 @@ class EstimatorOptions:
     subset_size: int = 300  # correspondences used while comparing gravity starts
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> "EstimatorOptions":
+    def from_dict(cls, d: dict | None) -> EstimatorOptions:
         d = dict(d or {})
         unknown = sorted(set(d) - set(cls.__dataclass_fields__))
         if unknown:

@@ -60,7 +60,7 @@ class Matches:
                     gravity_from_camera(rig, self.g_cam_index, self.g2_cam))
         return None
 
-    def subset(self, idx) -> "Matches":
+    def subset(self, idx) -> Matches:
         return Matches(self.f1[idx], self.f2[idx], self.cam[idx], self.g1, self.g2, self.g1_cam, self.g2_cam,
                        self.g_cam_index, self.source)
 
@@ -87,7 +87,8 @@ def _bearings(src, name, value) -> np.ndarray:
     n = np.linalg.norm(a, axis=1)
     zero = n < 1e-12
     if zero.any():
-        raise InputError(src, f"{int(zero.sum())} zero-length bearing vectors (first: row {int(np.argmax(zero))})", name)
+        first = int(np.argmax(zero))
+        raise InputError(src, f"{int(zero.sum())} zero-length bearing vectors (first: row {first})", name)
     return a / n[:, None]
 
 

@@ -59,7 +59,8 @@ def draw_sample(rng: np.random.Generator, n: int, k: int, groups: np.ndarray | N
     return s
 
 
-def ransac(problem, options: RansacOptions, rng: np.random.Generator, groups: np.ndarray | None = None) -> RansacResult | None:
+def ransac(problem, options: RansacOptions, rng: np.random.Generator,
+           groups: np.ndarray | None = None) -> RansacResult | None:
     """Run the robust loop; returns None when no hypothesis was ever generated."""
     n = problem.num_data
     thr2 = options.threshold**2

@@ -102,11 +102,11 @@ class Rig:
                 return i
         raise KeyError(name)
 
-    def as_rigid(self) -> "Rig":
+    def as_rigid(self) -> Rig:
         """The same rig with every bar rigid (what a rigid-rig user assumes)."""
         return replace(self, cameras=tuple(replace(c, mass=0.0, EI=math.inf) for c in self.cameras))
 
-    def with_compliance(self, compliance) -> "Rig":
+    def with_compliance(self, compliance) -> Rig:
         """The rig with bar compliance m/EI set per camera, keeping each mass (EI = m / c)."""
         comp = np.broadcast_to(np.asarray(compliance, dtype=float), (self.num_cameras,))
         cams = []
@@ -200,6 +200,8 @@ def _check_keys(src, prefix, mapping, allowed, required=()):
 
 
 def _number(src, field_name, value, allow_inf=False) -> float:
+    if allow_inf and isinstance(value, str) and value.strip().lower().lstrip("+.") in ("inf", "infinity"):
+        return math.inf  # YAML reads a bare `inf` as a string; `.inf` is the YAML float
     try:
         x = float(value)
     except (TypeError, ValueError):
@@ -236,7 +238,8 @@ def _parse_camera(src, i, d) -> Camera:
         if ei <= 0:
             raise InputError(src, f"flexural rigidity must be > 0 N m^2 (.inf for rigid), got {ei}", f"{p}.bar.EI")
         if mass > 0 and math.isfinite(ei) and np.linalg.norm(pos) < 1e-9:
-            raise InputError(src, "a flexible bar needs a camera away from the body centre (bar length 0)", f"{p}.position")
+            raise InputError(src, "a flexible bar needs a camera away from the body centre (bar length 0)",
+                             f"{p}.position")
     image_topic = str(d.get("image_topic", f"/{name}/image_raw"))
     info_topic = str(d.get("info_topic", _default_info_topic(image_topic)))
     return Camera(

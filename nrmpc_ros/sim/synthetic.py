@@ -68,7 +68,7 @@ class Scenario:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Scenario":
+    def from_dict(cls, d: dict) -> Scenario:
         d = dict(d)
         rig = RigSpec(**d.pop("rig", {}))
         return cls(rig=rig, **d)

@@ -1,0 +1,164 @@
+"""Cramér-Rao lower bounds on rotation, translation direction and gravity (issue 3, ``nrmpc observability``).
+
+The measurement model is the one the refinement uses (SPEC section 5, paper
+eq. 15): the tangent-plane (angular) residuals of both bearings of every
+inlier, each component with Gaussian noise of std ``sigma_rad`` = pixel
+noise / focal length, which is exactly how :mod:`nrmpc_ros.sim.synthetic`
+perturbs bearings. The Fisher information of (dr, t, dg, points) is
+J^T J / sigma^2 with the analytic Jacobians of
+:class:`~nrmpc_ros.core.bundle.TwoViewProblem` at the ground truth; the
+points are eliminated by the Schur complement
+(``_Solver.reduced_information``), leaving the 8x8 information of the
+camera block (rotation as a right perturbation R Exp(dr), t in metres,
+gravity as a 2-d.o.f. tangent angle).
+
+The bound of an angle is reported two ways: ``rms`` = sqrt(trace) of the
+relevant covariance (what the RMS error of an efficient unbiased estimator
+reaches) and ``median`` = the median angle of a Gaussian error with that
+covariance (what the median error of an efficient estimator reaches), so an
+estimator's median error divided by the median bound is ~1 when efficient.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..core.bundle import TwoViewProblem, _Solver
+from ..core.deformation import deformed_extrinsics
+from ..core.rig import Rig
+from ..core.so3 import normalize
+
+KINDS = ("rotation", "translation", "gravity")
+
+
+@dataclass
+class Bound:
+    """Covariances (rad^2) of the three angles at one geometry; inf where not observable."""
+
+    cov_rotation: np.ndarray  # (3, 3) over dr
+    cov_translation_dir: np.ndarray  # (2, 2) translation direction, tangent plane of t
+    cov_gravity: np.ndarray  # (2, 2) over dg; inf if gravity is unobservable
+
+    def rms(self, kind: str) -> float:
+        return float(math.sqrt(max(np.trace(getattr(self, _COV[kind])), 0.0)))
+
+
+_COV = {"rotation": "cov_rotation", "translation": "cov_translation_dir", "gravity": "cov_gravity"}
+
+
+def noise_free_bearings(rig: Rig, P: np.ndarray, cam: np.ndarray, R: np.ndarray, t: np.ndarray, g: np.ndarray):
+    """Exact bearings (f1, f2) of body-frame points P under the bending model (SPEC section 3)."""
+    w1, W1 = deformed_extrinsics(rig, g)
+    w2, W2 = deformed_extrinsics(rig, R.T @ g)
+    f1 = normalize(np.einsum("nji,nj->ni", W1[cam], P - w1[cam]))
+    P2 = (P - t) @ R
+    f2 = normalize(np.einsum("nji,nj->ni", W2[cam], P2 - w2[cam]))
+    return f1, f2
+
+
+def fisher_information(rig: Rig, P, cam, R, t, g, sigma_rad: float, gravity_prior_sigma: float = math.inf):
+    """8x8 Fisher information of (dr, t, dg) with the points eliminated (Schur complement).
+
+    ``gravity_prior_sigma`` (rad) adds measured gravity in both views as a
+    prior of that angular std (SPEC section 5, 4pt-bending); inf = vision only.
+    """
+    from ..core.bundle import GravityPrior
+
+    P = np.asarray(P, dtype=float)
+    cam = np.asarray(cam)
+    f1, f2 = noise_free_bearings(rig, P, cam, R, t, g)
+    prior = None
+    if math.isfinite(gravity_prior_sigma):
+        prior = GravityPrior(np.asarray(g, float), R.T @ g, float(gravity_prior_sigma))
+    prob = TwoViewProblem(rig, f1, f2, cam, optimize_gravity=True, prior=prior)
+    # Huber threshold at infinity: a plain least-squares information (residuals are zero at the truth anyway)
+    return _Solver(prob, float(sigma_rad), huber_k=1e30).reduced_information(R, t, g, P)
+
+
+def _marginal(info: np.ndarray, idx) -> np.ndarray:
+    """Covariance block of the parameters idx from an information matrix; inf if (near) singular."""
+    n = info.shape[0]
+    other = np.setdiff1d(np.arange(n), idx)
+    A = info[np.ix_(idx, idx)]
+    if len(other):
+        B = info[np.ix_(idx, other)]
+        C = info[np.ix_(other, other)]
+        try:
+            A = A - B @ np.linalg.solve(C, B.T)
+        except np.linalg.LinAlgError:
+            A = A - B @ np.linalg.pinv(C) @ B.T
+    A = 0.5 * (A + A.T)
+    ev = np.linalg.eigvalsh(A)
+    scale = max(float(np.abs(np.diag(info)).max()), 1e-300)
+    if ev.min() <= 1e-13 * scale:
+        return np.full(A.shape, np.inf)
+    return np.linalg.inv(A)
+
+
+def bound_from_information(info: np.ndarray, t: np.ndarray, gravity_observable: bool = True) -> Bound:
+    """Angle covariances from the 8x8 information of (dr, t, dg)."""
+    if not gravity_observable:  # a rigid rig: the gravity columns are zero; bound the pose alone
+        info6 = info[:6, :6]
+        cov_r = _marginal(info6, np.arange(3))
+        cov_t = _marginal(info6, np.arange(3, 6))
+        cov_g = np.full((2, 2), np.inf)
+    else:
+        cov_r = _marginal(info, np.arange(3))
+        cov_t = _marginal(info, np.arange(3, 6))
+        cov_g = _marginal(info, np.arange(6, 8))
+    tn = float(np.linalg.norm(t))
+    if not np.all(np.isfinite(cov_t)) or tn < 1e-12:
+        cov_dir = np.full((2, 2), np.inf)
+    else:
+        from ..core.so3 import tangent_basis
+
+        T = tangent_basis(np.asarray(t, float) / tn)  # (3, 2): direction error = T^T dt / |t|
+        cov_dir = T.T @ cov_t @ T / tn**2
+    return Bound(cov_rotation=cov_r, cov_translation_dir=cov_dir, cov_gravity=cov_g)
+
+
+def problem_bound(problem, sigma_rad: float | None = None, gravity_prior_sigma: float = math.inf) -> Bound:
+    """CRLB at a synthetic problem's ground truth, over its inliers only (outliers carry no information)."""
+    rig = problem.rig
+    if sigma_rad is None:
+        raise ValueError("sigma_rad is required")
+    keep = np.asarray(problem.inlier_mask, bool)
+    info = fisher_information(rig, problem.points[keep], problem.matches.cam[keep], problem.R, problem.t,
+                              problem.gravity, sigma_rad, gravity_prior_sigma)
+    return bound_from_information(info, problem.t, gravity_observable=rig.is_flexible)
+
+
+def angle_samples(cov: np.ndarray, rng: np.random.Generator, n: int = 4000) -> np.ndarray:
+    """Norms of Gaussian draws with covariance cov: the angle error an efficient estimator makes."""
+    if not np.all(np.isfinite(cov)):
+        return np.full(n, np.inf)
+    L = np.linalg.cholesky(0.5 * (cov + cov.T) + 1e-300 * np.eye(len(cov)))
+    return np.linalg.norm(rng.standard_normal((n, len(cov))) @ L.T, axis=1)
+
+
+def summarize_bounds(bounds: list[Bound], seed: int = 0, draws: int = 4000) -> dict:
+    """Pool per-geometry bounds: for each angle the RMS bound sqrt(mean trace) and the median-angle bound."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for kind in KINDS:
+        covs = [getattr(b, _COV[kind]) for b in bounds]
+        if not covs or any(not np.all(np.isfinite(c)) for c in covs):
+            out[kind] = {"rms": math.inf, "median": math.inf}
+            continue
+        traces = np.array([np.trace(c) for c in covs])
+        pooled = np.concatenate([angle_samples(c, rng, draws) for c in covs])
+        out[kind] = {"rms": float(math.sqrt(traces.mean())), "median": float(np.median(pooled))}
+    return out
+
+
+def set_bar_ei(rig: Rig, EI: float) -> Rig:
+    """The rig with every bar that has a tip mass set to flexural rigidity EI (N m^2); inf = rigid."""
+    cams = tuple(replace(c, EI=float(EI)) if c.mass > 0 else c for c in rig.cameras)
+    return replace(rig, cameras=cams)
+
+
+__all__ = ["Bound", "KINDS", "angle_samples", "bound_from_information", "fisher_information", "noise_free_bearings",
+           "problem_bound", "set_bar_ei", "summarize_bounds"]

@@ -1,0 +1,138 @@
+"""Vectorised ray caster of the textured room (issue 4; rig geometry per SPEC sections 2, 3, 7).
+
+A rig camera's pixels become unit bearings through its own camera model
+(:func:`nrmpc_ros.cameras.pixels_to_bearings`, cached per camera); each view
+turns them into world rays with the bent extrinsics (w_i(g), W_i(g)) of the
+gravity of that attitude, intersects them with all boxes at once (slab test)
+and shades the nearest hit by a bilinear texture lookup.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..cameras import pixels_to_bearings
+from ..core.deformation import deformed_extrinsics
+from ..core.rig import Rig
+from .scene import Scene, in_plane_axes
+
+_EPS_T = 1e-6
+
+
+def cast_rays(scene: Scene, origin, dirs):
+    """Nearest hit of rays from one point ``origin`` (3,) inside the room along ``dirs`` (N, 3).
+
+    Returns the distance along each direction ``t`` (N,) float32 (in units of
+    |dir|) and the face index (N,) of the hit (see :mod:`nrmpc_ros.render.scene`).
+    Vectorised over rays; the short loops run over boxes and axes only.
+    """
+    d = np.asarray(dirs, dtype=np.float32).reshape(-1, 3)
+    o = np.asarray(origin, dtype=np.float64).reshape(3)
+    d = np.where(np.abs(d) < 1e-12, np.float32(1e-12), d)
+    inv = [np.ascontiguousarray(1.0 / d[:, a]) for a in range(3)]
+    pos = [d[:, a] > 0 for a in range(3)]
+    lo = scene.lo - o  # (B, 3) box corners relative to the ray origin
+    hi = scene.hi - o
+    # Room (box 0) seen from inside: the ray leaves through the first slab boundary it meets.
+    t = np.full(len(d), np.inf, dtype=np.float32)
+    face = np.zeros(len(d), dtype=np.int64)
+    for a in range(3):
+        ta = np.where(pos[a], np.float32(hi[0, a]), np.float32(lo[0, a])) * inv[a]
+        m = ta < t
+        t = np.where(m, ta, t)
+        face = np.where(m, 2 * a + pos[a], face)
+    for b in range(1, scene.num_boxes):
+        t_enter = np.full(len(d), -np.inf, dtype=np.float32)
+        t_exit = np.full(len(d), np.inf, dtype=np.float32)
+        enter_axis = np.zeros(len(d), dtype=np.int64)
+        for a in range(3):
+            t1 = np.float32(lo[b, a]) * inv[a]
+            t2 = np.float32(hi[b, a]) * inv[a]
+            near = np.minimum(t1, t2)
+            m = near > t_enter
+            t_enter = np.where(m, near, t_enter)
+            enter_axis = np.where(m, a, enter_axis)
+            t_exit = np.minimum(t_exit, np.maximum(t1, t2))
+        hit = (t_enter <= t_exit) & (t_enter > _EPS_T) & (t_enter < t)
+        if not hit.any():
+            continue
+        t = np.where(hit, t_enter, t)
+        side = ~np.choose(enter_axis, pos)  # moving towards -axis: entering through the high face
+        face = np.where(hit, 6 * b + 2 * enter_axis + side, face)
+    return t, face
+
+
+def shade(scene: Scene, points, face) -> np.ndarray:
+    """Intensity (N,) float32 in [0, 255] of world points (N, 3) lying on faces (N,): bilinear texture x shade."""
+    p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    face = np.asarray(face, dtype=np.int64)
+    box, rem = np.divmod(face, 6)
+    axis = rem // 2
+    b, c = in_plane_axes(axis)
+    rows = np.arange(len(p))
+    w = scene.face_width[face]
+    h = scene.face_height[face]
+    tpm = np.float32(scene.texels_per_metre)
+    u = (p[rows, b] - scene.lo[box, b].astype(np.float32)) * tpm
+    v = (p[rows, c] - scene.lo[box, c].astype(np.float32)) * tpm
+    u = np.clip(u, 0, (w - 1.001).astype(np.float32))
+    v = np.clip(v, 0, (h - 1.001).astype(np.float32))
+    u0 = u.astype(np.int64)
+    v0 = v.astype(np.int64)
+    fu = u - u0
+    fv = v - v0
+    base = scene.face_offset[face] + v0 * w + u0
+    a = scene.atlas
+    top = a[base] * (1 - fu) + a[base + 1] * fu
+    bottom = a[base + w] * (1 - fu) + a[base + w + 1] * fu
+    return ((top * (1 - fv) + bottom * fv) * scene.face_shade[face]).astype(np.float32)
+
+
+class Renderer:
+    """Renders the rig's cameras in a scene; bearings of every pixel are computed once per camera."""
+
+    def __init__(self, rig: Rig, scene: Scene):
+        self.rig = rig
+        self.scene = scene
+        self._bearings: dict[int, np.ndarray] = {}
+
+    def bearings(self, i: int) -> np.ndarray:
+        """(H*W, 3) float32 unit bearings of camera i's pixel centres, row-major."""
+        if i not in self._bearings:
+            cam = self.rig.cameras[i]
+            w, h = cam.resolution
+            vv, uu = np.mgrid[0:h, 0:w]
+            uv = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
+            self._bearings[i] = pixels_to_bearings(cam, uv).astype(np.float32)
+        return self._bearings[i]
+
+    def render_camera(self, i: int, R_world_cam, c_world, return_points: bool = False):
+        """Image (H, W) float32 of camera i with orientation R_world_cam (camera -> world) at c_world.
+
+        With ``return_points`` also the (H*W, 3) world points the pixels see.
+        """
+        cam = self.rig.cameras[i]
+        w, h = cam.resolution
+        d = self.bearings(i) @ np.asarray(R_world_cam, dtype=np.float32).T
+        c = np.asarray(c_world, dtype=np.float32)
+        t, face = cast_rays(self.scene, c, d)
+        pts = c + t[:, None] * d
+        img = shade(self.scene, pts, face).reshape(h, w)
+        return (img, pts) if return_points else img
+
+    def camera_poses(self, R_world_body, p_world_body, g_body=None):
+        """World orientation (M, 3, 3) and position (M, 3) of every camera, bent for g_body (SPEC section 3).
+
+        g_body=None uses the canonical extrinsics.
+        """
+        if g_body is None:
+            w, W = self.rig.positions, self.rig.rotations
+        else:
+            w, W = deformed_extrinsics(self.rig, g_body)
+        R = np.asarray(R_world_body, dtype=float)
+        return R @ W, w @ R.T + np.asarray(p_world_body, dtype=float)
+
+    def render_rig(self, R_world_body, p_world_body, g_body=None) -> list:
+        """One float32 image per camera for the body pose in the world and the bending load g_body (body frame)."""
+        Rs, cs = self.camera_poses(R_world_body, p_world_body, g_body)
+        return [self.render_camera(i, Rs[i], cs[i]) for i in range(self.rig.num_cameras)]
