@@ -16,7 +16,7 @@ import numpy as np
 
 from .deformation import deformation_jacobians
 from .rig import Rig
-from .so3 import exp_so3, normalize, skew, tangent_basis
+from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
 
 
 @dataclass
@@ -44,7 +44,10 @@ class BundleResult:
 class TwoViewProblem:
     """Residuals and Jacobians of the two-view problem for fixed observations."""
 
-    def __init__(self, rig: Rig, f1, f2, cam, optimize_gravity: bool, prior: GravityPrior | None = None):
+    def __init__(self, rig: Rig, f1, f2, cam, optimize_gravity: bool, prior: GravityPrior | None = None,
+                 compliance_groups: np.ndarray | None = None):
+        """compliance_groups (M,) maps each camera to a compliance parameter (-1: none); those
+        Jacobian columns follow (dr, t[, dg]) and are used by the bar calibration."""
         self.rig = rig
         self.f1, self.f2, self.cam = f1, f2, cam
         self.T1 = tangent_basis(f1)
@@ -52,6 +55,11 @@ class TwoViewProblem:
         self.optimize_gravity = optimize_gravity
         self.prior = prior
         self.nc = 8 if optimize_gravity else 6
+        self.groups = None
+        if compliance_groups is not None:
+            self.groups = np.asarray(compliance_groups, dtype=int)
+            self.nk = int(self.groups.max()) + 1
+            self.nc += self.nk
         self.gm = rig.gravity_magnitude
         if prior is not None:
             self.P1 = tangent_basis(normalize(prior.g1))
@@ -105,12 +113,34 @@ class TwoViewProblem:
         dp2_dr = W2t @ skew(z) + dp2_dg2 @ skew(g2)
         Jc[:, 2:, 0:3] = Je2 @ dp2_dr
         Jc[:, 2:, 3:6] = -Jp[:, 2:]
+        if self.groups is not None:
+            self._compliance_columns(Jc, Je1, W1t, y1, gg, Je2, W2t, y2, g2)
         if self.optimize_gravity:
             B = self.gm * tangent_basis(normalize(gg))
             dp1_dg = self._dp_dg(W1t, y1, D1, K1)
             Jc[:, :2, 6:8] = Je1 @ (dp1_dg @ B)
             Jc[:, 2:, 6:8] = Je2 @ (dp2_dg2 @ (R.T @ B))
         return e, Jc, Jp
+
+    def _compliance_columns(self, Jc, Je1, W1t, y1, g1, Je2, W2t, y2, g2):
+        """d residual / d compliance k_i: d(W^T y)/dk = W^T [y]_x J_r(-phi) phi/k, dw/dk = delta/k."""
+        from .deformation import bar_coefficients
+
+        u, _, _ = bar_coefficients(self.rig)
+        k = self.rig.compliance
+        L = np.linalg.norm(self.rig.positions, axis=1)
+        cols = self.groups[self.cam]
+        has = cols >= 0
+        first = self.nc - self.nk
+        for Je, Wt, y, g, rows in ((Je1, W1t, y1, g1, slice(0, 2)), (Je2, W2t, y2, g2, slice(2, 4))):
+            a = (L**2 / 2.0)[:, None] * cross(u, g[None, :])  # phi / k
+            phi = k[:, None] * a
+            A = np.einsum("mij,mj->mi", right_jacobian(-phi), a)
+            b = (L**3 / 3.0)[:, None] * (g[None, :] - np.sum(u * g, axis=1, keepdims=True) * u)  # delta / k
+            dp = np.einsum("nij,nj->ni", Wt, cross(y, A[self.cam]) - b[self.cam])
+            de = np.einsum("nij,nj->ni", Je, dp)
+            idx = np.flatnonzero(has)
+            Jc[idx, rows, first + cols[idx]] = de[idx]
 
     def prior_terms(self, R, g):
         """Prior residuals (4,) and Jacobian (4, nc), already divided by sigma."""
@@ -120,12 +150,13 @@ class TwoViewProblem:
         g2h = R.T @ gh
         r = np.concatenate([self.P1.T @ gh, self.P2.T @ g2h]) / pr.sigma_rad
         J = np.zeros((4, self.nc))
-        J[2:, 0:3] = self.P2.T @ skew(g2h)
+        J[2:, 0:3] = self.P2.T @ skew(g2h)  # gravity columns are 6:8 (compliance, if any, after)
         J[:2, 6:8] = self.P1.T @ B
         J[2:, 6:8] = self.P2.T @ (R.T @ B)
         return r, J / pr.sigma_rad
 
     def update(self, R, t, g, P, dc, dP):
+        """Apply the step of (dr, t[, dg]) and points; compliance steps are applied by the caller."""
         R = R @ exp_so3(dc[0:3])
         t = t + dc[3:6]
         if self.optimize_gravity:
@@ -171,7 +202,9 @@ def robust_sigma(e: np.ndarray, num_params: int = 0, floor: float = 1e-7) -> flo
     return max(1.4826 * float(med) * np.sqrt(n_res / dof), floor)
 
 
-class _Solver:
+class Solver:
+    """Levenberg-Marquardt on a TwoViewProblem with Huber weights and residuals scaled by sigma."""
+
     def __init__(self, prob: TwoViewProblem, sigma: float, huber_k: float):
         self.prob = prob
         self.sigma = sigma
@@ -219,21 +252,29 @@ class _Solver:
         return cost, Hcc, bc, Hcp, Hpp, bp
 
     @staticmethod
-    def solve_damped(Hcc, bc, Hcp, Hpp, bp, lam):
+    def reduced_system(Hcc, bc, Hcp, Hpp, bp, lam):
+        """Damped normal equations with the points eliminated: S dc = rhs (plus what back-substitution needs)."""
         nc = len(bc)
         Hcc_d = Hcc + lam * np.diag(np.diag(Hcc)) + 1e-12 * np.eye(nc)
         dpp = np.diagonal(Hpp, axis1=1, axis2=2)
-        Hpp_d = Hpp + (lam * dpp + 1e-12)[:, :, None] * np.eye(3)
-        Hpp_inv = inv3(Hpp_d)
+        Hpp_inv = inv3(Hpp + (lam * dpp + 1e-12)[:, :, None] * np.eye(3))
         HcpHi = Hcp @ Hpp_inv  # (N, nc, 3)
         S = Hcc_d - _sum_outer(HcpHi, Hcp)
         rhs = bc - np.swapaxes(HcpHi, 0, 1).reshape(nc, -1) @ bp.reshape(-1)
+        return S, rhs, Hpp_inv
+
+    @staticmethod
+    def back_substitute(Hcp, Hpp_inv, bp, dc):
+        """Point steps for a camera-block step dc."""
+        return (Hpp_inv @ (bp - np.swapaxes(Hcp, 1, 2) @ dc)[:, :, None])[:, :, 0]
+
+    def solve_damped(self, Hcc, bc, Hcp, Hpp, bp, lam):
+        S, rhs, Hpp_inv = self.reduced_system(Hcc, bc, Hcp, Hpp, bp, lam)
         try:
             dc = np.linalg.solve(S, rhs)
         except np.linalg.LinAlgError:
             dc = np.linalg.lstsq(S, rhs, rcond=None)[0]
-        dP = (Hpp_inv @ (bp - np.swapaxes(Hcp, 1, 2) @ dc)[:, :, None])[:, :, 0]
-        return dc, dP
+        return dc, self.back_substitute(Hcp, Hpp_inv, bp, dc)
 
     def reduced_information(self, R, t, g, P):
         """Schur complement of the undamped normal equations (Fisher information of the camera block)."""
@@ -315,13 +356,13 @@ def refine_two_view(
     fixed_sigma = sigma_rad is not None
     if not fixed_sigma:  # a few iterations at the starting noise level, then at the re-estimated one
         e0, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)
-        solver = _Solver(prob, robust_sigma(e0, prob.nc), huber_k)
+        solver = Solver(prob, robust_sigma(e0, prob.nc), huber_k)
         R, t, g, P, _, it0 = solver.run(R, t, g, P, min(3, max_iter))
         e1, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)
         sigma_rad = robust_sigma(e1, prob.nc)
     else:
         it0 = 0
-    solver = _Solver(prob, sigma_rad, huber_k)
+    solver = Solver(prob, sigma_rad, huber_k)
     R, t, g, P, cost, it = solver.run(R, t, g, P, max_iter)
     it += it0
     info_mat = solver.reduced_information(R, t, g, P)
