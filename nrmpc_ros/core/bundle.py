@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .deformation import deformation_jacobians
+from .deformation import deformation_jacobians, deformed_extrinsics
 from .rig import Rig
 from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
 
@@ -66,38 +66,32 @@ class TwoViewProblem:
             self.P2 = tangent_basis(normalize(prior.g2))
 
     # -- model --------------------------------------------------------------
-    def _view(self, g):
-        w, W, D, K = deformation_jacobians(self.rig, g)
-        return w[self.cam], W[self.cam], D[self.cam], K[self.cam]
-
     @staticmethod
     def _residual_jac(p, T):
         """e = T^T p/|p| and de/dp = T^T (I - n n^T)/|p|."""
-        r = np.linalg.norm(p, axis=1)
+        r = np.sqrt(np.einsum("ni,ni->n", p, p))
         n = p / r[:, None]
         e = np.einsum("nik,ni->nk", T, n)
-        Tt = np.swapaxes(T, 1, 2)
-        J = (Tt - e[:, :, None] * n[:, None, :]) / r[:, None, None]
+        J = (np.swapaxes(T, 1, 2) - e[:, :, None] * n[:, None, :]) / r[:, None, None]
         return e, J
 
-    @staticmethod
-    def _dp_dg(Wt, y, D, K):
-        """d(W^T (y - ...))/dg = W^T ([y]_x K - D) for per-point blocks."""
-        return Wt @ (skew(y) @ K - D)
+    def _project(self, g, P_view):
+        """Points of one view (its body frame) into the bent cameras: y = P - w(g), p = W(g)^T y."""
+        w, W = deformed_extrinsics(self.rig, g)
+        Wt = np.swapaxes(W, 1, 2)[self.cam]
+        y = P_view - w[self.cam]
+        return Wt, y, np.einsum("nij,nj->ni", Wt, y)
 
     def evaluate(self, R, t, g, P, want_jacobian=True):
-        """Residuals e (N, 4) and, if asked, Jc (N, 4, nc), Jp (N, 4, 3)."""
+        """Residuals e (N, 4) and, if asked, Jc (N, 4, nc), Jp (N, 4, 3).
+
+        Uses a^T [y]_x = (a x y)^T row-wise, so the chain rule runs on 2x3 blocks.
+        """
         gg = g if g is not None else np.array([0.0, 0.0, -self.gm])
-        w1, W1, D1, K1 = self._view(gg)
-        W1t = np.swapaxes(W1, 1, 2)
-        y1 = P - w1
-        p1 = np.einsum("nij,nj->ni", W1t, y1)
         g2 = R.T @ gg
-        w2, W2, D2, K2 = self._view(g2)
-        W2t = np.swapaxes(W2, 1, 2)
         z = (P - t) @ R  # R^T (P - t)
-        y2 = z - w2
-        p2 = np.einsum("nij,nj->ni", W2t, y2)
+        W1t, y1, p1 = self._project(gg, P)
+        W2t, y2, p2 = self._project(g2, z)
         e1, Je1 = self._residual_jac(p1, self.T1)
         e2, Je2 = self._residual_jac(p2, self.T2)
         e = np.concatenate([e1, e2], axis=1)
@@ -106,21 +100,27 @@ class TwoViewProblem:
         N = len(P)
         Jc = np.zeros((N, 4, self.nc))
         Jp = np.empty((N, 4, 3))
-        W2tRt = W2t @ R.T
-        Jp[:, :2] = Je1 @ W1t
-        Jp[:, 2:] = Je2 @ W2tRt
-        dp2_dg2 = self._dp_dg(W2t, y2, D2, K2)
-        dp2_dr = W2t @ skew(z) + dp2_dg2 @ skew(g2)
-        Jc[:, 2:, 0:3] = Je2 @ dp2_dr
+        A1 = Je1 @ W1t  # de1/dP
+        A2 = Je2 @ W2t  # de2/dy2
+        Jp[:, :2] = A1
+        Jp[:, 2:] = A2 @ R.T
+        de2_dg2 = self._de_dg(A2, y2, g2)
+        Jc[:, 2:, 0:3] = cross(A2, z[:, None, :]) + cross(de2_dg2, g2)
         Jc[:, 2:, 3:6] = -Jp[:, 2:]
         if self.groups is not None:
             self._compliance_columns(Jc, Je1, W1t, y1, gg, Je2, W2t, y2, g2)
         if self.optimize_gravity:
             B = self.gm * tangent_basis(normalize(gg))
-            dp1_dg = self._dp_dg(W1t, y1, D1, K1)
-            Jc[:, :2, 6:8] = Je1 @ (dp1_dg @ B)
-            Jc[:, 2:, 6:8] = Je2 @ (dp2_dg2 @ (R.T @ B))
+            Jc[:, :2, 6:8] = self._de_dg(A1, y1, gg) @ B
+            Jc[:, 2:, 6:8] = de2_dg2 @ (R.T @ B)
         return e, Jc, Jp
+
+    def _de_dg(self, A, y, g):
+        """de/dg = A ([y]_x K - D) for de/dy = A (N, 2, 3) and the model derivatives at g (SPEC 3)."""
+        if not self.rig.is_flexible:
+            return np.zeros_like(A)
+        _, _, D, K = deformation_jacobians(self.rig, g)
+        return cross(A, y[:, None, :]) @ K[self.cam] - A @ D[self.cam]
 
     def _compliance_columns(self, Jc, Je1, W1t, y1, g1, Je2, W2t, y2, g2):
         """d residual / d compliance k_i: d(W^T y)/dk = W^T [y]_x J_r(-phi) phi/k, dw/dk = delta/k."""
@@ -276,16 +276,26 @@ class Solver:
             dc = np.linalg.lstsq(S, rhs, rcond=None)[0]
         return dc, self.back_substitute(Hcp, Hpp_inv, bp, dc)
 
-    def reduced_information(self, R, t, g, P):
-        """Schur complement of the undamped normal equations (Fisher information of the camera block)."""
-        _, Hcc, _, Hcp, Hpp, _ = self.normal_equations(R, t, g, P)
+    def reduced_information(self, R=None, t=None, g=None, P=None):
+        """Schur complement of the undamped normal equations (Fisher information of the camera block).
+
+        Without arguments, at the point where the last ``run`` stopped.
+        """
+        if R is None:
+            Hcc, _, Hcp, Hpp, _ = self.system
+        else:
+            _, Hcc, _, Hcp, Hpp, _ = self.normal_equations(R, t, g, P)
         Hpp_inv = inv3(Hpp + 1e-12 * np.eye(3))
         return Hcc - _sum_outer(Hcp @ Hpp_inv, Hcp)
 
-    def run(self, R, t, g, P, max_iter, tol=1e-6):
+    def run(self, R, t, g, P, max_iter, tol=1e-6, reestimate_sigma_after: int | None = None):
+        """LM iterations; optionally re-estimate sigma (robustly) once after that many accepted steps.
+
+        The normal equations at the returned point are kept in ``self.system``.
+        """
         lam = 1e-4
         cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
-        it = 0
+        it = accepted = 0
         while it < max_iter:
             it += 1
             dc, dP = self.solve_damped(Hcc, bc, Hcp, Hpp, bp, lam)
@@ -294,8 +304,14 @@ class Solver:
             if np.isfinite(new_cost) and new_cost <= cost:
                 rel = (cost - new_cost) / max(cost, 1e-300)
                 R, t, g, P = Rn, tn, gn, Pn
+                accepted += 1
                 lam = max(lam / 10.0, 1e-9)
                 small_step = np.linalg.norm(dc) < tol
+                if accepted == reestimate_sigma_after:
+                    e, _, _ = self.prob.evaluate(R, t, g, P, want_jacobian=False)
+                    new_sigma = robust_sigma(e, self.prob.nc)
+                    rel = max(rel, abs(new_sigma / self.sigma - 1.0))  # the cost changed meaning: go on
+                    self.sigma = new_sigma
                 cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
                 if rel < tol or small_step:
                     break
@@ -303,6 +319,7 @@ class Solver:
                 lam *= 10.0
                 if lam > 1e8:
                     break
+        self.system = (Hcc, bc, Hcp, Hpp, bp)
         return R, t, g, P, cost, it
 
 
@@ -354,18 +371,13 @@ def refine_two_view(
             points = np.where(bad[:, None], o1 + 1e3 * d1, points)
     P = np.array(points, dtype=float)
     fixed_sigma = sigma_rad is not None
-    if not fixed_sigma:  # a few iterations at the starting noise level, then at the re-estimated one
+    if not fixed_sigma:  # start at the noise level of the start, re-estimate it once the fit has settled
         e0, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)
-        solver = Solver(prob, robust_sigma(e0, prob.nc), huber_k)
-        R, t, g, P, _, it0 = solver.run(R, t, g, P, min(3, max_iter))
-        e1, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)
-        sigma_rad = robust_sigma(e1, prob.nc)
-    else:
-        it0 = 0
+        sigma_rad = robust_sigma(e0, prob.nc)
     solver = Solver(prob, sigma_rad, huber_k)
-    R, t, g, P, cost, it = solver.run(R, t, g, P, max_iter)
-    it += it0
-    info_mat = solver.reduced_information(R, t, g, P)
+    R, t, g, P, cost, it = solver.run(R, t, g, P, max_iter, reestimate_sigma_after=None if fixed_sigma else 2)
+    sigma_rad = solver.sigma
+    info_mat = solver.reduced_information()
     try:
         cov = np.linalg.inv(info_mat)
     except np.linalg.LinAlgError:

@@ -14,15 +14,8 @@ from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
 
 
 def bar_coefficients(rig: Rig):
-    """Per camera: u_i (M, 3), displacement c_d = m L^3/(3 EI) and rotation c_r = m L^2/(2 EI) (M,).
-
-    delta_i = c_d g_perp (m per m/s^2), phi_i = c_r (u_i x g) (rad per m/s^2).
-    """
-    v = rig.positions
-    L = np.linalg.norm(v, axis=1)
-    u = np.where(L[:, None] > 0, v / np.maximum(L, 1e-300)[:, None], 0.0)
-    k = rig.compliance
-    return u, k * L**3 / 3.0, k * L**2 / 2.0
+    """Per camera: u_i (M, 3), c_d = m L^3/(3 EI) and c_r = m L^2/(2 EI) (M,) (see Rig.bar_coefficients)."""
+    return rig.bar_coefficients
 
 
 def deformed_extrinsics(rig: Rig, g):

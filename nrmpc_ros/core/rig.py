@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -72,25 +73,37 @@ class Rig:
     imu: ImuMount | None = None
     source: str = "<rig>"
 
-    # Stacked views used by the vectorised model ---------------------------
+    # Stacked views used by the vectorised model (computed once; read-only) ---
     @property
     def num_cameras(self) -> int:
         return len(self.cameras)
 
-    @property
+    @cached_property
     def positions(self) -> np.ndarray:
         """(M, 3) canonical positions v_i."""
-        return np.array([c.position for c in self.cameras], dtype=float).reshape(-1, 3)
+        return _frozen(np.array([c.position for c in self.cameras], dtype=float).reshape(-1, 3))
 
-    @property
+    @cached_property
     def rotations(self) -> np.ndarray:
         """(M, 3, 3) canonical rotations V_i (camera -> body)."""
-        return np.array([c.rotation for c in self.cameras], dtype=float).reshape(-1, 3, 3)
+        return _frozen(np.array([c.rotation for c in self.cameras], dtype=float).reshape(-1, 3, 3))
 
-    @property
+    @cached_property
     def compliance(self) -> np.ndarray:
         """(M,) m_i / EI_i in kg/(N m^2); 0 for rigid mounts."""
-        return np.array([c.mass / c.EI if c.is_flexible else 0.0 for c in self.cameras], dtype=float)
+        return _frozen(np.array([c.mass / c.EI if c.is_flexible else 0.0 for c in self.cameras], dtype=float))
+
+    @cached_property
+    def bar_coefficients(self):
+        """u_i (M, 3), c_d = m L^3/(3 EI) and c_r = m L^2/(2 EI) (M,), SPEC section 3.
+
+        delta_i = c_d g_perp (m per m/s^2), phi_i = c_r (u_i x g) (rad per m/s^2).
+        """
+        v = self.positions
+        L = np.linalg.norm(v, axis=1)
+        u = np.where(L[:, None] > 0, v / np.maximum(L, 1e-300)[:, None], 0.0)
+        k = self.compliance
+        return _frozen(u), _frozen(k * L**3 / 3.0), _frozen(k * L**2 / 2.0)
 
     @property
     def is_flexible(self) -> bool:
@@ -144,6 +157,11 @@ class Rig:
             cams.append(d)
         out["cameras"] = cams
         return out
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
 
 
 def _default_info_topic(image_topic: str) -> str:
