@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from .deformation import deformed_extrinsics, rays
 from .matches import Matches
 from .rig import Rig
-from .so3 import angle_between, exp_so3, fibonacci_sphere, log_so3, normalize, tangent_basis
+from .so3 import angle_between, fibonacci_sphere, normalize, tangent_basis
 
 MIN_POINTS_PER_CAMERA = 12
 
@@ -75,35 +74,45 @@ def _body_rotation_from_cameras(rig: Rig, cams, Rc, weights, g1, R0, iterations=
 
 
 def gravity_rotation_hypotheses(rig: Rig, cams, Rc, weights, num_hypotheses=200, num_starts=3):
-    """Best distinct (g, R) pairs consistent with the per-camera rotations, locally refined."""
+    """Best distinct (g, R, cost) consistent with the per-camera rotations, from a grid of gravity directions.
+
+    Each of the best distinct grid directions (Fibonacci sphere, ~14 deg apart
+    for 200) is refined by two finer local grids (coarse-to-fine, vectorised).
+    """
     gm = rig.gravity_magnitude
     weights = np.asarray(weights, dtype=float) / np.sum(weights)
     V = rig.rotations[cams]
     R_canonical = project_to_so3(np.einsum("j,jab->ab", weights, V @ Rc @ np.swapaxes(V, -1, -2)))
     hyp = gm * fibonacci_sphere(num_hypotheses)
     R_h, cost = _body_rotation_from_cameras(rig, cams, Rc, weights, hyp, R_canonical)
-    sw = np.sqrt(weights)
-
-    def residual(x, R0, g0):
-        R = R0 @ exp_so3(x[:3])
-        g = gm * normalize(g0 / gm + tangent_basis(g0 / gm) @ x[3:])
-        _, W1 = deformed_extrinsics(rig, g)
-        _, W2 = deformed_extrinsics(rig, R.T @ g)
-        pred = np.swapaxes(W1[cams], -1, -2) @ R @ W2[cams]
-        return (sw[:, None] * log_so3(np.swapaxes(pred, -1, -2) @ Rc)).ravel()
-
+    spacing = 2.0 * np.sqrt(np.pi / num_hypotheses)  # typical angle between grid neighbours
     out = []
     for k in np.argsort(cost):
-        if any(angle_between(hyp[k], g) < 0.35 for g, _, _ in out):
+        if any(angle_between(hyp[k], g) < 2.5 * spacing for g, _, _ in out):
             continue
-        sol = least_squares(residual, np.zeros(5), args=(R_h[k], hyp[k]), method="lm", xtol=1e-12, ftol=1e-12)
-        R = R_h[k] @ exp_so3(sol.x[:3])
-        g = gm * normalize(hyp[k] / gm + tangent_basis(hyp[k] / gm) @ sol.x[3:])
-        out.append((g, R, float(sol.cost)))
+        out.append(_refine_locally(rig, cams, Rc, weights, hyp[k], R_h[k], float(cost[k]), spacing))
         if len(out) >= num_starts:
             break
     out.sort(key=lambda x: x[2])
     return out
+
+
+_OFFSETS = np.stack(np.meshgrid(np.linspace(-1, 1, 7), np.linspace(-1, 1, 7)), -1).reshape(-1, 2)
+
+
+def _refine_locally(rig, cams, Rc, weights, g, R, cost, spacing, levels=3):
+    """Coarse-to-fine search around g: 7x7 tangent grids shrinking by 3 per level."""
+    gm = rig.gravity_magnitude
+    radius = spacing
+    for _ in range(levels):
+        B = tangent_basis(g / gm)
+        cand = gm * normalize(g / gm + radius * _OFFSETS @ B.T)
+        R_c, c = _body_rotation_from_cameras(rig, cams, Rc, weights, cand, R)
+        k = int(np.argmin(c))
+        if c[k] < cost:
+            g, R, cost = cand[k], R_c[k], float(c[k])
+        radius /= 3.0
+    return g, R, cost
 
 
 def translation_given_rotation(rig: Rig, m: Matches, idx, R, g):
