@@ -45,7 +45,7 @@ def required_iterations(inlier_ratio: float, sample_size: int, confidence: float
     p = inlier_ratio**sample_size
     if p >= 1.0:
         return 1.0
-    if p <= 0.0:
+    if p <= 1e-12:
         return math.inf
     return math.log(1.0 - confidence) / math.log(1.0 - p)
 
