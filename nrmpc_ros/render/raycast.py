@@ -66,17 +66,20 @@ def shade(scene: Scene, points, face) -> np.ndarray:
     """Intensity (N,) float32 in [0, 255] of world points (N, 3) lying on faces (N,): bilinear texture x shade."""
     p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
     face = np.asarray(face, dtype=np.int64)
-    box, rem = np.divmod(face, 6)
-    axis = rem // 2
-    b, c = in_plane_axes(axis)
-    rows = np.arange(len(p))
-    w = scene.face_width[face]
-    h = scene.face_height[face]
+    # Per-face tables (a few dozen entries), then one cheap lookup per pixel.
+    faces = np.arange(len(scene.face_offset))
+    f_box, f_axis = faces // 6, (faces % 6) // 2
+    f_b, f_c = in_plane_axes(f_axis)
     tpm = np.float32(scene.texels_per_metre)
-    u = (p[rows, b] - scene.lo[box, b].astype(np.float32)) * tpm
-    v = (p[rows, c] - scene.lo[box, c].astype(np.float32)) * tpm
-    u = np.clip(u, 0, (w - 1.001).astype(np.float32))
-    v = np.clip(v, 0, (h - 1.001).astype(np.float32))
+    f_lo_b = scene.lo[f_box, f_b].astype(np.float32)
+    f_lo_c = scene.lo[f_box, f_c].astype(np.float32)
+    flat = p.reshape(-1)
+    rows3 = np.arange(0, flat.size, 3)
+    w = scene.face_width[face]
+    u = (flat[rows3 + f_b[face]] - f_lo_b[face]) * tpm
+    v = (flat[rows3 + f_c[face]] - f_lo_c[face]) * tpm
+    u = np.clip(u, 0, (scene.face_width - 1.001).astype(np.float32)[face])
+    v = np.clip(v, 0, (scene.face_height - 1.001).astype(np.float32)[face])
     u0 = u.astype(np.int64)
     v0 = v.astype(np.int64)
     fu = u - u0

@@ -1,0 +1,173 @@
+"""Writing rosbag2 bags with ``rosbags`` (SPEC section 11): images, CameraInfo, IMU and ground truth.
+
+Messages are built from the ROS 2 Jazzy type store (named explicitly, as
+rosbags >= 0.11 requires) and written with CDR serialization; storage is
+sqlite3 (default) or mcap. Stamps are integer nanoseconds; the header stamp
+and the bag's receive time of every message are the same.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from ..core.rig import Camera
+from ..core.so3 import matrix_to_quat_xyzw
+from ..errors import InputError
+
+STORAGES = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
+# Raw encodings (sensor_msgs/Image) and compressed formats (sensor_msgs/CompressedImage of a mono8 image).
+RAW_ENCODINGS = ("mono8", "bgr8", "rgb8", "mono16")
+COMPRESSED_FORMATS = ("png", "jpeg")
+ENCODINGS = RAW_ENCODINGS + COMPRESSED_FORMATS
+BAG_VERSION = 9
+
+_TYPES = {
+    "image": "sensor_msgs/msg/Image",
+    "compressed": "sensor_msgs/msg/CompressedImage",
+    "info": "sensor_msgs/msg/CameraInfo",
+    "imu": "sensor_msgs/msg/Imu",
+    "pose": "geometry_msgs/msg/PoseStamped",
+    "vector": "geometry_msgs/msg/Vector3Stamped",
+}
+
+
+def typestore():
+    """The ROS 2 Jazzy type store (explicit, rosbags >= 0.11)."""
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def image_msgtype(encoding: str) -> str:
+    """ROS message type carrying images of this ``--encoding``."""
+    return _TYPES["compressed"] if encoding in COMPRESSED_FORMATS else _TYPES["image"]
+
+
+class BagWriter:
+    """A rosbag2 writer that registers topics on first use.
+
+    Use as a context manager; on an exception the half-written bag is left
+    for inspection (rosbags closes it consistently).
+    """
+
+    def __init__(self, path, storage: str = "sqlite3"):
+        if storage not in STORAGES:
+            raise InputError("--storage", f"unknown storage {storage!r} (supported: {', '.join(STORAGES)})")
+        self.path = Path(path)
+        if self.path.exists():
+            raise InputError(str(self.path), "output bag already exists; remove it or choose another --out")
+        self.store = typestore()
+        self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=STORAGES[storage])
+        self._connections: dict[str, object] = {}
+        self._types: dict[str, str] = {}
+        self.counts: dict[str, int] = {}
+        self._t = self.store.types  # message classes by name
+
+    def __enter__(self):
+        self._writer.open()
+        return self
+
+    def __exit__(self, *exc):
+        self._writer.close()
+        return False
+
+    # -- low level --------------------------------------------------------
+    def write(self, topic: str, msg, stamp_ns: int) -> None:
+        """Serialize ``msg`` and write it on ``topic`` at ``stamp_ns`` (receive time)."""
+        msgtype = msg.__msgtype__
+        conn = self._connections.get(topic)
+        if conn is None:
+            conn = self._writer.add_connection(topic, msgtype, typestore=self.store)
+            self._connections[topic] = conn
+            self._types[topic] = msgtype
+        elif self._types[topic] != msgtype:
+            raise InputError(topic, f"topic already carries {self._types[topic]}, cannot also write {msgtype}")
+        self._writer.write(conn, int(stamp_ns), self.store.serialize_cdr(msg, msgtype))
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def header(self, stamp_ns: int, frame_id: str):
+        Time = self._t["builtin_interfaces/msg/Time"]
+        Header = self._t["std_msgs/msg/Header"]
+        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+        return Header(stamp=Time(sec=int(sec), nanosec=int(nsec)), frame_id=frame_id)
+
+    # -- message builders -------------------------------------------------
+    def image_msg(self, image: np.ndarray, stamp_ns: int, frame_id: str, encoding: str = "mono8"):
+        """sensor_msgs/Image (raw encodings) or CompressedImage (png/jpeg) of a 2-D uint8 grey image."""
+        img = np.asarray(image)
+        if img.ndim != 2 or img.dtype != np.uint8:
+            raise ValueError("image_msg expects a 2-D uint8 grey image")
+        header = self.header(stamp_ns, frame_id)
+        if encoding in COMPRESSED_FORMATS:
+            ok, buf = cv2.imencode(".png" if encoding == "png" else ".jpg", img,
+                                   [cv2.IMWRITE_JPEG_QUALITY, 95] if encoding == "jpeg" else [])
+            if not ok:
+                raise RuntimeError(f"OpenCV could not encode a {encoding} image")
+            return self._t[_TYPES["compressed"]](header=header, format=f"mono8; {encoding} compressed mono8",
+                                                 data=np.frombuffer(buf.tobytes(), dtype=np.uint8))
+        if encoding == "mono8":
+            data, step = img, img.shape[1]
+        elif encoding in ("bgr8", "rgb8"):
+            data, step = np.repeat(img[:, :, None], 3, axis=2), 3 * img.shape[1]
+        elif encoding == "mono16":
+            data, step = (img.astype("<u2") * 257), 2 * img.shape[1]
+        else:
+            raise InputError("--encoding", f"unsupported image encoding {encoding!r} "
+                                           f"(supported: {', '.join(ENCODINGS)})")
+        return self._t[_TYPES["image"]](
+            header=header, height=img.shape[0], width=img.shape[1], encoding=encoding, is_bigendian=0,
+            step=step, data=np.ascontiguousarray(data).view(np.uint8).reshape(-1),
+        )
+
+    def camera_info_msg(self, cam: Camera, stamp_ns: int):
+        """sensor_msgs/CameraInfo of a rig camera (plumb_bob for pinhole, equidistant for fisheye)."""
+        fx, fy, cx, cy = (float(x) for x in cam.intrinsics)
+        if cam.model == "equidistant":
+            model, d = "equidistant", np.zeros(4)
+        else:
+            model, d = "plumb_bob", np.zeros(5)
+        d[: len(cam.distortion)] = cam.distortion
+        K = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1], dtype=np.float64)
+        P = np.array([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0], dtype=np.float64)
+        roi = self._t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        return self._t[_TYPES["info"]](
+            header=self.header(stamp_ns, cam.name), height=int(cam.resolution[1]), width=int(cam.resolution[0]),
+            distortion_model=model, d=d.astype(np.float64), k=K, r=np.eye(3).reshape(-1), p=P,
+            binning_x=0, binning_y=0, roi=roi,
+        )
+
+    def imu_msg(self, stamp_ns: int, frame_id: str, accel, gyro, accel_sigma: float = 0.0, gyro_sigma: float = 0.0):
+        """sensor_msgs/Imu: specific force ``accel`` (m/s^2), angular velocity ``gyro`` (rad/s), no orientation."""
+        V3 = self._t["geometry_msgs/msg/Vector3"]
+        Q = self._t["geometry_msgs/msg/Quaternion"]
+        no_orientation = np.zeros(9)
+        no_orientation[0] = -1.0  # REP 145: orientation not provided
+        return self._t[_TYPES["imu"]](
+            header=self.header(stamp_ns, frame_id), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=no_orientation,
+            angular_velocity=V3(x=float(gyro[0]), y=float(gyro[1]), z=float(gyro[2])),
+            angular_velocity_covariance=(np.eye(3) * gyro_sigma**2).reshape(-1),
+            linear_acceleration=V3(x=float(accel[0]), y=float(accel[1]), z=float(accel[2])),
+            linear_acceleration_covariance=(np.eye(3) * accel_sigma**2).reshape(-1),
+        )
+
+    def pose_msg(self, stamp_ns: int, frame_id: str, R, p):
+        """geometry_msgs/PoseStamped of orientation R (3, 3) and position p (3,)."""
+        q = matrix_to_quat_xyzw(np.asarray(R, dtype=float))
+        Pose = self._t["geometry_msgs/msg/Pose"]
+        Point = self._t["geometry_msgs/msg/Point"]
+        Q = self._t["geometry_msgs/msg/Quaternion"]
+        return self._t[_TYPES["pose"]](
+            header=self.header(stamp_ns, frame_id),
+            pose=Pose(position=Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                      orientation=Q(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))),
+        )
+
+    def vector_msg(self, stamp_ns: int, frame_id: str, v):
+        """geometry_msgs/Vector3Stamped."""
+        V3 = self._t["geometry_msgs/msg/Vector3"]
+        return self._t[_TYPES["vector"]](header=self.header(stamp_ns, frame_id),
+                                         vector=V3(x=float(v[0]), y=float(v[1]), z=float(v[2])))
