@@ -1,0 +1,50 @@
+"""``nrmpc compare``: estimated gravity vs the IMU and ground truth of a bag; relative pose vs ground truth."""
+
+from __future__ import annotations
+
+import json
+
+from ..bag.reader import BagReader
+from ..core import load_rig
+from ..errors import InputError
+from ..frontend.evaluation import evaluate, format_report, plot_errors, read_csv, read_reference
+
+
+def register(sub):
+    p = sub.add_parser("compare", help="score a replay CSV against the bag's IMU and /ground_truth/*",
+                       description="Angle between the estimated gravity and the IMU's (accelerometer averaged over "
+                                   "still samples around each stamp) and /ground_truth/gravity when present; "
+                                   "relative pose errors against /ground_truth/pose; median/mean/p90 per method.")
+    p.add_argument("csv", metavar="OUT.csv", help="estimates written by nrmpc replay (SPEC section 11)")
+    p.add_argument("--bag", required=True, help="the bag the estimates came from")
+    p.add_argument("--imu-topic", default="/imu/data", help="IMU topic (default /imu/data; ignored if absent)")
+    p.add_argument("--rig", help="rig file: its imu mount turns readings into body gravity (default: IMU = body)")
+    p.add_argument("--imu-window", type=float, default=0.25, help="average still IMU samples within +- this (s)")
+    p.add_argument("--plot", metavar="OUT.png", help="write a PNG of the errors over time")
+    p.add_argument("--json", metavar="OUT.json", help="write the statistics as JSON")
+    p.add_argument("--quiet", action="store_true", help="statistics only, not every estimate")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    rows = read_csv(args.csv)
+    rig = load_rig(args.rig) if args.rig else None
+    with BagReader(args.bag) as bag:
+        imu_topic = args.imu_topic if args.imu_topic and bag.has_topic(args.imu_topic) else None
+        if args.imu_topic and imu_topic is None:
+            print(f"nrmpc compare: note: IMU topic {args.imu_topic!r} not in the bag; comparing with ground truth only")
+        ref = read_reference(bag, imu_topic)
+    if not ref.has_imu and not ref.has_gravity and not ref.has_pose:
+        raise InputError(args.bag, "the bag has neither the IMU topic nor /ground_truth/*: nothing to compare with")
+    ev = evaluate(rows, ref, rig, args.imu_window)
+    print(format_report(ev, per_estimate=not args.quiet))
+    if args.plot:
+        plot_errors(ev, args.plot)
+        print(f"wrote {args.plot}")
+    if args.json:
+        out = {m: {k: ev.stats(k, m) for k in ev.errors} for m in ev.methods}
+        out["static_attitudes"] = ev.holds
+        out["attitudes_with_estimate"] = ev.holds_with_estimate
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+    return 0

@@ -1,0 +1,101 @@
+"""sensor_msgs/Image and CompressedImage -> 2-D uint8 grey images (rosbags and rclpy objects alike)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+
+# encoding -> (channels, dtype, cv2 conversion to grey or None)
+_RAW = {
+    "mono8": (1, np.uint8, None),
+    "8uc1": (1, np.uint8, None),
+    "bgr8": (3, np.uint8, cv2.COLOR_BGR2GRAY),
+    "rgb8": (3, np.uint8, cv2.COLOR_RGB2GRAY),
+    "bgra8": (4, np.uint8, cv2.COLOR_BGRA2GRAY),
+    "rgba8": (4, np.uint8, cv2.COLOR_RGBA2GRAY),
+    "mono16": (1, np.uint16, None),
+    "16uc1": (1, np.uint16, None),
+}
+SUPPORTED_ENCODINGS = ("mono8", "8UC1", "bgr8", "rgb8", "bgra8", "rgba8", "mono16", "16UC1")
+
+
+def _bytes(data) -> np.ndarray:
+    if isinstance(data, np.ndarray):
+        return np.ascontiguousarray(data).reshape(-1).view(np.uint8)
+    try:
+        return np.frombuffer(data, np.uint8)  # bytes, bytearray, memoryview, array.array
+    except TypeError:
+        return np.asarray(data, dtype=np.uint8).reshape(-1)  # a list of ints
+
+
+def to_uint8(img16: np.ndarray, depth_bits: int | None = None) -> np.ndarray:
+    """16-bit grey -> 8 bit by a right shift of (depth_bits - 8).
+
+    ``depth_bits=None`` takes the smallest of 8, 10, 12, 14, 16 bits that holds
+    the image's maximum (10/12-bit sensors packed in 16 bits stay visible).
+    """
+    if depth_bits is None:
+        top = int(img16.max()) if img16.size else 0
+        depth_bits = next(b for b in (8, 10, 12, 14, 16) if top < (1 << b))
+    shift = max(0, int(depth_bits) - 8)
+    return np.minimum(img16 >> shift, 255).astype(np.uint8)
+
+
+def decode_raw(msg, source: str, depth_bits: int | None = None) -> np.ndarray:
+    """A sensor_msgs/Image -> (height, width) uint8, honouring step and is_bigendian."""
+    enc = str(msg.encoding)
+    spec = _RAW.get(enc.lower())
+    if spec is None:
+        raise InputError(source, f"unsupported image encoding {enc!r} (supported: {', '.join(SUPPORTED_ENCODINGS)})",
+                         "encoding")
+    ch, dtype, conv = spec
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    itemsize = np.dtype(dtype).itemsize
+    row = w * ch * itemsize
+    if h <= 0 or w <= 0:
+        raise InputError(source, f"empty image ({w}x{h})", "width")
+    if step < row:
+        raise InputError(source, f"step {step} is smaller than width * bytes per pixel = {row}", "step")
+    buf = _bytes(msg.data)
+    if buf.size < step * (h - 1) + row:
+        raise InputError(source, f"data holds {buf.size} bytes but {h} rows of step {step} need {step * h}", "data")
+    rows = np.lib.stride_tricks.as_strided(buf, shape=(h, row), strides=(step, 1))
+    if dtype == np.uint8:
+        img = np.ascontiguousarray(rows).reshape(h, w, ch) if ch > 1 else np.ascontiguousarray(rows)
+        return cv2.cvtColor(img, conv) if conv is not None else img
+    order = ">" if bool(msg.is_bigendian) else "<"
+    img = np.ascontiguousarray(rows).view(np.dtype(f"{order}u2")).reshape(h, w).astype(np.uint16)
+    return to_uint8(img, depth_bits)
+
+
+def decode_compressed(msg, source: str) -> np.ndarray:
+    """A sensor_msgs/CompressedImage (jpeg, png, ...) -> 2-D uint8."""
+    buf = _bytes(msg.data)
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
+    if img is None:
+        raise InputError(source, f"cannot decode compressed image (format {str(msg.format)!r}, {buf.size} bytes)",
+                         "data")
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    if img.dtype == np.uint16:
+        img = to_uint8(img)
+    elif img.dtype != np.uint8:
+        raise InputError(source, f"compressed image decodes to unsupported dtype {img.dtype}", "data")
+    return img
+
+
+def decode_image(msg, source: str, depth_bits: int | None = None) -> np.ndarray:
+    """Image or CompressedImage message -> 2-D uint8 grey image; InputError naming ``source`` otherwise."""
+    if hasattr(msg, "encoding"):
+        return decode_raw(msg, source, depth_bits)
+    if hasattr(msg, "format"):
+        return decode_compressed(msg, source)
+    raise InputError(source, f"not a sensor_msgs/Image or CompressedImage ({type(msg).__name__})")
+
+
+def stamp_seconds(msg) -> float:
+    """header.stamp of a message in seconds (float)."""
+    st = msg.header.stamp
+    return float(st.sec) + 1e-9 * float(getattr(st, "nanosec", getattr(st, "nsec", 0)))

@@ -1,0 +1,299 @@
+"""Per-camera correspondences between a reference view and the current view.
+
+Two ways, one config (:class:`TrackingConfig`):
+
+- KLT: :class:`KltTracker` follows corners frame to frame through the motion
+  (pyramidal Lucas-Kanade with a forward-backward check). Each track remembers
+  where it was in the reference view and at the start of the current static
+  window, which also measures image motion for static detection.
+- Descriptors: ORB (default) or SIFT features of the two static views, ratio
+  test + mutual best match; for static-only bags where views are 5-30 deg apart.
+
+Both are spread over the image with grid bucketing and verified per camera
+with an essential-matrix RANSAC on undistorted bearings (valid for pinhole and
+fisheye models, and exact for each camera even when its bar bends).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+
+from ..cameras import pixels_to_bearings
+from ..core.rig import Camera
+from ..errors import InputError
+
+MODES = ("auto", "klt", "descriptors")
+DESCRIPTORS = ("orb", "sift")
+
+
+@dataclass
+class TrackingConfig:
+    """Feature tracking and matching; pixel values refer to the camera's own image."""
+
+    mode: str = "auto"  # auto: KLT tracks when enough survive from the reference view, else descriptors
+    grid_rows: int = 6
+    grid_cols: int = 8
+    max_tracks: int = 200  # KLT tracks per camera
+    replenish_fraction: float = 0.7  # detect new corners when fewer tracks than this fraction remain
+    min_distance_px: float = 8.0
+    corner_quality: float = 0.003  # goodFeaturesToTrack qualityLevel
+    klt_window: int = 15
+    klt_levels: int = 3
+    fb_threshold_px: float = 0.7  # forward-backward round-trip error
+    descriptor: str = "orb"  # orb | sift
+    num_features: int = 1000  # descriptor features detected per camera image
+    ratio: float = 0.8  # Lowe ratio test
+    subpixel: bool = True  # refine descriptor keypoints with cornerSubPix
+    ransac_threshold_px: float = 1.0  # essential-matrix verification (Sampson distance)
+    ransac_confidence: float = 0.999
+    min_matches_per_camera: int = 12  # fewer verified matches: the camera contributes nothing
+    max_matches_per_camera: int = 120  # bucketed cap handed to the estimator ...
+    max_matches_total: int = 480  # ... raised to max_matches_total / cameras for rigs with few cameras
+    min_klt_matches: int = 200  # auto: fewer verified KLT matches (or < half the cap) -> also try descriptors
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise InputError("tracking config", f"mode must be one of {', '.join(MODES)}, got {self.mode!r}", "mode")
+        if self.descriptor not in DESCRIPTORS:
+            raise InputError("tracking config", f"descriptor must be one of {', '.join(DESCRIPTORS)}, "
+                             f"got {self.descriptor!r}", "descriptor")
+        for name in ("grid_rows", "grid_cols", "max_tracks", "num_features", "max_matches_per_camera"):
+            if int(getattr(self, name)) < 1:
+                raise InputError("tracking config", "must be >= 1", name)
+        if not 0 < self.ratio <= 1:
+            raise InputError("tracking config", f"must be in (0, 1], got {self.ratio}", "ratio")
+
+    @classmethod
+    def from_dict(cls, d: dict | None, source: str = "tracking config") -> TrackingConfig:
+        d = dict(d or {})
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise InputError(source, f"unknown option (allowed: {', '.join(sorted(names))})", unknown[0])
+        return cls(**d)
+
+
+# ---------------------------------------------------------------------------
+# Bucketing and detection
+# ---------------------------------------------------------------------------
+
+def cell_ranks(uv: np.ndarray, size, rows: int, cols: int, order: np.ndarray | None = None) -> np.ndarray:
+    """Rank (0 = best) of each point among the points of its grid cell, best first by ``order``."""
+    uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+    w, h = size
+    cx = np.clip((uv[:, 0] * cols / w).astype(np.int64), 0, cols - 1)
+    cy = np.clip((uv[:, 1] * rows / h).astype(np.int64), 0, rows - 1)
+    cell = cy * cols + cx
+    srt = np.arange(len(uv)) if order is None else np.asarray(order, dtype=np.int64)
+    srt = srt[np.argsort(cell[srt], kind="stable")]
+    c = cell[srt]
+    starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]]) if len(c) else np.zeros(0, np.int64)
+    ranks = np.empty(len(uv), np.int64)
+    ranks[srt] = np.arange(len(c)) - np.repeat(starts, np.diff(np.r_[starts, len(c)]))
+    return ranks
+
+
+def bucket(uv: np.ndarray, size, rows: int, cols: int, count: int, order: np.ndarray | None = None) -> np.ndarray:
+    """Indices (ascending) of at most ``count`` points spread as evenly as possible over a rows x cols grid.
+
+    Points are taken round-robin over the cells (best first by ``order``,
+    default input order), so no cell gets more than its share while others
+    have points left.
+    """
+    uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+    if len(uv) <= count:
+        return np.arange(len(uv))
+    ranks = cell_ranks(uv, size, rows, cols, order)
+    tie = np.empty(len(uv), np.int64)
+    tie[np.arange(len(uv)) if order is None else np.asarray(order)] = np.arange(len(uv))
+    pick = np.lexsort((tie, ranks))[:count]
+    return np.sort(pick)
+
+
+def detect_corners(img: np.ndarray, cfg: TrackingConfig, max_count: int, mask=None) -> np.ndarray:
+    """Shi-Tomasi corners (N, 2) float32 spread by grid bucketing."""
+    if max_count <= 0:
+        return np.zeros((0, 2), np.float32)
+    pts = cv2.goodFeaturesToTrack(img, maxCorners=int(3 * max_count), qualityLevel=cfg.corner_quality,
+                                  minDistance=cfg.min_distance_px, mask=mask, blockSize=5)
+    if pts is None:
+        return np.zeros((0, 2), np.float32)
+    pts = pts.reshape(-1, 2)
+    keep = bucket(pts, (img.shape[1], img.shape[0]), cfg.grid_rows, cfg.grid_cols, max_count)
+    return pts[keep].astype(np.float32)
+
+
+def _lk(img0, img1, p0, cfg: TrackingConfig):
+    """Forward-backward LK: tracked points and a validity mask."""
+    if len(p0) == 0:
+        return p0.copy(), np.zeros(0, bool)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.03)
+    win = (int(cfg.klt_window), int(cfg.klt_window))
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, winSize=win, maxLevel=int(cfg.klt_levels),
+                                          criteria=crit)
+    h, w = img1.shape
+    ok = st1.ravel() == 1
+    ok &= (p1[:, 0] >= 0) & (p1[:, 1] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] <= h - 1)
+    idx = np.flatnonzero(ok)
+    if len(idx):  # backward check only for what the forward pass kept
+        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, np.ascontiguousarray(p1[idx]), None, winSize=win,
+                                               maxLevel=int(cfg.klt_levels), criteria=crit)
+        good = (st2.ravel() == 1) & (np.linalg.norm(p0b - p0[idx], axis=1) < cfg.fb_threshold_px)
+        ok[idx[~good]] = False
+    return p1, ok
+
+
+class KltTracker:
+    """KLT tracks of one camera with persistent ids; a snapshot (ids, uv) of a view pairs it with later frames."""
+
+    def __init__(self, cfg: TrackingConfig):
+        self.cfg = cfg
+        self.prev = None
+        self.uv = np.zeros((0, 2), np.float32)
+        self.ids = np.zeros(0, np.int64)
+        self.anchor_uv = np.zeros((0, 2), np.float32)  # NaN: born after the anchor
+        self._next_id = 0
+
+    def _replenish(self, img, force=False):
+        n = len(self.uv)
+        if n >= self.cfg.max_tracks or (not force and n >= self.cfg.replenish_fraction * self.cfg.max_tracks):
+            return
+        mask = np.full(img.shape, 255, np.uint8)
+        r = max(1, int(self.cfg.min_distance_px))
+        for u, v in self.uv.astype(int):
+            cv2.circle(mask, (int(u), int(v)), r, 0, -1)
+        new = detect_corners(img, self.cfg, self.cfg.max_tracks - n, mask)
+        self.uv = np.concatenate([self.uv, new])
+        self.ids = np.concatenate([self.ids, self._next_id + np.arange(len(new))])
+        self._next_id += len(new)
+        self.anchor_uv = np.concatenate([self.anchor_uv, np.full((len(new), 2), np.nan, np.float32)])
+
+    def track(self, img: np.ndarray) -> None:
+        """Follow the tracks into ``img`` (dropping failures) and top them up with new corners."""
+        if self.prev is not None and len(self.uv):
+            p1, ok = _lk(self.prev, img, self.uv, self.cfg)
+            self.uv, self.ids, self.anchor_uv = p1[ok], self.ids[ok], self.anchor_uv[ok]
+        self.prev = img
+        self._replenish(img)
+
+    def set_anchor(self) -> None:
+        """Image motion is measured from the current frame on (start of a static window)."""
+        self.anchor_uv = self.uv.copy()
+
+    def anchor_motion(self):
+        """(median displacement in px since the anchor, number of tracks alive since the anchor)."""
+        ok = np.isfinite(self.anchor_uv[:, 0])
+        if not ok.any():
+            return np.inf, 0
+        return float(np.median(np.linalg.norm(self.uv[ok] - self.anchor_uv[ok], axis=1))), int(ok.sum())
+
+    def snapshot(self):
+        """(ids, uv) of the current frame, topped up to max_tracks first (for a view that may become a reference)."""
+        if self.prev is not None:
+            self._replenish(self.prev, force=True)
+        return self.ids.copy(), self.uv.astype(np.float64)
+
+    def pairs_since(self, snap):
+        """(uv in the snapshot's frame, uv now) of tracks alive since ``snap``."""
+        ids, uv = snap
+        _, i_old, i_now = np.intersect1d(ids, self.ids, assume_unique=True, return_indices=True)
+        return uv[i_old], self.uv[i_now].astype(np.float64)
+
+
+# ---------------------------------------------------------------------------
+# Descriptors
+# ---------------------------------------------------------------------------
+
+@dataclass
+class Features:
+    """Keypoints (N, 2) and descriptors (N, D) of one image."""
+
+    uv: np.ndarray
+    desc: np.ndarray | None
+
+
+def detect_features(img: np.ndarray, cfg: TrackingConfig) -> Features:
+    """Grid-bucketed ORB or SIFT features (strongest per cell), optionally refined to sub-pixel."""
+    n = int(cfg.num_features)
+    if cfg.descriptor == "sift":
+        det = cv2.SIFT_create(nfeatures=2 * n)
+    else:
+        det = cv2.ORB_create(nfeatures=2 * n, fastThreshold=10, scoreType=cv2.ORB_HARRIS_SCORE)
+    kps = det.detect(img, None)
+    if not kps:
+        return Features(np.zeros((0, 2)), None)
+    uv = np.array([k.pt for k in kps], dtype=np.float64)
+    resp = np.array([k.response for k in kps])
+    keep = bucket(uv, (img.shape[1], img.shape[0]), cfg.grid_rows, cfg.grid_cols, n,
+                  order=np.argsort(-resp, kind="stable"))
+    kps = [kps[i] for i in keep]
+    kps, desc = det.compute(img, kps)
+    if desc is None or not kps:
+        return Features(np.zeros((0, 2)), None)
+    uv = np.array([k.pt for k in kps], dtype=np.float64)
+    if cfg.subpixel and cfg.descriptor == "orb":
+        level0 = np.array([k.octave == 0 for k in kps])
+        if level0.any():
+            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+            p = uv[level0].astype(np.float32).reshape(-1, 1, 2)
+            ref = cv2.cornerSubPix(img, p, (3, 3), (-1, -1), crit).reshape(-1, 2)
+            moved = np.linalg.norm(ref - uv[level0], axis=1) < 1.5
+            sub = uv[level0]
+            sub[moved] = ref[moved]
+            uv[level0] = sub
+    return Features(uv, desc)
+
+
+def match_features(a: Features, b: Features, cfg: TrackingConfig):
+    """Index pairs (ia, ib): nearest neighbours passing the ratio test, each ``b`` feature used once (best kept)."""
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    if a.desc is None or b.desc is None or len(a.uv) < 2 or len(b.uv) < 2:
+        return empty
+    norm = cv2.NORM_L2 if cfg.descriptor == "sift" else cv2.NORM_HAMMING
+    knn = cv2.BFMatcher(norm).knnMatch(a.desc, b.desc, k=2)
+    m = np.array([(p[0].queryIdx, p[0].trainIdx, p[0].distance, p[1].distance) for p in knn if len(p) == 2])
+    if len(m) == 0:
+        return empty
+    m = m[m[:, 2] < cfg.ratio * m[:, 3]]
+    m = m[np.lexsort((m[:, 2], m[:, 1]))]  # by train index, best distance first
+    first = np.r_[True, m[1:, 1] != m[:-1, 1]] if len(m) else np.zeros(0, bool)
+    m = m[first]
+    return m[:, 0].astype(np.int64), m[:, 1].astype(np.int64)
+
+
+# ---------------------------------------------------------------------------
+# Verification
+# ---------------------------------------------------------------------------
+
+def verify_pairs(cam: Camera, uv1: np.ndarray, uv2: np.ndarray, cfg: TrackingConfig, cap: int | None = None):
+    """Bearings (f1, f2) and indices of pairs consistent with one essential matrix (RANSAC), at most ``cap``.
+
+    The kept pairs are spread over the image by grid bucketing; ``cap``
+    defaults to ``cfg.max_matches_per_camera``.
+    """
+    uv1 = np.asarray(uv1, float).reshape(-1, 2)
+    uv2 = np.asarray(uv2, float).reshape(-1, 2)
+    empty = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64))
+    if len(uv1) < max(8, cfg.min_matches_per_camera):
+        return empty
+    f1 = pixels_to_bearings(cam, uv1)
+    f2 = pixels_to_bearings(cam, uv2)
+    front = (f1[:, 2] > 0.1) & (f2[:, 2] > 0.1)  # normalised coordinates need z > 0 (up to ~84 deg off axis)
+    idx = np.flatnonzero(front)
+    if len(idx) < max(8, cfg.min_matches_per_camera):
+        return empty
+    x1 = f1[idx, :2] / f1[idx, 2:]
+    x2 = f2[idx, :2] / f2[idx, 2:]
+    thr = cfg.ransac_threshold_px / cam.focal_px
+    E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), method=cv2.RANSAC, prob=cfg.ransac_confidence, threshold=thr)
+    if E is None or mask is None:
+        return empty
+    idx = idx[mask.ravel()[: len(idx)] > 0]
+    if len(idx) < cfg.min_matches_per_camera:
+        return empty
+    cap = int(cfg.max_matches_per_camera if cap is None else cap)
+    idx = idx[bucket(uv2[idx], cam.resolution, cfg.grid_rows, cfg.grid_cols, cap)]
+    return f1[idx], f2[idx], idx

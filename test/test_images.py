@@ -1,0 +1,126 @@
+"""decode_image: raw encodings (step, endianness, 16 bit), CompressedImage, clear errors."""
+
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+from rosbags.typesys import Stores, get_typestore
+
+from nrmpc_ros.errors import InputError
+from nrmpc_ros.frontend.images import decode_image, stamp_seconds, to_uint8
+
+
+def raw(arr, encoding, step=None, bigendian=False):
+    """A sensor_msgs/Image-like object holding arr (H, W[, C]); rows padded to ``step`` bytes."""
+    a = np.ascontiguousarray(arr)
+    if a.dtype == np.uint16:
+        a = a.astype(">u2" if bigendian else "<u2")
+    h = a.shape[0]
+    row = a.reshape(h, -1).view(np.uint8)
+    step = step or row.shape[1]
+    buf = np.zeros((h, step), np.uint8)
+    buf[:, : row.shape[1]] = row
+    return SimpleNamespace(height=h, width=a.shape[1], encoding=encoding, is_bigendian=int(bigendian), step=step,
+                           data=buf.ravel())
+
+
+@pytest.fixture
+def colour(rng):
+    return rng.integers(0, 256, size=(6, 7, 3), dtype=np.uint8)
+
+
+def test_mono8_with_row_padding(rng):
+    img = rng.integers(0, 256, size=(5, 9), dtype=np.uint8)
+    out = decode_image(raw(img, "mono8", step=16), "/cam0/image_raw")
+    assert out.dtype == np.uint8 and out.shape == (5, 9)
+    np.testing.assert_array_equal(out, img)
+
+
+@pytest.mark.parametrize("enc,code", [("bgr8", cv2.COLOR_BGR2GRAY), ("rgb8", cv2.COLOR_RGB2GRAY)])
+def test_colour_encodings(colour, enc, code):
+    out = decode_image(raw(colour, enc, step=7 * 3 + 3), "/c")
+    np.testing.assert_array_equal(out, cv2.cvtColor(colour, code))
+
+
+def test_rgb_and_bgr_differ_as_expected(colour):
+    bgr = decode_image(raw(colour, "bgr8"), "/c")
+    rgb = decode_image(raw(colour[:, :, ::-1], "rgb8"), "/c")
+    np.testing.assert_array_equal(bgr, rgb)
+
+
+@pytest.mark.parametrize("enc", ["bgra8", "rgba8"])
+def test_four_channels(rng, enc):
+    img = rng.integers(0, 256, size=(4, 5, 4), dtype=np.uint8)
+    code = cv2.COLOR_BGRA2GRAY if enc == "bgra8" else cv2.COLOR_RGBA2GRAY
+    np.testing.assert_array_equal(decode_image(raw(img, enc), "/c"), cv2.cvtColor(img, code))
+
+
+@pytest.mark.parametrize("bigendian", [False, True])
+@pytest.mark.parametrize("enc", ["mono16", "16UC1"])
+def test_16_bit_scaled_to_8_bit(rng, bigendian, enc):
+    img = rng.integers(0, 65536, size=(4, 6), dtype=np.uint16)
+    img[0, 0] = 65535
+    out = decode_image(raw(img, enc, step=6 * 2 + 4, bigendian=bigendian), "/c")
+    np.testing.assert_array_equal(out, (img >> 8).astype(np.uint8))
+
+
+def test_12_bit_data_in_16_bit_container_stays_visible(rng):
+    img = rng.integers(0, 4096, size=(4, 6), dtype=np.uint16)
+    img[0, 0] = 4095
+    out = decode_image(raw(img, "mono16"), "/c")
+    np.testing.assert_array_equal(out, (img >> 4).astype(np.uint8))
+    assert out.max() == 255
+    np.testing.assert_array_equal(to_uint8(img, depth_bits=16), (img >> 8).astype(np.uint8))
+
+
+@pytest.mark.parametrize("ext", [".png", ".jpg"])
+def test_compressed(rng, ext):
+    img = cv2.GaussianBlur(rng.integers(0, 256, size=(32, 40), dtype=np.uint8), (5, 5), 2)
+    ok, buf = cv2.imencode(ext, img)
+    assert ok
+    out = decode_image(SimpleNamespace(format=ext[1:], data=buf.ravel()), "/c/compressed")
+    assert out.shape == img.shape and out.dtype == np.uint8
+    assert np.abs(out.astype(int) - img).max() <= (0 if ext == ".png" else 12)
+
+
+def test_compressed_colour_becomes_grey(colour):
+    ok, buf = cv2.imencode(".png", colour)
+    out = decode_image(SimpleNamespace(format="png", data=bytes(buf.ravel())), "/c")
+    np.testing.assert_array_equal(out, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY))
+
+
+def test_rosbags_message_objects(rng):
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    Image = ts.types["sensor_msgs/msg/Image"]
+    Header = ts.types["std_msgs/msg/Header"]
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    img = rng.integers(0, 256, size=(3, 4), dtype=np.uint8)
+    msg = Image(header=Header(stamp=Time(sec=12, nanosec=500_000_000), frame_id="cam0"), height=3, width=4,
+                encoding="mono8", is_bigendian=0, step=4, data=img.ravel())
+    raw_bytes = ts.serialize_cdr(msg, "sensor_msgs/msg/Image")
+    back = ts.deserialize_cdr(raw_bytes, "sensor_msgs/msg/Image")
+    np.testing.assert_array_equal(decode_image(back, "/cam0/image_raw"), img)
+    assert stamp_seconds(back) == pytest.approx(12.5)
+
+
+def test_unsupported_encoding_names_topic():
+    msg = raw(np.zeros((2, 2), np.uint8), "bayer_rggb8")
+    with pytest.raises(InputError, match=r"/cam3/image_raw.*encoding.*bayer_rggb8"):
+        decode_image(msg, "/cam3/image_raw")
+
+
+def test_short_data_and_bad_step():
+    msg = raw(np.zeros((4, 4), np.uint8), "mono8")
+    msg.data = msg.data[:10]
+    with pytest.raises(InputError, match=r"/cam1/image_raw: field 'data'"):
+        decode_image(msg, "/cam1/image_raw")
+    msg = raw(np.zeros((4, 4), np.uint8), "mono8")
+    msg.step = 3
+    with pytest.raises(InputError, match="step"):
+        decode_image(msg, "/cam1/image_raw")
+
+
+def test_undecodable_compressed():
+    with pytest.raises(InputError, match="/cam0/compressed.*cannot decode"):
+        decode_image(SimpleNamespace(format="jpeg", data=b"not a jpeg"), "/cam0/compressed")

@@ -1,0 +1,109 @@
+"""ImuBuffer: averaged accelerometer -> gravity (SPEC section 4), stillness, NaN, gaps, maximum age."""
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from nrmpc_ros.core import gravity_from_accelerometer
+from nrmpc_ros.core.rig import ImuMount
+from nrmpc_ros.core.so3 import angle_between, exp_so3
+from nrmpc_ros.frontend.imu import ImuBuffer, ImuConfig
+
+
+def fill(buf, rng, g_imu, t0=0.0, t1=1.0, rate=200.0, noise=0.05, gyro=None):
+    for t in np.arange(t0, t1, 1.0 / rate):
+        a = -g_imu + rng.normal(scale=noise, size=3)
+        w = rng.normal(scale=0.002, size=3) if gyro is None else gyro
+        assert buf.add(t, a, w) is None
+
+
+def test_body_mount_average(cross_rig, rng):
+    buf = ImuBuffer(cross_rig)
+    g = 9.81 * np.array([0.3, -0.2, -0.93]) / np.linalg.norm([0.3, -0.2, -0.93])
+    fill(buf, rng, g)
+    res, why = buf.gravity(0.2, 0.8)
+    assert why is None
+    assert res.num_samples == 121
+    assert math.degrees(angle_between(res.gravity, g)) < 0.1
+    assert np.linalg.norm(res.gravity) == pytest.approx(9.81)
+    assert buf.is_still(0.2, 0.8) is True
+
+
+def test_rotated_mount_and_camera_mount(cross_rig, rng):
+    R_mount_imu = exp_so3(np.array([0.3, -0.5, 1.0]))
+    rig = replace(cross_rig, imu=ImuMount(mount="body", rotation=R_mount_imu))
+    g_body = np.array([0.0, 0.0, -9.81])
+    g_imu = R_mount_imu.T @ g_body
+    buf = ImuBuffer(rig)
+    fill(buf, rng, g_imu, noise=0.0)
+    res, _ = buf.gravity(0.0, 1.0)
+    np.testing.assert_allclose(res.gravity, g_body, atol=1e-9)
+    # IMU in a camera that bends: same as the core's conversion of the mean reading
+    rig_cam = replace(cross_rig, imu=ImuMount(mount="cam1", rotation=np.eye(3)))
+    buf = ImuBuffer(rig_cam)
+    fill(buf, rng, np.array([0.5, 9.7, 1.0]))
+    res, _ = buf.gravity(0.0, 1.0)
+    np.testing.assert_allclose(res.gravity, gravity_from_accelerometer(rig_cam, res.accel_mean), atol=1e-12)
+
+
+def test_nan_out_of_order_and_shape_are_counted_not_raised(cross_rig, rng):
+    buf = ImuBuffer(cross_rig)
+    fill(buf, rng, np.array([0, 0, -9.81]), 0.0, 0.5)
+    assert buf.add(0.6, [np.nan, 0, 9.8], [0, 0, 0]) == "NaN or inf"
+    assert buf.add(0.61, [0, 0, 9.8], [0, np.inf, 0]) == "NaN or inf"
+    assert buf.add(0.1, [0, 0, 9.8], [0, 0, 0]) == "out of order"
+    assert buf.add(0.62, [0, 9.8], [0, 0, 0]) == "wrong shape"
+    assert buf.stats["rejected: NaN or inf"] == 2
+    assert buf.stats["rejected: out of order"] == 1
+    assert buf.stats["samples"] == 100
+    res, why = buf.gravity(0.0, 0.5)
+    assert why is None and np.all(np.isfinite(res.gravity))
+
+
+def test_gaps_are_counted_and_reported(cross_rig, rng):
+    buf = ImuBuffer(cross_rig, ImuConfig(gap_s=0.05))
+    g = np.array([0, 0, -9.81])
+    fill(buf, rng, g, 0.0, 0.4)
+    fill(buf, rng, g, 0.7, 1.0)
+    assert buf.stats["gaps"] == 1
+    res, why = buf.gravity(0.0, 1.0)
+    assert why is None and len(res.gaps) == 1
+    assert res.gaps[0][0] == pytest.approx(0.395) and res.gaps[0][1] == pytest.approx(0.7)
+    res, _ = buf.gravity(0.75, 1.0)
+    assert res.gaps == []
+
+
+def test_max_age(cross_rig, rng):
+    buf = ImuBuffer(cross_rig, ImuConfig(max_age_s=0.1))
+    fill(buf, rng, np.array([0, 0, -9.81]), 0.0, 1.0)
+    assert buf.has_recent(1.05) and not buf.has_recent(1.5)
+    res, why = buf.gravity(0.8, 1.5)
+    assert res is None and "older than the view" in why
+    res, why = buf.gravity(3.0, 3.5)
+    assert res is None and "IMU samples in the window" in why
+    assert ImuBuffer(cross_rig).gravity(0.0, 1.0) == (None, "no IMU samples")
+
+
+def test_motion_is_not_still(cross_rig, rng):
+    buf = ImuBuffer(cross_rig)
+    fill(buf, rng, np.array([0, 0, -9.81]), 0.0, 0.5)
+    fill(buf, rng, np.array([0, 0, -9.81]), 0.5, 1.0, gyro=np.array([0.0, 0.3, 0.0]))
+    assert buf.is_still(0.1, 0.4) is True
+    assert buf.is_still(0.6, 0.9) is False
+    assert buf.is_still(5.0, 6.0) is None
+
+
+def test_rig_without_imu_block(cross_rig, rng):
+    buf = ImuBuffer(replace(cross_rig, imu=None))
+    fill(buf, rng, np.array([0, 0, -9.81]), 0.0, 0.2)
+    assert buf.gravity(0.0, 0.2) == (None, "the rig file has no imu block")
+
+
+def test_history_is_trimmed(cross_rig, rng):
+    buf = ImuBuffer(cross_rig, ImuConfig(capacity_s=1.0))
+    fill(buf, rng, np.array([0, 0, -9.81]), 0.0, 5.0)
+    assert len(buf) <= 200 * 1.0 + 2
+    t, _, _ = buf.window(0.0, 10.0)
+    assert t[0] >= 3.99 - 1e-9
