@@ -61,8 +61,6 @@ class TwoViewProblem:
             self.nk = int(self.groups.max()) + 1
             self.nc += self.nk
         self.gm = rig.gravity_magnitude
-        self.anchor = rig.positions[cam]
-        self.f1_body = np.einsum("nij,nj->ni", rig.rotations[cam], f1)
         if prior is not None:
             self.P1 = tangent_basis(normalize(prior.g1))
             self.P2 = tangent_basis(normalize(prior.g2))
@@ -77,91 +75,58 @@ class TwoViewProblem:
         J = (np.swapaxes(T, 1, 2) - e[:, :, None] * n[:, None, :]) / r[:, None, None]
         return e, J
 
-    # -- points: anchored inverse depth --------------------------------------
-    def points_from_euclidean(self, P) -> np.ndarray:
-        """(N, 4) point state [m, rho] for Euclidean points P (view-1 body frame).
-
-        P = a + m / rho with a fixed anchor a (the canonical position of the
-        camera that saw the point), a unit direction m and inverse depth
-        rho >= 0; rho = 0 is a point at infinity. Small parallax then stays
-        well conditioned, which Euclidean points are not.
-        """
-        P = np.asarray(P, dtype=float)
-        if P.shape[1] == 4:
-            return P
-        v = P - self.anchor
-        d = np.sqrt(np.einsum("ni,ni->n", v, v))
-        finite = np.isfinite(d) & (d > 1e-12)
-        m = np.where(finite[:, None], v / np.where(finite, d, 1.0)[:, None], self.f1_body)
-        rho = np.where(finite, 1.0 / np.where(finite, d, 1.0), 0.0)
-        return np.concatenate([m, rho[:, None]], axis=1)
-
-    def euclidean(self, X) -> np.ndarray:
-        """Euclidean points (inf for points at infinity) of a point state."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return self.anchor + X[:, :3] / X[:, 3:4]
-
-    def _project(self, g, y_fn):
-        """Per point: W(g)^T, w(g), y = y_fn(w) and p = W^T y (homogeneous, scaled by rho)."""
+    def _project(self, g, P_view):
+        """Points of one view (its body frame) into the bent cameras: y = P - w(g), p = W(g)^T y."""
         w, W = deformed_extrinsics(self.rig, g)
         Wt = np.swapaxes(W, 1, 2)[self.cam]
-        wc = w[self.cam]
-        y = y_fn(wc)
-        return Wt, wc, y, np.einsum("nij,nj->ni", Wt, y)
+        y = P_view - w[self.cam]
+        return Wt, y, np.einsum("nij,nj->ni", Wt, y)
 
-    def evaluate(self, R, t, g, X, want_jacobian=True):
-        """Residuals e (N, 4) and, if asked, Jc (N, 4, nc), Jp (N, 4, 3) over (m tangent (2), rho).
+    def evaluate(self, R, t, g, P, want_jacobian=True):
+        """Residuals e (N, 4) and, if asked, Jc (N, 4, nc), Jp (N, 4, 3).
 
-        With the point scaled by rho (direction-only residuals do not see the
-        scale): view 1 sees y1 = m + rho (a - w1), view 2 sees
-        y2 = R^T (m + rho (a - t)) - rho w2. a^T [y]_x = (a x y)^T row-wise keeps
-        the chain rule on 2x3 blocks.
+        Uses a^T [y]_x = (a x y)^T row-wise, so the chain rule runs on 2x3 blocks.
         """
-        X = self.points_from_euclidean(X)
-        m, rho = X[:, :3], X[:, 3]
         gg = g if g is not None else np.array([0.0, 0.0, -self.gm])
         g2 = R.T @ gg
-        h = m + rho[:, None] * (self.anchor - t)
-        z = h @ R  # R^T h
-        W1t, w1, y1, p1 = self._project(gg, lambda w: m + rho[:, None] * (self.anchor - w))
-        W2t, w2, y2, p2 = self._project(g2, lambda w: z - rho[:, None] * w)
+        z = (P - t) @ R  # R^T (P - t)
+        W1t, y1, p1 = self._project(gg, P)
+        W2t, y2, p2 = self._project(g2, z)
         e1, Je1 = self._residual_jac(p1, self.T1)
         e2, Je2 = self._residual_jac(p2, self.T2)
         e = np.concatenate([e1, e2], axis=1)
         if not want_jacobian:
             return e, None, None
-        N = len(X)
+        N = len(P)
         Jc = np.zeros((N, 4, self.nc))
         Jp = np.empty((N, 4, 3))
-        A1 = Je1 @ W1t  # de1/dy1
+        A1 = Je1 @ W1t  # de1/dP
         A2 = Je2 @ W2t  # de2/dy2
-        A2Rt = A2 @ R.T  # de2/dh
-        Bm = tangent_basis(m)
-        Jp[:, :2, :2] = A1 @ Bm
-        Jp[:, :2, 2] = np.einsum("nki,ni->nk", A1, self.anchor - w1)
-        Jp[:, 2:, :2] = A2Rt @ Bm
-        Jp[:, 2:, 2] = np.einsum("nki,ni->nk", A2Rt, self.anchor - t) - np.einsum("nki,ni->nk", A2, w2)
-        de2_dg2 = self._de_dg(A2, y2, g2, rho)
+        Jp[:, :2] = A1
+        Jp[:, 2:] = A2 @ R.T
+        de2_dg2 = self._de_dg(A2, y2, g2)
         Jc[:, 2:, 0:3] = cross(A2, z[:, None, :]) + cross(de2_dg2, g2)
-        Jc[:, 2:, 3:6] = -rho[:, None, None] * A2Rt
+        Jc[:, 2:, 3:6] = -Jp[:, 2:]
         if self.groups is not None:
-            self._compliance_columns(Jc, Je1, W1t, y1, gg, Je2, W2t, y2, g2, rho)
+            self._compliance_columns(Jc, Je1, W1t, y1, gg, Je2, W2t, y2, g2)
         if self.optimize_gravity:
             B = self.gm * tangent_basis(normalize(gg))
-            Jc[:, :2, 6:8] = self._de_dg(A1, y1, gg, rho) @ B
+            Jc[:, :2, 6:8] = self._de_dg(A1, y1, gg) @ B
             Jc[:, 2:, 6:8] = de2_dg2 @ (R.T @ B)
         return e, Jc, Jp
 
-    def _de_dg(self, A, y, g, rho):
-        """de/dg = A ([y]_x K - rho D) for de/dy = A (N, 2, 3) and the model derivatives at g (SPEC 3)."""
+    def _de_dg(self, A, y, g):
+        """de/dg = A ([y]_x K - D) for de/dy = A (N, 2, 3) and the model derivatives at g (SPEC 3)."""
         if not self.rig.is_flexible:
             return np.zeros_like(A)
         _, _, D, K = deformation_jacobians(self.rig, g)
-        return cross(A, y[:, None, :]) @ K[self.cam] - rho[:, None, None] * (A @ D[self.cam])
+        return cross(A, y[:, None, :]) @ K[self.cam] - A @ D[self.cam]
 
-    def _compliance_columns(self, Jc, Je1, W1t, y1, g1, Je2, W2t, y2, g2, rho):
+    def _compliance_columns(self, Jc, Je1, W1t, y1, g1, Je2, W2t, y2, g2):
         """d residual / d compliance k_i: d(W^T y)/dk = W^T [y]_x J_r(-phi) phi/k, dw/dk = delta/k."""
-        u, _, _ = self.rig.bar_coefficients
+        from .deformation import bar_coefficients
+
+        u, _, _ = bar_coefficients(self.rig)
         k = self.rig.compliance
         L = np.linalg.norm(self.rig.positions, axis=1)
         cols = self.groups[self.cam]
@@ -172,7 +137,7 @@ class TwoViewProblem:
             phi = k[:, None] * a
             A = np.einsum("mij,mj->mi", right_jacobian(-phi), a)
             b = (L**3 / 3.0)[:, None] * (g[None, :] - np.sum(u * g, axis=1, keepdims=True) * u)  # delta / k
-            dp = np.einsum("nij,nj->ni", Wt, cross(y, A[self.cam]) - rho[:, None] * b[self.cam])
+            dp = np.einsum("nij,nj->ni", Wt, cross(y, A[self.cam]) - b[self.cam])
             de = np.einsum("nij,nj->ni", Je, dp)
             idx = np.flatnonzero(has)
             Jc[idx, rows, first + cols[idx]] = de[idx]
@@ -190,17 +155,14 @@ class TwoViewProblem:
         J[2:, 6:8] = self.P2.T @ (R.T @ B)
         return r, J / pr.sigma_rad
 
-    def update(self, R, t, g, X, dc, dX):
+    def update(self, R, t, g, P, dc, dP):
         """Apply the step of (dr, t[, dg]) and points; compliance steps are applied by the caller."""
         R = R @ exp_so3(dc[0:3])
         t = t + dc[3:6]
         if self.optimize_gravity:
             gh = normalize(g)
             g = self.gm * normalize(gh + tangent_basis(gh) @ dc[6:8])
-        X = self.points_from_euclidean(X)
-        m = normalize(X[:, :3] + np.einsum("nij,nj->ni", tangent_basis(X[:, :3]), dX[:, :2]))
-        rho = np.maximum(X[:, 3] + dX[:, 2], 0.0)  # a point never crosses infinity to behind its camera
-        return R, t, g, np.concatenate([m, rho[:, None]], axis=1)
+        return R, t, g, P + dP
 
 
 def inv3(A: np.ndarray) -> np.ndarray:
@@ -405,9 +367,9 @@ def refine_two_view(
         o2, d2 = rays(rig, f2, cam, R.T @ g_model)
         points, s, u, par = triangulate_midpoint(o1, d1, o2, d2, R, t)
         bad = par | (s <= 0) | (u <= 0)
-        if bad.any():  # far or behind: (nearly) at infinity along the view-1 ray
-            points = np.where(bad[:, None], o1 + 1e6 * d1, points)
-    P = prob.points_from_euclidean(np.array(points, dtype=float))
+        if bad.any():  # far or behind: put the point far along the view-1 ray
+            points = np.where(bad[:, None], o1 + 1e3 * d1, points)
+    P = np.array(points, dtype=float)
     fixed_sigma = sigma_rad is not None
     if not fixed_sigma:  # start at the noise level of the start, re-estimate it once the fit has settled
         e0, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)
@@ -420,8 +382,7 @@ def refine_two_view(
         cov = np.linalg.inv(info_mat)
     except np.linalg.LinAlgError:
         cov = np.full_like(info_mat, np.inf)
-    return BundleResult(R=R, t=t, g=g if optimize_gravity else None, points=prob.euclidean(P), cost=cost,
-                        iterations=it,
+    return BundleResult(R=R, t=t, g=g if optimize_gravity else None, points=P, cost=cost, iterations=it,
                         sigma_rad=float(sigma_rad), covariance=cov)
 
 
