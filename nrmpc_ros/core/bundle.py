@@ -174,6 +174,8 @@ def inv3(A: np.ndarray) -> np.ndarray:
                    f * g - d * i, a * i - c * g, c * d - a * f,
                    d * h - e * g, b * g - a * h, a * e - b * d], axis=1).reshape(-1, 3, 3)
     det = a * co[:, 0, 0] + b * co[:, 1, 0] + c * co[:, 2, 0]
+    scale = np.abs(A).reshape(len(A), -1).max(axis=1) ** 3
+    det = np.where(np.abs(det) > 1e-14 * scale + 1e-300, det, 1e-14 * scale + 1e-300)  # singular block: huge, not NaN
     return co / det[:, None, None]
 
 
@@ -186,7 +188,7 @@ def _huber(r_norm, delta):
     """Huber cost and IRLS weights of residual norms."""
     quad = r_norm <= delta
     cost = np.where(quad, 0.5 * r_norm**2, delta * (r_norm - 0.5 * delta))
-    weight = np.where(quad, 1.0, delta / np.maximum(r_norm, 1e-300))
+    weight = np.divide(delta, r_norm, out=np.ones_like(r_norm), where=~quad)
     return cost, weight
 
 

@@ -8,7 +8,7 @@ perturbs bearings. The Fisher information of (dr, t, dg, points) is
 J^T J / sigma^2 with the analytic Jacobians of
 :class:`~nrmpc_ros.core.bundle.TwoViewProblem` at the ground truth; the
 points are eliminated by the Schur complement
-(``_Solver.reduced_information``), leaving the 8x8 information of the
+(``Solver.reduced_information``), leaving the 8x8 information of the
 camera block (rotation as a right perturbation R Exp(dr), t in metres,
 gravity as a 2-d.o.f. tangent angle).
 
@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.bundle import TwoViewProblem, _Solver
+from ..core.bundle import Solver, TwoViewProblem
 from ..core.deformation import deformed_extrinsics
 from ..core.rig import Rig
 from ..core.so3 import normalize
@@ -74,8 +74,8 @@ def fisher_information(rig: Rig, P, cam, R, t, g, sigma_rad: float, gravity_prio
     if math.isfinite(gravity_prior_sigma):
         prior = GravityPrior(np.asarray(g, float), R.T @ g, float(gravity_prior_sigma))
     prob = TwoViewProblem(rig, f1, f2, cam, optimize_gravity=True, prior=prior)
-    # Huber threshold at infinity: a plain least-squares information (residuals are zero at the truth anyway)
-    return _Solver(prob, float(sigma_rad), huber_k=1e30).reduced_information(R, t, g, P)
+    # Huber threshold far out: plain least-squares information (residuals are zero at the truth anyway)
+    return Solver(prob, float(sigma_rad), huber_k=1e6).reduced_information(R, t, g, P)
 
 
 def _marginal(info: np.ndarray, idx) -> np.ndarray:

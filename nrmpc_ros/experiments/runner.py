@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core import METHODS, estimate, pose_errors, rig_from_dict
+from ..core import METHODS, Estimate, estimate, pose_errors, rig_from_dict
 from ..errors import InputError, NrmpcError
 from ..sim.synthetic import Scenario, make_problem
 
@@ -53,13 +53,21 @@ def run_task(task: Task) -> list[dict]:
     problem = make_problem(sc, seed=task.seed, rig=rig)
     rows = []
     for method in task.methods:
-        est = estimate(problem.rig, problem.matches, method, seed=task.seed, options=task.options)
+        error = ""
+        try:
+            est = estimate(problem.rig, problem.matches, method, seed=task.seed, options=task.options)
+        except NrmpcError:
+            raise  # the set-up is wrong (e.g. 4pt-bending without gravity): stop and say so
+        except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            # an estimator crash is a failed run, recorded with its reason, not the end of a long sweep
+            est = Estimate(method=method, success=False, info={"reason": repr(exc)})
+            error = f"{type(exc).__name__}: {exc}"
         err = pose_errors(est.R, est.t, problem.R, problem.t, est.gravity, problem.gravity)
         rows.append({
             "cell": task.cell, **task.params, "run": task.run, "seed": task.seed, "method": method,
             "produced": bool(est.success), "success": bool(err["success"]),
             "rotation": err["rotation"], "translation": err["translation"], "translation_m": err["translation_m"],
-            "gravity": err["gravity"], "num_inliers": est.num_inliers, "time_s": est.time_s,
+            "gravity": err["gravity"], "num_inliers": est.num_inliers, "time_s": est.time_s, "error": error,
         })
     return rows
 
@@ -108,7 +116,8 @@ def execute(tasks: list[Task], workers: int = 1, scheduler: str | None = None, p
 
 def _execute_dask(tasks: list[Task], address: str, bar) -> list[dict]:
     try:
-        from dask.distributed import Client, as_completed as dask_as_completed
+        from dask.distributed import Client
+        from dask.distributed import as_completed as dask_as_completed
     except ImportError:
         raise NrmpcError("--scheduler needs dask.distributed: pip install 'dask[distributed]' "
                          "(or the package's [dask] extra)") from None
@@ -157,6 +166,7 @@ def summarize(rows: list[dict], keys: tuple) -> list[dict]:
         row["runs"] = len(grp)
         row["success_rate"] = float(ok.mean())
         row["produced_rate"] = float(produced.mean())
+        row["crashes"] = sum(1 for r in grp if r.get("error"))
         has_gravity = grp[0]["method"] != "6pt-nonbending"
         for kind in ERROR_KINDS:
             vals = np.array([r[kind] for r in grp], float)

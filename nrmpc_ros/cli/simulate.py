@@ -1,0 +1,220 @@
+"""``nrmpc simulate``: synthetic rig, matches and ground truth (issue 3; paper section 4 set-up).
+
+Writes into --out: ``rig.yaml`` (SPEC section 7), ``<prefix>_NNN.npz``
+(matches, SPEC section 7) and ``<prefix>_NNN.truth.json`` (R, t, gravity in
+both views, outlier indices, the scenario and the seed) for --count problems
+with seeds seed, seed+1, ... The scenario comes from flags, from a YAML
+scenario file (the fields of :class:`nrmpc_ros.sim.synthetic.Scenario`, plus
+optional ``seed``, ``count`` and ``rig_file``), or both (flags win).
+
+The argument helpers here are shared with ``nrmpc observability``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import yaml
+
+from ..errors import InputError
+
+# flag dest -> (Scenario field or "rig.<RigSpec field>", type)
+_SCENARIO_FLAGS = {
+    "cameras": "rig.num_cameras", "layout": "rig.layout", "looking": "rig.looking", "bar_length": "rig.bar_length",
+    "mass": "rig.mass", "EI": "rig.EI", "focal": "rig.focal", "points": "num_points", "noise": "pixel_noise",
+    "outliers": "outlier_fraction", "gravity_noise": "gravity_noise_px", "gravity_frame": "gravity_frame",
+    "max_rotation": "max_rotation", "max_translation": "max_translation",
+}
+_EXTRA_KEYS = ("seed", "count", "rig_file")
+
+
+def add_scenario_arguments(p, with_gravity=True) -> None:
+    """Flags of a synthetic scenario (defaults: the paper's nominal case)."""
+    from ..sim.synthetic import GRAVITY_FRAMES, LAYOUTS, LOOKING
+
+    g = p.add_argument_group("scenario (defaults: the paper's nominal case)")
+    g.add_argument("--scenario", metavar="FILE.yaml", help="scenario file (Scenario fields; flags override it)")
+    g.add_argument("--rig", metavar="RIG.yaml", help="custom rig file instead of a simulated layout")
+    g.add_argument("--cameras", type=int, help="number of cameras (default 4)")
+    g.add_argument("--layout", choices=LAYOUTS, help="camera placement (default cross for 4 cameras, else ring)")
+    g.add_argument("--looking", choices=LOOKING, help="cameras look outward along their bars or all forward (+x)")
+    g.add_argument("--bar-length", type=float, help="bar length L (m, default 0.4)")
+    g.add_argument("--mass", type=float, help="tip mass (kg, default 0.1)")
+    g.add_argument("--EI", "--ei", dest="EI", type=float,
+                   help="flexural rigidity (N m^2, default 0.1; inf = rigid); with --rig it sets every massive bar")
+    g.add_argument("--focal", type=float, help="focal length (px, default 800)")
+    g.add_argument("--points", type=int, help="correspondences N (default 1000)")
+    g.add_argument("--noise", type=float, help="pixel noise std (px, default 0.1)")
+    g.add_argument("--outliers", type=float, help="outlier fraction in [0, 1) (default 0.05)")
+    if with_gravity:
+        g.add_argument("--gravity-noise", type=float, help="gravity-measurement noise (px-equivalent angle, "
+                       "default 0.01)")
+        g.add_argument("--gravity-frame", choices=GRAVITY_FRAMES,
+                       help="gravity measured in camera 0's frame, in the body frame, or not at all (default camera)")
+    g.add_argument("--max-rotation", type=float, help="motion: max angle per axis (rad, default 0.5)")
+    g.add_argument("--max-translation", type=float, help="motion: half-size of the translation cube (m, default 2)")
+
+
+def _load_scenario_file(path: str) -> dict:
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except FileNotFoundError:
+        raise InputError(path, "no such scenario file") from None
+    except yaml.YAMLError as exc:
+        raise InputError(path, f"not valid YAML ({exc})") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise InputError(path, "a scenario file must be a mapping of Scenario fields")
+    return data
+
+
+def _check_keys(source, d: dict, allowed, prefix=""):
+    unknown = sorted(set(d) - set(allowed))
+    if unknown:
+        raise InputError(source, f"unknown key (allowed: {', '.join(sorted(allowed))})", prefix + str(unknown[0]))
+
+
+def scenario_from_args(args):
+    """(Scenario, custom Rig or None, extras {'seed', 'count'}) from --scenario and the flags, validated."""
+    from ..core import load_rig
+    from ..sim.synthetic import RigSpec, Scenario
+
+    sc_fields = {f.name for f in dataclasses.fields(Scenario)}
+    rig_fields = {f.name for f in dataclasses.fields(RigSpec)}
+    d: dict = {"rig": {}}
+    extras: dict = {}
+    source = "command line"
+    if getattr(args, "scenario", None):
+        source = args.scenario
+        data = _load_scenario_file(args.scenario)
+        _check_keys(source, data, sc_fields | set(_EXTRA_KEYS))
+        rig_d = data.get("rig") or {}
+        if not isinstance(rig_d, dict):
+            raise InputError(source, "must be a mapping of RigSpec fields", "rig")
+        _check_keys(source, rig_d, rig_fields, "rig.")
+        d.update({k: v for k, v in data.items() if k in sc_fields and k != "rig"})
+        d["rig"].update(rig_d)
+        extras = {k: data[k] for k in _EXTRA_KEYS if k in data}
+        if "rig_file" in extras:
+            rf = Path(extras["rig_file"])
+            extras["rig_file"] = str(rf if rf.is_absolute() else Path(args.scenario).parent / rf)
+    for dest, key in _SCENARIO_FLAGS.items():
+        value = getattr(args, dest, None)
+        if value is None:
+            continue
+        if key.startswith("rig."):
+            d["rig"][key[4:]] = value
+        else:
+            d[key] = value
+    r = d["rig"]
+    if "layout" not in r and r.get("num_cameras", 4) != 4:
+        r["layout"] = "ring"
+    if "resolution" in r:
+        r["resolution"] = tuple(r["resolution"])
+    try:
+        sc = Scenario.from_dict(d)
+    except TypeError as exc:
+        raise InputError(source, f"bad scenario ({exc})") from None
+    _validate(sc, source)
+    rig = None
+    rig_path = getattr(args, "rig", None) or extras.get("rig_file")
+    if rig_path:
+        for dest in ("cameras", "layout", "looking", "bar_length", "mass", "focal"):
+            if getattr(args, dest, None) is not None:
+                raise InputError("--" + dest.replace("_", "-"), "cannot be combined with a custom rig (--rig); "
+                                 "edit the rig file instead")
+        rig = load_rig(rig_path)
+        if getattr(args, "EI", None) is not None:
+            from ..experiments.crlb import set_bar_ei
+
+            rig = set_bar_ei(rig, args.EI)
+    return sc, rig, extras
+
+
+def _validate(sc, source: str) -> None:
+    """Scenario values a generator can use; InputError names the field."""
+    def need(ok, field, msg):
+        if not ok:
+            raise InputError(source, msg, field)
+
+    r = sc.rig
+    need(isinstance(r.num_cameras, int) and r.num_cameras >= 1, "rig.num_cameras", "must be an integer >= 1")
+    try:
+        r.validate()
+    except ValueError as exc:
+        raise InputError(source, str(exc), "rig") from None
+    need(r.bar_length > 0 and math.isfinite(r.bar_length), "rig.bar_length", "must be > 0 (m)")
+    need(r.mass >= 0 and math.isfinite(r.mass), "rig.mass", "must be >= 0 (kg)")
+    need(r.EI > 0, "rig.EI", "must be > 0 (N m^2; inf = rigid)")
+    need(r.focal > 0 and math.isfinite(r.focal), "rig.focal", "must be > 0 (px)")
+    need(isinstance(sc.num_points, int) and sc.num_points >= 1, "num_points", "must be an integer >= 1")
+    need(sc.num_points >= r.num_cameras, "num_points", "must be at least the number of cameras")
+    need(0 <= sc.pixel_noise < math.inf, "pixel_noise", "must be finite and >= 0 (px)")
+    need(0 <= sc.outlier_fraction < 1, "outlier_fraction", "must be in [0, 1)")
+    need(0 <= sc.gravity_noise_px < math.inf, "gravity_noise_px", "must be finite and >= 0 (px)")
+    from ..sim.synthetic import GRAVITY_FRAMES
+
+    need(sc.gravity_frame in GRAVITY_FRAMES, "gravity_frame", f"must be one of {', '.join(GRAVITY_FRAMES)}")
+    need(0 <= sc.max_rotation < math.inf, "max_rotation", "must be finite and >= 0 (rad)")
+    need(0 <= sc.max_translation < math.inf, "max_translation", "must be finite and >= 0 (m)")
+
+
+def register(sub):
+    p = sub.add_parser(
+        "simulate", help="write a synthetic rig, matches .npz and ground-truth JSON",
+        description="Draws --count seeded two-view problems of a bending rig (the paper's section 4 set-up) and "
+                    "writes rig.yaml, <prefix>_NNN.npz and <prefix>_NNN.truth.json into --out. "
+                    "Solve them with: nrmpc solve --rig OUT/rig.yaml --method 4pt-bending OUT/*.npz")
+    p.add_argument("--out", required=True, help="output directory (created if missing)")
+    p.add_argument("--seed", type=int, help="seed of the first problem (default 0); problem k uses seed + k")
+    p.add_argument("--count", type=int, help="number of problems (default 1)")
+    p.add_argument("--prefix", default="pair", help="file name prefix (default: pair)")
+    add_scenario_arguments(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..core import save_matches, save_rig
+    from ..sim.synthetic import make_problem, make_rig
+
+    sc, rig, extras = scenario_from_args(args)
+    seed = args.seed if args.seed is not None else int(extras.get("seed", 0))
+    count = args.count if args.count is not None else int(extras.get("count", 1))
+    if count < 1:
+        raise InputError("--count", f"must be >= 1, got {count}")
+    if not args.prefix or "/" in args.prefix:
+        raise InputError("--prefix", f"must be a plain file name prefix, got {args.prefix!r}")
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(str(out), f"cannot create the output directory ({exc})") from None
+    rig = rig if rig is not None else make_rig(sc.rig)
+    rig_path = out / "rig.yaml"
+    save_rig(rig, rig_path, header=f"written by nrmpc simulate; scenario: {json.dumps(sc.to_dict())}")
+    width = max(3, len(str(count - 1)))
+    for k in range(count):
+        s = seed + k
+        problem = make_problem(sc, seed=s, rig=rig)
+        name = f"{args.prefix}_{k:0{width}d}"
+        save_matches(problem.matches, out / f"{name}.npz")
+        truth = {"matches": f"{name}.npz", "rig": "rig.yaml", "seed": s, **problem.truth_dict(),
+                 "scenario": _jsonable(sc.to_dict())}
+        (out / f"{name}.truth.json").write_text(json.dumps(truth) + "\n")
+    print(f"wrote {rig_path} and {count} problem(s) {args.prefix}_*.npz / .truth.json to {out}")
+    return 0
+
+
+def _jsonable(d):
+    """inf -> 'inf' so the JSON stays standard."""
+    if isinstance(d, dict):
+        return {k: _jsonable(v) for k, v in d.items()}
+    if isinstance(d, (list, tuple)):
+        return [_jsonable(v) for v in d]
+    if isinstance(d, float) and not math.isfinite(d):
+        return str(d)
+    return d

@@ -1,0 +1,332 @@
+"""The paper's section 4 experiments as grids for the Monte Carlo runner, with CSV, PNG and markdown output.
+
+- ``noise-ei``: pixel noise 0-0.2 px x EI 0.1-10 N m^2, all three methods (paper Figs. 4, 5 and 8).
+- ``outliers``: outlier fraction 0-0.4 at EI 0.1, 0.1 px (Figs. 6 and 9).
+- ``gravity-noise``: gravity-measurement noise 0-0.1 px for 4pt-bending (Figs. 7 and 10).
+
+Fixed values follow the paper: 5% outliers, gravity noise 0.01 px, N = 1000,
+VGA f = 800 px, bars 0.4 m with 0.1 kg tips; pixel noise 0.1 px and
+EI = 0.1 where the paper's text does not fix them.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core import METHODS
+from ..core.rig import Rig
+from ..errors import InputError
+from ..sim.synthetic import RigSpec, Scenario
+from .crlb import set_bar_ei
+from .runner import ERROR_KINDS, Task, execute, summarize, task_seed
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    axes: dict  # axis name -> default values
+    methods: tuple
+    figures: str  # paper figures reproduced
+    description: str
+
+
+EXPERIMENTS = {
+    "noise-ei": Experiment("noise-ei", {"pixel_noise": (0.0, 0.05, 0.1, 0.15, 0.2), "EI": (0.1, 0.3, 1.0, 3.0, 10.0)},
+                           METHODS, "Figs. 4, 5 (4 cameras) and 8 (2 cameras)",
+                           "errors and success rate over pixel noise x bar rigidity EI"),
+    "outliers": Experiment("outliers", {"outlier_fraction": (0.0, 0.1, 0.2, 0.3, 0.4)}, METHODS,
+                           "Figs. 6 (4 cameras) and 9 (2 cameras)", "errors over the outlier fraction"),
+    "gravity-noise": Experiment("gravity-noise", {"gravity_noise_px": (0.0, 0.02, 0.04, 0.06, 0.08, 0.1)},
+                                ("4pt-bending",), "Figs. 7 (4 cameras) and 10 (2 cameras)",
+                                "4pt-bending errors over the gravity-measurement noise"),
+}
+
+AXIS_LABELS = {"pixel_noise": "pixel noise (px)", "EI": "EI (N m^2)", "outlier_fraction": "outlier fraction",
+               "gravity_noise_px": "gravity noise (px)"}
+QUICK_RUNS = 30
+
+
+def base_scenario(cameras: int) -> Scenario:
+    """The paper's nominal case for ``cameras`` cameras (cross for 4, ring otherwise)."""
+    layout = "cross" if cameras == 4 else "ring"
+    return Scenario(rig=RigSpec(num_cameras=cameras, layout=layout), pixel_noise=0.1, outlier_fraction=0.05,
+                    gravity_noise_px=0.01, gravity_frame="camera")
+
+
+def _cell_scenario(base: Scenario, params: dict) -> Scenario:
+    d = base.to_dict()
+    for key, value in params.items():
+        if key == "EI":
+            d["rig"]["EI"] = float(value)
+        else:
+            d[key] = float(value)
+    return Scenario.from_dict(d)
+
+
+def make_tasks(exp: Experiment, cameras: int, runs: int, seed: int, axes: dict | None = None,
+               methods: tuple | None = None, rig: Rig | None = None, num_points: int | None = None,
+               options: dict | None = None) -> tuple[list[Task], list[dict]]:
+    """All (cell, run) tasks of an experiment; ``axes`` overrides grid values, ``rig`` replaces the simulated rig."""
+    if runs < 1:
+        raise InputError("--runs", f"must be >= 1, got {runs}")
+    axes = dict(exp.axes if axes is None else axes)
+    for key, values in axes.items():
+        if not values:
+            raise InputError(f"--{key}", "needs at least one value")
+        if any(not math.isfinite(v) and key != "EI" for v in values) or any(v < 0 for v in values):
+            raise InputError(f"--{key}", f"values must be finite and >= 0, got {list(values)}")
+        if key == "outlier_fraction" and any(v >= 1 for v in values):
+            raise InputError(f"--{key}", "outlier fractions must be < 1")
+        if key == "EI" and any(v <= 0 for v in values):
+            raise InputError(f"--{key}", "EI must be > 0 (inf = rigid)")
+    methods = tuple(methods or exp.methods)
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise InputError("--methods", f"unknown method {bad[0]!r} (choose from {', '.join(METHODS)})")
+    if rig is not None:
+        cameras = rig.num_cameras
+    base = base_scenario(cameras)
+    if num_points is not None:
+        if num_points < 12:
+            raise InputError("--points", f"must be >= 12, got {num_points}")
+        base.num_points = int(num_points)
+    names = list(axes)
+    cells = [dict(zip(names, combo)) for combo in itertools.product(*(axes[n] for n in names))]
+    tasks = []
+    for r in range(runs):
+        s = task_seed(seed, r)
+        for i, params in enumerate(cells):
+            sc = _cell_scenario(base, params)
+            rig_d = None
+            if rig is not None:
+                rig_d = (set_bar_ei(rig, params["EI"]) if "EI" in params else rig).to_dict()
+            tasks.append(Task(cell=i, params={"cameras": cameras, **params}, scenario=sc.to_dict(), run=r, seed=s,
+                              methods=methods, rig=rig_d, options=options))
+    return tasks, cells
+
+
+# ---------------------------------------------------------------------------
+# output
+# ---------------------------------------------------------------------------
+
+def write_csv(rows: list[dict], path: Path) -> None:
+    if not rows:
+        return
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _series(summary, method, axis, fixed: dict, stat: str):
+    pts = sorted((r[axis], r[stat]) for r in summary
+                 if r["method"] == method and all(r[k] == v for k, v in fixed.items()))
+    return np.array([p[0] for p in pts], float), np.array([p[1] for p in pts], float)
+
+
+def _positive(y):
+    return np.where(np.isfinite(y) & (y > 0), y, np.nan)
+
+
+def plot_noise_ei(summary, axes: dict, methods, path: Path, title: str) -> list[Path]:
+    """Errors (rows) x methods (columns) over pixel noise, one line per EI; and success rate over EI."""
+    plt = _plt()
+    eis = sorted(axes["EI"])
+    cmap = plt.get_cmap("viridis")
+    colours = {ei: cmap(i / max(len(eis) - 1, 1)) for i, ei in enumerate(eis)}
+    fig, axs = plt.subplots(3, len(methods), figsize=(3.3 * len(methods), 7.2), squeeze=False, sharex=True)
+    for j, method in enumerate(methods):
+        for i, kind in enumerate(ERROR_KINDS):
+            ax = axs[i, j]
+            for ei in eis:
+                for stat, ls in (("mean", "-"), ("median", "--")):
+                    x, y = _series(summary, method, "pixel_noise", {"EI": ei}, f"{kind}_{stat}_success")
+                    ax.plot(x, _positive(y), ls, color=colours[ei], marker=".",
+                            label=f"EI {ei:g} {stat}" if (i, j) == (0, 0) else None)
+            if kind == "gravity" and method == "6pt-nonbending":
+                ax.text(0.5, 0.5, "no gravity", ha="center", va="center", transform=ax.transAxes)
+                ax.set_yticks([])
+            else:
+                ax.set_yscale("log")
+            if i == 0:
+                ax.set_title(method, fontsize=9)
+            if j == 0:
+                ax.set_ylabel(f"{kind} error (rad)", fontsize=8)
+            if i == 2:
+                ax.set_xlabel(AXIS_LABELS["pixel_noise"], fontsize=8)
+            ax.tick_params(labelsize=7)
+    fig.legend(loc="lower center", ncol=min(len(eis) * 2, 6), fontsize=7, frameon=False)
+    fig.suptitle(f"{title}: mean (solid) and median (dashed) over successful runs", fontsize=9)
+    fig.tight_layout(rect=(0, 0.06, 1, 0.97))
+    p1 = path.with_name(path.name + "_errors.png")
+    fig.savefig(p1, dpi=80)
+    plt.close(fig)
+
+    noises = sorted(axes["pixel_noise"])
+    fig, axs = plt.subplots(1, len(methods), figsize=(3.3 * len(methods), 2.8), squeeze=False, sharey=True)
+    ncm = plt.get_cmap("plasma")
+    for j, method in enumerate(methods):
+        ax = axs[0, j]
+        for k, nz in enumerate(noises):
+            x, y = _series(summary, method, "EI", {"pixel_noise": nz}, "success_rate")
+            ax.plot(x, 100 * y, "-o", ms=3, color=ncm(k / max(len(noises), 1)), label=f"{nz:g} px")
+        ax.set_xscale("log")
+        ax.set_ylim(-3, 103)
+        ax.set_title(method, fontsize=9)
+        ax.set_xlabel(AXIS_LABELS["EI"], fontsize=8)
+        ax.tick_params(labelsize=7)
+    axs[0, 0].set_ylabel("success rate (%)", fontsize=8)
+    axs[0, -1].legend(fontsize=7, title="pixel noise", title_fontsize=7)
+    fig.suptitle(f"{title}: success rate (rotation < 0.5 rad and translation < 0.2 rad)", fontsize=9)
+    fig.tight_layout()
+    p2 = path.with_name(path.name + "_success.png")
+    fig.savefig(p2, dpi=80)
+    plt.close(fig)
+    return [p1, p2]
+
+
+def plot_line(summary, axis: str, methods, path: Path, title: str) -> list[Path]:
+    """Errors (mean solid, median dashed, successful runs) and success rate over one axis, a line per method."""
+    plt = _plt()
+    fig, axs = plt.subplots(1, 4, figsize=(12, 2.9))
+    colours = {"6pt-nonbending": "tab:red", "6pt-bending": "tab:blue", "4pt-bending": "tab:green"}
+    for i, kind in enumerate(ERROR_KINDS):
+        ax = axs[i]
+        for method in methods:
+            if kind == "gravity" and method == "6pt-nonbending":
+                continue
+            for stat, ls in (("mean", "-"), ("median", "--")):
+                x, y = _series(summary, method, axis, {}, f"{kind}_{stat}_success")
+                ax.plot(x, _positive(y), ls, marker=".", color=colours.get(method), label=f"{method} {stat}")
+        ax.set_yscale("log")
+        ax.set_title(f"{kind} error (rad)", fontsize=9)
+        ax.set_xlabel(AXIS_LABELS[axis], fontsize=8)
+        ax.tick_params(labelsize=7)
+    for method in methods:
+        x, y = _series(summary, method, axis, {}, "success_rate")
+        axs[3].plot(x, 100 * y, "-o", ms=3, color=colours.get(method), label=method)
+    axs[3].set_ylim(-3, 103)
+    axs[3].set_title("success rate (%)", fontsize=9)
+    axs[3].set_xlabel(AXIS_LABELS[axis], fontsize=8)
+    axs[3].tick_params(labelsize=7)
+    axs[0].legend(fontsize=6)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    p = path.with_name(path.name + ".png")
+    fig.savefig(p, dpi=80)
+    plt.close(fig)
+    return [p]
+
+
+def _fmt(v, scale=1.0, digits=3):
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    return f"{v * scale:.{digits}g}"
+
+
+def claims(exp: Experiment, summary: list[dict]) -> list[str]:
+    """Measured facts that bear on the paper's statements (RESULTS.md compares them)."""
+    lines = []
+    by_method: dict = {}
+    for r in summary:
+        by_method.setdefault(r["method"], []).append(r)
+    for method, rs in by_method.items():
+        rates = [r["success_rate"] for r in rs]
+        lines.append(f"- `{method}`: success rate {100 * min(rates):.0f}% to {100 * max(rates):.0f}% over the grid; "
+                     f"median time {1000 * float(np.median([r['time_median_s'] for r in rs])):.0f} ms")
+    crashes: dict = {}
+    for r in summary:
+        crashes[r["method"]] = crashes.get(r["method"], 0) + r.get("crashes", 0)
+    for method, n in crashes.items():
+        if n:
+            lines.append(f"- `{method}`: {n} run(s) raised an exception inside the estimator (counted as failures; "
+                         "see the `error` column of the runs CSV)")
+    if exp.name == "noise-ei":
+        eis = sorted({r["EI"] for r in summary})
+        for method, rs in by_method.items():
+            lo = np.mean([r["success_rate"] for r in rs if r["EI"] == eis[0]])
+            hi = np.mean([r["success_rate"] for r in rs if r["EI"] == eis[-1]])
+            lines.append(f"- `{method}`: mean success {100 * lo:.0f}% at EI {eis[0]:g} -> {100 * hi:.0f}% at EI "
+                         f"{eis[-1]:g}")
+    return lines
+
+
+def markdown(exp: Experiment, summary, settings: dict, images: list[Path], keys: tuple) -> str:
+    lines = [f"# `nrmpc experiment {exp.name}`", "", f"{exp.description} (paper {exp.figures}).", ""]
+    lines += ["| setting | value |", "| --- | --- |"]
+    lines += [f"| {k} | {v} |" for k, v in settings.items()]
+    lines += ["", "## Findings", ""] + claims(exp, summary)
+    lines += ["", "## Plots", ""] + [f"![{p.stem}]({p.name})" for p in images]
+    lines += ["", "## Summary (errors in mrad; 'ok' = over successful runs, 'all' = over all runs, SPEC section 6)", ""]
+    head = list(keys) + ["method", "success %", "rot med ok", "rot mean ok", "trans med ok", "trans mean ok",
+                         "grav med ok", "grav mean ok", "rot med all", "trans med all", "grav med all", "time ms"]
+    lines += ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    for r in summary:
+        cells = [_fmt(r[k]) for k in keys] + [r["method"], f"{100 * r['success_rate']:.0f}"]
+        for kind in ERROR_KINDS:
+            cells += [_fmt(r[f"{kind}_median_success"], 1e3), _fmt(r[f"{kind}_mean_success"], 1e3)]
+        cells += [_fmt(r[f"{k}_median_all"], 1e3) for k in ERROR_KINDS]
+        cells.append(_fmt(r["time_median_s"], 1e3))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def run_experiment(name: str, out_dir, cameras: int = 4, runs: int = QUICK_RUNS, seed: int = 0, workers: int = 1,
+                   scheduler: str | None = None, axes: dict | None = None, methods: tuple | None = None,
+                   rig: Rig | None = None, num_points: int | None = None, progress: bool = True,
+                   command: str | None = None) -> dict:
+    """Run one experiment and write ``<name>-<M>cam_{runs,summary}.csv``, PNG plots and ``<name>-<M>cam.md``."""
+    if name not in EXPERIMENTS:
+        raise InputError("experiment", f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
+    exp = EXPERIMENTS[name]
+    if cameras < 2 and rig is None:
+        raise InputError("--cameras", f"needs at least 2 cameras (metric scale), got {cameras}")
+    tasks, cells = make_tasks(exp, cameras, runs, seed, axes, methods, rig, num_points)
+    cameras = tasks[0].params["cameras"]
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = out / f"{name}-{cameras}cam"
+    t0 = time.perf_counter()
+    rows = execute(tasks, workers=workers, scheduler=scheduler, progress=progress, desc=f"{name} ({cameras} cams)")
+    wall = time.perf_counter() - t0
+    keys = ("cameras",) + tuple(cells[0])
+    summary = summarize(rows, keys)
+    write_csv(rows, stem.with_name(stem.name + "_runs.csv"))
+    write_csv(summary, stem.with_name(stem.name + "_summary.csv"))
+    used_methods = tuple(tasks[0].methods)
+    title = f"{name}, {cameras} cameras, {runs} runs per cell"
+    if name == "noise-ei":
+        images = plot_noise_ei(summary, {k: sorted({c[k] for c in cells}) for k in cells[0]}, used_methods, stem,
+                               title)
+    else:
+        images = plot_line(summary, next(iter(cells[0])), used_methods, stem, title)
+    settings = {
+        "command": f"`{command}`" if command else "-", "cameras": cameras, "runs per cell": runs,
+        "cells": len(cells), "problems": len(tasks), "seed": seed,
+        "executor": f"dask at {scheduler}" if scheduler else f"{workers} local process(es)",
+        "wall time": f"{wall:.1f} s", "rig": rig.source if rig is not None else "simulated (paper set-up)",
+    }
+    md = stem.with_name(stem.name + ".md")
+    md.write_text(markdown(exp, summary, settings, images, keys[1:]))
+    return {"rows": rows, "summary": summary, "wall_s": wall, "markdown": md, "images": images,
+            "csv": [stem.with_name(stem.name + "_runs.csv"), stem.with_name(stem.name + "_summary.csv")]}
+
+
+__all__ = ["EXPERIMENTS", "QUICK_RUNS", "Experiment", "base_scenario", "make_tasks", "run_experiment"]
