@@ -69,7 +69,7 @@ class TwoViewProblem:
     @staticmethod
     def _residual_jac(p, T):
         """e = T^T p/|p| and de/dp = T^T (I - n n^T)/|p|."""
-        r = np.sqrt(np.einsum("ni,ni->n", p, p))
+        r = np.maximum(np.sqrt(np.einsum("ni,ni->n", p, p)), 1e-300)
         n = p / r[:, None]
         e = np.einsum("nik,ni->nk", T, n)
         J = (np.swapaxes(T, 1, 2) - e[:, :, None] * n[:, None, :]) / r[:, None, None]
@@ -212,6 +212,30 @@ class Solver:
         self.sigma = sigma
         self.delta = huber_k  # Huber threshold in units of sigma
 
+    point_iterations = 1  # embedded point iterations per LM step (small-parallax points are very nonlinear)
+
+    def refine_points(self, R, t, g, P, iterations):
+        """Gauss-Newton on each point alone for fixed (R, t, g): independent 3x3 systems, vectorised.
+
+        Re-optimising the points after each camera step (embedded point
+        iterations) keeps the LM step valid where the linear point update is
+        not (low parallax), at the price of one Jacobian evaluation.
+        """
+        for _ in range(iterations):
+            e, _, Jp = self.prob.evaluate(R, t, g, P)
+            e = e / self.sigma
+            Jp = Jp / self.sigma
+            r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
+            _, wts = _huber(r, self.delta)
+            sw = np.sqrt(np.repeat(wts, 2, axis=1))
+            Jw = Jp * sw[:, :, None]
+            JT = np.swapaxes(Jw, 1, 2)
+            H = JT @ Jw + 1e-12 * np.eye(3)
+            b = -(JT @ (e * sw)[:, :, None])[:, :, 0]
+            dP = (inv3(H) @ b[:, :, None])[:, :, 0]
+            P = P + dP
+        return P
+
     def cost(self, R, t, g, P):
         e, _, _ = self.prob.evaluate(R, t, g, P, want_jacobian=False)
         return self._cost_from(e, R, g)
@@ -302,6 +326,7 @@ class Solver:
             it += 1
             dc, dP = self.solve_damped(Hcc, bc, Hcp, Hpp, bp, lam)
             Rn, tn, gn, Pn = self.prob.update(R, t, g, P, dc, dP)
+            Pn = self.refine_points(Rn, tn, gn, Pn, self.point_iterations)
             new_cost = self.cost(Rn, tn, gn, Pn)
             if np.isfinite(new_cost) and new_cost <= cost:
                 rel = (cost - new_cost) / max(cost, 1e-300)

@@ -247,17 +247,30 @@ def _starts_from_rigid_fit(rig, m, opts, rng, loose):
     return starts, {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers}
 
 
-def _starts_from_camera_rotations(rig, m, opts, rng, tight):
-    """Starts (R, t, g, idx) from per-camera rotations (see :mod:`.gravity_init`)."""
+def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight):
+    """Starts (R, t, g, idx) from per-camera rotations (see :mod:`.gravity_init`).
+
+    Each gravity hypothesis bends the Plücker lines of both views; a 6-point
+    RANSAC on those lines then gives (R, t) and inliers jointly over all
+    cameras (single-camera rotations suffer from the bas-relief ambiguity of
+    narrow fields of view, the whole rig does not).
+    """
     cams, Rc, counts, cam_inl = camera_rotations(m, rig.num_cameras, 3.0 * tight, seed=int(rng.integers(1 << 30)))
     if len(cams) < 2:
         return [], {"cameras_with_rotation": int(len(cams))}
-    idx = _subset(rng, np.flatnonzero(cam_inl), int(opts.subset_size))
     starts = []
+    iterations = 0
     for g0, R0, _ in gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses),
                                                  int(opts.gravity_refine_starts)):
-        starts.append((R0, translation_given_rotation(rig, m, idx, R0, g0), g0, idx))
-    return starts, {"cameras_with_rotation": int(len(cams))}
+        rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0))
+        if rr is not None and rr.num_inliers >= 12:
+            iterations += rr.iterations
+            idx = _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size))
+            starts.append((*rr.model, g0, idx))
+        else:
+            idx = _subset(rng, np.flatnonzero(cam_inl), int(opts.subset_size))
+            starts.append((R0, translation_given_rotation(rig, m, idx, R0, g0), g0, idx))
+    return starts, {"cameras_with_rotation": int(len(cams)), "ransac_iterations": iterations}
 
 
 def _six_point_bending(rig, m, opts, rng):
@@ -269,7 +282,7 @@ def _six_point_bending(rig, m, opts, rng):
         R, t, _, inliers, res = _refine_loop(rig, m, *rr.model, None, tight, opts, optimize_gravity=False)
         return R, t, None, inliers, {"ransac_iterations": rr.iterations, **_pose_info(res, False),
                                      "gravity_unobservable": _RIGID_REASON}
-    starts, info = _starts_from_camera_rotations(rig, m, opts, rng, tight)
+    starts, info = _starts_from_camera_rotations(rig, m, opts, rng, loose, tight)
     if not starts:
         starts, more = _starts_from_rigid_fit(rig, m, opts, rng, loose)
         info.update(more)
@@ -282,16 +295,7 @@ def _six_point_bending(rig, m, opts, rng):
         if best is None or res.cost < best.cost:
             best = res
     info["gravity_starts"] = len(starts)
-    # 6-point RANSAC on the Plücker lines bent at the best gravity: robust pose and inliers under the model
-    rr = _ransac_6pt(rig, m, loose, opts, rng, g=(best.g, best.R.T @ best.g))
-    R, t, g = best.R, best.t, best.g
-    if rr is not None:
-        e_best = _bending_errors(rig, m, R, t, g)
-        e_rr = _bending_errors(rig, m, *rr.model, g)
-        if np.minimum(e_rr, tight).sum() < np.minimum(e_best, tight).sum():
-            R, t = rr.model
-        info["ransac_iterations"] = rr.iterations
-    R, t, g, inliers, res = _refine_loop(rig, m, R, t, g, tight, opts)
+    R, t, g, inliers, res = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts)
     info.update(_pose_info(res, True))
     return R, t, g, inliers, info
 
