@@ -142,6 +142,18 @@ class TwoViewProblem:
             idx = np.flatnonzero(has)
             Jc[idx, rows, first + cols[idx]] = de[idx]
 
+    def triangulate(self, R, t, g):
+        """Midpoint triangulation at (R, t, g); points behind a camera or from parallel rays go far along ray 1."""
+        from .deformation import rays
+        from .residuals import triangulate_midpoint
+
+        gg = g if g is not None else np.array([0.0, 0.0, -self.gm])
+        o1, d1 = rays(self.rig, self.f1, self.cam, gg)
+        o2, d2 = rays(self.rig, self.f2, self.cam, R.T @ gg)
+        P, s, u, par = triangulate_midpoint(o1, d1, o2, d2, R, t)
+        bad = par | (s <= 0) | (u <= 0)
+        return np.where(bad[:, None], o1 + 1e3 * d1, P)
+
     def prior_terms(self, R, g):
         """Prior residuals (4,) and Jacobian (4, nc), already divided by sigma."""
         pr = self.prior
@@ -212,7 +224,7 @@ class Solver:
         self.sigma = sigma
         self.delta = huber_k  # Huber threshold in units of sigma
 
-    point_iterations = 1  # embedded point iterations per LM step (small-parallax points are very nonlinear)
+    point_iterations = 1  # embedded point iterations for a step whose linear point update failed
 
     def refine_points(self, R, t, g, P, iterations):
         """Gauss-Newton on each point alone for fixed (R, t, g): independent 3x3 systems, vectorised.
@@ -221,20 +233,31 @@ class Solver:
         iterations) keeps the LM step valid where the linear point update is
         not (low parallax), at the price of one Jacobian evaluation.
         """
+        if iterations:  # a point stuck far off (e.g. started at infinity) restarts from triangulation
+            P_tri = self.prob.triangulate(R, t, g)
+            c_old = self._point_costs(R, t, g, P)
+            c_tri = self._point_costs(R, t, g, P_tri)
+            P = np.where((c_tri < c_old)[:, None], P_tri, P)
         for _ in range(iterations):
             e, _, Jp = self.prob.evaluate(R, t, g, P)
             e = e / self.sigma
             Jp = Jp / self.sigma
             r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
-            _, wts = _huber(r, self.delta)
+            c0, wts = _huber(r, self.delta)
             sw = np.sqrt(np.repeat(wts, 2, axis=1))
             Jw = Jp * sw[:, :, None]
             JT = np.swapaxes(Jw, 1, 2)
             H = JT @ Jw + 1e-12 * np.eye(3)
             b = -(JT @ (e * sw)[:, :, None])[:, :, 0]
-            dP = (inv3(H) @ b[:, :, None])[:, :, 0]
-            P = P + dP
+            Pn = P + (inv3(H) @ b[:, :, None])[:, :, 0]
+            better = self._point_costs(R, t, g, Pn) < c0.sum(axis=1)  # a point keeps its step only if it helps it
+            P = np.where(better[:, None], Pn, P)
         return P
+
+    def _point_costs(self, R, t, g, P):
+        e, _, _ = self.prob.evaluate(R, t, g, P, want_jacobian=False)
+        c, _ = _huber(np.linalg.norm((e / self.sigma).reshape(-1, 2, 2), axis=2), self.delta)
+        return c.sum(axis=1)
 
     def cost(self, R, t, g, P):
         e, _, _ = self.prob.evaluate(R, t, g, P, want_jacobian=False)
@@ -315,7 +338,8 @@ class Solver:
         return Hcc - _sum_outer(Hcp @ Hpp_inv, Hcp)
 
     def run(self, R, t, g, P, max_iter, tol=1e-6, reestimate_sigma_after: int | None = None):
-        """LM iterations; optionally re-estimate sigma (robustly) once after that many accepted steps.
+        """LM iterations; optionally re-estimate sigma (robustly) after that many accepted steps, and again
+        whenever it has changed by more than half since (the Huber zone follows the shrinking residuals).
 
         The normal equations at the returned point are kept in ``self.system``.
         """
@@ -326,19 +350,24 @@ class Solver:
             it += 1
             dc, dP = self.solve_damped(Hcc, bc, Hcp, Hpp, bp, lam)
             Rn, tn, gn, Pn = self.prob.update(R, t, g, P, dc, dP)
-            Pn = self.refine_points(Rn, tn, gn, Pn, self.point_iterations)
             new_cost = self.cost(Rn, tn, gn, Pn)
+            if not new_cost <= cost and self.point_iterations:
+                # the linear point update failed (low parallax is very nonlinear): re-fit the points to the new
+                # camera block before judging the step (embedded point iterations)
+                Pn = self.refine_points(Rn, tn, gn, Pn, self.point_iterations)
+                new_cost = self.cost(Rn, tn, gn, Pn)
             if np.isfinite(new_cost) and new_cost <= cost:
                 rel = (cost - new_cost) / max(cost, 1e-300)
                 R, t, g, P = Rn, tn, gn, Pn
                 accepted += 1
                 lam = max(lam / 10.0, 1e-9)
                 small_step = np.linalg.norm(dc) < tol
-                if accepted == reestimate_sigma_after:
+                if reestimate_sigma_after is not None and accepted >= reestimate_sigma_after:
                     e, _, _ = self.prob.evaluate(R, t, g, P, want_jacobian=False)
                     new_sigma = robust_sigma(e, self.prob.nc)
-                    rel = max(rel, abs(new_sigma / self.sigma - 1.0))  # the cost changed meaning: go on
-                    self.sigma = new_sigma
+                    if accepted == reestimate_sigma_after or abs(new_sigma / self.sigma - 1.0) > 0.5:
+                        rel = max(rel, abs(new_sigma / self.sigma - 1.0))  # the cost changed meaning: go on
+                        self.sigma = new_sigma
                 cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
                 if rel < tol or small_step:
                     break
@@ -375,9 +404,6 @@ def refine_two_view(
     a first pass. Returns the covariance of (dr, t[, dg]) from the reduced
     normal equations.
     """
-    from .deformation import rays
-    from .residuals import triangulate_midpoint
-
     R = np.asarray(R, dtype=float)
     t = np.asarray(t, dtype=float)
     gm = rig.gravity_magnitude
@@ -388,15 +414,7 @@ def refine_two_view(
     if prior is not None and not optimize_gravity:
         prior = None
     prob = TwoViewProblem(rig, f1, f2, cam, optimize_gravity, prior)
-    if points is None:
-        g_model = g if g is not None else np.array([0.0, 0.0, -gm])
-        o1, d1 = rays(rig, f1, cam, g_model)
-        o2, d2 = rays(rig, f2, cam, R.T @ g_model)
-        points, s, u, par = triangulate_midpoint(o1, d1, o2, d2, R, t)
-        bad = par | (s <= 0) | (u <= 0)
-        if bad.any():  # far or behind: put the point far along the view-1 ray
-            points = np.where(bad[:, None], o1 + 1e3 * d1, points)
-    P = np.array(points, dtype=float)
+    P = prob.triangulate(R, t, g) if points is None else np.array(points, dtype=float)
     fixed_sigma = sigma_rad is not None
     if not fixed_sigma:  # start at the noise level of the start, re-estimate it once the fit has settled
         e0, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)

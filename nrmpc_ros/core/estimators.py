@@ -36,6 +36,7 @@ class EstimatorOptions:
     max_iterations_6pt: int = 150  # gen_relpose_6pt costs ~1 ms a call
     max_iterations_4pt: int = 1000
     patience_6pt: int = 30  # stop once the best 6pt model has not improved for this many samples
+    start_iterations_6pt: int = 12  # 6pt samples per gravity start in 6pt-bending (lines bent at that start)
     patience_4pt: int = 200
     gravity_hypotheses: int = 200  # directions scored cheaply in 6pt-bending before refining
     gravity_refine_starts: int = 3  # best distinct hypotheses refined by bundle adjustment
@@ -150,13 +151,14 @@ def _subset(rng, idx, k):
     return idx if len(idx) <= k else np.sort(rng.choice(idx, size=k, replace=False))
 
 
-def _ransac_6pt(rig_rays: Rig, m: Matches, threshold, opts, rng, g=None):
+def _ransac_6pt(rig_rays: Rig, m: Matches, threshold, opts, rng, g=None, max_iterations=None):
     """6-point RANSAC on rays of rig_rays; g=None canonical, else (g1, g2) bends each view."""
     g1, g2 = (None, None) if g is None else g
     o1, d1 = rays(rig_rays, m.f1, m.cam, g1)
     o2, d2 = rays(rig_rays, m.f2, m.cam, g2)
-    ro = RansacOptions(threshold=threshold, confidence=opts.confidence, max_iterations=opts.max_iterations_6pt,
-                       patience=opts.patience_6pt, local_optimization=False)
+    cap = int(opts.max_iterations_6pt if max_iterations is None else max_iterations)
+    ro = RansacOptions(threshold=threshold, confidence=opts.confidence, max_iterations=cap,
+                       patience=min(int(opts.patience_6pt), cap), local_optimization=False)
     return ransac(SixPointProblem(o1, d1, o2, d2), ro, rng, groups=m.cam)
 
 
@@ -262,7 +264,7 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight):
     iterations = 0
     for g0, R0, _ in gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses),
                                                  int(opts.gravity_refine_starts)):
-        rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0))
+        rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt)
         if rr is not None and rr.num_inliers >= 12:
             iterations += rr.iterations
             idx = _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size))
