@@ -103,7 +103,7 @@ def calibrate_bars(rig: Rig, pairs: list, shared: bool = False, gravity_sigma_ra
     notes = []
     base = EstimatorOptions()
     # Inliers chosen under a wrong compliance are biased towards it: start loose and tighten as k converges.
-    schedule = [8.0, 3.0, 1.0, 1.0]
+    schedule = [8.0, 3.0] + [1.0] * 8  # stops at the first converged round at the final threshold
     it = 0
     for rnd, factor in enumerate(schedule):
         rig_k = _apply(rig, groups, kg)

@@ -25,9 +25,14 @@ def register(sub):
 
 
 def _pairs_from_bag(bag, rig):
+    """Every view pair the pipeline estimates with 4pt-bending on the bag (IMU gravity in both views)."""
     from ..frontend.replay import collect_pairs
 
-    return collect_pairs(bag, rig)
+    stats = {}
+    pairs = collect_pairs(bag, rig, stats=stats)
+    print(f"{len(pairs)} view pairs with IMU gravity from {bag} ({stats['frames']} frame sets, "
+          f"{stats['static_views']} static views)")
+    return pairs
 
 
 def run(args) -> int:

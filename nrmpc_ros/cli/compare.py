@@ -1,4 +1,4 @@
-"""``nrmpc compare``: estimated gravity vs the IMU and ground truth of a bag; relative pose vs ground truth."""
+"""``nrmpc compare``: per-pair and fused gravity vs the IMU and ground truth of a bag; relative pose vs ground truth."""
 
 from __future__ import annotations
 
@@ -12,15 +12,16 @@ from ..frontend.evaluation import evaluate, format_report, plot_errors, read_csv
 
 def register(sub):
     p = sub.add_parser("compare", help="score a replay CSV against the bag's IMU and /ground_truth/*",
-                       description="Angle between the estimated gravity and the IMU's (accelerometer averaged over "
-                                   "still samples around each stamp) and /ground_truth/gravity when present; "
-                                   "relative pose errors against /ground_truth/pose; median/mean/p90 per method.")
+                       description="Angle between the estimated gravity, per pair (raw) and fused (columns gfx, "
+                                   "gfy, gfz), and the IMU's (accelerometer averaged over still samples around "
+                                   "each stamp) and /ground_truth/gravity when present; relative pose errors "
+                                   "against /ground_truth/pose; median/mean/p90 per method.")
     p.add_argument("csv", metavar="OUT.csv", help="estimates written by nrmpc replay (SPEC section 11)")
     p.add_argument("--bag", required=True, help="the bag the estimates came from")
     p.add_argument("--imu-topic", default="/imu/data", help="IMU topic (default /imu/data; ignored if absent)")
     p.add_argument("--rig", help="rig file: its imu mount turns readings into body gravity (default: IMU = body)")
     p.add_argument("--imu-window", type=float, default=0.25, help="average still IMU samples within +- this (s)")
-    p.add_argument("--plot", metavar="OUT.png", help="write a PNG of the errors over time")
+    p.add_argument("--plot", metavar="OUT.png", help="write a PNG of the raw and fused errors over time")
     p.add_argument("--json", metavar="OUT.json", help="write the statistics as JSON")
     p.add_argument("--quiet", action="store_true", help="statistics only, not every estimate")
     p.set_defaults(func=run)

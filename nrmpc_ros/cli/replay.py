@@ -13,8 +13,8 @@ from ..bag.reader import BagReader
 from ..core import load_rig
 from ..errors import InputError
 from ..frontend.evaluation import CsvWriter, evaluate, format_report, read_reference, row_from_estimate
-from ..frontend.images import decode_image, stamp_seconds
-from ..frontend.pipeline import PIPELINE_METHODS, FrameSet, Pipeline, PipelineConfig
+from ..frontend.pipeline import PIPELINE_METHODS, Pipeline, PipelineConfig
+from ..frontend.replay import check_camera_info, replay_bag, resolve_imu_topic
 from ..frontend.sync import StampSynchronizer
 
 
@@ -54,71 +54,6 @@ def load_config(path, seed: int) -> PipelineConfig:
     return PipelineConfig.from_dict(d, source=str(path or "pipeline config"))
 
 
-def check_camera_info(bag: BagReader, rig, warn) -> None:
-    """Report CameraInfo messages that disagree with the rig file (the rig file wins)."""
-    topics = [c.info_topic for c in rig.cameras if c.info_topic and bag.has_topic(c.info_topic)]
-    seen = set()
-    for topic, _, msg in bag.messages(topics):
-        if topic in seen:
-            continue
-        seen.add(topic)
-        cam = next(c for c in rig.cameras if c.info_topic == topic)
-        K = np.asarray(msg.k, dtype=float).reshape(3, 3)
-        fx, fy, cx, cy = cam.intrinsics
-        if (int(msg.width), int(msg.height)) != tuple(cam.resolution):
-            warn(f"{topic}: CameraInfo says {msg.width}x{msg.height}, the rig file {cam.resolution[0]}x"
-                 f"{cam.resolution[1]} (using the rig file)")
-        elif not np.allclose([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], [fx, fy, cx, cy], atol=0.5):
-            warn(f"{topic}: CameraInfo intrinsics {K[0, 0]:.1f} {K[1, 1]:.1f} {K[0, 2]:.1f} {K[1, 2]:.1f} differ "
-                 f"from the rig file's {fx:.1f} {fy:.1f} {cx:.1f} {cy:.1f} (using the rig file)")
-        if len(seen) == len(topics):
-            break
-
-
-def replay(bag: BagReader, rig, pipe: Pipeline, sync: StampSynchronizer, imu_topic: str | None, on_estimate,
-           warn, progress: bool = True) -> None:
-    """Feed a bag's images (synchronised) and IMU samples through ``pipe`` in bag order."""
-    cam_topics = [c.image_topic for c in rig.cameras]
-    bag.require(cam_topics)
-    topics = cam_topics + ([imu_topic] if imu_topic else [])
-    index = {t: i for i, t in enumerate(cam_topics)}
-    warned = set()
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=bag.count(topics), unit="msg", desc="replay", file=sys.stderr, leave=False)
-    try:
-        for topic, _, msg in bag.messages(topics):
-            if bar is not None:
-                bar.update(1)
-            if topic == imu_topic:
-                a, w = msg.linear_acceleration, msg.angular_velocity
-                pipe.add_imu(stamp_seconds(msg), (a.x, a.y, a.z), (w.x, w.y, w.z))
-                continue
-            try:
-                img = decode_image(msg, topic)
-            except InputError as exc:
-                pipe.stats.dropped[f"image not decoded ({topic})"] += 1
-                if topic not in warned:
-                    warned.add(topic)
-                    warn(str(exc))
-                continue
-            for group in sync.add(index[topic], stamp_seconds(msg), img):
-                try:
-                    for est in pipe.add_frames(FrameSet(group.stamp, group.items)):
-                        on_estimate(est)
-                except InputError as exc:
-                    pipe.stats.dropped["bad frame set"] += 1
-                    key = exc.source
-                    if key not in warned:
-                        warned.add(key)
-                        warn(str(exc))
-    finally:
-        if bar is not None:
-            bar.close()
-
-
 def run(args) -> int:
     rig = load_rig(args.rig)
     cfg = load_config(args.config, args.seed)
@@ -129,28 +64,18 @@ def run(args) -> int:
 
     with BagReader(args.bag) as bag:
         bag.require([c.image_topic for c in rig.cameras])
-        imu_topic = None
-        if not args.no_imu:
-            imu_topic = args.imu_topic or (rig.imu.topic if rig.imu is not None else None)
-            if imu_topic and rig.imu is None:
-                raise InputError(args.rig, "--imu-topic given but the rig file has no imu block (mount unknown)",
-                                 "imu")
-            if imu_topic and not bag.has_topic(imu_topic):
-                warn(f"IMU topic {imu_topic!r} not in the bag (topics: {bag.describe_topics()}); running without IMU")
-                imu_topic = None
+        imu_topic = resolve_imu_topic(bag, rig, args.imu_topic, use_imu=not args.no_imu, warn=warn)
         check_camera_info(bag, rig, warn)
         pipe = Pipeline(rig, cfg, method=args.method)
         sync = StampSynchronizer(rig.num_cameras, args.sync_tolerance, args.queue_size)
         writer = CsvWriter(args.out)
         rows = []
-
-        def on_estimate(est):
-            row = row_from_estimate(est)
-            writer.write(row)
-            rows.append(row)
-
         try:
-            replay(bag, rig, pipe, sync, imu_topic, on_estimate, warn, progress=not args.no_progress)
+            for estimates in replay_bag(bag, rig, pipe, imu_topic, sync, warn, progress=not args.no_progress):
+                for est in estimates:
+                    row = row_from_estimate(est)
+                    writer.write(row)
+                    rows.append(row)
         finally:
             writer.close()
         ref = read_reference(bag, imu_topic)

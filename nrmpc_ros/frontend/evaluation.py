@@ -4,7 +4,9 @@ One implementation for ``nrmpc replay``'s summary and ``nrmpc compare``:
 :func:`read_reference` loads the IMU and ``/ground_truth/*`` of a bag,
 :func:`evaluate` computes per-estimate errors (gravity vs IMU and vs ground
 truth, relative pose vs ground truth) and their statistics, :func:`format_report`
-prints them and :func:`plot_errors` draws them.
+prints them and :func:`plot_errors` draws them. Raw (per-pair) and fused
+gravity (the pipeline's running estimate, columns gfx, gfy, gfz) are scored
+side by side.
 """
 
 from __future__ import annotations
@@ -24,7 +26,9 @@ from .images import stamp_seconds
 
 CSV_HEADER = ["stamp", "ref_stamp", "method", "qx", "qy", "qz", "qw", "tx", "ty", "tz", "gx", "gy", "gz",
               "num_inliers", "time_ms"]
-CSV_EXTRA = ["num_matches", "match_mode", "gravity_sigma_deg", "tilt_deg"]
+FUSED_COLUMNS = ["gfx", "gfy", "gfz"]  # fused gravity, current body frame (m/s^2)
+CSV_EXTRA = ["num_matches", "match_mode", "gravity_sigma_deg", "tilt_deg", *FUSED_COLUMNS, "gravity_fused_sigma_deg",
+             "fused_count", "fused_rejected"]
 GT_POSE_TOPIC = "/ground_truth/pose"
 GT_GRAVITY_TOPIC = "/ground_truth/gravity"
 STAMP_TOLERANCE_S = 0.01  # ground truth is matched to an image stamp within this
@@ -47,15 +51,18 @@ class EstimateRow:
     num_inliers: int
     time_ms: float
     extra: dict = field(default_factory=dict)
+    gravity_fused: np.ndarray | None = None  # fused gravity, current body frame
 
 
 def row_from_estimate(e) -> EstimateRow:
     """A :class:`~nrmpc_ros.frontend.pipeline.PipelineEstimate` as a CSV row."""
     extra = {"num_matches": e.num_matches, "match_mode": e.match_mode, "gravity_sigma_deg": e.gravity_sigma_deg,
-             "tilt_deg": e.tilt_deg}
+             "tilt_deg": e.tilt_deg, "gravity_fused_sigma_deg": e.gravity_fused_sigma_deg,
+             "fused_count": e.fused_count, "fused_rejected": e.fused_rejected}
     g = None if e.gravity is None else np.asarray(e.gravity)
+    gf = None if e.gravity_fused is None else np.asarray(e.gravity_fused)
     return EstimateRow(e.stamp, e.ref_stamp, e.method, np.asarray(e.R), np.asarray(e.t), g, int(e.num_inliers),
-                       float(e.time_ms), extra)
+                       float(e.time_ms), extra, gf)
 
 
 def _fmt(x) -> str:
@@ -84,7 +91,8 @@ class CsvWriter:
         q = matrix_to_quat_xyzw(row.R)
         g = [None] * 3 if row.gravity is None else list(row.gravity)
         vals = [row.stamp, row.ref_stamp, row.method, *q, *row.t, *g, row.num_inliers, row.time_ms]
-        vals += [row.extra.get(k) for k in CSV_EXTRA]
+        gf = dict(zip(FUSED_COLUMNS, [None] * 3 if row.gravity_fused is None else row.gravity_fused))
+        vals += [gf[k] if k in gf else row.extra.get(k) for k in CSV_EXTRA]
         self._w.writerow([_fmt(v) for v in vals])
         self._f.flush()
 
@@ -117,10 +125,16 @@ def read_csv(path) -> list:
             q = np.array([num["qx"], num["qy"], num["qz"], num["qw"]])
             if not np.isfinite(q).all() or abs(np.linalg.norm(q) - 1) > 1e-3:
                 raise InputError(src, f"line {line}: quaternion must have unit norm", "qx")
-            extra = {k: d[k] for k in header[len(CSV_HEADER):] if k in d}
+            gf = None
+            if all(d.get(k, "") != "" for k in FUSED_COLUMNS):
+                try:
+                    gf = np.array([float(d[k]) for k in FUSED_COLUMNS])
+                except ValueError as exc:
+                    raise InputError(src, f"line {line}: bad fused gravity ({exc})", "gfx") from None
+            extra = {k: d[k] for k in header[len(CSV_HEADER):] if k in d and k not in FUSED_COLUMNS}
             rows.append(EstimateRow(num["stamp"], num["ref_stamp"], d["method"], quat_xyzw_to_matrix(q),
                                     np.array([num["tx"], num["ty"], num["tz"]]), g, int(num["num_inliers"]),
-                                    num["time_ms"], extra))
+                                    num["time_ms"], extra, gf))
     return rows
 
 
@@ -224,6 +238,8 @@ def imu_gravity_at(ref: Reference, stamp: float, rig: Rig | None = None, window_
 METRICS = {
     "gravity_vs_gt_deg": "gravity vs ground truth (deg)",
     "gravity_vs_imu_deg": "gravity vs IMU (deg)",
+    "fused_vs_gt_deg": "fused gravity vs ground truth (deg)",
+    "fused_vs_imu_deg": "fused gravity vs IMU (deg)",
     "imu_vs_gt_deg": "IMU gravity vs ground truth (deg)",
     "rotation_deg": "relative rotation vs ground truth (deg)",
     "translation_deg": "translation direction vs ground truth (deg)",
@@ -283,10 +299,11 @@ def evaluate(rows: list, ref: Reference, rig: Rig | None = None, imu_window_s: f
         g_imu = imu_gravity_at(ref, r.stamp, rig, imu_window_s) if ref.has_imu else None
         j = _nearest(ref.grav_t, r.stamp)
         g_gt = ref.grav_g[j] if j is not None else None
-        if r.gravity is not None and g_imu is not None:
-            err["gravity_vs_imu_deg"][k] = math.degrees(float(angle_between(r.gravity, g_imu)))
-        if r.gravity is not None and g_gt is not None:
-            err["gravity_vs_gt_deg"][k] = math.degrees(float(angle_between(r.gravity, g_gt)))
+        for kind, g in (("gravity", r.gravity), ("fused", r.gravity_fused)):
+            if g is not None and g_imu is not None:
+                err[f"{kind}_vs_imu_deg"][k] = math.degrees(float(angle_between(g, g_imu)))
+            if g is not None and g_gt is not None:
+                err[f"{kind}_vs_gt_deg"][k] = math.degrees(float(angle_between(g, g_gt)))
         if g_imu is not None and g_gt is not None:
             err["imu_vs_gt_deg"][k] = math.degrees(float(angle_between(g_imu, g_gt)))
         i1, i2 = _nearest(ref.pose_t, r.ref_stamp), _nearest(ref.pose_t, r.stamp)
@@ -308,17 +325,31 @@ def evaluate(rows: list, ref: Reference, rig: Rig | None = None, imu_window_s: f
 
 
 def format_report(ev: Evaluation, per_estimate: bool = True) -> str:
-    """Text table of the estimates and their errors, then statistics per method."""
+    """Text table of the estimates and their errors, a raw-vs-fused gravity table, then statistics per method."""
     lines = []
+    e = ev.errors
     if per_estimate and ev.rows:
         t0 = min(min(r.stamp, r.ref_stamp) for r in ev.rows)
         lines.append(f"{'stamp':>9} {'ref':>9} {'method':<15}{'inl':>5} {'ms':>6} {'g_vs_gt':>8} {'g_vs_imu':>8} "
-                     f"{'rot':>7} {'t_dir':>6}   (times from {t0:.3f} s, errors in deg)")
-        e = ev.errors
+                     f"{'gf_vs_gt':>8} {'gf_vs_imu':>9} {'rot':>7} {'t_dir':>6}   (times from {t0:.3f} s, errors "
+                     "in deg; gf = fused gravity)")
         for k, r in enumerate(ev.rows):
             lines.append(f"{r.stamp - t0:9.3f} {r.ref_stamp - t0:9.3f} {r.method:<15}{r.num_inliers:5d} "
                          f"{r.time_ms:6.0f} {e['gravity_vs_gt_deg'][k]:8.3f} {e['gravity_vs_imu_deg'][k]:8.3f} "
+                         f"{e['fused_vs_gt_deg'][k]:8.3f} {e['fused_vs_imu_deg'][k]:9.3f} "
                          f"{e['rotation_deg'][k]:7.3f} {e['translation_deg'][k]:6.2f}")
+    table = []
+    for method in ev.methods:
+        for kind, label in (("gravity", "raw"), ("fused", "fused")):
+            gt, imu = ev.stats(f"{kind}_vs_gt_deg", method), ev.stats(f"{kind}_vs_imu_deg", method)
+            if gt["n"] or imu["n"]:
+                table.append(f"  {method:<15}{label:<6}{gt['median']:8.3f} {gt['mean']:7.3f} {gt['p90']:7.3f} "
+                             f"{gt['n']:4d} {imu['median']:9.3f} {imu['mean']:7.3f} {imu['p90']:7.3f} {imu['n']:4d}")
+    if table:
+        lines.append("gravity error (deg), per-pair (raw) and fused estimates:")
+        lines.append(f"  {'method':<15}{'':<6}{'vs ground truth: median':>23}{'mean':>8}{'p90':>8}{'n':>5}"
+                     f"{'vs IMU: median':>15}{'mean':>8}{'p90':>8}{'n':>5}")
+        lines += table
     for method in ev.methods:
         lines.append(f"{method}: {sum(r.method == method for r in ev.rows)} estimates")
         for key, label in METRICS.items():
@@ -335,7 +366,7 @@ def format_report(ev: Evaluation, per_estimate: bool = True) -> str:
 
 
 def plot_errors(ev: Evaluation, path) -> None:
-    """PNG: gravity error over time (vs IMU and ground truth) and relative-pose errors."""
+    """PNG: raw and fused gravity error over time (vs IMU and ground truth) and relative-pose errors."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -345,9 +376,12 @@ def plot_errors(ev: Evaluation, path) -> None:
     t = np.array([r.stamp for r in ev.rows])
     t = t - t.min() if len(t) else t
     e = ev.errors
-    for key, style in (("gravity_vs_gt_deg", "o-"), ("gravity_vs_imu_deg", "s--"), ("imu_vs_gt_deg", ":")):
+    for key, style, color in (("gravity_vs_gt_deg", "o-", "C0"), ("gravity_vs_imu_deg", "s--", "C0"),
+                              ("fused_vs_gt_deg", "o-", "C3"), ("fused_vs_imu_deg", "s--", "C3"),
+                              ("imu_vs_gt_deg", ":", "C7")):
         if np.isfinite(e[key]).any():
-            axes[0].plot(t, e[key], style, label=METRICS[key])
+            label = "raw " + METRICS[key] if key.startswith("gravity_") else METRICS[key]
+            axes[0].plot(t, e[key], style, color=color, label=label)
     axes[0].set_ylabel("gravity error (deg)")
     axes[0].set_title(", ".join(f"{m}: {sum(r.method == m for r in ev.rows)}" for m in ev.methods) or "no estimates")
     for key, style in (("rotation_deg", "o-"), ("translation_deg", "s--")):

@@ -23,14 +23,40 @@ import numpy as np
 
 from ..cameras import check_image_size
 from ..core import METHODS, EstimatorOptions, Matches, estimate
+from ..core.fusion import CHI2_2DOF_999, GravityFusion
 from ..core.rig import Rig
-from ..core.so3 import angle_between, rotation_angle
+from ..core.so3 import angle_between, rotation_angle, tangent_basis
 from ..errors import InputError
 from .imu import ImuBuffer, ImuConfig, ImuGravity
 from .static import StaticConfig, StaticDetector
 from .tracking import KltTracker, TrackingConfig, detect_features, match_features, verify_pairs
 
 PIPELINE_METHODS = ("auto",) + METHODS
+# EstimatorOptions the pipeline changes from the core defaults (throughput, docs/PIPELINE.md "Throughput"):
+# the gravity starts of 6pt-bending are compared on 100 correspondences, 2 of them refined, BA capped at 10 steps.
+ESTIMATOR_DEFAULTS = {"subset_size": 100, "gravity_refine_starts": 2, "max_ba_iterations": 10}
+
+
+@dataclass
+class FusionConfig:
+    """Fused gravity (:class:`~nrmpc_ros.core.fusion.GravityFusion`) settings."""
+
+    cov_scale: float = 4.0  # variance inflation of the BA gravity covariance (it misses model and rendering errors)
+    process_sigma_deg: float = 0.057  # added per propagation (rotation errors the covariance misses)
+    gate: float = CHI2_2DOF_999  # Mahalanobis^2 above which an estimate is rejected as an outlier
+    max_rejections: int = 3  # consecutive rejections that restart the fused state from the newest estimate
+
+    def __post_init__(self):
+        for name in ("cov_scale", "gate"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not v > 0:
+                raise InputError("pipeline config", f"must be a positive number, got {v!r}", f"fusion.{name}")
+        if not isinstance(self.process_sigma_deg, (int, float)) or not self.process_sigma_deg >= 0:
+            raise InputError("pipeline config", f"must be >= 0, got {self.process_sigma_deg!r}",
+                             "fusion.process_sigma_deg")
+        if not isinstance(self.max_rejections, int) or self.max_rejections < 1:
+            raise InputError("pipeline config", f"must be an integer >= 1, got {self.max_rejections!r}",
+                             "fusion.max_rejections")
 
 
 @dataclass
@@ -40,7 +66,8 @@ class PipelineConfig:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     static: StaticConfig = field(default_factory=StaticConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
-    estimator: dict = field(default_factory=dict)  # EstimatorOptions fields
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+    estimator: dict = field(default_factory=lambda: dict(ESTIMATOR_DEFAULTS))  # EstimatorOptions fields
     imu_still_window_s: float = 0.2  # IMU stillness of a snapshot frame is checked over this window before it
     min_matches: int = 40  # verified correspondences (all cameras) needed to estimate
     min_cameras: int = 2  # cameras contributing correspondences
@@ -53,7 +80,7 @@ class PipelineConfig:
     def from_dict(cls, d: dict | None, source: str = "pipeline config") -> PipelineConfig:
         """Build from a nested mapping (e.g. YAML / ROS parameters); unknown keys are errors."""
         d = dict(d or {})
-        sub = {"tracking": TrackingConfig, "static": StaticConfig, "imu": ImuConfig}
+        sub = {"tracking": TrackingConfig, "static": StaticConfig, "imu": ImuConfig, "fusion": FusionConfig}
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - names)
         if unknown:
@@ -66,6 +93,8 @@ class PipelineConfig:
                 if bad:
                     raise InputError(source, f"unknown option (allowed: {', '.join(sorted(allowed))})", f"{k}.{bad[0]}")
                 kw[k] = sub[k](**(v or {}))
+            elif k == "estimator":
+                kw[k] = {**ESTIMATOR_DEFAULTS, **(v or {})}  # given options on top of the pipeline's defaults
             else:
                 kw[k] = v
         cfg = cls(**kw)
@@ -100,6 +129,12 @@ class PipelineEstimate:
     imu_gravity: np.ndarray | None = None  # IMU gravity of the current view (body frame), when available
     tilt_deg: float = math.nan  # angle between gravity in the two body frames
     info: dict = field(default_factory=dict)
+    gravity_fused: np.ndarray | None = None  # fused gravity (all estimates so far), current body frame, m/s^2
+    cov_gravity_fused: np.ndarray | None = None  # 3x3, current body frame (rank 2: tangent to the sphere)
+    gravity_fused_sigma_deg: float = math.nan  # largest angular std of gravity_fused
+    fused_count: int = 0  # estimates in the fused state since its last (re)start
+    fused_rejected: int = 0  # estimates rejected as outliers since then
+    fused_accepted: bool | None = None  # whether this estimate's gravity entered the fused state
 
 
 @dataclass
@@ -154,6 +189,11 @@ class Pipeline:
         self.last_stamp = -math.inf
         self.last_method: str | None = None
         self.last_pair = None  # (ref stamp, stamp, Matches) of the latest estimation, for diagnostics
+        fc = self.config.fusion
+        self.fusion = GravityFusion(rig.gravity_magnitude, gate=fc.gate, process_sigma_rad=math.radians(
+            fc.process_sigma_deg), max_rejections=fc.max_rejections)
+        self._orient: dict = {}  # view stamp -> orientation in the first view of the current chain of estimates
+        self._fused_stamp: float | None = None  # view whose body frame holds the fused state
 
     # ------------------------------------------------------------------ input
     def add_imu(self, stamp: float, accel, gyro=None) -> None:
@@ -313,6 +353,7 @@ class Pipeline:
         if not est.success:
             self.stats.dropped[f"estimation failed: {est.info.get('reason', 'unknown')}"] += 1
             return None
+        self._chain(ref, view, est.R)
         g_cur, cov, sigma, tilt = est.gravity2, None, math.nan, math.nan
         if g_cur is not None:
             tilt = math.degrees(float(angle_between(est.gravity, g_cur)))
@@ -324,8 +365,41 @@ class Pipeline:
                 return None
         self.stats.estimates += 1
         self.stats.methods[method] += 1
-        return PipelineEstimate(
+        out = PipelineEstimate(
             stamp=view.stamp, ref_stamp=ref.stamp, method=method, R=est.R, t=est.t, gravity=g_cur,
             num_inliers=est.num_inliers, time_ms=elapsed, num_matches=len(cam), match_mode=mode, cov_gravity=cov,
             gravity_sigma_deg=sigma, imu_gravity=None if view.imu is None else view.imu.gravity, tilt_deg=tilt,
             info=est.info)
+        self._fuse(out)
+        return out
+
+    # ----------------------------------------------------------- fused gravity
+    def _chain(self, ref: _View, view: _View, R: np.ndarray) -> None:
+        """Record the orientation of ``view``; a reference outside the chain starts a new one (fusion restarts)."""
+        if ref.stamp not in self._orient:
+            self._orient = {ref.stamp: np.eye(3)}
+            self.fusion.reset()
+            self._fused_stamp = None
+        self._orient[view.stamp] = self._orient[ref.stamp] @ R
+        keep = {ref.stamp, view.stamp, self._fused_stamp, self.reference.stamp,
+                None if self.previous is None else self.previous.stamp}
+        self._orient = {k: v for k, v in self._orient.items() if k in keep}
+
+    def _fuse(self, e: PipelineEstimate) -> None:
+        """Carry the fused gravity into the current body frame, fuse this estimate, fill e's fused fields."""
+        fz = self.fusion
+        if self._fused_stamp is not None and self._fused_stamp != e.stamp:
+            R_delta = self._orient[self._fused_stamp].T @ self._orient[e.stamp]
+            cov_rot = e.info.get("cov_rotation")  # right perturbation of R, hence of R_delta
+            fz.propagate(R_delta, None if cov_rot is None else np.asarray(cov_rot))
+            self._fused_stamp = e.stamp
+        if e.gravity is not None and e.cov_gravity is not None and np.all(np.isfinite(e.cov_gravity)):
+            e.fused_accepted = fz.update(e.gravity, self.config.fusion.cov_scale * e.cov_gravity)
+            self._fused_stamp = e.stamp
+        st = fz.state
+        if st is None:
+            return
+        B = tangent_basis(st.gravity / np.linalg.norm(st.gravity)) * self.rig.gravity_magnitude
+        e.gravity_fused, e.cov_gravity_fused = st.gravity, B @ st.cov_tangent @ B.T
+        e.gravity_fused_sigma_deg = math.degrees(st.sigma_rad)
+        e.fused_count, e.fused_rejected = st.num_fused, st.num_rejected

@@ -1,0 +1,160 @@
+"""Bag -> pipeline: the one loop over a bag's messages, shared by ``nrmpc replay`` and ``nrmpc calibrate-bars``.
+
+    with BagReader(path) as bag:
+        imu_topic = resolve_imu_topic(bag, rig)
+        pipe = Pipeline(rig, PipelineConfig(), method="auto")
+        for estimates in replay_bag(bag, rig, pipe, imu_topic):
+            ...                                   # one list per processed frame set (often empty)
+
+:func:`collect_pairs` runs 4pt-bending over a bag with an IMU and returns
+every estimated pair's matches with the IMU gravity of both views (for
+:func:`nrmpc_ros.calibration.calibrate_bars`).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterator
+
+import numpy as np
+
+from ..bag.reader import BagReader
+from ..core.rig import Rig
+from ..errors import InputError
+from .images import decode_image, stamp_seconds
+from .pipeline import FrameSet, Pipeline, PipelineConfig
+from .sync import StampSynchronizer
+
+
+def _stderr_warn(msg: str) -> None:
+    print(f"nrmpc: warning: {msg}", file=sys.stderr)
+
+
+def resolve_imu_topic(bag: BagReader, rig: Rig, requested: str | None = None, use_imu: bool = True,
+                      required: bool = False, warn: Callable = _stderr_warn) -> str | None:
+    """The IMU topic to feed: ``requested`` or the rig file's ``imu.topic``, if the bag has it.
+
+    With ``required`` a missing IMU is an :class:`InputError` naming the rig file or
+    the bag; otherwise it is a warning and None (run without IMU).
+    """
+    if not use_imu:
+        return None
+    if rig.imu is None:
+        if requested or required:
+            why = (f"but the IMU topic {requested!r} was given" if requested
+                   else "but an IMU is needed here (gravity of every view)")
+            raise InputError(rig.source, f"the rig file has no imu block (the IMU's topic and mount), {why}", "imu")
+        return None
+    topic = requested or rig.imu.topic
+    if not bag.has_topic(topic):
+        if required:
+            raise InputError(bag.source, f"IMU topic {topic!r} (rig file {rig.source}) not in the bag, but an IMU "
+                             f"is needed here (topics: {bag.describe_topics()})", topic)
+        warn(f"IMU topic {topic!r} not in the bag (topics: {bag.describe_topics()}); running without IMU")
+        return None
+    return topic
+
+
+def check_camera_info(bag: BagReader, rig: Rig, warn: Callable = _stderr_warn) -> None:
+    """Report CameraInfo messages that disagree with the rig file (the rig file wins)."""
+    topics = [c.info_topic for c in rig.cameras if c.info_topic and bag.has_topic(c.info_topic)]
+    seen = set()
+    for topic, _, msg in bag.messages(topics):
+        if topic in seen:
+            continue
+        seen.add(topic)
+        cam = next(c for c in rig.cameras if c.info_topic == topic)
+        K = np.asarray(msg.k, dtype=float).reshape(3, 3)
+        fx, fy, cx, cy = cam.intrinsics
+        if (int(msg.width), int(msg.height)) != tuple(cam.resolution):
+            warn(f"{topic}: CameraInfo says {msg.width}x{msg.height}, the rig file {cam.resolution[0]}x"
+                 f"{cam.resolution[1]} (using the rig file)")
+        elif not np.allclose([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], [fx, fy, cx, cy], atol=0.5):
+            warn(f"{topic}: CameraInfo intrinsics {K[0, 0]:.1f} {K[1, 1]:.1f} {K[0, 2]:.1f} {K[1, 2]:.1f} differ "
+                 f"from the rig file's {fx:.1f} {fy:.1f} {cx:.1f} {cy:.1f} (using the rig file)")
+        if len(seen) == len(topics):
+            break
+
+
+def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline, imu_topic: str | None = None,
+               sync: StampSynchronizer | None = None, warn: Callable = _stderr_warn,
+               progress: bool = False) -> Iterator[list]:
+    """Feed a bag's images (synchronised) and IMU samples through ``pipe`` in bag order.
+
+    Yields the list of estimates of every frame set handed to the pipeline
+    (usually empty), so ``pipe.last_pair`` can be read after each. Undecodable
+    images and bad frame sets are counted in ``pipe.stats.dropped`` and warned
+    about once per topic.
+    """
+    cam_topics = [c.image_topic for c in rig.cameras]
+    bag.require(cam_topics)
+    sync = sync or StampSynchronizer(rig.num_cameras, 0.01, 10)
+    topics = cam_topics + ([imu_topic] if imu_topic else [])
+    index = {t: i for i, t in enumerate(cam_topics)}
+    warned = set()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=bag.count(topics), unit="msg", desc="replay", file=sys.stderr, leave=False)
+    try:
+        for topic, _, msg in bag.messages(topics):
+            if bar is not None:
+                bar.update(1)
+            if topic == imu_topic:
+                a, w = msg.linear_acceleration, msg.angular_velocity
+                pipe.add_imu(stamp_seconds(msg), (a.x, a.y, a.z), (w.x, w.y, w.z))
+                continue
+            try:
+                img = decode_image(msg, topic)
+            except InputError as exc:
+                pipe.stats.dropped[f"image not decoded ({topic})"] += 1
+                if topic not in warned:
+                    warned.add(topic)
+                    warn(str(exc))
+                continue
+            for group in sync.add(index[topic], stamp_seconds(msg), img):
+                try:
+                    ests = pipe.add_frames(FrameSet(group.stamp, group.items))
+                except InputError as exc:
+                    pipe.stats.dropped["bad frame set"] += 1
+                    if exc.source not in warned:
+                        warned.add(exc.source)
+                        warn(str(exc))
+                    continue
+                yield ests
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def collect_pairs(bag, rig: Rig, config: PipelineConfig | None = None, imu_topic: str | None = None,
+                  warn: Callable = _stderr_warn, progress: bool = False, stats: dict | None = None) -> list:
+    """Matches (with IMU gravity g1/g2 in both views) of every view pair the pipeline estimates with 4pt-bending.
+
+    ``bag`` is a path or an open :class:`BagReader`. Every pair the pipeline
+    attempts is kept, also when its 4pt-bending estimate fails under the
+    (possibly wrong) rig: the calibration re-estimates each pair itself. Raises
+    :class:`InputError` when the bag or rig has no IMU, or no pair has IMU gravity.
+    """
+    if not isinstance(bag, BagReader):
+        with BagReader(bag) as reader:
+            return collect_pairs(reader, rig, config, imu_topic, warn, progress, stats)
+    topic = resolve_imu_topic(bag, rig, imu_topic, required=True, warn=warn)
+    pipe = Pipeline(rig, config, method="4pt-bending")
+    pairs, last = [], None
+    for _ in replay_bag(bag, rig, pipe, topic, warn=warn, progress=progress):
+        if pipe.last_pair is not None and pipe.last_pair is not last:
+            last = pipe.last_pair
+            pairs.append(last[2])
+    if stats is not None:
+        stats.update(pipe.stats.as_dict())
+    if not pairs:
+        st = pipe.stats
+        dropped = "; ".join(f"{k}: {v}" for k, v in sorted(st.dropped.items())) or "nothing dropped"
+        raise InputError(bag.source, f"no view pair with IMU gravity in both views on {topic!r} ({st.frames} frame "
+                         f"sets, {st.static_views} static views, {st.pairs} pairings; dropped: {dropped})", topic)
+    return pairs
+
+
+__all__ = ["check_camera_info", "collect_pairs", "replay_bag", "resolve_imu_topic"]
