@@ -103,11 +103,12 @@ def test_descriptors_across_25_degrees(texture, descriptor):
     cfg = TrackingConfig(descriptor=descriptor)
     R = exp_so3(np.array([0.2, 0.5, 0.85]) / np.linalg.norm([0.2, 0.5, 0.85]) * math.radians(25))
     a, b = detect_features(view(texture, np.eye(3)), cfg), detect_features(view(texture, R), cfg)
-    assert len(a.uv) > 500
+    assert len(a.uv) > 0.8 * cfg.num_features
     ia, ib = match_features(a, b, cfg)
     assert len(np.unique(ib)) == len(ib)
     f1, f2, idx = verify_pairs(CAM, a.uv[ia], b.uv[ib], cfg)
-    assert len(idx) == cfg.max_matches_per_camera
+    assert len(idx) >= min(cfg.max_matches_per_camera, 0.2 * cfg.num_features)  # ~1 in 4 features verified
+    assert len(idx) <= cfg.max_matches_per_camera
     err = np.linalg.norm(project(np.eye(3), R, a.uv[ia][idx]) - b.uv[ib][idx], axis=1)
     tol = 0.5 if descriptor == "sift" else 1.0  # ORB keypoints are coarser
     assert np.median(err) < tol and np.percentile(err, 90) < 2 * tol

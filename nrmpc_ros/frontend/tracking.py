@@ -27,6 +27,8 @@ from ..errors import InputError
 
 MODES = ("auto", "klt", "descriptors")
 DESCRIPTORS = ("orb", "sift")
+CORNER_DETECTORS = ("fast", "gftt")
+RANSAC_METHODS = ("usac", "ransac")
 
 
 @dataclass
@@ -36,17 +38,23 @@ class TrackingConfig:
     mode: str = "auto"  # auto: KLT tracks when enough survive from the reference view, else descriptors
     grid_rows: int = 6
     grid_cols: int = 8
-    max_tracks: int = 200  # KLT tracks per camera
+    max_tracks: int = 150  # KLT tracks per camera
     replenish_fraction: float = 0.7  # detect new corners when fewer tracks than this fraction remain
     min_distance_px: float = 8.0
-    corner_quality: float = 0.003  # goodFeaturesToTrack qualityLevel
+    corner_detector: str = "fast"  # new KLT corners: fast (FAST, strongest per grid cell) | gftt (Shi-Tomasi)
+    fast_threshold: int = 12  # FAST intensity threshold (grey levels)
+    corner_quality: float = 0.003  # goodFeaturesToTrack qualityLevel (corner_detector gftt)
     klt_window: int = 15
     klt_levels: int = 3
     fb_threshold_px: float = 0.7  # forward-backward round-trip error
+    probe_tracks: int = 24  # after a still frame, follow this many tracks first (0: always track all) ...
+    still_px: float = 0.25  # ... and when they moved at most this (median, px) skip the rest: the image is unchanged
     descriptor: str = "orb"  # orb | sift
-    num_features: int = 1000  # descriptor features detected per camera image
+    num_features: int = 400  # descriptor features detected per camera image
+    orb_levels: int = 4  # ORB pyramid levels (scale factor 1.2): views differ by rotation, hardly by scale
     ratio: float = 0.8  # Lowe ratio test
     subpixel: bool = True  # refine descriptor keypoints with cornerSubPix
+    ransac: str = "usac"  # essential-matrix verification: usac (OpenCV USAC, SPRT + local optimisation) | ransac
     ransac_threshold_px: float = 1.0  # essential-matrix verification (Sampson distance)
     ransac_confidence: float = 0.999
     min_matches_per_camera: int = 12  # fewer verified matches: the camera contributes nothing
@@ -57,10 +65,16 @@ class TrackingConfig:
     def __post_init__(self):
         if self.mode not in MODES:
             raise InputError("tracking config", f"mode must be one of {', '.join(MODES)}, got {self.mode!r}", "mode")
+        if self.corner_detector not in CORNER_DETECTORS:
+            raise InputError("tracking config", f"corner_detector must be one of {', '.join(CORNER_DETECTORS)}, "
+                             f"got {self.corner_detector!r}", "corner_detector")
+        if self.ransac not in RANSAC_METHODS:
+            raise InputError("tracking config", f"ransac must be one of {', '.join(RANSAC_METHODS)}, "
+                             f"got {self.ransac!r}", "ransac")
         if self.descriptor not in DESCRIPTORS:
             raise InputError("tracking config", f"descriptor must be one of {', '.join(DESCRIPTORS)}, "
                              f"got {self.descriptor!r}", "descriptor")
-        for name in ("grid_rows", "grid_cols", "max_tracks", "num_features", "max_matches_per_camera"):
+        for name in ("grid_rows", "grid_cols", "max_tracks", "num_features", "max_matches_per_camera", "orb_levels"):
             if int(getattr(self, name)) < 1:
                 raise InputError("tracking config", "must be >= 1", name)
         if not 0 < self.ratio <= 1:
@@ -114,16 +128,34 @@ def bucket(uv: np.ndarray, size, rows: int, cols: int, count: int, order: np.nda
 
 
 def detect_corners(img: np.ndarray, cfg: TrackingConfig, max_count: int, mask=None) -> np.ndarray:
-    """Shi-Tomasi corners (N, 2) float32 spread by grid bucketing."""
+    """Corners (N, 2) float32 for KLT, at least ``min_distance_px`` apart, spread by grid bucketing.
+
+    ``corner_detector: fast`` (default) takes FAST corners, the strongest per
+    ``min_distance_px`` cell (about 10x cheaper than Shi-Tomasi on a VGA
+    image); ``gftt`` takes Shi-Tomasi corners.
+    """
     if max_count <= 0:
         return np.zeros((0, 2), np.float32)
-    pts = cv2.goodFeaturesToTrack(img, maxCorners=int(3 * max_count), qualityLevel=cfg.corner_quality,
-                                  minDistance=cfg.min_distance_px, mask=mask, blockSize=5)
-    if pts is None:
+    size = (img.shape[1], img.shape[0])
+    if cfg.corner_detector == "gftt":
+        pts = cv2.goodFeaturesToTrack(img, maxCorners=int(3 * max_count), qualityLevel=cfg.corner_quality,
+                                      minDistance=cfg.min_distance_px, mask=mask, blockSize=5)
+        if pts is None:
+            return np.zeros((0, 2), np.float32)
+        pts = pts.reshape(-1, 2)
+        keep = bucket(pts, size, cfg.grid_rows, cfg.grid_cols, max_count)
+        return pts[keep].astype(np.float32)
+    kps = cv2.FastFeatureDetector_create(int(cfg.fast_threshold), True).detect(img, mask)
+    if not kps:
         return np.zeros((0, 2), np.float32)
-    pts = pts.reshape(-1, 2)
-    keep = bucket(pts, (img.shape[1], img.shape[0]), cfg.grid_rows, cfg.grid_cols, max_count)
-    return pts[keep].astype(np.float32)
+    pts = np.array([k.pt for k in kps], np.float32)
+    resp = np.array([k.response for k in kps])
+    d = max(1.0, float(cfg.min_distance_px))
+    strongest = cell_ranks(pts, size, max(1, int(size[1] // d)), max(1, int(size[0] // d)),
+                           np.argsort(-resp, kind="stable")) == 0
+    idx = np.flatnonzero(strongest)  # at most one corner per min_distance_px cell
+    keep = bucket(pts[idx], size, cfg.grid_rows, cfg.grid_cols, max_count, order=np.argsort(-resp[idx], kind="stable"))
+    return pts[idx[keep]]
 
 
 def _lk(img0, img1, p0, cfg: TrackingConfig):
@@ -132,6 +164,7 @@ def _lk(img0, img1, p0, cfg: TrackingConfig):
         return p0.copy(), np.zeros(0, bool)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.03)
     win = (int(cfg.klt_window), int(cfg.klt_window))
+    p0 = np.ascontiguousarray(p0, np.float32)
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, winSize=win, maxLevel=int(cfg.klt_levels),
                                           criteria=crit)
     h, w = img1.shape
@@ -147,7 +180,16 @@ def _lk(img0, img1, p0, cfg: TrackingConfig):
 
 
 class KltTracker:
-    """KLT tracks of one camera with persistent ids; a snapshot (ids, uv) of a view pairs it with later frames."""
+    """KLT tracks of one camera with persistent ids; a snapshot (ids, uv) of a view pairs it with later frames.
+
+    ``uv`` are the track positions in ``prev``, the last frame tracked in
+    full. After a still frame, a new frame first tracks ``probe_tracks``
+    spread tracks: when they moved at most ``still_px`` the image is taken as
+    unchanged and nothing else is done (``prev`` and ``uv`` stay: the frames
+    of a static window cost one small LK); when most of them are lost (a jump
+    between static snapshots) all tracks are dropped without tracking them
+    and new corners are detected; otherwise all tracks are followed.
+    """
 
     def __init__(self, cfg: TrackingConfig):
         self.cfg = cfg
@@ -156,43 +198,91 @@ class KltTracker:
         self.ids = np.zeros(0, np.int64)
         self.anchor_uv = np.zeros((0, 2), np.float32)  # NaN: born after the anchor
         self._next_id = 0
+        self._still = False  # the last frame moved at most still_px: probe the next one first
+        self._fresh = False  # corners were detected in prev (since it became prev)
+        self._probe_motion = 0.0  # median motion (px) of the probe of the last frame skipped as unchanged
+        self.skipped = 0  # frames taken as unchanged (probe only)
+        self.lost = 0  # frames where the probe lost the tracks (all dropped, not tracked)
 
     def _replenish(self, img, force=False):
         n = len(self.uv)
         if n >= self.cfg.max_tracks or (not force and n >= self.cfg.replenish_fraction * self.cfg.max_tracks):
             return
-        mask = np.full(img.shape, 255, np.uint8)
-        r = max(1, int(self.cfg.min_distance_px))
-        for u, v in self.uv.astype(int):
-            cv2.circle(mask, (int(u), int(v)), r, 0, -1)
+        mask = None
+        if n:
+            mask = np.full(img.shape, 255, np.uint8)
+            r = max(1, int(self.cfg.min_distance_px))
+            for u, v in self.uv.astype(int):
+                cv2.circle(mask, (int(u), int(v)), r, 0, -1)
         new = detect_corners(img, self.cfg, self.cfg.max_tracks - n, mask)
+        self._fresh = True  # corners of this frame were just detected: a snapshot needs no new search
         self.uv = np.concatenate([self.uv, new])
         self.ids = np.concatenate([self.ids, self._next_id + np.arange(len(new))])
         self._next_id += len(new)
         self.anchor_uv = np.concatenate([self.anchor_uv, np.full((len(new), 2), np.nan, np.float32)])
 
+    def _probe(self, img) -> str:
+        """'still' (image unchanged), 'lost' (tracks cannot follow) or 'moved', from a few spread tracks.
+
+        Still: forward LK at full resolution only (a fraction of a millisecond)
+        finds them within ``still_px``. Otherwise the same tracks go through the
+        full pyramidal forward-backward LK: when fewer than a quarter survive,
+        the tracks are lost (a jump between static snapshots) and the costly
+        LK of all tracks is skipped.
+        """
+        k = int(self.cfg.probe_tracks)
+        size = (img.shape[1], img.shape[0])
+        sel = bucket(self.uv, size, self.cfg.grid_rows, self.cfg.grid_cols, k) if len(self.uv) > k \
+            else np.arange(len(self.uv))
+        p0 = np.ascontiguousarray(self.uv[sel], np.float32)
+        win = (int(self.cfg.klt_window), int(self.cfg.klt_window))
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.01)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, img, p0, None, winSize=win, maxLevel=0, criteria=crit)
+        d = np.linalg.norm(p1 - p0, axis=1)[st.ravel() == 1]
+        if len(d) >= 0.75 * len(sel) and float(np.median(d)) <= self.cfg.still_px:
+            self._probe_motion = float(np.median(d))
+            return "still"
+        _, ok = _lk(self.prev, img, p0, self.cfg)
+        return "lost" if ok.sum() < 0.25 * len(sel) else "moved"
+
     def track(self, img: np.ndarray) -> None:
         """Follow the tracks into ``img`` (dropping failures) and top them up with new corners."""
-        if self.prev is not None and len(self.uv):
+        probe = self.prev is not None and self._still and self.cfg.probe_tracks > 0 and len(self.uv) >= 8
+        state = self._probe(img) if probe else "moved"
+        if state == "still":
+            self.skipped += 1
+            return
+        self._fresh = False
+        self._probe_motion = 0.0
+        if self.prev is not None and len(self.uv) and state != "lost":
             p1, ok = _lk(self.prev, img, self.uv, self.cfg)
+            step = np.linalg.norm(p1[ok] - self.uv[ok], axis=1)
+            self._still = bool(len(step)) and float(np.median(step)) <= self.cfg.still_px
             self.uv, self.ids, self.anchor_uv = p1[ok], self.ids[ok], self.anchor_uv[ok]
+        else:  # first frame, or the tracks were lost: start afresh, probe the next frame first
+            if state == "lost":
+                self.lost += 1
+            self.uv, self.ids, self.anchor_uv = self.uv[:0], self.ids[:0], self.anchor_uv[:0]
+            self._still = True
         self.prev = img
         self._replenish(img)
 
     def set_anchor(self) -> None:
         """Image motion is measured from the current frame on (start of a static window)."""
         self.anchor_uv = self.uv.copy()
+        self._probe_motion = 0.0
 
     def anchor_motion(self):
         """(median displacement in px since the anchor, number of tracks alive since the anchor)."""
         ok = np.isfinite(self.anchor_uv[:, 0])
         if not ok.any():
             return np.inf, 0
-        return float(np.median(np.linalg.norm(self.uv[ok] - self.anchor_uv[ok], axis=1))), int(ok.sum())
+        motion = float(np.median(np.linalg.norm(self.uv[ok] - self.anchor_uv[ok], axis=1)))
+        return motion + self._probe_motion, int(ok.sum())
 
     def snapshot(self):
         """(ids, uv) of the current frame, topped up to max_tracks first (for a view that may become a reference)."""
-        if self.prev is not None:
+        if self.prev is not None and not self._fresh:
             self._replenish(self.prev, force=True)
         return self.ids.copy(), self.uv.astype(np.float64)
 
@@ -221,7 +311,8 @@ def detect_features(img: np.ndarray, cfg: TrackingConfig) -> Features:
     if cfg.descriptor == "sift":
         det = cv2.SIFT_create(nfeatures=2 * n)
     else:
-        det = cv2.ORB_create(nfeatures=2 * n, fastThreshold=10, scoreType=cv2.ORB_HARRIS_SCORE)
+        det = cv2.ORB_create(nfeatures=2 * n, nlevels=int(cfg.orb_levels), fastThreshold=10,
+                             scoreType=cv2.ORB_HARRIS_SCORE)
     kps = det.detect(img, None)
     if not kps:
         return Features(np.zeros((0, 2)), None)
@@ -288,7 +379,8 @@ def verify_pairs(cam: Camera, uv1: np.ndarray, uv2: np.ndarray, cfg: TrackingCon
     x1 = f1[idx, :2] / f1[idx, 2:]
     x2 = f2[idx, :2] / f2[idx, 2:]
     thr = cfg.ransac_threshold_px / cam.focal_px
-    E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), method=cv2.RANSAC, prob=cfg.ransac_confidence, threshold=thr)
+    method = cv2.USAC_DEFAULT if cfg.ransac == "usac" else cv2.RANSAC
+    E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), method=method, prob=cfg.ransac_confidence, threshold=thr)
     if E is None or mask is None:
         return empty
     idx = idx[mask.ravel()[: len(idx)] > 0]
