@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .deformation import deformation_jacobians, deformed_extrinsics
+from .deformation import deformation_jacobians
 from .rig import Rig
 from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
 
@@ -61,6 +61,7 @@ class TwoViewProblem:
             self.nk = int(self.groups.max()) + 1
             self.nc += self.nk
         self.gm = rig.gravity_magnitude
+        self._cache = {}
         if prior is not None:
             self.P1 = tangent_basis(normalize(prior.g1))
             self.P2 = tangent_basis(normalize(prior.g2))
@@ -75,10 +76,22 @@ class TwoViewProblem:
         J = (np.swapaxes(T, 1, 2) - e[:, :, None] * n[:, None, :]) / r[:, None, None]
         return e, J
 
+    def _model(self, g):
+        """Per-camera (w, W^T, D, K) at gravity g, cached for the last few g (each LM step reuses them)."""
+        key = np.asarray(g, dtype=float).tobytes()
+        hit = self._cache.get(key)
+        if hit is None:
+            w, W, D, K = deformation_jacobians(self.rig, g)
+            hit = (w, np.swapaxes(W, 1, 2), D, K)
+            if len(self._cache) >= 8:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[key] = hit
+        return hit
+
     def _project(self, g, P_view):
         """Points of one view (its body frame) into the bent cameras: y = P - w(g), p = W(g)^T y."""
-        w, W = deformed_extrinsics(self.rig, g)
-        Wt = np.swapaxes(W, 1, 2)[self.cam]
+        w, Wt, _, _ = self._model(g)
+        Wt = Wt[self.cam]
         y = P_view - w[self.cam]
         return Wt, y, np.einsum("nij,nj->ni", Wt, y)
 
@@ -119,7 +132,7 @@ class TwoViewProblem:
         """de/dg = A ([y]_x K - D) for de/dy = A (N, 2, 3) and the model derivatives at g (SPEC 3)."""
         if not self.rig.is_flexible:
             return np.zeros_like(A)
-        _, _, D, K = deformation_jacobians(self.rig, g)
+        _, _, D, K = self._model(g)
         return cross(A, y[:, None, :]) @ K[self.cam] - A @ D[self.cam]
 
     def _compliance_columns(self, Jc, Je1, W1t, y1, g1, Je2, W2t, y2, g2):
