@@ -3,7 +3,11 @@
 For users without rosbag2 and for the end-to-end tests. The bag is read with
 ``rosbags``; rosbag2 messages are published as the serialized CDR bytes they
 are stored as (no deserialization), ROS 1 bags are converted to CDR first.
-rclpy is imported inside :func:`run` only.
+Each topic is published from its own context (DDS participant), as separate
+drivers would: Fast DDS's shared-memory segment (512 KB per participant by
+default) holds one VGA image at a time, and best-effort (sensor-data)
+subscribers would lose the images of the other cameras sent at the same
+instant. rclpy is imported inside :func:`run` only.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ def register(sub):
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="publish only these topics (default: all)")
     p.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
     p.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
-                   help="before playing, wait up to SECONDS until every published topic has a subscriber")
+                   help="before playing, wait up to SECONDS until every topic has a subscriber (then 0.5 s more)")
     p.add_argument("--delay", type=float, default=0.0, metavar="SECONDS",
                    help="sleep SECONDS after creating the publishers (DDS discovery) before the first message")
     p.add_argument("--clock", action="store_true", help="also publish /clock (rosgraph_msgs/Clock) from bag time")
@@ -66,6 +70,7 @@ def _open_reader(bag: str):
 def run(args) -> int:
     try:
         import rclpy
+        from rclpy.context import Context
         from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
     except ImportError as exc:
         raise NrmpcError(f"rclpy is not importable ({exc}); {ROS_EXTRA_HINT}") from exc
@@ -84,36 +89,61 @@ def run(args) -> int:
         classes = {t: _message_class(available[t], t) for t in wanted}
         convert = not getattr(reader, "is2", True)  # ROS 1 bag: raw is not CDR
 
-        rclpy.init(args=None)
-        node = rclpy.create_node("nrmpc_play")
+        nodes = []
+        _sigterm_as_interrupt()
         try:
             qos = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=100,
                              reliability=QoSReliabilityPolicy.RELIABLE, durability=QoSDurabilityPolicy.VOLATILE)
-            pubs = {t: node.create_publisher(classes[t], t, qos) for t in wanted}
+            pubs = {}
+            for k, topic in enumerate(wanted):
+                node = _node(rclpy, Context, f"nrmpc_play_{k}")
+                nodes.append(node)
+                pubs[topic] = node.create_publisher(classes[topic], topic, qos)
             clock_pub = None
             if args.clock:
                 from rosgraph_msgs.msg import Clock
 
-                clock_pub = node.create_publisher(Clock, "/clock", 10)
-            _wait_for_subscribers(node, pubs, args.wait_for_subscribers)
+                nodes.append(_node(rclpy, Context, "nrmpc_play_clock"))
+                clock_pub = nodes[-1].create_publisher(Clock, "/clock", 10)
+            _wait_for_subscribers(nodes[0], pubs, args.wait_for_subscribers)
             if args.delay > 0:
                 time.sleep(args.delay)
             count = 0
             start = time.monotonic()
             while True:
-                count += _play_once(reader, connections, pubs, clock_pub, args.rate, convert)
-                if not args.loop or not rclpy.ok():
+                count += _play_once(reader, connections, pubs, clock_pub, args.rate, convert, nodes[0].context)
+                if not args.loop or not nodes[0].context.ok():
                     break
             if not args.quiet:
                 print(f"nrmpc play: published {count} messages on {len(pubs)} topics in "
                       f"{time.monotonic() - start:.1f} s", file=sys.stderr)
         finally:
-            node.destroy_node()
-            if rclpy.ok():
-                rclpy.shutdown()
+            for node in nodes:
+                ctx = node.context
+                node.destroy_node()
+                rclpy.try_shutdown(context=ctx)
     finally:
         reader.close()
     return 0
+
+
+def _node(rclpy, context_class, name: str):
+    """A node in a context of its own, i.e. its own DDS participant (Ctrl-C stays a KeyboardInterrupt)."""
+    from rclpy.signals import SignalHandlerOptions
+
+    ctx = context_class()
+    rclpy.init(args=None, context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    return rclpy.create_node(name, context=ctx)
+
+
+def _sigterm_as_interrupt() -> None:
+    """SIGTERM ends the playback like Ctrl-C (publishers are destroyed cleanly)."""
+    import signal
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
 
 
 def _wait_for_subscribers(node, pubs: dict, timeout: float) -> None:
@@ -124,15 +154,14 @@ def _wait_for_subscribers(node, pubs: dict, timeout: float) -> None:
     while time.monotonic() < deadline:
         lonely = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
         if not lonely:
+            time.sleep(0.5)  # the subscriber side may match our publisher a little later
             return
         time.sleep(0.05)
     node.get_logger().warning(f"no subscriber after {timeout:.1f} s on: {', '.join(lonely)}; playing anyway")
 
 
-def _play_once(reader, connections, pubs, clock_pub, rate: float, convert: bool) -> int:
+def _play_once(reader, connections, pubs, clock_pub, rate: float, convert: bool, context) -> int:
     """Publish the bag once with its recorded spacing; return the number of messages published."""
-    import rclpy
-
     t0_bag = None
     t0_wall = time.monotonic()
     count = 0
@@ -142,7 +171,7 @@ def _play_once(reader, connections, pubs, clock_pub, rate: float, convert: bool)
 
         clock_msg = Clock()
     for conn, stamp_ns, raw in reader.messages(connections=connections):
-        if not rclpy.ok():
+        if not context.ok():
             break
         if t0_bag is None:
             t0_bag = stamp_ns
