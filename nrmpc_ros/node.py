@@ -8,7 +8,8 @@ thread fed by a bounded queue, and synchronized sets arriving while it is
 full are dropped and counted. Publishes ``~/relative_pose``
 (geometry_msgs/PoseStamped: the current body frame in the reference view's
 body frame), ``~/gravity`` (geometry_msgs/Vector3Stamped, current body frame,
-m/s^2) and diagnostics on ``/diagnostics``.
+m/s^2), ``~/gravity_fused`` (the fused estimate, same frame), ``~/attitude``
+(sensor_msgs/Imu with roll and pitch only) and diagnostics on ``/diagnostics``.
 
 Run ``estimator --help`` for the parameters.
 """
@@ -287,6 +288,33 @@ class RateMeter:
         return r
 
 
+YAW_VARIANCE_UNOBSERVABLE = 1e6  # rad^2: gravity says nothing about yaw
+
+
+def attitude_message(header, gravity, cov_gravity=None):
+    """sensor_msgs/Imu carrying only roll and pitch from fused gravity (body frame x forward, z up).
+
+    Orientation covariance (roll, pitch, yaw about x, y, z; rad^2) from the
+    gravity covariance, yaw marked unobservable by a very large variance;
+    angular velocity and linear acceleration are not provided (-1 in element 0
+    of their covariances, as sensor_msgs/Imu documents).
+    """
+    from .core.fusion import roll_pitch_from_gravity, tangent_covariance
+
+    g = np.asarray(gravity, dtype=float).reshape(3)
+    cov_t = None if cov_gravity is None else tangent_covariance(g, np.asarray(cov_gravity, dtype=float))
+    _, _, q, cov_rp = roll_pitch_from_gravity(g, cov_t)
+    msg = Imu(header=header)
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = (float(v) for v in q)
+    cov = np.zeros((3, 3))
+    cov[:2, :2] = cov_rp if cov_rp is not None else np.eye(2) * 1e-2
+    cov[2, 2] = YAW_VARIANCE_UNOBSERVABLE
+    msg.orientation_covariance = [float(v) for v in cov.ravel()]
+    msg.angular_velocity_covariance = [-1.0] + [0.0] * 8
+    msg.linear_acceleration_covariance = [-1.0] + [0.0] * 8
+    return msg
+
+
 def stamp_to_sec(stamp) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
@@ -354,7 +382,8 @@ class EstimatorNode(Node):
         self.pose_pub = self.create_publisher(PoseStamped, "~/relative_pose", 10)
         self.gravity_pub = self.create_publisher(Vector3Stamped, "~/gravity", 10)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        # Issue 6 adds ~/gravity_fused and ~/attitude here and fills them in _publish_estimate.
+        self.gravity_fused_pub = self.create_publisher(Vector3Stamped, "~/gravity_fused", 10)
+        self.attitude_pub = self.create_publisher(Imu, "~/attitude", 10)
 
         qos = QoSProfile(history=qos_profile_sensor_data.history, depth=int(self.params["queue_size"]),
                          reliability=qos_profile_sensor_data.reliability,
@@ -592,6 +621,12 @@ class EstimatorNode(Node):
             g = Vector3Stamped(header=header)
             g.vector.x, g.vector.y, g.vector.z = (float(v) for v in np.asarray(est.gravity, dtype=float).reshape(3))
             self.gravity_pub.publish(g)
+        fused = getattr(est, "gravity_fused", None)
+        if fused is not None:
+            gf = Vector3Stamped(header=header)
+            gf.vector.x, gf.vector.y, gf.vector.z = (float(v) for v in np.asarray(fused, dtype=float).reshape(3))
+            self.gravity_fused_pub.publish(gf)
+            self.attitude_pub.publish(attitude_message(header, fused, getattr(est, "cov_gravity_fused", None)))
 
     # ------------------------------------------------------------------ timer: stale cameras, diagnostics
     def _on_timer(self) -> None:
@@ -636,6 +671,9 @@ class EstimatorNode(Node):
             "processing_ms_median": f"{statistics.median(proc):.1f}" if proc else "",
             "processing_ms_max": f"{max(proc):.1f}" if proc else "",
             "latency_ms_median": f"{statistics.median(latency):.1f}" if latency else "",
+            "gravity_fused_sigma_deg": (f"{last.gravity_fused_sigma_deg:.3f}"
+                                        if last is not None and getattr(last, "gravity_fused", None) is not None
+                                        else ""),
         }
         for key, val in self._sync_stats().items():
             values[f"sync_{key}"] = val
