@@ -122,3 +122,13 @@ def test_missing_topic_and_wrong_size(tmp_path, capsys):
     assert "/cam1/image_raw" in captured.err and "640x480" in captured.err
     assert "bad frame set: 18" in captured.out
     assert read_csv(tmp_path / "y.csv") == []
+
+
+def test_replay_creates_the_output_folder(tmp_path):
+    """The README's main command writes to out/ in a fresh clone, where out/ does not exist yet."""
+    from nrmpc_ros.frontend.evaluation import CsvWriter
+
+    out = tmp_path / "new" / "dir" / "x.csv"
+    w = CsvWriter(out)
+    w.close()
+    assert out.read_text().startswith("stamp,ref_stamp,method,qx,qy,qz,qw,tx,ty,tz,gx,gy,gz,num_inliers,time_ms")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -81,6 +82,7 @@ class CsvWriter:
     def __init__(self, path):
         self.path = str(path)
         try:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
             self._f = open(path, "w", newline="")
         except OSError as exc:
             raise InputError(self.path, f"cannot write ({exc.strerror})") from None
@@ -395,6 +397,7 @@ def plot_errors(ev: Evaluation, path) -> None:
             ax.legend(fontsize=8)
     fig.tight_layout()
     try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=100)
     except OSError as exc:
         raise InputError(str(path), f"cannot write plot ({exc.strerror})") from None
