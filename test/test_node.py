@@ -281,75 +281,69 @@ def test_auto_switch_inside_the_node_sets_the_pipeline_method(ctx):
         node.destroy_node()
 
 
-def test_published_messages_follow_spec_section_10(ctx):
+def _publish_and_collect(ctx, est, topics: dict, wanted: int) -> dict:
+    """Publish ``est`` from a fresh node until a listener got ``wanted`` of ``topics`` (key -> (type, topic))."""
     node = make_node(ctx)
     listener = rclpy.create_node("listener", context=ctx)
     got = {}
-    listener.create_subscription(PoseStamped, "/estimator/relative_pose", lambda m: got.setdefault("pose", m), 10)
-    listener.create_subscription(Vector3Stamped, "/estimator/gravity", lambda m: got.setdefault("g", m), 10)
+    for key, (msg_type, topic) in topics.items():
+        listener.create_subscription(msg_type, topic, lambda m, k=key: got.setdefault(k, m), 10)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
     executor.add_node(listener)
     try:
-        R = exp_so3(np.array([0.1, -0.2, 0.3]))
-        t = np.array([0.5, -0.25, 0.125])
-        g = np.array([0.0, 1.0, -9.81 + 0.05])
-        node._remember_stamp(1700000002.5, type("S", (), {"sec": 1700000002, "nanosec": 500000000})())
-        est = PipelineEstimate(stamp=1700000002.5, ref_stamp=1700000000.5, method="4pt-bending", R=R, t=t,
-                               gravity=g, num_inliers=100, time_ms=5.0)
+        node._remember_stamp(est.stamp, type("S", (), {"sec": int(est.stamp), "nanosec": int(round(
+            (est.stamp - int(est.stamp)) * 1e9))})())
         deadline = time.monotonic() + 10
-        while len(got) < 2 and time.monotonic() < deadline:
+        while len(got) < wanted and time.monotonic() < deadline:
             node._publish_estimate(est)
             executor.spin_once(timeout_sec=0.2)
-        pose, grav = got["pose"], got["g"]
-        assert "gf" not in got  # no fused estimate in this PipelineEstimate: nothing on ~/gravity_fused
-        assert pose.header.frame_id == "base_link" and grav.header.frame_id == "base_link"
-        assert (pose.header.stamp.sec, pose.header.stamp.nanosec) == (1700000002, 500000000)
-        q = pose.pose.orientation
-        assert np.allclose(quat_xyzw_to_matrix([q.x, q.y, q.z, q.w]), R, atol=1e-9)
-        p = pose.pose.position
-        assert np.allclose([p.x, p.y, p.z], t)
-        assert np.allclose([grav.vector.x, grav.vector.y, grav.vector.z], g)
     finally:
         executor.shutdown(timeout_sec=1.0)
         listener.destroy_node()
         node.destroy_node()
+    return got
+
+
+def test_published_messages_follow_spec_section_10(ctx):
+    R = exp_so3(np.array([0.1, -0.2, 0.3]))
+    t = np.array([0.5, -0.25, 0.125])
+    g = np.array([0.0, 1.0, -9.81 + 0.05])
+    est = PipelineEstimate(stamp=1700000002.5, ref_stamp=1700000000.5, method="4pt-bending", R=R, t=t,
+                           gravity=g, num_inliers=100, time_ms=5.0)
+    got = _publish_and_collect(ctx, est, {"pose": (PoseStamped, "/estimator/relative_pose"),
+                                          "g": (Vector3Stamped, "/estimator/gravity"),
+                                          "gf": (Vector3Stamped, "/estimator/gravity_fused")}, 2)
+    pose, grav = got["pose"], got["g"]
+    assert "gf" not in got  # no fused estimate in this PipelineEstimate: nothing on ~/gravity_fused
+    assert pose.header.frame_id == "base_link" and grav.header.frame_id == "base_link"
+    assert (pose.header.stamp.sec, pose.header.stamp.nanosec) == (1700000002, 500000000)
+    q = pose.pose.orientation
+    assert np.allclose(quat_xyzw_to_matrix([q.x, q.y, q.z, q.w]), R, atol=1e-9)
+    p = pose.pose.position
+    assert np.allclose([p.x, p.y, p.z], t)
+    assert np.allclose([grav.vector.x, grav.vector.y, grav.vector.z], g)
 
 
 def test_fused_gravity_and_attitude_messages(ctx):
-    node = make_node(ctx)
-    listener = rclpy.create_node("listener2", context=ctx)
-    got = {}
-    listener.create_subscription(Vector3Stamped, "/estimator/gravity_fused", lambda m: got.setdefault("gf", m), 10)
-    listener.create_subscription(Imu, "/estimator/attitude", lambda m: got.setdefault("att", m), 10)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
-    executor.add_node(listener)
-    try:
-        R_wb = exp_so3(np.array([0.2, 0.0, 0.0])) @ exp_so3(np.array([0.0, 0.1, 0.0]))  # roll-ish and pitch
-        g = R_wb.T @ np.array([0.0, 0.0, -9.81])
-        sigma = 0.002  # rad
-        B = np.linalg.svd(np.eye(3) - np.outer(g, g) / 9.81**2)[0][:, :2]
-        cov = (9.81 * sigma) ** 2 * B @ B.T
-        est = PipelineEstimate(stamp=1700000003.0, ref_stamp=1700000000.5, method="6pt-bending", R=np.eye(3),
-                               t=np.zeros(3), gravity=g, num_inliers=100, time_ms=5.0, gravity_fused=g,
-                               cov_gravity_fused=cov)
-        deadline = time.monotonic() + 10
-        while len(got) < 2 and time.monotonic() < deadline:
-            node._publish_estimate(est)
-            executor.spin_once(timeout_sec=0.2)
-        gf, att = got["gf"], got["att"]
-        assert np.allclose([gf.vector.x, gf.vector.y, gf.vector.z], g)
-        q = att.orientation
-        R_level = quat_xyzw_to_matrix([q.x, q.y, q.z, q.w])
-        assert np.allclose(R_level @ g, [0, 0, -9.81], atol=1e-9)  # orientation levels the body: gravity straight down
-        c = np.array(att.orientation_covariance).reshape(3, 3)
-        assert np.allclose(np.diag(c)[:2], sigma**2, rtol=0.2) and c[2, 2] >= 1e6
-        assert att.angular_velocity_covariance[0] == -1 and att.linear_acceleration_covariance[0] == -1
-    finally:
-        executor.shutdown(timeout_sec=1.0)
-        listener.destroy_node()
-        node.destroy_node()
+    R_wb = exp_so3(np.array([0.2, 0.0, 0.0])) @ exp_so3(np.array([0.0, 0.1, 0.0]))  # roll-ish and pitch
+    g = R_wb.T @ np.array([0.0, 0.0, -9.81])
+    sigma = 0.002  # rad
+    B = np.linalg.svd(np.eye(3) - np.outer(g, g) / 9.81**2)[0][:, :2]
+    cov = (9.81 * sigma) ** 2 * B @ B.T
+    est = PipelineEstimate(stamp=1700000003.0, ref_stamp=1700000000.5, method="6pt-bending", R=np.eye(3),
+                           t=np.zeros(3), gravity=g, num_inliers=100, time_ms=5.0, gravity_fused=g,
+                           cov_gravity_fused=cov)
+    got = _publish_and_collect(ctx, est, {"gf": (Vector3Stamped, "/estimator/gravity_fused"),
+                                          "att": (Imu, "/estimator/attitude")}, 2)
+    gf, att = got["gf"], got["att"]
+    assert np.allclose([gf.vector.x, gf.vector.y, gf.vector.z], g)
+    q = att.orientation
+    R_level = quat_xyzw_to_matrix([q.x, q.y, q.z, q.w])
+    assert np.allclose(R_level @ g, [0, 0, -9.81], atol=1e-9)  # orientation levels the body: gravity straight down
+    c = np.array(att.orientation_covariance).reshape(3, 3)
+    assert np.allclose(np.diag(c)[:2], sigma**2, rtol=0.2) and c[2, 2] >= 1e6
+    assert att.angular_velocity_covariance[0] == -1 and att.linear_acceleration_covariance[0] == -1
 
 
 def test_no_rclpy_outside_node_and_play():
