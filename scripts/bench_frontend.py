@@ -12,7 +12,9 @@ all ``add_frames`` calls (tracking of every frame set + pairing, matching,
 verification and estimation of the static views): the rate at which view
 pairs are turned into estimates. The CPU time is split into tracking (per
 frame set), pair processing (per static view: descriptors, matching,
-verification, estimation) and ``estimate()`` alone. Accuracy comes from the
+verification, estimation) and ``estimate()`` alone; ``frontend_ms_per_pair``
+is everything but ``estimate()`` (tracking, features, matching, verification,
+pairing) per estimate. Accuracy comes from the
 bag's ``/ground_truth/*`` exactly as ``nrmpc compare`` computes it (median
 gravity and relative rotation errors, share of static attitudes with an
 estimate).
@@ -132,6 +134,7 @@ def bench(rig, events, method="auto", config: PipelineConfig | None = None, refe
         "pair_only_per_s": n / pair_clock.total if pair_clock.total else math.nan,
         "pair_ms": 1000.0 * pair_clock.total / max(n, 1),
         "estimate_ms": 1000.0 * est_clock.total / max(est_clock.calls, 1),
+        "frontend_ms_per_pair": 1000.0 * (total - est_clock.total) / max(n, 1),
         "tracking_ms_per_frame": 1000.0 * (total - pair_clock.total) / max(frames, 1),
         "median_matches": float(np.median([e.num_matches for e in ests])) if ests else math.nan,
         "dropped": dict(pipe.stats.dropped),
@@ -159,7 +162,8 @@ def describe(r: dict) -> str:
     s = (f"{r['method']:>15}: {r['estimates']} pairs / {r['static_views']} static views / {r['frames']} frame sets "
          f"in {r['cpu_s']:.2f} s CPU -> {r['pairs_per_s']:.1f} pairs/s; per pair {r['pair_ms']:.0f} ms "
          f"(estimate {r['estimate_ms']:.0f} ms, {r['median_matches']:.0f} matches, {'/'.join(r['match_modes'])}); "
-         f"tracking {r['tracking_ms_per_frame']:.1f} ms per frame set")
+         f"tracking {r['tracking_ms_per_frame']:.1f} ms per frame set; all but estimate() "
+         f"{r['frontend_ms_per_pair']:.0f} ms per pair")
     if "coverage" in r:
         s += (f"\n{'':>17}accuracy vs ground truth: gravity median {r['median_gravity_vs_gt_deg']:.2f} deg "
               f"(p90 {r['p90_gravity_vs_gt_deg']:.2f}), rotation median {r['median_rotation_deg']:.3f} deg "

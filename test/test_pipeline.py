@@ -110,12 +110,32 @@ def test_static_views_with_imu_use_4pt(rig3, static_run):
         assert e.ref_stamp in view_stamps and e.stamp in view_stamps and e.ref_stamp < e.stamp
         rot, grav, tdir = errors(seq, e)
         # translation (a few cm) of this 320x240 rig is weakly observed: its direction moves by 10+ deg with the
-        # choice of matches (400 ORB features + USAC verification: up to 16 deg; 1000 + RANSAC: < 5 deg)
-        assert rot < 0.5 and grav < 1.0 and tdir < 20.0
+        # choice of matches (400 ORB features of the second frame of each attitude + USAC verification: up to
+        # 16 deg; 300 of the first frame: up to 23 deg; 1000 + RANSAC: < 5 deg; on the VGA bags: ~0.5 deg median)
+        assert rot < 0.5 and grav < 1.0 and tdir < 30.0
         assert e.num_inliers >= 100 and e.time_ms > 0
         assert e.cov_gravity.shape == (3, 3) and np.isfinite(e.gravity_sigma_deg)
         assert math.degrees(angle_between(e.imu_gravity, e.gravity)) < 1.0
         assert np.linalg.norm(e.gravity) == pytest.approx(9.81)
+
+
+def test_static_views_match_the_features_that_started_the_tracks(rig3, static_run, monkeypatch):
+    """After each jump the tracks start from the frame's ORB features; its static view matches those: one detection
+    per camera and attitude."""
+    import nrmpc_ros.frontend.pipeline as pipeline_module
+    import nrmpc_ros.frontend.tracking as tracking_module
+
+    detect, calls = tracking_module.detect_features, []
+    monkeypatch.setattr(tracking_module, "detect_features", lambda img, cfg: calls.append(1) or detect(img, cfg))
+    monkeypatch.setattr(pipeline_module, "detect_features", lambda *a: pytest.fail("features of a view detected again"))
+    seq, imu = static_run
+    pipe, ests = run(rig3, seq, imu)
+    assert len(ests) == len(ATTITUDES) - 1 and {e.match_mode for e in ests} == {"descriptors"}
+    assert all(trk.lost == len(ATTITUDES) - 1 for trk in pipe.trackers)
+    assert len(calls) == len(ATTITUDES) * rig3.num_cameras
+    for e in ests:
+        rot, grav, _ = errors(seq, e)
+        assert rot < 0.5 and grav < 1.0
 
 
 def test_without_imu_auto_runs_6pt_bending(rig3, static_run):

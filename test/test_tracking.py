@@ -98,6 +98,33 @@ def test_klt_drops_tracks_across_a_large_jump(texture):
     assert len(uv0) < 0.5 * len(snap[0])
 
 
+def test_tracks_start_from_the_frames_features(texture):
+    """Tracks starting afresh are the frame's ORB keypoints; the features stay with the frame while it is unchanged."""
+    cfg = TrackingConfig()
+    trk = KltTracker(cfg)
+    img0 = view(texture, np.eye(3))
+    trk.track(img0)
+    snap = trk.snapshot()
+    assert snap.features is not None and len(snap.features.uv) > 0.8 * cfg.num_features
+    assert len(snap.uv) == cfg.max_tracks
+    gap = np.linalg.norm(snap.uv[:, None] - snap.features.uv[None], axis=2).min(axis=1)
+    assert gap.max() < 1e-3  # a spread subset of the keypoints
+    trk.track(img0.copy())  # unchanged: the probe only, the frame and its features stay
+    assert trk.skipped == 1 and trk.snapshot().features is snap.features
+    R = exp_so3(np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8]) * math.radians(20))
+    trk.track(view(texture, R))  # a jump between snapshots: lost, new tracks from the new frame's features
+    jump = trk.snapshot()
+    assert trk.lost == 1 and jump.features is not None and jump.features is not snap.features
+    assert len(np.intersect1d(jump.ids, snap.ids)) == 0 and len(jump.uv) == cfg.max_tracks
+    trk.track(view(texture, R @ exp_so3(np.array([0.0, 0.01, 0.0]))))  # a small move: tracks followed
+    moved = trk.snapshot()
+    assert moved.features is None and len(np.intersect1d(moved.ids, jump.ids)) > 0.8 * cfg.max_tracks
+    for other in (TrackingConfig(mode="klt"), TrackingConfig(seed_from_features=False)):  # FAST corners instead
+        t2 = KltTracker(other)
+        t2.track(img0)
+        assert t2.snapshot().features is None and len(t2.uv) == other.max_tracks
+
+
 @pytest.mark.parametrize("descriptor", ["orb", "sift"])
 def test_descriptors_across_25_degrees(texture, descriptor):
     cfg = TrackingConfig(descriptor=descriptor)
@@ -140,6 +167,8 @@ def test_config_errors():
         TrackingConfig(mode="magic")
     with pytest.raises(InputError, match="descriptor"):
         TrackingConfig(descriptor="surf")
+    with pytest.raises(InputError, match="orb_score"):
+        TrackingConfig(orb_score="shi-tomasi")
     with pytest.raises(InputError, match="unknown option"):
         TrackingConfig.from_dict({"max_trakcs": 3})
     assert TrackingConfig.from_dict({"max_tracks": 50}).max_tracks == 50

@@ -157,13 +157,15 @@ class PipelineStats:
 class _View:
     stamp: float
     images: list
-    tracks: list  # per camera (ids, uv) KLT snapshot
+    tracks: list  # per camera KLT Snapshot (ids, uv, features the tracks were seeded from)
     imu: ImuGravity | None
     features: list | None = None
 
     def get_features(self, cfg: TrackingConfig) -> list:
+        """Descriptor features per camera: the ones the tracks were seeded from in this frame, else detected now."""
         if self.features is None:
-            self.features = [detect_features(img, cfg) for img in self.images]
+            self.features = [snap.features if snap.features is not None else detect_features(img, cfg)
+                             for snap, img in zip(self.tracks, self.images)]
         return self.features
 
 

@@ -17,6 +17,7 @@ fisheye models, and exact for each camera even when its bar bends).
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -28,6 +29,7 @@ from ..errors import InputError
 MODES = ("auto", "klt", "descriptors")
 DESCRIPTORS = ("orb", "sift")
 CORNER_DETECTORS = ("fast", "gftt")
+ORB_SCORES = ("harris", "fast")
 RANSAC_METHODS = ("usac", "ransac")
 
 
@@ -49,11 +51,13 @@ class TrackingConfig:
     fb_threshold_px: float = 0.7  # forward-backward round-trip error
     probe_tracks: int = 24  # after a still frame, follow this many tracks first (0: always track all) ...
     still_px: float = 0.25  # ... and when they moved at most this (median, px) skip the rest: the image is unchanged
+    seed_from_features: bool = True  # tracks starting afresh (a jump): seed them with the view's ORB keypoints
     descriptor: str = "orb"  # orb | sift
-    num_features: int = 400  # descriptor features detected per camera image
-    orb_levels: int = 4  # ORB pyramid levels (scale factor 1.2): views differ by rotation, hardly by scale
+    num_features: int = 300  # descriptor features detected per camera image
+    orb_levels: int = 2  # ORB pyramid levels (scale factor 1.2): views differ by rotation, hardly by scale
+    orb_score: str = "harris"  # ORB keypoint ranking: harris | fast
     ratio: float = 0.8  # Lowe ratio test
-    subpixel: bool = True  # refine descriptor keypoints with cornerSubPix
+    subpixel: bool = False  # refine ORB keypoints with cornerSubPix (~1 ms per image; no gain on the bags)
     ransac: str = "usac"  # essential-matrix verification: usac (OpenCV USAC, SPRT + local optimisation) | ransac
     ransac_threshold_px: float = 1.0  # essential-matrix verification (Sampson distance)
     ransac_confidence: float = 0.999
@@ -71,6 +75,9 @@ class TrackingConfig:
         if self.ransac not in RANSAC_METHODS:
             raise InputError("tracking config", f"ransac must be one of {', '.join(RANSAC_METHODS)}, "
                              f"got {self.ransac!r}", "ransac")
+        if self.orb_score not in ORB_SCORES:
+            raise InputError("tracking config", f"orb_score must be one of {', '.join(ORB_SCORES)}, "
+                             f"got {self.orb_score!r}", "orb_score")
         if self.descriptor not in DESCRIPTORS:
             raise InputError("tracking config", f"descriptor must be one of {', '.join(DESCRIPTORS)}, "
                              f"got {self.descriptor!r}", "descriptor")
@@ -127,6 +134,19 @@ def bucket(uv: np.ndarray, size, rows: int, cols: int, count: int, order: np.nda
     return np.sort(pick)
 
 
+def spread_corners(pts: np.ndarray, score: np.ndarray, size, cfg: TrackingConfig, max_count: int) -> np.ndarray:
+    """Indices of at most ``max_count`` of ``pts``: the strongest per ``min_distance_px`` cell, grid bucketed."""
+    if len(pts) == 0 or max_count <= 0:
+        return np.zeros(0, np.int64)
+    d = max(1.0, float(cfg.min_distance_px))
+    strongest = cell_ranks(pts, size, max(1, int(size[1] // d)), max(1, int(size[0] // d)),
+                           np.argsort(-score, kind="stable")) == 0
+    idx = np.flatnonzero(strongest)  # at most one corner per min_distance_px cell
+    keep = bucket(pts[idx], size, cfg.grid_rows, cfg.grid_cols, max_count,
+                  order=np.argsort(-score[idx], kind="stable"))
+    return idx[keep]
+
+
 def detect_corners(img: np.ndarray, cfg: TrackingConfig, max_count: int, mask=None) -> np.ndarray:
     """Corners (N, 2) float32 for KLT, at least ``min_distance_px`` apart, spread by grid bucketing.
 
@@ -148,39 +168,49 @@ def detect_corners(img: np.ndarray, cfg: TrackingConfig, max_count: int, mask=No
     kps = cv2.FastFeatureDetector_create(int(cfg.fast_threshold), True).detect(img, mask)
     if not kps:
         return np.zeros((0, 2), np.float32)
-    pts = np.array([k.pt for k in kps], np.float32)
-    resp = np.array([k.response for k in kps])
-    d = max(1.0, float(cfg.min_distance_px))
-    strongest = cell_ranks(pts, size, max(1, int(size[1] // d)), max(1, int(size[0] // d)),
-                           np.argsort(-resp, kind="stable")) == 0
-    idx = np.flatnonzero(strongest)  # at most one corner per min_distance_px cell
-    keep = bucket(pts[idx], size, cfg.grid_rows, cfg.grid_cols, max_count, order=np.argsort(-resp[idx], kind="stable"))
-    return pts[idx[keep]]
+    pts = cv2.KeyPoint_convert(kps).reshape(-1, 2)
+    resp = np.fromiter((k.response for k in kps), float, len(kps))
+    return pts[spread_corners(pts, resp, size, cfg, max_count)]
 
 
-def _lk(img0, img1, p0, cfg: TrackingConfig):
-    """Forward-backward LK: tracked points and a validity mask."""
+def _lk(img0, img1, p0, cfg: TrackingConfig, window: int | None = None, levels: int | None = None,
+        fb_px: float | None = None):
+    """Forward-backward LK: tracked points and a validity mask (window, levels, threshold default to the config's)."""
     if len(p0) == 0:
         return p0.copy(), np.zeros(0, bool)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.03)
-    win = (int(cfg.klt_window), int(cfg.klt_window))
+    w = int(cfg.klt_window if window is None else window)
+    win, levels = (w, w), int(cfg.klt_levels if levels is None else levels)
     p0 = np.ascontiguousarray(p0, np.float32)
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, winSize=win, maxLevel=int(cfg.klt_levels),
-                                          criteria=crit)
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, winSize=win, maxLevel=levels, criteria=crit)
     h, w = img1.shape
     ok = st1.ravel() == 1
     ok &= (p1[:, 0] >= 0) & (p1[:, 1] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] <= h - 1)
     idx = np.flatnonzero(ok)
     if len(idx):  # backward check only for what the forward pass kept
         p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, np.ascontiguousarray(p1[idx]), None, winSize=win,
-                                               maxLevel=int(cfg.klt_levels), criteria=crit)
-        good = (st2.ravel() == 1) & (np.linalg.norm(p0b - p0[idx], axis=1) < cfg.fb_threshold_px)
+                                               maxLevel=levels, criteria=crit)
+        fb = cfg.fb_threshold_px if fb_px is None else fb_px
+        good = (st2.ravel() == 1) & (np.linalg.norm(p0b - p0[idx], axis=1) < fb)
         ok[idx[~good]] = False
     return p1, ok
 
 
+PROBE_SCALE = 4  # the probe's forward-backward check of a frame that moved runs on images up to 4x smaller ...
+PROBE_MIN_WIDTH = 160  # ... and at least this wide
+PROBE_FB_PX = 0.1  # its forward-backward threshold (px of the small image)
+
+
+class Snapshot(NamedTuple):
+    """Tracks of a view's frame: ids, positions (N, 2) and, when they were seeded from them, its features."""
+
+    ids: np.ndarray
+    uv: np.ndarray
+    features: Features | None = None
+
+
 class KltTracker:
-    """KLT tracks of one camera with persistent ids; a snapshot (ids, uv) of a view pairs it with later frames.
+    """KLT tracks of one camera with persistent ids; a :class:`Snapshot` of a view pairs it with later frames.
 
     ``uv`` are the track positions in ``prev``, the last frame tracked in
     full. After a still frame, a new frame first tracks ``probe_tracks``
@@ -189,6 +219,12 @@ class KltTracker:
     of a static window cost one small LK); when most of them are lost (a jump
     between static snapshots) all tracks are dropped without tracking them
     and new corners are detected; otherwise all tracks are followed.
+
+    Tracks that start afresh (first frame, or lost) are seeded with the
+    frame's descriptor keypoints when ``seed_from_features`` (ORB, mode not
+    ``klt``): the features are kept with the frame while it stays ``prev``
+    and go into the snapshot, so a static view after a jump (the static-only
+    bags) detects corners once for both tracking and matching.
     """
 
     def __init__(self, cfg: TrackingConfig):
@@ -201,6 +237,8 @@ class KltTracker:
         self._still = False  # the last frame moved at most still_px: probe the next one first
         self._fresh = False  # corners were detected in prev (since it became prev)
         self._probe_motion = 0.0  # median motion (px) of the probe of the last frame skipped as unchanged
+        self.features: Features | None = None  # descriptor features of prev when the tracks were seeded from them
+        self._small_prev = None  # (prev, prev reduced PROBE_SCALE times) for the probe's jump check
         self.skipped = 0  # frames taken as unchanged (probe only)
         self.lost = 0  # frames where the probe lost the tracks (all dropped, not tracked)
 
@@ -214,7 +252,13 @@ class KltTracker:
             r = max(1, int(self.cfg.min_distance_px))
             for u, v in self.uv.astype(int):
                 cv2.circle(mask, (int(u), int(v)), r, 0, -1)
-        new = detect_corners(img, self.cfg, self.cfg.max_tracks - n, mask)
+        cfg = self.cfg
+        if n == 0 and cfg.seed_from_features and cfg.descriptor == "orb" and cfg.mode != "klt":
+            self.features = f = detect_features(img, cfg)
+            new = f.uv[spread_corners(f.uv, f.score, (img.shape[1], img.shape[0]), cfg, cfg.max_tracks)]
+            new = new.astype(np.float32).reshape(-1, 2)
+        else:
+            new = detect_corners(img, cfg, cfg.max_tracks - n, mask)
         self._fresh = True  # corners of this frame were just detected: a snapshot needs no new search
         self.uv = np.concatenate([self.uv, new])
         self.ids = np.concatenate([self.ids, self._next_id + np.arange(len(new))])
@@ -225,10 +269,12 @@ class KltTracker:
         """'still' (image unchanged), 'lost' (tracks cannot follow) or 'moved', from a few spread tracks.
 
         Still: forward LK at full resolution only (a fraction of a millisecond)
-        finds them within ``still_px``. Otherwise the same tracks go through the
-        full pyramidal forward-backward LK: when fewer than a quarter survive,
-        the tracks are lost (a jump between static snapshots) and the costly
-        LK of all tracks is skipped.
+        finds them within ``still_px``. Otherwise the same tracks go through a
+        pyramidal forward-backward LK on images ``PROBE_SCALE`` times smaller
+        (it follows motions of 100+ px for a third of the cost at full
+        resolution): when fewer than a quarter survive, the tracks are lost (a
+        jump between static snapshots) and the costly LK of all tracks is
+        skipped.
         """
         k = int(self.cfg.probe_tracks)
         size = (img.shape[1], img.shape[0])
@@ -242,8 +288,20 @@ class KltTracker:
         if len(d) >= 0.75 * len(sel) and float(np.median(d)) <= self.cfg.still_px:
             self._probe_motion = float(np.median(d))
             return "still"
-        _, ok = _lk(self.prev, img, p0, self.cfg)
+        scale = max(1, min(PROBE_SCALE, img.shape[1] // PROBE_MIN_WIDTH))
+        small = self._small(img, scale)
+        if self._small_prev is None or self._small_prev[0] is not self.prev:
+            self._small_prev = (self.prev, self._small(self.prev, scale))
+        _, ok = _lk(self._small_prev[1], small, p0 / scale, self.cfg, window=9, levels=2, fb_px=PROBE_FB_PX)
+        self._small_prev = (img, small)  # img becomes prev unless it is skipped as still (it is not)
         return "lost" if ok.sum() < 0.25 * len(sel) else "moved"
+
+    @staticmethod
+    def _small(img, scale: int):
+        if scale == 1:
+            return img
+        h, w = img.shape
+        return cv2.resize(img, (w // scale, h // scale), interpolation=cv2.INTER_AREA)
 
     def track(self, img: np.ndarray) -> None:
         """Follow the tracks into ``img`` (dropping failures) and top them up with new corners."""
@@ -254,6 +312,7 @@ class KltTracker:
             return
         self._fresh = False
         self._probe_motion = 0.0
+        self.features = None  # prev changes
         if self.prev is not None and len(self.uv) and state != "lost":
             p1, ok = _lk(self.prev, img, self.uv, self.cfg)
             step = np.linalg.norm(p1[ok] - self.uv[ok], axis=1)
@@ -280,15 +339,15 @@ class KltTracker:
         motion = float(np.median(np.linalg.norm(self.uv[ok] - self.anchor_uv[ok], axis=1)))
         return motion + self._probe_motion, int(ok.sum())
 
-    def snapshot(self):
-        """(ids, uv) of the current frame, topped up to max_tracks first (for a view that may become a reference)."""
+    def snapshot(self) -> Snapshot:
+        """Tracks of the current frame, topped up to max_tracks first (for a view that may become a reference)."""
         if self.prev is not None and not self._fresh:
             self._replenish(self.prev, force=True)
-        return self.ids.copy(), self.uv.astype(np.float64)
+        return Snapshot(self.ids.copy(), self.uv.astype(np.float64), self.features)
 
-    def pairs_since(self, snap):
+    def pairs_since(self, snap: Snapshot):
         """(uv in the snapshot's frame, uv now) of tracks alive since ``snap``."""
-        ids, uv = snap
+        ids, uv = snap[0], snap[1]
         _, i_old, i_now = np.intersect1d(ids, self.ids, assume_unique=True, return_indices=True)
         return uv[i_old], self.uv[i_now].astype(np.float64)
 
@@ -299,34 +358,40 @@ class KltTracker:
 
 @dataclass
 class Features:
-    """Keypoints (N, 2) and descriptors (N, D) of one image."""
+    """Keypoints (N, 2), descriptors (N, D) and keypoint scores (N,) of one image."""
 
     uv: np.ndarray
     desc: np.ndarray | None
+    score: np.ndarray | None = None
+
+
+def _detector(cfg: TrackingConfig):
+    """The OpenCV feature detector of ``cfg``."""
+    n = int(cfg.num_features)
+    if cfg.descriptor == "sift":
+        return cv2.SIFT_create(nfeatures=2 * n)
+    score = cv2.ORB_HARRIS_SCORE if cfg.orb_score == "harris" else cv2.ORB_FAST_SCORE
+    return cv2.ORB_create(nfeatures=2 * n, nlevels=int(cfg.orb_levels), fastThreshold=10, scoreType=score)
 
 
 def detect_features(img: np.ndarray, cfg: TrackingConfig) -> Features:
     """Grid-bucketed ORB or SIFT features (strongest per cell), optionally refined to sub-pixel."""
     n = int(cfg.num_features)
-    if cfg.descriptor == "sift":
-        det = cv2.SIFT_create(nfeatures=2 * n)
-    else:
-        det = cv2.ORB_create(nfeatures=2 * n, nlevels=int(cfg.orb_levels), fastThreshold=10,
-                             scoreType=cv2.ORB_HARRIS_SCORE)
+    det = _detector(cfg)
     kps = det.detect(img, None)
     if not kps:
         return Features(np.zeros((0, 2)), None)
-    uv = np.array([k.pt for k in kps], dtype=np.float64)
-    resp = np.array([k.response for k in kps])
+    uv = cv2.KeyPoint_convert(kps).reshape(-1, 2)
+    resp = np.fromiter((k.response for k in kps), float, len(kps))
     keep = bucket(uv, (img.shape[1], img.shape[0]), cfg.grid_rows, cfg.grid_cols, n,
                   order=np.argsort(-resp, kind="stable"))
-    kps = [kps[i] for i in keep]
-    kps, desc = det.compute(img, kps)
+    kps, desc = det.compute(img, [kps[i] for i in keep])
     if desc is None or not kps:
         return Features(np.zeros((0, 2)), None)
-    uv = np.array([k.pt for k in kps], dtype=np.float64)
+    uv = cv2.KeyPoint_convert(kps).reshape(-1, 2).astype(np.float64)
+    resp = np.fromiter((k.response for k in kps), float, len(kps))
     if cfg.subpixel and cfg.descriptor == "orb":
-        level0 = np.array([k.octave == 0 for k in kps])
+        level0 = np.fromiter((k.octave == 0 for k in kps), bool, len(kps))
         if level0.any():
             crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
             p = uv[level0].astype(np.float32).reshape(-1, 1, 2)
@@ -335,7 +400,7 @@ def detect_features(img: np.ndarray, cfg: TrackingConfig) -> Features:
             sub = uv[level0]
             sub[moved] = ref[moved]
             uv[level0] = sub
-    return Features(uv, desc)
+    return Features(uv, desc, resp)
 
 
 def match_features(a: Features, b: Features, cfg: TrackingConfig):
