@@ -275,6 +275,18 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight):
     return starts, {"cameras_with_rotation": int(len(cams)), "ransac_iterations": iterations}
 
 
+def _common_bar_axis(rig, m: Matches, min_share: float = 0.9):
+    """The bar axis shared by the cameras holding min_share of the correspondences, if they are all parallel."""
+    counts = np.bincount(m.cam, minlength=rig.num_cameras).astype(float)
+    order = np.argsort(-counts)
+    keep = order[: int(np.searchsorted(np.cumsum(counts[order]), min_share * counts.sum()) + 1)]
+    u, _, cr = rig.bar_coefficients
+    keep = keep[cr[keep] > 0]
+    if len(keep) == 0 or np.any(np.abs(u[keep] @ u[keep[0]]) < 0.99):
+        return None
+    return u[keep[0]]
+
+
 def _six_point_bending(rig, m, opts, rng):
     loose, tight = _thresholds(rig, opts)
     if not rig.is_flexible:
@@ -295,6 +307,17 @@ def _six_point_bending(rig, m, opts, rng):
         res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R0, t0, g0, max_iter=15,
                               huber_k=opts.huber_k, sigma_rad=tight / 2.0)
         if best is None or res.cost < best.cost:
+            best, best_idx = res, idx
+    axis = _common_bar_axis(rig, m)
+    if axis is not None:
+        # All observing cameras sit on parallel bars: mirroring gravity's axial component leaves view 1's
+        # bending unchanged, so the mirrored gravity is a second, nearly as good basin (paper, section 3.3,
+        # degenerate cases). Refine from it too and keep the better.
+        g_m = best.g - 2.0 * (axis @ best.g) * axis
+        res = refine_two_view(rig, m.f1[best_idx], m.f2[best_idx], m.cam[best_idx], best.R, best.t, g_m,
+                              max_iter=15, huber_k=opts.huber_k, sigma_rad=tight / 2.0)
+        info["mirrored_start"] = bool(res.cost < best.cost)
+        if res.cost < best.cost:
             best = res
     info["gravity_starts"] = len(starts)
     R, t, g, inliers, res = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts)
