@@ -133,5 +133,5 @@ def translation_given_rotation(rig: Rig, m: Matches, idx, R, g):
         t = np.linalg.lstsq(A * w[:, None], b * w, rcond=None)[0]
         r = np.abs(A @ t - b)
         s = 1.4826 * np.median(r) + 1e-15
-        w = np.where(r < 2 * s, 1.0, 2 * s / r)
+        w = np.divide(2 * s, r, out=np.ones_like(r), where=r >= 2 * s)
     return t
