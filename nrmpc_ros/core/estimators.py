@@ -37,6 +37,7 @@ class EstimatorOptions:
     max_iterations_4pt: int = 1000
     patience_6pt: int = 30  # stop once the best 6pt model has not improved for this many samples
     start_iterations_6pt: int = 12  # 6pt samples per gravity start in 6pt-bending (lines bent at that start)
+    start_ba_iterations: int = 15  # bundle-adjustment iterations that compare gravity starts (on subset_size points)
     patience_4pt: int = 200
     gravity_hypotheses: int = 200  # directions scored cheaply in 6pt-bending before refining
     gravity_refine_starts: int = 3  # best distinct hypotheses refined by bundle adjustment
@@ -304,7 +305,7 @@ def _six_point_bending(rig, m, opts, rng):
         return None
     best = None
     for R0, t0, g0, idx in starts:
-        res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R0, t0, g0, max_iter=15,
+        res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R0, t0, g0, max_iter=int(opts.start_ba_iterations),
                               huber_k=opts.huber_k, sigma_rad=tight / 2.0)
         if best is None or res.cost < best.cost:
             best, best_idx = res, idx
@@ -315,7 +316,7 @@ def _six_point_bending(rig, m, opts, rng):
         # degenerate cases). Refine from it too and keep the better.
         g_m = best.g - 2.0 * (axis @ best.g) * axis
         res = refine_two_view(rig, m.f1[best_idx], m.f2[best_idx], m.cam[best_idx], best.R, best.t, g_m,
-                              max_iter=15, huber_k=opts.huber_k, sigma_rad=tight / 2.0)
+                              max_iter=int(opts.start_ba_iterations), huber_k=opts.huber_k, sigma_rad=tight / 2.0)
         info["mirrored_start"] = bool(res.cost < best.cost)
         if res.cost < best.cost:
             best = res
