@@ -186,25 +186,15 @@ def _problem(rig, s: _Pair, groups):
     return TwoViewProblem(rig, s.f1, s.f2, s.cam, True, s.prior, compliance_groups=groups)
 
 
-def _init_points(rig, s: _Pair):
-    from .core.deformation import rays
-    from .core.residuals import triangulate_midpoint
-
-    o1, d1 = rays(rig, s.f1, s.cam, s.g)
-    o2, d2 = rays(rig, s.f2, s.cam, s.R.T @ s.g)
-    P, a, b, par = triangulate_midpoint(o1, d1, o2, d2, s.R, s.t)
-    bad = par | (a <= 0) | (b <= 0)
-    return np.where(bad[:, None], o1 + 1e3 * d1, P)
-
-
 def _linearize(rig, states, groups):
     """Per pair: reduced (points eliminated) system over (dr, t, dg, k). Returns total cost and the systems."""
     total = 0.0
     systems = []
     for s in states:
+        prob = _problem(rig, s, groups)
         if s.P is None:
-            s.P = _init_points(rig, s)
-        solver = Solver(_problem(rig, s, groups), s.sigma, 3.0)
+            s.P = prob.triangulate(s.R, s.t, s.g)
+        solver = Solver(prob, s.sigma, 3.0)
         cost, Hcc, bc, Hcp, Hpp, bp = solver.normal_equations(s.R, s.t, s.g, s.P)
         total += cost
         systems.append((solver, Hcc, bc, Hcp, Hpp, bp))
@@ -213,7 +203,7 @@ def _linearize(rig, states, groups):
 
 def _solve(systems, G, lam):
     """Eliminate points and each pair's 8 local parameters; solve for the compliance step."""
-    S_k = lam * np.eye(G) * 0.0
+    S_k = np.zeros((G, G))  # damping is already in each pair's reduced system
     b_k = np.zeros(G)
     parts = []
     for solver, Hcc, bc, Hcp, Hpp, bp in systems:
