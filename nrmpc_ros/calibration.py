@@ -14,6 +14,7 @@ reported as not observable instead of as a number.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,13 +69,9 @@ class _Pair:
         self.P = None
 
 
-def _groups(rig: Rig, shared: bool, cameras=None) -> np.ndarray:
-    M = rig.num_cameras
+def _groups(rig: Rig, shared: bool) -> np.ndarray:
+    """Camera -> compliance parameter: one per camera on a bar, or one shared; -1 at the body centre."""
     on_bar = np.linalg.norm(rig.positions, axis=1) > 1e-9
-    if cameras is not None:
-        sel = np.zeros(M, dtype=bool)
-        sel[list(cameras)] = True
-        on_bar &= sel
     if shared:
         return np.where(on_bar, 0, -1)
     return np.where(on_bar, np.cumsum(on_bar) - 1, -1)
@@ -224,8 +221,7 @@ def _solve(systems, G, lam):
 
 def _stepped(s: _Pair, step) -> _Pair:
     solver, dc, dP = step
-    new = _Pair.__new__(_Pair)
-    new.__dict__.update(s.__dict__)
+    new = copy.copy(s)
     new.R, new.t, new.g, new.P = solver.prob.update(s.R, s.t, s.g, s.P, dc[:8], dP)
     return new
 
