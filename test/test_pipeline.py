@@ -147,7 +147,18 @@ def test_without_imu_auto_runs_6pt_bending(rig3, static_run):
     # vision-only gravity on this small low-resolution rig is the core estimator's business (bounds on the
     # sample bag are in test_replay); here: the pose is right and gravity is reported
     assert np.median(errs[:, 0]) < 2.0
-    assert all(e.gravity is not None and np.isfinite(e.tilt_deg) for e in ests)
+    # gravity is reported with its std, or withheld (and counted) when too weakly observable
+    withheld = [e for e in ests if e.gravity is None]
+    assert all(np.isfinite(e.tilt_deg) and e.gravity_sigma_deg <= 2.0 for e in ests if e.gravity is not None)
+    assert pipe.stats.dropped.get("gravity withheld: std above max_gravity_sigma_deg", 0) == len(withheld)
+    assert len(withheld) < len(ests)
+
+
+def test_weak_gravity_is_withheld_not_published(rig3, static_run):
+    seq, _ = static_run
+    pipe, ests = run(rig3, seq, config=PipelineConfig(max_gravity_sigma_deg=0.0))
+    assert len(ests) == len(ATTITUDES) - 1 and all(e.gravity is None and e.R is not None for e in ests)
+    assert pipe.stats.dropped["gravity withheld: std above max_gravity_sigma_deg"] == len(ests)
 
 
 def test_nonbending_reports_no_gravity(rig3, static_run):

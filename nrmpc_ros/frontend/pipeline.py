@@ -74,6 +74,7 @@ class PipelineConfig:
     refresh_matches: int = 200  # after a pair with fewer matches than this, the current view becomes the reference
     advance_rotation_deg: float = 15.0  # after a pair rotated this much (deg), the current view becomes the reference
     min_tilt_deg: float = 2.0  # change of gravity direction in the body needed between paired views
+    max_gravity_sigma_deg: float = 2.0  # a pair's gravity is withheld (pose kept) when its std exceeds this
     seed: int = 0
 
     @classmethod
@@ -365,6 +366,10 @@ class Pipeline:
             if method == "6pt-bending" and tilt < self.config.min_tilt_deg:
                 self.stats.dropped["estimate dropped: tilt below min_tilt_deg (gravity unobservable)"] += 1
                 return None
+            if not sigma <= self.config.max_gravity_sigma_deg:
+                # weakly observable (e.g. parallel bars, little rotation): publish the pose, not a guess of gravity
+                self.stats.dropped["gravity withheld: std above max_gravity_sigma_deg"] += 1
+                g_cur, cov = None, None
         self.stats.estimates += 1
         self.stats.methods[method] += 1
         out = PipelineEstimate(
