@@ -38,6 +38,7 @@ class EstimatorOptions:
     patience_6pt: int = 30  # stop once the best 6pt model has not improved for this many samples
     start_iterations_6pt: int = 12  # 6pt samples per gravity start in 6pt-bending (lines bent at that start)
     start_ba_iterations: int = 15  # bundle-adjustment iterations that compare gravity starts (on subset_size points)
+    weak_geometry_starts: int = 6  # gravity starts when all observing cameras sit on parallel bars
     patience_4pt: int = 200
     gravity_hypotheses: int = 200  # directions scored cheaply in 6pt-bending before refining
     gravity_refine_starts: int = 3  # best distinct hypotheses refined by bundle adjustment
@@ -250,7 +251,7 @@ def _starts_from_rigid_fit(rig, m, opts, rng, loose):
     return starts, {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers}
 
 
-def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight):
+def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts):
     """Starts (R, t, g, idx) from per-camera rotations (see :mod:`.gravity_init`).
 
     Each gravity hypothesis bends the Plücker lines of both views; a 6-point
@@ -264,7 +265,7 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight):
     starts = []
     iterations = 0
     for g0, R0, _ in gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses),
-                                                 int(opts.gravity_refine_starts)):
+                                                 num_starts):
         rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt)
         if rr is not None and rr.num_inliers >= 12:
             iterations += rr.iterations
@@ -297,7 +298,11 @@ def _six_point_bending(rig, m, opts, rng):
         R, t, _, inliers, res = _refine_loop(rig, m, *rr.model, None, tight, opts, optimize_gravity=False)
         return R, t, None, inliers, {"ransac_iterations": rr.iterations, **_pose_info(res, False),
                                      "gravity_unobservable": _RIGID_REASON}
-    starts, info = _starts_from_camera_rotations(rig, m, opts, rng, loose, tight)
+    axis = _common_bar_axis(rig, m)
+    # parallel bars observe gravity weakly (paper, section 3.3): search wider there
+    num_starts = int(opts.gravity_refine_starts if axis is None else max(opts.gravity_refine_starts,
+                                                                          opts.weak_geometry_starts))
+    starts, info = _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts)
     if not starts:
         starts, more = _starts_from_rigid_fit(rig, m, opts, rng, loose)
         info.update(more)
@@ -309,7 +314,6 @@ def _six_point_bending(rig, m, opts, rng):
                               huber_k=opts.huber_k, sigma_rad=tight / 2.0)
         if best is None or res.cost < best.cost:
             best, best_idx = res, idx
-    axis = _common_bar_axis(rig, m)
     if axis is not None:
         # All observing cameras sit on parallel bars: mirroring gravity's axial component leaves view 1's
         # bending unchanged, so the mirrored gravity is a second, nearly as good basin (paper, section 3.3,

@@ -34,7 +34,7 @@ from .tracking import KltTracker, TrackingConfig, detect_features, match_feature
 PIPELINE_METHODS = ("auto",) + METHODS
 # EstimatorOptions the pipeline changes from the core defaults (throughput, docs/PIPELINE.md "Throughput"):
 # the gravity starts of 6pt-bending are compared on 100 correspondences, 2 of them refined, BA capped at 10 steps.
-ESTIMATOR_DEFAULTS = {"subset_size": 100, "gravity_refine_starts": 2, "max_ba_iterations": 10, "start_ba_iterations": 8}
+ESTIMATOR_DEFAULTS = {"subset_size": 100, "gravity_refine_starts": 2, "max_ba_iterations": 10}
 
 
 @dataclass
