@@ -21,3 +21,6 @@ class InputError(NrmpcError, ValueError):
 
 class EstimationError(NrmpcError, RuntimeError):
     """An estimator cannot run on the given data (e.g. 4pt-bending without gravity)."""
+
+
+ROS_EXTRA_HINT = "install the ros extra: pip install -e .[ros]"

@@ -32,7 +32,7 @@ import numpy as np
 from .core.estimators import METHODS
 from .core.rig import Rig, load_rig
 from .core.so3 import matrix_to_quat_xyzw
-from .errors import InputError, NrmpcError
+from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
 
 try:  # rclpy is optional for the package; --help works without it
     import rclpy
@@ -54,7 +54,7 @@ except ImportError as _exc:  # pragma: no cover - exercised only without ROS
 NODE_NAME = "estimator"
 MODES = ("auto",) + tuple(METHODS)
 TRANSPORTS = ("raw", "compressed")
-ROS_EXTRA_HINT = "install the ros extra: pip install -e .[ros]"
+
 
 
 @dataclass(frozen=True)
