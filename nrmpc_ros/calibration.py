@@ -40,14 +40,6 @@ class BarCalibration:
     cost: float
     notes: list = field(default_factory=list)
 
-    def camera_compliance(self) -> np.ndarray:
-        """(M,) compliance per camera; 0 for rigid or unobservable groups."""
-        out = np.zeros(len(self.groups))
-        for i, gi in enumerate(self.groups):
-            if gi >= 0 and self.observable[gi]:
-                out[i] = max(self.compliance[gi], 0.0)
-        return out
-
     def calibrated_rig(self, rig: Rig) -> Rig:
         """The rig with EI = mass / compliance for observable bars; other bars keep their values."""
         k = rig.compliance.copy()

@@ -41,11 +41,6 @@ def typestore():
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-def image_msgtype(encoding: str) -> str:
-    """ROS message type carrying images of this ``--encoding``."""
-    return _TYPES["compressed"] if encoding in COMPRESSED_FORMATS else _TYPES["image"]
-
-
 class BagWriter:
     """A rosbag2 writer that registers topics on first use.
 

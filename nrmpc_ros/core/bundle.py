@@ -10,11 +10,12 @@ Optionally, measured gravity in both views enters as a prior (4pt-bending).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from .deformation import deformation_jacobians
+from .deformation import deformation_jacobians, rays
+from .residuals import triangulate_midpoint
 from .rig import Rig
 from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
 
@@ -38,7 +39,6 @@ class BundleResult:
     iterations: int
     sigma_rad: float  # robust estimate of the angular noise (rad)
     covariance: np.ndarray  # (nc, nc) over (dr, t[, dg]) in rad, m, rad
-    info: dict = field(default_factory=dict)
 
 
 class TwoViewProblem:
@@ -137,9 +137,7 @@ class TwoViewProblem:
 
     def _compliance_columns(self, Jc, Je1, W1t, y1, g1, Je2, W2t, y2, g2):
         """d residual / d compliance k_i: d(W^T y)/dk = W^T [y]_x J_r(-phi) phi/k, dw/dk = delta/k."""
-        from .deformation import bar_coefficients
-
-        u, _, _ = bar_coefficients(self.rig)
+        u, _, _ = self.rig.bar_coefficients
         k = self.rig.compliance
         L = np.linalg.norm(self.rig.positions, axis=1)
         cols = self.groups[self.cam]
@@ -157,9 +155,6 @@ class TwoViewProblem:
 
     def triangulate(self, R, t, g):
         """Midpoint triangulation at (R, t, g); points behind a camera or from parallel rays go far along ray 1."""
-        from .deformation import rays
-        from .residuals import triangulate_midpoint
-
         gg = g if g is not None else np.array([0.0, 0.0, -self.gm])
         o1, d1 = rays(self.rig, self.f1, self.cam, gg)
         o2, d2 = rays(self.rig, self.f2, self.cam, R.T @ gg)
@@ -413,9 +408,9 @@ def refine_two_view(
     |g| = gravity_magnitude. With optimize_gravity=False, g stays fixed (and
     for a rigid rig is irrelevant). ``sigma_rad`` is the angular noise used to
     scale residuals and the Huber threshold (huber_k * sigma); by default it is
-    estimated robustly from the residuals, first at the start and again after
-    a first pass. Returns the covariance of (dr, t[, dg]) from the reduced
-    normal equations.
+    estimated robustly from the residuals at the start and re-estimated as they
+    shrink. Returns the covariance of (dr, t[, dg]) from the reduced normal
+    equations.
     """
     R = np.asarray(R, dtype=float)
     t = np.asarray(t, dtype=float)

@@ -13,11 +13,6 @@ from .rig import Rig
 from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
 
 
-def bar_coefficients(rig: Rig):
-    """Per camera: u_i (M, 3), c_d = m L^3/(3 EI) and c_r = m L^2/(2 EI) (M,) (see Rig.bar_coefficients)."""
-    return rig.bar_coefficients
-
-
 def deformed_extrinsics(rig: Rig, g):
     """Bent extrinsics (w_i(g), W_i(g)) of all cameras (SPEC section 3).
 
@@ -28,7 +23,7 @@ def deformed_extrinsics(rig: Rig, g):
     g = np.asarray(g, dtype=float)
     if g.shape[-1:] != (3,):
         raise ValueError(f"gravity must have shape (3,) or (K, 3), got {g.shape}")
-    u, cd, cr = bar_coefficients(rig)
+    u, cd, cr = rig.bar_coefficients
     gb = g[..., None, :]  # (..., 1, 3)
     ug = np.sum(u * gb, axis=-1, keepdims=True)  # (..., M, 1)
     delta = cd[:, None] * (gb - ug * u)
@@ -46,7 +41,7 @@ def deformation_jacobians(rig: Rig, g):
         d (W_i^T y) / d g    = W_i^T [y]_x K_i        for any fixed y.
     (W^T y = V^T Exp(-phi) y; differentiate Exp with its right Jacobian.)
     """
-    u, cd, cr = bar_coefficients(rig)
+    u, cd, cr = rig.bar_coefficients
     w, W = deformed_extrinsics(rig, g)
     phi = cr[:, None] * cross(u, np.asarray(g, dtype=float)[None, :])
     D = cd[:, None, None] * (np.eye(3) - u[:, :, None] * u[:, None, :])

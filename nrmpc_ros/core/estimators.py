@@ -330,12 +330,15 @@ def _six_point_bending(rig, m, opts, rng):
     return R, t, g, inliers, info
 
 
-def _four_point_bending(rig, m, opts, rng):
-    meas = m.body_gravity(rig)
-    if meas is None:
+def _require_gravity(m: Matches) -> None:
+    if not m.has_gravity:
         raise EstimationError(f"{m.source}: 4pt-bending needs gravity measurements in both views "
                               "(g1/g2 or g1_cam/g2_cam); use 6pt-bending for vision only")
-    g1m, g2m = meas
+
+
+def _four_point_bending(rig, m, opts, rng):
+    _require_gravity(m)
+    g1m, g2m = m.body_gravity(rig)
     _, tight = _thresholds(rig, opts)
     o1, d1 = rays(rig, m.f1, m.cam, g1m)
     o2, d2 = rays(rig, m.f2, m.cam, g2m)
@@ -382,8 +385,8 @@ def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int 
     matches.check_rig(rig)
     t_start = time.perf_counter()
     need = 4 if method == "4pt-bending" else 6
-    if method == "4pt-bending" and not matches.has_gravity:
-        _four_point_bending(rig, matches, opts, None)  # raises the clear error
+    if method == "4pt-bending":
+        _require_gravity(matches)
     cams_seen = int(np.count_nonzero(np.bincount(matches.cam)))
     if len(matches) < need + 2 or cams_seen < 2:
         return Estimate(method=method, success=False, time_s=time.perf_counter() - t_start,

@@ -65,13 +65,3 @@ def two_view_angular_errors(o1, d1, o2, d2, R, t) -> np.ndarray:
     at_inf = 0.5 * angle_between(d1, e2)
     bad = parallel | (s <= 0) | (u <= 0)
     return np.where(bad, at_inf, rms)
-
-
-def reprojection_angles(P, o, d, R=None, t=None) -> np.ndarray:
-    """Angle (rad) between observed ray directions d (body frame) and points P (view 1 frame).
-
-    With (R, t) the rays belong to view 2 and P is moved there first.
-    """
-    if R is not None:
-        P = np.einsum("ji,...nj->...ni", R, P - t)
-    return angle_between(d, P - o)
