@@ -214,7 +214,7 @@ def _solve(systems, G, lam):
 def _stepped(s: _Pair, step) -> _Pair:
     solver, dc, dP = step
     new = copy.copy(s)
-    new.R, new.t, new.g, new.P = solver.prob.update(s.R, s.t, s.g, s.P, dc[:8], dP)
+    new.R, new.t, new.g, new.P = solver.step(s.R, s.t, s.g, dc[:8], dP)
     return new
 
 

@@ -204,7 +204,7 @@ def main(argv=None) -> int:
             prof.enable()
             bench(rig, events, method, cfg)
             prof.disable()
-            pstats.Stats(prof).sort_stats("tottime").print_stats(args.profile)
+            pstats.Stats(prof).sort_stats(os.environ.get("PROFILE_SORT", "tottime")).print_stats(args.profile)
         runs = [bench(rig, events, method, cfg, reference) for _ in range(max(1, args.repeat))]
         r = max(runs, key=lambda x: x["pairs_per_s"])
         results.append(r)

@@ -1,6 +1,7 @@
 import numpy as np
 
 from nrmpc_ros.core.bundle import GravityPrior, TwoViewProblem, inv3, refine_two_view
+from nrmpc_ros.core.deformation import deformed_extrinsics
 from nrmpc_ros.core.so3 import angle_between, exp_so3, rotation_angle
 from nrmpc_ros.sim.synthetic import Scenario, make_problem
 
@@ -23,7 +24,7 @@ def test_jacobians_match_finite_differences(rng):
     for k in range(8):
         dc = np.zeros(8)
         dc[k] = eps
-        e2, _, _ = prob.evaluate(*prob.update(R, t, g, P, dc, np.zeros_like(P)), want_jacobian=False)
+        e2, _, _ = prob.evaluate(*prob.update(R, t, g, dc), P, want_jacobian=False)
         assert np.abs((e2 - e) / eps - Jc[:, :, k]).max() < 1e-5 * max(1.0, np.abs(Jc[:, :, k]).max())
     for k in range(3):
         dP = np.zeros_like(P)
@@ -34,9 +35,32 @@ def test_jacobians_match_finite_differences(rng):
     for k in range(8):
         dc = np.zeros(8)
         dc[k] = eps
-        R2, _, g2, _ = prob.update(R, t, g, P, dc, P * 0)
+        R2, _, g2 = prob.update(R, t, g, dc)
         r2, _ = prob.prior_terms(R2, g2)
         assert np.abs((r2 - r) / eps - J[:, k]).max() < 1e-3 * max(1.0, np.abs(J[:, k]).max())
+
+
+def test_inverse_depth_chart(rng):
+    """dP/dq of the chart matches finite differences, a zero step keeps the points, points behind stay Euclidean."""
+    pb = make_problem(Scenario(num_points=50, outlier_fraction=0), seed=4)
+    m = pb.matches
+    prob = TwoViewProblem(pb.rig, m.f1, m.f2, m.cam, True)
+    P = pb.points.copy()
+    w, W = deformed_extrinsics(pb.rig, pb.gravity)
+    P[:5] = 2 * w[m.cam[:5]] - P[:5]  # mirrored through the camera centre: behind it
+    chart = prob.point_chart(pb.gravity, P)
+    assert not chart.front[:5].any() and chart.front[5:].all()
+    assert np.allclose(chart.retract(np.zeros_like(P)), P, atol=1e-9)
+    eps = 1e-7
+    for k in range(3):
+        dq = np.zeros_like(P)
+        dq[:, k] = eps
+        num = (chart.retract(dq) - chart.retract(-dq)) / (2 * eps)
+        assert np.allclose(num, chart.M[:, :, k], rtol=1e-5, atol=1e-6 * np.abs(chart.M).max())
+    far = chart.retract(np.tile([0.0, 0.0, -10.0], (len(P), 1)))  # rho would turn negative: at most 100x farther
+    d_old = np.linalg.norm(P - w[m.cam], axis=1)
+    d_new = np.linalg.norm(far - w[m.cam], axis=1)
+    assert np.all(d_new[5:] <= 100.0 * d_old[5:] * (1 + 1e-9) + 1e-9) and np.all(np.isfinite(far))
 
 
 def test_noise_free_refinement_is_exact(rng):

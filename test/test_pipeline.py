@@ -147,18 +147,43 @@ def test_without_imu_auto_runs_6pt_bending(rig3, static_run):
     # vision-only gravity on this small low-resolution rig is the core estimator's business (bounds on the
     # sample bag are in test_replay); here: the pose is right and gravity is reported
     assert np.median(errs[:, 0]) < 2.0
-    # gravity is reported with its std, or withheld (and counted) when too weakly observable
-    withheld = [e for e in ests if e.gravity is None]
-    assert all(np.isfinite(e.tilt_deg) and e.gravity_sigma_deg <= 2.0 for e in ests if e.gravity is not None)
-    assert pipe.stats.dropped.get("gravity withheld: std above max_gravity_sigma_deg", 0) == len(withheld)
-    assert len(withheld) < len(ests)
+    # every estimate publishes gravity: its own (std at most max_gravity_sigma_deg), else the fused one
+    assert all(e.gravity is not None and np.isfinite(e.tilt_deg) for e in ests)
+    assert all(e.gravity_sigma_deg <= 2.0 for e in ests if e.gravity_source == "pair")
+    assert sum(pipe.stats.gravity_sources.values()) == len(ests)
+    assert {e.gravity_source for e in ests} <= {"pair", "fused", "weak-pair"}
 
 
-def test_weak_gravity_is_withheld_not_published(rig3, static_run):
+def test_weak_gravity_is_not_fused_and_the_fused_one_is_published(rig3, static_run):
+    """With max_gravity_sigma_deg 0 every pair is weak: nothing enters the fused state, so each estimate
+    publishes its own gravity marked weak-pair; with the default, weak pairs publish the fused gravity."""
     seq, _ = static_run
     pipe, ests = run(rig3, seq, config=PipelineConfig(max_gravity_sigma_deg=0.0))
-    assert len(ests) == len(ATTITUDES) - 1 and all(e.gravity is None and e.R is not None for e in ests)
-    assert pipe.stats.dropped["gravity withheld: std above max_gravity_sigma_deg"] == len(ests)
+    assert len(ests) == len(ATTITUDES) - 1 and all(e.R is not None for e in ests)
+    assert all(e.gravity_source == "weak-pair" and e.gravity_fused is None and e.gravity is not None for e in ests)
+    assert pipe.stats.gravity_sources == {"weak-pair": len(ests)}
+
+
+def test_published_gravity_choice():
+    """The pair's gravity unless weak or rejected by the fusion; then the fused one (current body frame)."""
+    from nrmpc_ros.frontend.pipeline import Pipeline, PipelineEstimate
+
+    def est(fused, accepted):
+        return PipelineEstimate(stamp=1.0, ref_stamp=0.0, method="6pt-bending", R=np.eye(3), t=np.zeros(3),
+                                gravity=np.array([0.0, 0.0, -9.81]), num_inliers=50, time_ms=1.0,
+                                cov_gravity=np.eye(3), gravity_fused=fused, cov_gravity_fused=2 * np.eye(3),
+                                fused_accepted=accepted, gravity_source="pair")
+
+    fused = np.array([0.0, 9.81, 0.0])
+    for weak, accepted, source in [(False, True, "pair"), (False, False, "fused"), (True, None, "fused")]:
+        e = est(fused, accepted)
+        Pipeline._published_gravity(e, weak)
+        assert e.gravity_source == source
+        assert np.allclose(e.gravity, fused if source == "fused" else [0, 0, -9.81])
+        assert np.allclose(e.cov_gravity, 2 * np.eye(3) if source == "fused" else np.eye(3))
+    e = est(None, None)
+    Pipeline._published_gravity(e, True)
+    assert e.gravity_source == "weak-pair" and np.allclose(e.gravity, [0, 0, -9.81])
 
 
 def test_nonbending_reports_no_gravity(rig3, static_run):

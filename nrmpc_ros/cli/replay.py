@@ -13,7 +13,7 @@ from ..bag.reader import BagReader
 from ..core import load_rig
 from ..errors import InputError
 from ..frontend.evaluation import CsvWriter, evaluate, format_report, read_reference, row_from_estimate
-from ..frontend.pipeline import PIPELINE_METHODS, Pipeline, PipelineConfig
+from ..frontend.pipeline import GRAVITY_SOURCE_WORDS, PIPELINE_METHODS, Pipeline, PipelineConfig
 from ..frontend.replay import check_camera_info, replay_bag, resolve_imu_topic
 from ..frontend.sync import StampSynchronizer
 
@@ -91,6 +91,9 @@ def run(args) -> int:
           f"reference changes {st.reference_changes}")
     if dropped:
         print("dropped: " + "; ".join(f"{k}: {v}" for k, v in sorted(dropped.items())))
+    if st.gravity_sources:
+        print("published gravity (g columns): " + ", ".join(
+            f"{n} {GRAVITY_SOURCE_WORDS.get(k, k)}" for k, n in sorted(st.gravity_sources.items())))
     if st.static_views > 1:
         print(f"static views with an estimate (after the first): {st.estimates}/{st.static_views - 1} "
               f"({100.0 * st.estimates / (st.static_views - 1):.0f}%)")

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .deformation import deformation_jacobians, rays
+from .deformation import deformation_jacobians
 from .residuals import triangulate_midpoint
 from .rig import Rig
 from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
@@ -50,8 +50,8 @@ class TwoViewProblem:
         Jacobian columns follow (dr, t[, dg]) and are used by the bar calibration."""
         self.rig = rig
         self.f1, self.f2, self.cam = f1, f2, cam
-        self.T1 = tangent_basis(f1)
-        self.T2 = tangent_basis(f2)
+        self.T1t = np.swapaxes(tangent_basis(f1), 1, 2)  # residual = T^T p/|p| (2D, tangent plane of f)
+        self.T2t = np.swapaxes(tangent_basis(f2), 1, 2)
         self.optimize_gravity = optimize_gravity
         self.prior = prior
         self.nc = 8 if optimize_gravity else 6
@@ -68,21 +68,24 @@ class TwoViewProblem:
 
     # -- model --------------------------------------------------------------
     @staticmethod
-    def _residual_jac(p, T):
-        """e = T^T p/|p| and de/dp = T^T (I - n n^T)/|p|."""
+    def _residual_jac(p, Tt, want_jacobian=True):
+        """e = T^T p/|p| and de/dp = T^T (I - n n^T)/|p| (Tt = T^T, (N, 2, 3))."""
         r = np.maximum(np.sqrt(np.einsum("ni,ni->n", p, p)), 1e-300)
         n = p / r[:, None]
-        e = np.einsum("nik,ni->nk", T, n)
-        J = (np.swapaxes(T, 1, 2) - e[:, :, None] * n[:, None, :]) / r[:, None, None]
-        return e, J
+        e = (Tt @ n[:, :, None])[:, :, 0]
+        if not want_jacobian:
+            return e, None
+        return e, (Tt - e[:, :, None] * n[:, None, :]) / r[:, None, None]
 
     def _model(self, g):
-        """Per-camera (w, W^T, D, K) at gravity g, cached for the last few g (each LM step reuses them)."""
+        """Per correspondence (w, W^T, D, K) of its camera at gravity g (SPEC 3), cached for the last few g
+        (each LM step reuses them)."""
         key = np.asarray(g, dtype=float).tobytes()
         hit = self._cache.get(key)
         if hit is None:
             w, W, D, K = deformation_jacobians(self.rig, g)
-            hit = (w, np.swapaxes(W, 1, 2), D, K)
+            c = self.cam
+            hit = (w[c], np.swapaxes(W, 1, 2)[c], D[c], K[c])
             if len(self._cache) >= 8:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[key] = hit
@@ -91,12 +94,11 @@ class TwoViewProblem:
     def _project(self, g, P_view):
         """Points of one view (its body frame) into the bent cameras: y = P - w(g), p = W(g)^T y."""
         w, Wt, _, _ = self._model(g)
-        Wt = Wt[self.cam]
-        y = P_view - w[self.cam]
-        return Wt, y, np.einsum("nij,nj->ni", Wt, y)
+        y = P_view - w
+        return Wt, y, (Wt @ y[:, :, None])[:, :, 0]
 
     def evaluate(self, R, t, g, P, want_jacobian=True):
-        """Residuals e (N, 4) and, if asked, Jc (N, 4, nc), Jp (N, 4, 3).
+        """Residuals e (N, 4) and, if asked, Jc (N, 4, nc), Jp (N, 4, 3) (want_jacobian="points": Jp only).
 
         Uses a^T [y]_x = (a x y)^T row-wise, so the chain rule runs on 2x3 blocks.
         """
@@ -105,18 +107,20 @@ class TwoViewProblem:
         z = (P - t) @ R  # R^T (P - t)
         W1t, y1, p1 = self._project(gg, P)
         W2t, y2, p2 = self._project(g2, z)
-        e1, Je1 = self._residual_jac(p1, self.T1)
-        e2, Je2 = self._residual_jac(p2, self.T2)
+        e1, Je1 = self._residual_jac(p1, self.T1t, want_jacobian)
+        e2, Je2 = self._residual_jac(p2, self.T2t, want_jacobian)
         e = np.concatenate([e1, e2], axis=1)
         if not want_jacobian:
             return e, None, None
         N = len(P)
-        Jc = np.zeros((N, 4, self.nc))
         Jp = np.empty((N, 4, 3))
         A1 = Je1 @ W1t  # de1/dP
         A2 = Je2 @ W2t  # de2/dy2
         Jp[:, :2] = A1
         Jp[:, 2:] = A2 @ R.T
+        if want_jacobian == "points":
+            return e, None, Jp
+        Jc = np.zeros((N, 4, self.nc))
         de2_dg2 = self._de_dg(A2, y2, g2)
         Jc[:, 2:, 0:3] = cross(A2, z[:, None, :]) + cross(de2_dg2, g2)
         Jc[:, 2:, 3:6] = -Jp[:, 2:]
@@ -133,7 +137,7 @@ class TwoViewProblem:
         if not self.rig.is_flexible:
             return np.zeros_like(A)
         _, _, D, K = self._model(g)
-        return cross(A, y[:, None, :]) @ K[self.cam] - A @ D[self.cam]
+        return cross(A, y[:, None, :]) @ K - A @ D
 
     def _compliance_columns(self, Jc, Je1, W1t, y1, g1, Je2, W2t, y2, g2):
         """d residual / d compliance k_i: d(W^T y)/dk = W^T [y]_x J_r(-phi) phi/k, dw/dk = delta/k."""
@@ -156,11 +160,18 @@ class TwoViewProblem:
     def triangulate(self, R, t, g):
         """Midpoint triangulation at (R, t, g); points behind a camera or from parallel rays go far along ray 1."""
         gg = g if g is not None else np.array([0.0, 0.0, -self.gm])
-        o1, d1 = rays(self.rig, self.f1, self.cam, gg)
-        o2, d2 = rays(self.rig, self.f2, self.cam, R.T @ gg)
+        o1, W1t, _, _ = self._model(gg)
+        o2, W2t, _, _ = self._model(R.T @ gg)
+        d1 = (self.f1[:, None, :] @ W1t)[:, 0]  # W f = (f^T W^T)^T
+        d2 = (self.f2[:, None, :] @ W2t)[:, 0]
         P, s, u, par = triangulate_midpoint(o1, d1, o2, d2, R, t)
         bad = par | (s <= 0) | (u <= 0)
         return np.where(bad[:, None], o1 + 1e3 * d1, P)
+
+    def point_chart(self, g, P) -> InverseDepthChart:
+        """Inverse-depth chart of the points in their view-1 cameras, bent at g (the linearisation point)."""
+        w, Wt, _, _ = self._model(g if g is not None else np.array([0.0, 0.0, -self.gm]))
+        return InverseDepthChart(w, Wt, P)
 
     def prior_terms(self, R, g):
         """Prior residuals (4,) and Jacobian (4, nc), already divided by sigma."""
@@ -175,14 +186,49 @@ class TwoViewProblem:
         J[2:, 6:8] = self.P2.T @ (R.T @ B)
         return r, J / pr.sigma_rad
 
-    def update(self, R, t, g, P, dc, dP):
-        """Apply the step of (dr, t[, dg]) and points; compliance steps are applied by the caller."""
+    def update(self, R, t, g, dc):
+        """Apply the step of (dr, t[, dg]); compliance steps are applied by the caller, point steps by the chart."""
         R = R @ exp_so3(dc[0:3])
         t = t + dc[3:6]
         if self.optimize_gravity:
             gh = normalize(g)
             g = self.gm * normalize(gh + tangent_basis(gh) @ dc[6:8])
-        return R, t, g, P + dP
+        return R, t, g
+
+
+class InverseDepthChart:
+    """Local coordinates q = (a, b, rho) of each point in its view-1 camera, frozen at the linearisation point:
+    P = w + W (a, b, 1) / rho.
+
+    Residuals of distant (low-parallax) points are nearly linear in the inverse
+    depth rho but not in P, so Levenberg-Marquardt point steps taken in this
+    chart stay valid where Euclidean steps overshoot. The Schur complement, and
+    so the covariance of (R, t, g), does not depend on the chart. Points not in
+    front of their camera keep Euclidean coordinates.
+    """
+
+    def __init__(self, w, Wt, P):
+        """w (N, 3), Wt (N, 3, 3): bent centre and W^T of each point's view-1 camera; P (N, 3)."""
+        self.w, self.W, self.P = w, np.swapaxes(Wt, 1, 2), P
+        X = np.einsum("nij,nj->ni", Wt, P - w)
+        z = X[:, 2]
+        self.front = z > 1e-9 * np.linalg.norm(X, axis=1) + 1e-12
+        zs = np.where(self.front, z, 1.0)
+        self.q = np.stack([X[:, 0] / zs, X[:, 1] / zs, 1.0 / zs], axis=1)
+        L = np.zeros((len(P), 3, 3))  # d(a/rho, b/rho, 1/rho) / d(a, b, rho)
+        L[:, 0, 0] = L[:, 1, 1] = zs
+        L[:, 0, 2] = -X[:, 0] * zs
+        L[:, 1, 2] = -X[:, 1] * zs
+        L[:, 2, 2] = -zs * zs
+        self.M = np.where(self.front[:, None, None], self.W @ L, np.eye(3))  # dP/dq
+
+    def retract(self, dq):
+        """Points after a step dq in the chart; rho may shrink at most 100-fold per step (no jump through infinity)."""
+        q = self.q + dq
+        rho = np.maximum(q[:, 2], 1e-2 * self.q[:, 2])
+        X = np.stack([q[:, 0], q[:, 1], np.ones(len(q))], axis=1) / rho[:, None]
+        P_chart = self.w + np.einsum("nij,nj->ni", self.W, X)
+        return np.where(self.front[:, None], P_chart, self.P + dq)
 
 
 def inv3(A: np.ndarray) -> np.ndarray:
@@ -212,7 +258,7 @@ def _huber(r_norm, delta):
     return cost, weight
 
 
-def robust_sigma(e: np.ndarray, num_params: int = 0, floor: float = 1e-7) -> float:
+def robust_sigma(e: np.ndarray, num_params: int = 0, floor: float = 1e-9) -> float:
     """MAD-based std (rad) of the angular noise behind residual components e (N, 4).
 
     Each point absorbs 3 of its 4 residuals, so the residual spread is
@@ -224,6 +270,9 @@ def robust_sigma(e: np.ndarray, num_params: int = 0, floor: float = 1e-7) -> flo
     return max(1.4826 * float(med) * np.sqrt(n_res / dof), floor)
 
 
+COST_TOL = 1e-2  # chi^2/2 units: a cost change this small moves the parameters by about 0.1 sigma
+
+
 class Solver:
     """Levenberg-Marquardt on a TwoViewProblem with Huber weights and residuals scaled by sigma."""
 
@@ -233,23 +282,30 @@ class Solver:
         self.delta = huber_k  # Huber threshold in units of sigma
 
     point_iterations = 1  # embedded point iterations for a step whose linear point update failed
+    initial_damping = 1e-4  # Levenberg-Marquardt lambda (relative to the diagonal) and its factors
+    damping_up = 10.0
+    damping_down = 10.0
 
     def refine_points(self, R, t, g, P, iterations):
         """Gauss-Newton on each point alone for fixed (R, t, g): independent 3x3 systems, vectorised.
 
         Re-optimising the points after each camera step (embedded point
         iterations) keeps the LM step valid where the linear point update is
-        not (low parallax), at the price of one Jacobian evaluation.
+        not (low parallax). A point stuck far off (e.g. started at infinity)
+        first restarts from triangulation. Returns the points and their
+        residuals in units of sigma.
         """
-        if iterations:  # a point stuck far off (e.g. started at infinity) restarts from triangulation
+        e = self.prob.evaluate(R, t, g, P, want_jacobian=False)[0] / self.sigma
+        if iterations:
             P_tri = self.prob.triangulate(R, t, g)
-            c_old = self._point_costs(R, t, g, P)
-            c_tri = self._point_costs(R, t, g, P_tri)
-            P = np.where((c_tri < c_old)[:, None], P_tri, P)
+            e_tri = self.prob.evaluate(R, t, g, P_tri, want_jacobian=False)[0] / self.sigma
+            use_tri = self._point_costs(e_tri) < self._point_costs(e)
+            P = np.where(use_tri[:, None], P_tri, P)
+            e = np.where(use_tri[:, None], e_tri, e)
         for _ in range(iterations):
-            e, _, Jp = self.prob.evaluate(R, t, g, P)
-            e = e / self.sigma
-            Jp = Jp / self.sigma
+            _, _, Jp = self.prob.evaluate(R, t, g, P, want_jacobian="points")
+            chart = self.prob.point_chart(g, P)
+            Jp = (Jp @ chart.M) / self.sigma
             r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
             c0, wts = _huber(r, self.delta)
             sw = np.sqrt(np.repeat(wts, 2, axis=1))
@@ -257,22 +313,28 @@ class Solver:
             JT = np.swapaxes(Jw, 1, 2)
             H = JT @ Jw + 1e-12 * np.eye(3)
             b = -(JT @ (e * sw)[:, :, None])[:, :, 0]
-            Pn = P + (inv3(H) @ b[:, :, None])[:, :, 0]
-            better = self._point_costs(R, t, g, Pn) < c0.sum(axis=1)  # a point keeps its step only if it helps it
+            Pn = chart.retract((inv3(H) @ b[:, :, None])[:, :, 0])
+            en = self.prob.evaluate(R, t, g, Pn, want_jacobian=False)[0] / self.sigma
+            better = self._point_costs(en) < c0.sum(axis=1)  # a point keeps its step only if it helps it
             P = np.where(better[:, None], Pn, P)
-        return P
+            e = np.where(better[:, None], en, e)
+        return P, e
 
-    def _point_costs(self, R, t, g, P):
-        e, _, _ = self.prob.evaluate(R, t, g, P, want_jacobian=False)
-        c, _ = _huber(np.linalg.norm((e / self.sigma).reshape(-1, 2, 2), axis=2), self.delta)
+    def _point_costs(self, e):
+        """Huber cost of each point's residuals (in units of sigma)."""
+        c, _ = _huber(np.linalg.norm(e.reshape(-1, 2, 2), axis=2), self.delta)
         return c.sum(axis=1)
 
     def cost(self, R, t, g, P):
-        e, _, _ = self.prob.evaluate(R, t, g, P, want_jacobian=False)
-        return self._cost_from(e, R, g)
+        return self._residuals_and_cost(R, t, g, P)[1]
+
+    def _residuals_and_cost(self, R, t, g, P):
+        """Residuals in units of sigma (N, 4) and the robust cost (chi^2 / 2 units, prior included)."""
+        e = self.prob.evaluate(R, t, g, P, want_jacobian=False)[0] / self.sigma
+        return e, self._cost_from(e, R, g)
 
     def _cost_from(self, e, R, g):
-        e = e / self.sigma
+        """Cost of residuals e already in units of sigma."""
         r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
         c, _ = _huber(r, self.delta)
         total = float(c.sum())
@@ -282,10 +344,13 @@ class Solver:
         return total
 
     def normal_equations(self, R, t, g, P):
+        """Cost and normal equations at (R, t, g, P); the point blocks are in the inverse-depth chart
+        ``self.chart`` of P (see :meth:`step`)."""
         e, Jc, Jp = self.prob.evaluate(R, t, g, P)
+        self.chart = self.prob.point_chart(g, P)
         e = e / self.sigma
         Jc = Jc / self.sigma
-        Jp = Jp / self.sigma
+        Jp = (Jp @ self.chart.M) / self.sigma
         r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
         c, wts = _huber(r, self.delta)
         sw = np.sqrt(np.repeat(wts, 2, axis=1))  # (N, 4)
@@ -320,6 +385,10 @@ class Solver:
         rhs = bc - np.swapaxes(HcpHi, 0, 1).reshape(nc, -1) @ bp.reshape(-1)
         return S, rhs, Hpp_inv
 
+    def step(self, R, t, g, dc, dq):
+        """State after a step: (dr, t[, dg]) on the cameras, dq in the chart of the last normal equations."""
+        return (*self.prob.update(R, t, g, dc), self.chart.retract(dq))
+
     @staticmethod
     def back_substitute(Hcp, Hpp_inv, bp, dc):
         """Point steps for a camera-block step dc."""
@@ -349,40 +418,44 @@ class Solver:
         """LM iterations; optionally re-estimate sigma (robustly) after that many accepted steps, and again
         whenever it has changed by more than half since (the Huber zone follows the shrinking residuals).
 
-        The normal equations at the returned point are kept in ``self.system``.
+        Stops when a step changes the cost by less than ``COST_TOL`` (or tol relative), i.e. moves the
+        parameters by a negligible fraction of their standard deviation. The normal equations at the
+        returned point are kept in ``self.system``.
         """
-        lam = 1e-4
+        lam = self.initial_damping
         cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
         it = accepted = 0
         while it < max_iter:
             it += 1
             dc, dP = self.solve_damped(Hcc, bc, Hcp, Hpp, bp, lam)
-            Rn, tn, gn, Pn = self.prob.update(R, t, g, P, dc, dP)
-            new_cost = self.cost(Rn, tn, gn, Pn)
+            Rn, tn, gn, Pn = self.step(R, t, g, dc, dP)
+            e, new_cost = self._residuals_and_cost(Rn, tn, gn, Pn)
             if not new_cost <= cost and self.point_iterations:
                 # the linear point update failed (low parallax is very nonlinear): re-fit the points to the new
                 # camera block before judging the step (embedded point iterations)
-                Pn = self.refine_points(Rn, tn, gn, Pn, self.point_iterations)
-                new_cost = self.cost(Rn, tn, gn, Pn)
-            if np.isfinite(new_cost) and new_cost <= cost:
-                rel = (cost - new_cost) / max(cost, 1e-300)
-                R, t, g, P = Rn, tn, gn, Pn
-                accepted += 1
-                lam = max(lam / 10.0, 1e-9)
-                small_step = np.linalg.norm(dc) < tol
-                if reestimate_sigma_after is not None and accepted >= reestimate_sigma_after:
-                    e, _, _ = self.prob.evaluate(R, t, g, P, want_jacobian=False)
-                    new_sigma = robust_sigma(e, self.prob.nc)
-                    if accepted == reestimate_sigma_after or abs(new_sigma / self.sigma - 1.0) > 0.5:
-                        rel = max(rel, abs(new_sigma / self.sigma - 1.0))  # the cost changed meaning: go on
-                        self.sigma = new_sigma
-                cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
-                if rel < tol or small_step:
-                    break
-            else:
-                lam *= 10.0
+                Pn, e = self.refine_points(Rn, tn, gn, Pn, self.point_iterations)
+                new_cost = self._cost_from(e, Rn, gn)
+            if not (np.isfinite(new_cost) and new_cost <= cost):
+                if new_cost - cost < COST_TOL:
+                    break  # at the minimum: the step only sees rounding
+                lam *= self.damping_up
                 if lam > 1e8:
                     break
+                continue
+            converged = cost - new_cost < max(tol * cost, COST_TOL) or np.linalg.norm(dc) < tol
+            R, t, g, P = Rn, tn, gn, Pn
+            accepted += 1
+            lam = max(lam / self.damping_down, 1e-9)
+            if reestimate_sigma_after is not None:
+                converged = converged and accepted >= reestimate_sigma_after  # sigma must fit the residuals first
+            if reestimate_sigma_after is not None and accepted >= reestimate_sigma_after:
+                new_sigma = robust_sigma(e * self.sigma, self.prob.nc)
+                if accepted == reestimate_sigma_after or abs(new_sigma / self.sigma - 1.0) > 0.5:
+                    converged = converged and abs(new_sigma / self.sigma - 1.0) < tol  # the cost changed meaning
+                    self.sigma = new_sigma
+            cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
+            if converged:
+                break
         self.system = (Hcc, bc, Hcp, Hpp, bp)
         return R, t, g, P, cost, it
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import InputError
 from .rig import Rig
-from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
+from .so3 import cross, exp_and_left_jacobian, exp_so3, normalize, skew, tangent_basis
 
 
 def deformed_extrinsics(rig: Rig, g):
@@ -42,10 +42,15 @@ def deformation_jacobians(rig: Rig, g):
     (W^T y = V^T Exp(-phi) y; differentiate Exp with its right Jacobian.)
     """
     u, cd, cr = rig.bar_coefficients
-    w, W = deformed_extrinsics(rig, g)
-    phi = cr[:, None] * cross(u, np.asarray(g, dtype=float)[None, :])
+    g = np.asarray(g, dtype=float)
+    if g.shape != (3,):
+        raise ValueError(f"gravity must have shape (3,), got {g.shape}")
+    phi = cr[:, None] * cross(u, g[None, :])
+    E, J = exp_and_left_jacobian(phi)  # J_l(phi) = J_r(-phi)
+    W = E @ rig.rotations
+    w = rig.positions + cd[:, None] * (g - (u @ g)[:, None] * u)
     D = cd[:, None, None] * (np.eye(3) - u[:, :, None] * u[:, None, :])
-    K = cr[:, None, None] * (right_jacobian(-phi) @ skew(u))
+    K = cr[:, None, None] * (J @ skew(u))
     return w, W, D, K
 
 

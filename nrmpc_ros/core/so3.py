@@ -56,6 +56,18 @@ def exp_so3(phi: np.ndarray) -> np.ndarray:
     return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
+def exp_and_left_jacobian(phi: np.ndarray):
+    """Exp(phi) and J_l(phi) = J_r(-phi) of rotation vectors (..., 3), sharing one Rodrigues evaluation."""
+    phi = np.asarray(phi, dtype=float)
+    theta = np.sqrt(np.sum(phi * phi, axis=-1))
+    a, b, c = _rodrigues_coeffs(theta)
+    K = skew(phi)
+    K2 = K @ K
+    eye = np.eye(3)
+    return (eye + a[..., None, None] * K + b[..., None, None] * K2,
+            eye + b[..., None, None] * K + c[..., None, None] * K2)
+
+
 def right_jacobian(phi: np.ndarray) -> np.ndarray:
     """Right Jacobian J_r of SO(3): Exp(phi + d) ~ Exp(phi) Exp(J_r(phi) d)."""
     phi = np.asarray(phi, dtype=float)

@@ -29,7 +29,7 @@ CSV_HEADER = ["stamp", "ref_stamp", "method", "qx", "qy", "qz", "qw", "tx", "ty"
               "num_inliers", "time_ms"]
 FUSED_COLUMNS = ["gfx", "gfy", "gfz"]  # fused gravity, current body frame (m/s^2)
 CSV_EXTRA = ["num_matches", "match_mode", "gravity_sigma_deg", "tilt_deg", *FUSED_COLUMNS, "gravity_fused_sigma_deg",
-             "fused_count", "fused_rejected"]
+             "fused_count", "fused_rejected", "gravity_source"]
 GT_POSE_TOPIC = "/ground_truth/pose"
 GT_GRAVITY_TOPIC = "/ground_truth/gravity"
 STAMP_TOLERANCE_S = 0.01  # ground truth is matched to an image stamp within this
@@ -59,7 +59,7 @@ def row_from_estimate(e) -> EstimateRow:
     """A :class:`~nrmpc_ros.frontend.pipeline.PipelineEstimate` as a CSV row."""
     extra = {"num_matches": e.num_matches, "match_mode": e.match_mode, "gravity_sigma_deg": e.gravity_sigma_deg,
              "tilt_deg": e.tilt_deg, "gravity_fused_sigma_deg": e.gravity_fused_sigma_deg,
-             "fused_count": e.fused_count, "fused_rejected": e.fused_rejected}
+             "fused_count": e.fused_count, "fused_rejected": e.fused_rejected, "gravity_source": e.gravity_source}
     g = None if e.gravity is None else np.asarray(e.gravity)
     gf = None if e.gravity_fused is None else np.asarray(e.gravity_fused)
     return EstimateRow(e.stamp, e.ref_stamp, e.method, np.asarray(e.R), np.asarray(e.t), g, int(e.num_inliers),

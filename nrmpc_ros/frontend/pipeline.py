@@ -74,7 +74,7 @@ class PipelineConfig:
     refresh_matches: int = 200  # after a pair with fewer matches than this, the current view becomes the reference
     advance_rotation_deg: float = 15.0  # after a pair rotated this much (deg), the current view becomes the reference
     min_tilt_deg: float = 2.0  # change of gravity direction in the body needed between paired views
-    max_gravity_sigma_deg: float = 2.0  # a pair's gravity is withheld (pose kept) when its std exceeds this
+    max_gravity_sigma_deg: float = 2.0  # a pair's gravity with a larger std is weak: not fused, fused one published
     seed: int = 0
 
     @classmethod
@@ -111,6 +111,13 @@ class FrameSet:
     images: list
 
 
+GRAVITY_SOURCE_WORDS = {
+    "pair": "from the pair itself",
+    "fused": "fused (the pair's own was weak or an outlier)",
+    "weak-pair": "from a weak pair with nothing fused yet",
+}
+
+
 @dataclass
 class PipelineEstimate:
     """One estimate: the current view relative to the reference view (SPEC section 2)."""
@@ -136,6 +143,7 @@ class PipelineEstimate:
     fused_count: int = 0  # estimates in the fused state since its last (re)start
     fused_rejected: int = 0  # estimates rejected as outliers since then
     fused_accepted: bool | None = None  # whether this estimate's gravity entered the fused state
+    gravity_source: str = ""  # what ``gravity`` is: pair | fused | weak-pair (see Pipeline._published_gravity)
 
 
 @dataclass
@@ -147,11 +155,13 @@ class PipelineStats:
     reference_changes: int = 0
     methods: Counter = field(default_factory=Counter)
     dropped: Counter = field(default_factory=Counter)  # reason -> count (frames, views or pairs)
+    gravity_sources: Counter = field(default_factory=Counter)  # PipelineEstimate.gravity_source -> count
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "static_views": self.static_views, "pairs": self.pairs,
                 "estimates": self.estimates, "reference_changes": self.reference_changes,
-                "methods": dict(self.methods), "dropped": dict(self.dropped)}
+                "methods": dict(self.methods), "dropped": dict(self.dropped),
+                "gravity_sources": dict(self.gravity_sources)}
 
 
 @dataclass
@@ -366,19 +376,35 @@ class Pipeline:
             if method == "6pt-bending" and tilt < self.config.min_tilt_deg:
                 self.stats.dropped["estimate dropped: tilt below min_tilt_deg (gravity unobservable)"] += 1
                 return None
-            if not sigma <= self.config.max_gravity_sigma_deg:
-                # weakly observable (e.g. parallel bars, little rotation): publish the pose, not a guess of gravity
-                self.stats.dropped["gravity withheld: std above max_gravity_sigma_deg"] += 1
-                g_cur, cov = None, None
         self.stats.estimates += 1
         self.stats.methods[method] += 1
         out = PipelineEstimate(
             stamp=view.stamp, ref_stamp=ref.stamp, method=method, R=est.R, t=est.t, gravity=g_cur,
             num_inliers=est.num_inliers, time_ms=elapsed, num_matches=len(cam), match_mode=mode, cov_gravity=cov,
             gravity_sigma_deg=sigma, imu_gravity=None if view.imu is None else view.imu.gravity, tilt_deg=tilt,
-            info=est.info)
-        self._fuse(out)
+            info=est.info, gravity_source="" if g_cur is None else "pair")
+        # weakly observable gravity (e.g. parallel bars, little rotation) stays out of the fused state
+        weak = g_cur is not None and not sigma <= self.config.max_gravity_sigma_deg
+        self._fuse(out, use_gravity=not weak)
+        self._published_gravity(out, weak)
+        if out.gravity_source:
+            self.stats.gravity_sources[out.gravity_source] += 1
         return out
+
+    @staticmethod
+    def _published_gravity(e: PipelineEstimate, weak: bool) -> None:
+        """Choose the gravity this estimate publishes (``~/gravity``, CSV g; SPEC sections 10, 11).
+
+        The pair's own estimate, unless it is weak (std above max_gravity_sigma_deg) or an outlier to the
+        fused state; then the fused estimate, which is this same body frame's gravity from all views so
+        far. A weak first estimate (nothing fused yet) is published as ``weak-pair``, its std in the CSV.
+        """
+        if e.gravity is None:
+            return
+        if e.gravity_fused is not None and (weak or e.fused_accepted is False):
+            e.gravity, e.cov_gravity, e.gravity_source = e.gravity_fused, e.cov_gravity_fused, "fused"
+        elif weak:
+            e.gravity_source = "weak-pair"
 
     # ----------------------------------------------------------- fused gravity
     def _chain(self, ref: _View, view: _View, R: np.ndarray) -> None:
@@ -392,15 +418,16 @@ class Pipeline:
                 None if self.previous is None else self.previous.stamp}
         self._orient = {k: v for k, v in self._orient.items() if k in keep}
 
-    def _fuse(self, e: PipelineEstimate) -> None:
-        """Carry the fused gravity into the current body frame, fuse this estimate, fill e's fused fields."""
+    def _fuse(self, e: PipelineEstimate, use_gravity: bool = True) -> None:
+        """Carry the fused gravity into the current body frame, fuse this estimate's gravity (if use_gravity),
+        fill e's fused fields."""
         fz = self.fusion
         if self._fused_stamp is not None and self._fused_stamp != e.stamp:
             R_delta = self._orient[self._fused_stamp].T @ self._orient[e.stamp]
             cov_rot = e.info.get("cov_rotation")  # right perturbation of R, hence of R_delta
             fz.propagate(R_delta, None if cov_rot is None else np.asarray(cov_rot))
             self._fused_stamp = e.stamp
-        if e.gravity is not None and e.cov_gravity is not None and np.all(np.isfinite(e.cov_gravity)):
+        if use_gravity and e.gravity is not None and e.cov_gravity is not None and np.all(np.isfinite(e.cov_gravity)):
             e.fused_accepted = fz.update(e.gravity, self.config.fusion.cov_scale * e.cov_gravity)
             self._fused_stamp = e.stamp
         st = fz.state
