@@ -1,6 +1,7 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from nrmpc_ros.core import so3
 from nrmpc_ros.core.so3 import (
     angle_between,
     exp_so3,
@@ -56,3 +57,11 @@ def test_angles_bases_and_sphere(rng):
     for v in (np.array([0.0, 0.0, -1.0]), np.array([1.0, 2.0, 3.0])):
         A = rotation_aligning(v, np.array([0.0, 1.0, 0.0]))
         assert np.allclose(A @ (v / np.linalg.norm(v)), [0, 1, 0])
+
+
+def test_single_vector_fast_paths_match_batches(rng):
+    v = np.concatenate([rng.normal(size=(20, 3)), [[0, 0, 1.0], [0.1, 0, -1.0], [1e-6, 0, 0], [0, 0, 0]]])
+    for f in (so3.exp_so3, so3.tangent_basis, so3.normalize):
+        batch = f(v[:-1] if f is so3.tangent_basis else v)
+        for i, x in enumerate(v[:-1] if f is so3.tangent_basis else v):
+            assert np.allclose(f(x), batch[i], atol=1e-12)

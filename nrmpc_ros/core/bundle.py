@@ -438,7 +438,7 @@ class Solver:
             if not (np.isfinite(new_cost) and new_cost <= cost):
                 if new_cost - cost < COST_TOL:
                     break  # at the minimum: the step only sees rounding
-                lam *= self.damping_up
+                lam = max(lam * self.damping_up, self.initial_damping)  # after many good steps lam may be tiny
                 if lam > 1e8:
                     break
                 continue
@@ -474,6 +474,7 @@ def refine_two_view(
     max_iter: int = 30,
     huber_k: float = 3.0,
     sigma_rad: float | None = None,
+    tol: float = 1e-6,
 ) -> BundleResult:
     """Robust bundle adjustment of (R, t[, g], points) on correspondences (f1, f2, cam).
 
@@ -482,8 +483,9 @@ def refine_two_view(
     for a rigid rig is irrelevant). ``sigma_rad`` is the angular noise used to
     scale residuals and the Huber threshold (huber_k * sigma); by default it is
     estimated robustly from the residuals at the start and re-estimated as they
-    shrink. Returns the covariance of (dr, t[, dg]) from the reduced normal
-    equations.
+    shrink. ``tol``: relative cost decrease below which the iterations stop
+    (a loose one suffices to compare starts). Returns the covariance of
+    (dr, t[, dg]) from the reduced normal equations.
     """
     R = np.asarray(R, dtype=float)
     t = np.asarray(t, dtype=float)
@@ -501,7 +503,8 @@ def refine_two_view(
         e0, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)
         sigma_rad = robust_sigma(e0, prob.nc)
     solver = Solver(prob, sigma_rad, huber_k)
-    R, t, g, P, cost, it = solver.run(R, t, g, P, max_iter, reestimate_sigma_after=None if fixed_sigma else 2)
+    R, t, g, P, cost, it = solver.run(R, t, g, P, max_iter, tol=tol,
+                                      reestimate_sigma_after=None if fixed_sigma else 2)
     sigma_rad = solver.sigma
     info_mat = solver.reduced_information()
     try:

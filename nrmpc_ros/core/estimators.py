@@ -24,6 +24,9 @@ from .rig import Rig
 from .so3 import angle_between, fibonacci_sphere, normalize
 
 METHODS = ("6pt-nonbending", "6pt-bending", "4pt-bending")
+START_TOL = 1e-3  # relative cost decrease that ends a start's bundle adjustment (starts are only compared)
+PROBE_ITERATIONS = 5  # a later start is first refined this far ...
+ABANDON_FACTOR = 4.0  # ... and abandoned if it then still costs this many times the best start
 
 
 @dataclass
@@ -277,6 +280,27 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts):
     return starts, {"cameras_with_rotation": int(len(cams)), "ransac_iterations": iterations}
 
 
+def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts, best_cost=None):
+    """Short bundle adjustment of one start on correspondences idx at a fixed sigma (costs comparable).
+
+    A start still costing ABANDON_FACTOR times the best start's cost after
+    PROBE_ITERATIONS is in a worse basin: abandoned (None) instead of
+    refined to the end.
+    """
+    kw = dict(huber_k=opts.huber_k, sigma_rad=tight / 2.0, tol=START_TOL)
+    f1, f2, cam = m.f1[idx], m.f2[idx], m.cam[idx]
+    total = int(opts.start_ba_iterations)
+    if best_cost is None or total <= PROBE_ITERATIONS:
+        return refine_two_view(rig, f1, f2, cam, R, t, g, max_iter=total, **kw)
+    res = refine_two_view(rig, f1, f2, cam, R, t, g, max_iter=PROBE_ITERATIONS, **kw)
+    if res.cost > ABANDON_FACTOR * best_cost:
+        return None
+    if res.iterations < PROBE_ITERATIONS:
+        return res  # converged
+    return refine_two_view(rig, f1, f2, cam, res.R, res.t, res.g, points=res.points,
+                           max_iter=total - PROBE_ITERATIONS, **kw)
+
+
 def _common_bar_axis(rig, m: Matches, min_share: float = 0.9):
     """The bar axis shared by the cameras holding min_share of the correspondences, if they are all parallel."""
     counts = np.bincount(m.cam, minlength=rig.num_cameras).astype(float)
@@ -310,20 +334,20 @@ def _six_point_bending(rig, m, opts, rng):
         return None
     best = None
     for R0, t0, g0, idx in starts:
-        res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R0, t0, g0, max_iter=int(opts.start_ba_iterations),
-                              huber_k=opts.huber_k, sigma_rad=tight / 2.0)
-        if best is None or res.cost < best.cost:
+        # parallel bars: starts in the right basin may begin as badly as wrong ones, refine all to the end
+        res = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts,
+                                None if best is None or axis is not None else best.cost)
+        if res is not None and (best is None or res.cost < best.cost):
             best, best_idx = res, idx
     if axis is not None:
         # All observing cameras sit on parallel bars: mirroring gravity's axial component leaves view 1's
         # bending unchanged, so the mirrored gravity is a second, nearly as good basin (paper, section 3.3,
         # degenerate cases). Refine from it too and keep the better.
         g_m = best.g - 2.0 * (axis @ best.g) * axis
-        res = refine_two_view(rig, m.f1[best_idx], m.f2[best_idx], m.cam[best_idx], best.R, best.t, g_m,
-                              max_iter=int(opts.start_ba_iterations), huber_k=opts.huber_k, sigma_rad=tight / 2.0)
-        info["mirrored_start"] = bool(res.cost < best.cost)
-        if res.cost < best.cost:
-            best = res
+        mirrored = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
+        info["mirrored_start"] = bool(mirrored.cost < best.cost)
+        if info["mirrored_start"]:
+            best = mirrored
     info["gravity_starts"] = len(starts)
     R, t, g, inliers, res = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts)
     info.update(_pose_info(res, True))

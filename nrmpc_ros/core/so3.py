@@ -6,6 +6,8 @@ quaternions are (x, y, z, w) as in ROS messages (SPEC section 7).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 _EPS = 1e-12
@@ -49,6 +51,14 @@ def _rodrigues_coeffs(theta: np.ndarray):
 def exp_so3(phi: np.ndarray) -> np.ndarray:
     """SO(3) exponential (Rodrigues) of rotation vectors (..., 3) -> (..., 3, 3)."""
     phi = np.asarray(phi, dtype=float)
+    if phi.ndim == 1:  # fast path for one vector
+        theta = math.sqrt(float(phi @ phi))
+        K = skew(phi)
+        if theta < 1e-4:
+            a, b = 1.0 - theta * theta / 6.0, 0.5 - theta * theta / 24.0
+        else:
+            a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / (theta * theta)
+        return np.eye(3) + a * K + b * (K @ K)
     theta = np.linalg.norm(phi, axis=-1)
     a, b, _ = _rodrigues_coeffs(theta)
     K = skew(phi)
@@ -118,7 +128,9 @@ def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def normalize(v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, dtype=float)
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    if v.ndim == 1:  # fast path for one vector (hot in the bundle adjustment)
+        return v / max(math.sqrt(float(v @ v)), _EPS)
+    n = np.sqrt(np.sum(v * v, axis=-1, keepdims=True))
     return v / np.maximum(n, _EPS)
 
 
@@ -129,6 +141,11 @@ def tangent_basis(n: np.ndarray) -> np.ndarray:
     switch, which is fine because callers only use it as a local chart.
     """
     n = normalize(n)
+    if n.ndim == 1:  # fast path for one vector
+        x, y, z = (float(c) for c in n)
+        b1 = np.array([-y, x, 0.0]) if abs(z) < 0.9 else np.array([0.0, -z, y])  # helper e_z, else e_x, cross n
+        b1 /= math.sqrt(float(b1 @ b1))
+        return np.stack([b1, np.cross(n, b1)], axis=-1)
     helper = np.where(np.abs(n[..., 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
     b1 = normalize(cross(helper, n))
     b2 = cross(n, b1)
