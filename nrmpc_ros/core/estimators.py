@@ -24,9 +24,11 @@ from .rig import Rig
 from .so3 import angle_between, fibonacci_sphere, normalize
 
 METHODS = ("6pt-nonbending", "6pt-bending", "4pt-bending")
+REUSE_RANSAC_RAD = 0.35  # a start this close to an earlier one reuses its 6-point RANSAC pose (not on parallel bars)
+SCORE_POINTS = 50  # correspondences scoring the full pose of each gravity hypothesis (parallel bars)
 START_TOL = 1e-3  # relative cost decrease that ends a start's bundle adjustment (starts are only compared)
 PROBE_ITERATIONS = 5  # a later start is first refined this far ...
-ABANDON_FACTOR = 4.0  # ... and abandoned if it then still costs this many times the best start
+ABANDON_SHARE = 0.3  # ... and abandoned if this share more of all correspondences are outliers than for the best
 
 
 @dataclass
@@ -254,24 +256,35 @@ def _starts_from_rigid_fit(rig, m, opts, rng, loose):
     return starts, {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers}
 
 
-def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts):
+def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, weak_geometry=False):
     """Starts (R, t, g, idx) from per-camera rotations (see :mod:`.gravity_init`).
 
     Each gravity hypothesis bends the Plücker lines of both views; a 6-point
     RANSAC on those lines then gives (R, t) and inliers jointly over all
     cameras (single-camera rotations suffer from the bas-relief ambiguity of
-    narrow fields of view, the whole rig does not).
+    narrow fields of view, the whole rig does not). With weak_geometry
+    (parallel bars) the gravity grid is ranked by full-pose scores and every
+    start gets its own RANSAC.
     """
     cams, Rc, counts, cam_inl = camera_rotations(m, rig.num_cameras, 3.0 * tight, seed=int(rng.integers(1 << 30)))
     if len(cams) < 2:
         return [], {"cameras_with_rotation": int(len(cams))}
     starts = []
     iterations = 0
+    done = []  # (g, RANSAC result) of the starts so far
+    scoring = None
+    if weak_geometry:  # the camera rotations barely tell gravity apart: rank by the full pose (translations too)
+        scoring = (m, _subset(rng, np.flatnonzero(cam_inl), SCORE_POINTS), 3.0 * tight)
     for g0, R0, _ in gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses),
-                                                 num_starts):
-        rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt)
+                                                 num_starts, scoring=scoring):
+        near = [rr for g, rr in done if angle_between(g, g0) < (0.0 if weak_geometry else REUSE_RANSAC_RAD)]
+        if near:  # lines bent at a nearby gravity give nearly the same pose: the bundle adjustment adapts it
+            rr = near[0]
+        else:
+            rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt)
+            done.append((g0, rr))
+            iterations += 0 if rr is None else rr.iterations
         if rr is not None and rr.num_inliers >= 12:
-            iterations += rr.iterations
             idx = _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size))
             starts.append((*rr.model, g0, idx))
         else:
@@ -280,25 +293,39 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts):
     return starts, {"cameras_with_rotation": int(len(cams)), "ransac_iterations": iterations}
 
 
-def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts, best_cost=None):
-    """Short bundle adjustment of one start on correspondences idx at a fixed sigma (costs comparable).
+def _start_score(rig, m: Matches, res, threshold) -> float:
+    """MSAC score of a refined start over all correspondences at the tight threshold.
 
-    A start still costing ABANDON_FACTOR times the best start's cost after
-    PROBE_ITERATIONS is in a worse basin: abandoned (None) instead of
-    refined to the end.
+    Starts are refined on different subsets (each start's own RANSAC
+    inliers), so their bundle-adjustment costs are not comparable: a wrong
+    start with fewer inliers has a smaller sum. This score is.
+    """
+    err = _bending_errors(rig, m, res.R, res.t, res.g)
+    return float(np.minimum(err * err, threshold**2).sum())
+
+
+def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts, best_score=None):
+    """Short bundle adjustment of one start on correspondences idx at a fixed sigma; (result, score).
+
+    When a best score exists, the start is first refined PROBE_ITERATIONS
+    far and abandoned (None) if ABANDON_SHARE more of all correspondences
+    are outliers than for the best start: it is in a worse basin.
     """
     kw = dict(huber_k=opts.huber_k, sigma_rad=tight / 2.0, tol=START_TOL)
     f1, f2, cam = m.f1[idx], m.f2[idx], m.cam[idx]
     total = int(opts.start_ba_iterations)
-    if best_cost is None or total <= PROBE_ITERATIONS:
-        return refine_two_view(rig, f1, f2, cam, R, t, g, max_iter=total, **kw)
+    if best_score is None or total <= PROBE_ITERATIONS:
+        res = refine_two_view(rig, f1, f2, cam, R, t, g, max_iter=total, **kw)
+        return res, _start_score(rig, m, res, tight)
     res = refine_two_view(rig, f1, f2, cam, R, t, g, max_iter=PROBE_ITERATIONS, **kw)
-    if res.cost > ABANDON_FACTOR * best_cost:
+    score = _start_score(rig, m, res, tight)
+    if score > best_score + ABANDON_SHARE * len(m) * tight**2:
         return None
     if res.iterations < PROBE_ITERATIONS:
-        return res  # converged
-    return refine_two_view(rig, f1, f2, cam, res.R, res.t, res.g, points=res.points,
-                           max_iter=total - PROBE_ITERATIONS, **kw)
+        return res, score  # converged
+    res = refine_two_view(rig, f1, f2, cam, res.R, res.t, res.g, points=res.points,
+                          max_iter=total - PROBE_ITERATIONS, **kw)
+    return res, _start_score(rig, m, res, tight)
 
 
 def _common_bar_axis(rig, m: Matches, min_share: float = 0.9):
@@ -326,26 +353,26 @@ def _six_point_bending(rig, m, opts, rng):
     # parallel bars observe gravity weakly (paper, section 3.3): search wider there
     num_starts = int(opts.gravity_refine_starts if axis is None else max(opts.gravity_refine_starts,
                                                                           opts.weak_geometry_starts))
-    starts, info = _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts)
+    starts, info = _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts,
+                                                 weak_geometry=axis is not None)
     if not starts:
         starts, more = _starts_from_rigid_fit(rig, m, opts, rng, loose)
         info.update(more)
     if not starts:
         return None
-    best = None
+    best = best_score = None
     for R0, t0, g0, idx in starts:
         # parallel bars: starts in the right basin may begin as badly as wrong ones, refine all to the end
-        res = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts,
-                                None if best is None or axis is not None else best.cost)
-        if res is not None and (best is None or res.cost < best.cost):
-            best, best_idx = res, idx
+        out = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts, None if axis is not None else best_score)
+        if out is not None and (best is None or out[1] < best_score):
+            (best, best_score), best_idx = out, idx
     if axis is not None:
         # All observing cameras sit on parallel bars: mirroring gravity's axial component leaves view 1's
         # bending unchanged, so the mirrored gravity is a second, nearly as good basin (paper, section 3.3,
         # degenerate cases). Refine from it too and keep the better.
         g_m = best.g - 2.0 * (axis @ best.g) * axis
-        mirrored = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
-        info["mirrored_start"] = bool(mirrored.cost < best.cost)
+        mirrored, score = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
+        info["mirrored_start"] = bool(score < best_score)
         if info["mirrored_start"]:
             best = mirrored
     info["gravity_starts"] = len(starts)

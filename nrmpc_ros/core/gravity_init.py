@@ -16,8 +16,9 @@ import numpy as np
 
 from .deformation import deformed_extrinsics, rays
 from .matches import Matches
+from .residuals import two_view_angular_errors
 from .rig import Rig
-from .so3 import angle_between, fibonacci_sphere, normalize, tangent_basis
+from .so3 import angle_between, cross, fibonacci_sphere, normalize, tangent_basis
 
 MIN_POINTS_PER_CAMERA = 12
 
@@ -73,11 +74,16 @@ def _body_rotation_from_cameras(rig: Rig, cams, Rc, weights, g1, R0, iterations=
     return R, cost
 
 
-def gravity_rotation_hypotheses(rig: Rig, cams, Rc, weights, num_hypotheses=200, num_starts=3):
+def gravity_rotation_hypotheses(rig: Rig, cams, Rc, weights, num_hypotheses=200, num_starts=3, scoring=None):
     """Best distinct (g, R, cost) consistent with the per-camera rotations, from a grid of gravity directions.
 
-    Each of the best distinct grid directions (Fibonacci sphere, ~14 deg apart
-    for 200) is refined by two finer local grids (coarse-to-fine, vectorised).
+    The grid (Fibonacci sphere, ~14 deg apart for 200) is ranked by how well
+    the per-camera rotations agree, or, with ``scoring = (matches, idx,
+    threshold)``, by the MSAC score of each hypothesis' full two-view pose
+    (:func:`pose_hypothesis_scores`), which also uses the translations and
+    so tells apart gravity directions the rotations alone barely do (parallel
+    bars). Each of the best distinct directions is refined by two finer local
+    grids (coarse-to-fine, vectorised).
     """
     gm = rig.gravity_magnitude
     weights = np.asarray(weights, dtype=float) / np.sum(weights)
@@ -85,53 +91,80 @@ def gravity_rotation_hypotheses(rig: Rig, cams, Rc, weights, num_hypotheses=200,
     R_canonical = project_to_so3(np.einsum("j,jab->ab", weights, V @ Rc @ np.swapaxes(V, -1, -2)))
     hyp = gm * fibonacci_sphere(num_hypotheses)
     R_h, cost = _body_rotation_from_cameras(rig, cams, Rc, weights, hyp, R_canonical)
+    rank = cost if scoring is None else pose_hypothesis_scores(rig, *scoring, hyp, R_h)
     spacing = 2.0 * np.sqrt(np.pi / num_hypotheses)  # typical angle between grid neighbours
-    out = []
-    for k in np.argsort(cost):
-        if any(angle_between(hyp[k], g) < 2.5 * spacing for g, _, _ in out):
-            continue
-        out.append(_refine_locally(rig, cams, Rc, weights, hyp[k], R_h[k], float(cost[k]), spacing))
-        if len(out) >= num_starts:
-            break
-    out.sort(key=lambda x: x[2])
-    return out
+    picked = []
+    for k in np.argsort(rank):
+        if all(angle_between(hyp[k], hyp[j]) >= 2.5 * spacing for j in picked):
+            picked.append(k)
+            if len(picked) >= num_starts:
+                break
+    g, R, c = _refine_locally(rig, cams, Rc, weights, hyp[picked], R_h[picked], cost[picked], spacing)
+    return sorted(zip(g, R, c.tolist()), key=lambda x: x[2])
 
 
 _OFFSETS = np.stack(np.meshgrid(np.linspace(-1, 1, 7), np.linspace(-1, 1, 7)), -1).reshape(-1, 2)
 
 
 def _refine_locally(rig, cams, Rc, weights, g, R, cost, spacing, levels=3):
-    """Coarse-to-fine search around g: 7x7 tangent grids shrinking by 3 per level."""
+    """Coarse-to-fine search around each start g (S, 3): 7x7 tangent grids shrinking by 3 per level,
+    all starts in one vectorised evaluation per level."""
     gm = rig.gravity_magnitude
+    g, R, cost = g.copy(), R.copy(), np.asarray(cost, dtype=float).copy()
+    S, C = len(g), len(_OFFSETS)
     radius = spacing
     for _ in range(levels):
-        B = tangent_basis(g / gm)
-        cand = gm * normalize(g / gm + radius * _OFFSETS @ B.T)
-        R_c, c = _body_rotation_from_cameras(rig, cams, Rc, weights, cand, R)
-        k = int(np.argmin(c))
-        if c[k] < cost:
-            g, R, cost = cand[k], R_c[k], float(c[k])
+        B = tangent_basis(g / gm)  # (S, 3, 2)
+        cand = gm * normalize(g[:, None, :] / gm + radius * np.einsum("sij,cj->sci", B, _OFFSETS))
+        R_c, c = _body_rotation_from_cameras(rig, cams, Rc, weights, cand.reshape(-1, 3), np.repeat(R, C, axis=0))
+        c = c.reshape(S, C)
+        k = np.argmin(c, axis=1)
+        better = c[np.arange(S), k] < cost
+        pick = np.arange(S) * C + k
+        g = np.where(better[:, None], cand.reshape(-1, 3)[pick], g)
+        R = np.where(better[:, None, None], R_c[pick], R)
+        cost = np.where(better, c[np.arange(S), k], cost)
         radius /= 3.0
     return g, R, cost
 
 
-def translation_given_rotation(rig: Rig, m: Matches, idx, R, g):
-    """Least-squares t from the generalized epipolar constraint, linear in t for fixed R and rays.
+def pose_hypothesis_scores(rig: Rig, m: Matches, idx, threshold, hyp, R_h):
+    """MSAC score (rad^2) of each gravity hypothesis hyp (K, 3) with its rotation R_h (K, 3, 3) and the
+    least-squares translation, on correspondences idx; vectorised over hypotheses."""
+    f1, f2, cam = m.f1[idx], m.f2[idx], m.cam[idx]
+    w1, W1 = deformed_extrinsics(rig, hyp)
+    w2, W2 = deformed_extrinsics(rig, np.einsum("kji,kj->ki", R_h, hyp))  # R^T g
+    o1, d1 = w1[:, cam], np.einsum("knij,nj->kni", W1[:, cam], f1)
+    o2, d2 = w2[:, cam], np.einsum("knij,nj->kni", W2[:, cam], f2)
+    t = _translations(o1, d1, o2, d2, R_h)
+    err = two_view_angular_errors(o1, d1, o2, d2, R_h, t)
+    return np.minimum(err * err, threshold**2).sum(axis=-1)
+
+
+def _translations(o1, d1, o2, d2, R, rounds=3):
+    """Least-squares t from the generalized epipolar constraint, linear in t for fixed R and rays,
+    batched over leading dimensions (rays (..., N, 3), R (..., 3, 3)).
 
     l1^T G l2 = t . (R d2 x d1) + d1 . (R m2) + m1 . (R d2) = 0 (SPEC section 3);
-    two re-weighting rounds damp the influence of residual outliers.
+    re-weighting rounds damp the influence of residual outliers.
     """
+    Rd2 = np.einsum("...ij,...nj->...ni", R, d2)
+    Rm2 = np.einsum("...ij,...nj->...ni", R, cross(o2, d2))
+    A = cross(Rd2, d1)
+    b = -(np.sum(d1 * Rm2, axis=-1) + np.sum(cross(o1, d1) * Rd2, axis=-1))
+    w = np.ones(b.shape)
+    for _ in range(rounds):
+        Aw = A * w[..., None]
+        H = np.einsum("...ni,...nj->...ij", Aw, Aw) + 1e-12 * np.eye(3)
+        t = np.linalg.solve(H, np.einsum("...ni,...n->...i", Aw, b * w)[..., None])[..., 0]
+        r = np.abs(np.einsum("...ni,...i->...n", A, t) - b)
+        s = 1.4826 * np.median(r, axis=-1, keepdims=True) + 1e-15
+        w = np.minimum(1.0, 2.0 * s / np.maximum(r, 1e-300))
+    return t
+
+
+def translation_given_rotation(rig: Rig, m: Matches, idx, R, g):
+    """Least-squares t for fixed R and gravity g on correspondences idx (see :func:`_translations`)."""
     o1, d1 = rays(rig, m.f1[idx], m.cam[idx], g)
     o2, d2 = rays(rig, m.f2[idx], m.cam[idx], None if g is None else R.T @ g)
-    Rd2 = d2 @ R.T
-    Rm2 = np.cross(o2, d2) @ R.T
-    A = np.cross(Rd2, d1)
-    b = -(np.sum(d1 * Rm2, axis=1) + np.sum(np.cross(o1, d1) * Rd2, axis=1))
-    w = np.ones(len(b))
-    t = np.zeros(3)
-    for _ in range(3):
-        t = np.linalg.lstsq(A * w[:, None], b * w, rcond=None)[0]
-        r = np.abs(A @ t - b)
-        s = 1.4826 * np.median(r) + 1e-15
-        w = np.divide(2 * s, r, out=np.ones_like(r), where=r >= 2 * s)
-    return t
+    return _translations(o1, d1, o2, d2, R)
