@@ -8,7 +8,8 @@ thread fed by a bounded queue, and synchronized sets arriving while it is
 full are dropped and counted. Publishes ``~/relative_pose``
 (geometry_msgs/PoseStamped: the current body frame in the reference view's
 body frame), ``~/gravity`` (geometry_msgs/Vector3Stamped, current body frame,
-m/s^2), ``~/gravity_fused`` (the fused estimate, same frame), ``~/attitude``
+m/s^2; the pair's own, or the fused one when the pair's is weak or an outlier:
+see ``gravity_source`` in the diagnostics), ``~/gravity_fused`` (the fused estimate, same frame), ``~/attitude``
 (sensor_msgs/Imu with roll and pitch only) and diagnostics on ``/diagnostics``.
 
 Run ``estimator --help`` for the parameters.
@@ -671,6 +672,7 @@ class EstimatorNode(Node):
             "processing_ms_median": f"{statistics.median(proc):.1f}" if proc else "",
             "processing_ms_max": f"{max(proc):.1f}" if proc else "",
             "latency_ms_median": f"{statistics.median(latency):.1f}" if latency else "",
+            "gravity_source": getattr(last, "gravity_source", "") if last is not None else "",
             "gravity_fused_sigma_deg": (f"{last.gravity_fused_sigma_deg:.3f}"
                                         if last is not None and getattr(last, "gravity_fused", None) is not None
                                         else ""),
