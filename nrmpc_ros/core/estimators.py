@@ -25,6 +25,7 @@ from .so3 import angle_between, fibonacci_sphere, normalize
 
 METHODS = ("6pt-nonbending", "6pt-bending", "4pt-bending")
 REUSE_RANSAC_RAD = 0.35  # a start this close to an earlier one reuses its 6-point RANSAC pose (not on parallel bars)
+INLIER_CHANGE_SHARE = 0.01  # the refinement is repeated while the inlier set changes by more than this share
 SCORE_POINTS = 50  # correspondences scoring the full pose of each gravity hypothesis (parallel bars)
 START_TOL = 1e-3  # relative cost decrease that ends a start's bundle adjustment (starts are only compared)
 PROBE_ITERATIONS = 5  # a later start is first refined this far ...
@@ -185,7 +186,7 @@ def _refine_loop(rig, m, R, t, g, threshold, opts, prior=None, optimize_gravity=
         new_inliers = _bending_errors(rig, m, R, t, g) < threshold
         changed = int(np.count_nonzero(new_inliers != inliers))
         inliers = new_inliers
-        if changed <= max(2, 0.01 * inliers.sum()):
+        if changed <= max(2, INLIER_CHANGE_SHARE * inliers.sum()):
             break
     return R, t, g, inliers, res
 
