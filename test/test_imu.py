@@ -107,3 +107,47 @@ def test_history_is_trimmed(cross_rig, rng):
     assert len(buf) <= 200 * 1.0 + 2
     t, _, _ = buf.window(0.0, 10.0)
     assert t[0] >= 3.99 - 1e-9
+
+
+def test_long_stream_window_matches_every_kept_sample(cross_rig, rng):
+    """Many block moves, trims and compactions of the buffer: windows hold exactly the samples kept, in order."""
+    buf = ImuBuffer(cross_rig, ImuConfig(capacity_s=2.0, gap_s=0.05))
+    ts = np.cumsum(rng.uniform(0.002, 0.008, 6000))
+    ts[3000:] += 0.5  # one gap, later trimmed away with its samples
+    acc = rng.normal(size=(len(ts), 3))
+    gyr = rng.normal(size=(len(ts), 3))
+    for k, t in enumerate(ts):
+        assert buf.add(t, acc[k], gyr[k]) is None
+        if k % 997 == 0 or k == 3001:  # reads in between (consolidation of a partial block)
+            t0 = t - 1.5
+            got_t, got_a, got_w = buf.window(t0, t)
+            sel = (ts[:k + 1] >= t0) & (ts[:k + 1] <= t)
+            np.testing.assert_array_equal(got_t, ts[:k + 1][sel])
+            np.testing.assert_array_equal(got_a, acc[:k + 1][sel])
+            np.testing.assert_array_equal(got_w, gyr[:k + 1][sel])
+            if k == 3001:
+                assert len(buf.gravity(t0, t)[0].gaps) == 1
+    kept = ts >= ts[-1] - 2.0
+    assert len(buf) == kept.sum()
+    np.testing.assert_array_equal(buf.window(0.0, ts[-1])[0], ts[kept])
+    assert buf.stats["gaps"] == 1 and buf._gaps == []  # the gap is older than the history now
+    t, a, _ = buf.window(ts[-1] - 0.1, ts[-1])
+    a[:] = 0.0  # windows are copies: the buffer keeps its samples
+    assert np.all(buf.window(ts[-1] - 0.1, ts[-1])[1] != 0.0)
+
+
+def test_sample_containers(cross_rig):
+    """Any container of three numbers is a sample; other sizes are rejected as wrong shape; no gyro reads zero."""
+    buf = ImuBuffer(cross_rig)
+    ok = [(0.1, 0.2, 9.8), [0.1, 0.2, 9.8], np.array([0.1, 0.2, 9.8]), np.array([[0.1, 0.2, 9.8]]),
+          np.array([[0.1], [0.2], [9.8]]), np.array([0, 0, 10], dtype=np.int32), [[0.1], [0.2], [9.8]]]
+    for k, a in enumerate(ok):
+        assert buf.add(0.01 * k, a, np.zeros(3) if k % 2 else None) is None
+    _, a, w = buf.window(0.0, 1.0)
+    np.testing.assert_array_equal(a[:-2], [[0.1, 0.2, 9.8]] * 5)
+    np.testing.assert_array_equal(a[-2], [0.0, 0.0, 10.0])
+    assert np.all(w == 0.0)
+    for bad in ([0.0, 9.8], np.zeros(4), np.zeros((2, 3)), 9.8):
+        assert buf.add(1.0, bad) == "wrong shape"
+    assert buf.add(1.0, [0, 0, 9.8], [0, 0]) == "wrong shape"
+    assert buf.stats["rejected: wrong shape"] == 5 and buf.stats["samples"] == len(ok)

@@ -10,8 +10,10 @@ from nrmpc_ros.core.rig import Camera
 from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.errors import InputError
 from nrmpc_ros.frontend.tracking import (
+    Features,
     KltTracker,
     TrackingConfig,
+    _lk_patches,
     bucket,
     detect_features,
     match_features,
@@ -61,6 +63,46 @@ def test_bucket_spreads_points(rng):
     order = np.argsort(-uv[:, 0])
     best = bucket(uv, (W, H), 1, 1, 5, order=order)
     np.testing.assert_array_equal(np.sort(best), np.sort(order[:5]))
+
+
+def test_bucket_is_round_robin_over_cells(rng):
+    """Same picks as taking the best remaining point of every cell in turn (cells in order of their best point)."""
+    for trial in range(20):
+        n = int(rng.integers(5, 400))
+        uv = np.r_[rng.uniform(0, 100, size=(n // 2, 2)), rng.uniform(0, 640, size=(n - n // 2, 2)) * [1, 0.75]]
+        order = rng.permutation(n) if trial % 2 else np.arange(n)
+        count = int(rng.integers(1, n + 1))
+        cell = (uv[:, 1] * 6 // H).astype(int) * 8 + (uv[:, 0] * 8 // W).astype(int)
+        queues = {}
+        for i in order:  # per cell, best first
+            queues.setdefault(cell[i], []).append(i)
+        picks, rank = [], 0
+        while len(picks) < count:
+            rnd = [q[rank] for q in queues.values() if len(q) > rank]  # rank-th best of each cell ...
+            rnd.sort(key=lambda i: np.flatnonzero(order == i)[0])  # ... taken in order
+            picks += rnd[: count - len(picks)]
+            rank += 1
+        got = bucket(uv, (W, H), 6, 8, count, order=None if trial % 2 == 0 else order)
+        np.testing.assert_array_equal(got, np.sort(picks))
+
+
+def test_still_check_on_patches_matches_full_image_lk(texture, rng):
+    """LK on patches around the points gives the motions of LK on the whole images, up to a few px."""
+    img0 = view(texture, np.eye(3))
+    p0 = np.c_[rng.uniform(3, W - 3, 24), rng.uniform(3, H - 3, 24)].astype(np.float32)  # some near the borders
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.01)
+    for shift in (0.0, 0.2, 0.6, 2.0):
+        img1 = cv2.warpAffine(img0, np.array([[1, 0, shift], [0, 1, -0.5 * shift]]), (W, H), flags=cv2.INTER_CUBIC)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, winSize=(15, 15), maxLevel=0, criteria=crit)
+        motion, ok = _lk_patches(img0, img1, p0, 15, crit)
+        inner = np.all((p0 > 10) & (p0 < [W - 10, H - 10]), axis=1)  # borders aside, the same numbers
+        both = inner & ok & (st.ravel() == 1)
+        assert both.sum() >= 0.6 * len(p0)
+        np.testing.assert_allclose(motion[both], (p1 - p0)[both], atol=1e-3)
+        assert np.median(np.linalg.norm(motion[ok], axis=1)) == pytest.approx(1.118 * shift, abs=0.05)
+    far = cv2.warpAffine(img0, np.array([[1, 0, 25.0], [0, 1, 10.0]]), (W, H))
+    motion, ok = _lk_patches(img0, far, p0, 15, crit)
+    assert not (ok.sum() >= 0.75 * len(p0) and np.median(np.linalg.norm(motion[ok], axis=1)) <= 0.25)  # not still
 
 
 def test_klt_tracks_through_a_stream(texture):
@@ -143,6 +185,29 @@ def test_descriptors_across_25_degrees(texture, descriptor):
     # bearings agree with the rotation: f_ref = R f_cur
     ang = np.degrees(np.arccos(np.clip(np.sum(f1 * (f2 @ R.T), axis=1), -1, 1)))
     assert np.median(ang) < math.degrees(tol / F)
+
+
+def test_matching_is_ratio_tested_nearest_neighbour_each_used_once(rng):
+    """ORB matches equal a brute-force Hamming search: nearest of each a, ratio test, best a kept per b."""
+    base = rng.integers(0, 256, size=(150, 32), dtype=np.uint8)
+    a = base.copy()
+    b = np.r_[base[::-1], rng.integers(0, 256, size=(60, 32), dtype=np.uint8)]
+    flip = rng.random(b.shape[:1] + (256,)) < rng.uniform(0.0, 0.35, size=(len(b), 1))
+    b ^= np.packbits(flip, axis=1)  # b rows: the a rows (reversed) with 0-35% bits flipped, then random rows
+    b[5] = b[7]  # two b rows that are the nearest neighbour of the same a rows
+    cfg = TrackingConfig()
+    ia, ib = match_features(Features(np.zeros((len(a), 2)), a), Features(np.zeros((len(b), 2)), b), cfg)
+    d = np.unpackbits(a[:, None, :] ^ b[None, :, :], axis=2).sum(axis=2)
+    srt = np.sort(d, axis=1)
+    nn = np.argmin(d, axis=1)
+    keep = srt[:, 0] < cfg.ratio * srt[:, 1]
+    best = {}
+    for i in np.flatnonzero(keep):  # per b row, the a row with the smallest distance (first on ties)
+        if nn[i] not in best or d[i, nn[i]] < d[best[nn[i]], nn[i]]:
+            best[nn[i]] = i
+    want = sorted((j, i) for j, i in best.items())
+    assert 50 < len(want) < 150
+    assert list(zip(ib, ia)) == want
 
 
 def test_verification_rejects_outliers(rng):

@@ -46,30 +46,52 @@ class ImuGravity:
     gaps: list = field(default_factory=list)  # (start, end) of gaps inside the window
 
 
+_ZERO3 = (0.0, 0.0, 0.0)
+
+
+def _vec3(v) -> tuple | None:
+    """(x, y, z) as floats from anything holding exactly three numbers (sequence or array of any shape), else None."""
+    if isinstance(v, np.ndarray):
+        if v.size != 3:
+            return None
+        v = v.ravel().tolist()
+    try:
+        x, y, z = v
+        return float(x), float(y), float(z)
+    except (TypeError, ValueError):
+        a = np.asarray(v, dtype=float).reshape(-1)
+        return tuple(a.tolist()) if a.shape == (3,) else None
+
+
 class ImuBuffer:
-    """Time-ordered accelerometer + gyro samples of one IMU."""
+    """Time-ordered accelerometer + gyro samples of one IMU.
+
+    :meth:`add` only checks a sample and appends a tuple of floats (no numpy
+    per sample); pending samples move in blocks into a preallocated array of
+    rows (t, ax, ay, az, wx, wy, wz) whose live part ``[_i0, _n)`` is trimmed
+    by moving ``_i0`` and compacted (or grown) only when the end is reached.
+    """
 
     def __init__(self, rig: Rig, config: ImuConfig | None = None):
         self.rig = rig
         self.config = config or ImuConfig()
         self.source = rig.imu.topic if rig.imu is not None else "imu"
-        self._t = np.zeros(0)
-        self._a = np.zeros((0, 3))
-        self._w = np.zeros((0, 3))
-        self._pending: list = []  # (t, a, w) appended since the last consolidation
+        self._buf = np.empty((1024, 7))
+        self._i0 = self._n = 0  # live rows of _buf
+        self._pending: list = []  # (t, ax, ay, az, wx, wy, wz) appended since the last consolidation
         self._gaps: list = []
         self.stats = Counter()
         self.last_stamp = -math.inf
 
     def add(self, stamp: float, accel, gyro=None) -> str | None:
         """Store one sample; returns None, or the reason it was rejected (also counted in ``stats``)."""
-        a = np.asarray(accel, dtype=float).reshape(-1)
-        w = np.zeros(3) if gyro is None else np.asarray(gyro, dtype=float).reshape(-1)
         stamp = float(stamp)
+        a = _vec3(accel)
+        w = _ZERO3 if gyro is None else _vec3(gyro)
         reason = None
-        if a.shape != (3,) or w.shape != (3,):
+        if a is None or w is None:
             reason = "wrong shape"
-        elif not (math.isfinite(stamp) and np.all(np.isfinite(a)) and np.all(np.isfinite(w))):
+        elif not (math.isfinite(stamp) and all(map(math.isfinite, a + w))):
             reason = "NaN or inf"
         elif stamp <= self.last_stamp:
             reason = "out of order"
@@ -81,36 +103,47 @@ class ImuBuffer:
             self._gaps.append((self.last_stamp, stamp))
         self.last_stamp = stamp
         self.stats["samples"] += 1
-        self._pending.append((stamp, a, w))
+        self._pending.append((stamp, *a, *w))
         if len(self._pending) >= 256:
             self._consolidate()
         return None
 
     def _consolidate(self) -> None:
-        if self._pending:
-            t = np.array([p[0] for p in self._pending])
-            a = np.array([p[1] for p in self._pending])
-            w = np.array([p[2] for p in self._pending])
-            self._pending = []
-            self._t = np.concatenate([self._t, t])
-            self._a = np.concatenate([self._a, a])
-            self._w = np.concatenate([self._w, w])
+        """Move the pending samples into the array and drop samples older than ``capacity_s``."""
         keep_from = self.last_stamp - self.config.capacity_s
-        k = int(np.searchsorted(self._t, keep_from))
-        if k:
-            self._t, self._a, self._w = self._t[k:], self._a[k:], self._w[k:]
-        self._gaps = [g for g in self._gaps if g[1] >= keep_from]
+        if self._pending:
+            block = np.array(self._pending, dtype=float)
+            self._pending.clear()
+            self._i0 += int(np.searchsorted(self._buf[self._i0:self._n, 0], keep_from))
+            if self._n + len(block) > len(self._buf):  # compact to the front, growing when over half full
+                live = self._n - self._i0
+                size = max(len(self._buf), 2 * (live + len(block)))
+                buf = self._buf if size == len(self._buf) else np.empty((size, 7))
+                buf[:live] = self._buf[self._i0:self._n]
+                self._buf, self._i0, self._n = buf, 0, live
+            self._buf[self._n:self._n + len(block)] = block
+            self._n += len(block)
+        self._i0 += int(np.searchsorted(self._buf[self._i0:self._n, 0], keep_from))
+        if self._gaps and self._gaps[0][1] < keep_from:
+            self._gaps = [g for g in self._gaps if g[1] >= keep_from]
+
+    @property
+    def _t(self) -> np.ndarray:
+        """Stamps of the consolidated samples (a view)."""
+        return self._buf[self._i0:self._n, 0]
 
     def __len__(self) -> int:
         self._consolidate()
-        return len(self._t)
+        return self._n - self._i0
 
     def window(self, t0: float, t1: float):
-        """Samples (t, accel, gyro) with t0 <= t <= t1."""
+        """Samples (t, accel, gyro) with t0 <= t <= t1 (copies)."""
         self._consolidate()
-        i = int(np.searchsorted(self._t, t0, side="left"))
-        j = int(np.searchsorted(self._t, t1, side="right"))
-        return self._t[i:j], self._a[i:j], self._w[i:j]
+        t = self._t
+        i = self._i0 + int(np.searchsorted(t, t0, side="left"))
+        j = self._i0 + int(np.searchsorted(t, t1, side="right"))
+        rows = self._buf[i:j].copy()
+        return rows[:, 0], rows[:, 1:4], rows[:, 4:7]
 
     def has_recent(self, stamp: float) -> bool:
         """True when a sample lies within max_age_s of ``stamp``."""
@@ -134,10 +167,10 @@ class ImuBuffer:
             return None, "the rig file has no imu block"
         t, a, w = self.window(min(t0, t1 - cfg.pad_s), t1)
         if len(t) < cfg.min_samples:
-            self._consolidate()
-            if len(self._t) == 0:
+            ts = self._t
+            if len(ts) == 0:
                 return None, "no IMU samples"
-            dt = t1 - self._t[np.searchsorted(self._t, t1, side="right") - 1] if self._t[0] <= t1 else math.nan
+            dt = t1 - ts[np.searchsorted(ts, t1, side="right") - 1] if ts[0] <= t1 else math.nan
             return None, f"{len(t)} IMU samples in the window (need {cfg.min_samples}; newest is {dt:.3f} s old)"
         if t1 - t[-1] > cfg.max_age_s:
             return None, f"newest IMU sample is {t1 - t[-1]:.3f} s older than the view (max_age_s {cfg.max_age_s})"

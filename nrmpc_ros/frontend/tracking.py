@@ -21,6 +21,7 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from ..cameras import pixels_to_bearings
 from ..core.rig import Camera
@@ -105,15 +106,18 @@ def cell_ranks(uv: np.ndarray, size, rows: int, cols: int, order: np.ndarray | N
     """Rank (0 = best) of each point among the points of its grid cell, best first by ``order``."""
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
     w, h = size
-    cx = np.clip((uv[:, 0] * cols / w).astype(np.int64), 0, cols - 1)
-    cy = np.clip((uv[:, 1] * rows / h).astype(np.int64), 0, rows - 1)
+    cx = np.clip((uv[:, 0] * (cols / w)).astype(np.int64), 0, cols - 1)
+    cy = np.clip((uv[:, 1] * (rows / h)).astype(np.int64), 0, rows - 1)
     cell = cy * cols + cx
-    srt = np.arange(len(uv)) if order is None else np.asarray(order, dtype=np.int64)
-    srt = srt[np.argsort(cell[srt], kind="stable")]
+    n = len(cell)
+    srt = np.arange(n) if order is None else np.asarray(order, dtype=np.int64)
+    srt = srt[np.argsort(cell[srt], kind="stable")]  # by cell, best first within a cell
     c = cell[srt]
-    starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]]) if len(c) else np.zeros(0, np.int64)
-    ranks = np.empty(len(uv), np.int64)
-    ranks[srt] = np.arange(len(c)) - np.repeat(starts, np.diff(np.r_[starts, len(c)]))
+    pos = np.arange(n)
+    first = np.ones(n, bool)  # first point of its cell in srt
+    np.not_equal(c[1:], c[:-1], out=first[1:])
+    ranks = np.empty(n, np.int64)
+    ranks[srt] = pos - np.maximum.accumulate(np.where(first, pos, 0))
     return ranks
 
 
@@ -125,13 +129,16 @@ def bucket(uv: np.ndarray, size, rows: int, cols: int, count: int, order: np.nda
     have points left.
     """
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
-    if len(uv) <= count:
-        return np.arange(len(uv))
-    ranks = cell_ranks(uv, size, rows, cols, order)
-    tie = np.empty(len(uv), np.int64)
-    tie[np.arange(len(uv)) if order is None else np.asarray(order)] = np.arange(len(uv))
-    pick = np.lexsort((tie, ranks))[:count]
-    return np.sort(pick)
+    n = len(uv)
+    if n <= count:
+        return np.arange(n)
+    if order is None:
+        key = np.arange(n)
+    else:
+        key = np.empty(n, np.int64)
+        key[np.asarray(order)] = np.arange(n)
+    key += n * cell_ranks(uv, size, rows, cols, order)  # (rank in its cell, position in order): unique
+    return np.sort(np.argpartition(key, count - 1)[:count])
 
 
 def spread_corners(pts: np.ndarray, score: np.ndarray, size, cfg: TrackingConfig, max_count: int) -> np.ndarray:
@@ -196,6 +203,34 @@ def _lk(img0, img1, p0, cfg: TrackingConfig, window: int | None = None, levels: 
     return p1, ok
 
 
+PATCH_MARGIN_PX = 4  # the still check's patches reach this far beyond the LK window
+
+
+def _lk_patches(img0, img1, p0: np.ndarray, window: int, criteria):
+    """Single-level LK of a few points ``p0`` (N, 2) float32 on patches around them: (motions (N, 2), status (N,)).
+
+    The patches (the window plus ``PATCH_MARGIN_PX`` on each side, shifted
+    inside the image) of both images are stacked into two narrow mosaics, so
+    LK computes image derivatives on those only, not on the whole images (for
+    24 points a twentieth of a VGA image). Motions within the margin come out
+    as on the full images; larger ones come out wrong, but not small.
+    """
+    half = window // 2 + PATCH_MARGIN_PX
+    size = 2 * half + 1
+    h, w = img0.shape
+    if h < size or w < size:
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, winSize=(window, window), maxLevel=0,
+                                             criteria=criteria)
+        return p1 - p0, st.ravel() == 1
+    o = np.clip(np.floor(p0).astype(np.int64) - half, 0, [w - size, h - size])  # patch corners (x, y)
+    m0 = sliding_window_view(img0, (size, size))[o[:, 1], o[:, 0]].reshape(-1, size)
+    m1 = sliding_window_view(img1, (size, size))[o[:, 1], o[:, 0]].reshape(-1, size)
+    q = p0 - o.astype(np.float32)
+    q[:, 1] += size * np.arange(len(q), dtype=np.float32)  # patch k starts at mosaic row k * size
+    q1, st, _ = cv2.calcOpticalFlowPyrLK(m0, m1, q, None, winSize=(window, window), maxLevel=0, criteria=criteria)
+    return q1 - q, st.ravel() == 1
+
+
 PROBE_SCALE = 4  # the probe's forward-backward check of a frame that moved runs on images up to 4x smaller ...
 PROBE_MIN_WIDTH = 160  # ... and at least this wide
 PROBE_FB_PX = 0.1  # its forward-backward threshold (px of the small image)
@@ -239,6 +274,7 @@ class KltTracker:
         self._probe_motion = 0.0  # median motion (px) of the probe of the last frame skipped as unchanged
         self.features: Features | None = None  # descriptor features of prev when the tracks were seeded from them
         self._small_prev = None  # (prev, prev reduced PROBE_SCALE times) for the probe's jump check
+        self._probe_uv = None  # (uv, its probe tracks): the probe is spread again when uv changes
         self.skipped = 0  # frames taken as unchanged (probe only)
         self.lost = 0  # frames where the probe lost the tracks (all dropped, not tracked)
 
@@ -268,24 +304,24 @@ class KltTracker:
     def _probe(self, img) -> str:
         """'still' (image unchanged), 'lost' (tracks cannot follow) or 'moved', from a few spread tracks.
 
-        Still: forward LK at full resolution only (a fraction of a millisecond)
-        finds them within ``still_px``. Otherwise the same tracks go through a
+        Still: forward LK at full resolution, single level, on patches around
+        the tracks only (:func:`_lk_patches`, ~0.15 ms) finds them within
+        ``still_px``. Otherwise the same tracks go through a
         pyramidal forward-backward LK on images ``PROBE_SCALE`` times smaller
         (it follows motions of 100+ px for a third of the cost at full
         resolution): when fewer than a quarter survive, the tracks are lost (a
         jump between static snapshots) and the costly LK of all tracks is
         skipped.
         """
-        k = int(self.cfg.probe_tracks)
-        size = (img.shape[1], img.shape[0])
-        sel = bucket(self.uv, size, self.cfg.grid_rows, self.cfg.grid_cols, k) if len(self.uv) > k \
-            else np.arange(len(self.uv))
-        p0 = np.ascontiguousarray(self.uv[sel], np.float32)
-        win = (int(self.cfg.klt_window), int(self.cfg.klt_window))
+        if self._probe_uv is None or self._probe_uv[0] is not self.uv:  # the tracks changed: spread a new probe
+            sel = bucket(self.uv, (img.shape[1], img.shape[0]), self.cfg.grid_rows, self.cfg.grid_cols,
+                         int(self.cfg.probe_tracks))
+            self._probe_uv = (self.uv, np.ascontiguousarray(self.uv[sel], np.float32))
+        p0 = self._probe_uv[1]
         crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.01)
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, img, p0, None, winSize=win, maxLevel=0, criteria=crit)
-        d = np.linalg.norm(p1 - p0, axis=1)[st.ravel() == 1]
-        if len(d) >= 0.75 * len(sel) and float(np.median(d)) <= self.cfg.still_px:
+        motion, st = _lk_patches(self.prev, img, p0, int(self.cfg.klt_window), crit)
+        d = np.linalg.norm(motion, axis=1)[st]
+        if len(d) >= 0.75 * len(p0) and float(np.median(d)) <= self.cfg.still_px:
             self._probe_motion = float(np.median(d))
             return "still"
         scale = max(1, min(PROBE_SCALE, img.shape[1] // PROBE_MIN_WIDTH))
@@ -294,14 +330,16 @@ class KltTracker:
             self._small_prev = (self.prev, self._small(self.prev, scale))
         _, ok = _lk(self._small_prev[1], small, p0 / scale, self.cfg, window=9, levels=2, fb_px=PROBE_FB_PX)
         self._small_prev = (img, small)  # img becomes prev unless it is skipped as still (it is not)
-        return "lost" if ok.sum() < 0.25 * len(sel) else "moved"
+        return "lost" if ok.sum() < 0.25 * len(p0) else "moved"
 
     @staticmethod
     def _small(img, scale: int):
-        if scale == 1:
-            return img
-        h, w = img.shape
-        return cv2.resize(img, (w // scale, h // scale), interpolation=cv2.INTER_AREA)
+        """``img`` reduced ``scale`` times by area averaging, by halvings where possible (INTER_AREA's fast case)."""
+        size = (img.shape[1] // scale, img.shape[0] // scale)
+        while scale % 2 == 0:
+            img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
+            scale //= 2
+        return img if scale == 1 else cv2.resize(img, size, interpolation=cv2.INTER_AREA)
 
     def track(self, img: np.ndarray) -> None:
         """Follow the tracks into ``img`` (dropping failures) and top them up with new corners."""
@@ -385,7 +423,7 @@ def detect_features(img: np.ndarray, cfg: TrackingConfig) -> Features:
     resp = np.fromiter((k.response for k in kps), float, len(kps))
     keep = bucket(uv, (img.shape[1], img.shape[0]), cfg.grid_rows, cfg.grid_cols, n,
                   order=np.argsort(-resp, kind="stable"))
-    kps, desc = det.compute(img, [kps[i] for i in keep])
+    kps, desc = det.compute(img, list(map(kps.__getitem__, keep.tolist())))
     if desc is None or not kps:
         return Features(np.zeros((0, 2)), None)
     uv = cv2.KeyPoint_convert(kps).reshape(-1, 2).astype(np.float64)
@@ -408,16 +446,15 @@ def match_features(a: Features, b: Features, cfg: TrackingConfig):
     empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
     if a.desc is None or b.desc is None or len(a.uv) < 2 or len(b.uv) < 2:
         return empty
-    norm = cv2.NORM_L2 if cfg.descriptor == "sift" else cv2.NORM_HAMMING
-    knn = cv2.BFMatcher(norm).knnMatch(a.desc, b.desc, k=2)
-    m = np.array([(p[0].queryIdx, p[0].trainIdx, p[0].distance, p[1].distance) for p in knn if len(p) == 2])
-    if len(m) == 0:
-        return empty
-    m = m[m[:, 2] < cfg.ratio * m[:, 3]]
-    m = m[np.lexsort((m[:, 2], m[:, 1]))]  # by train index, best distance first
-    first = np.r_[True, m[1:, 1] != m[:-1, 1]] if len(m) else np.zeros(0, bool)
-    m = m[first]
-    return m[:, 0].astype(np.int64), m[:, 1].astype(np.int64)
+    norm, dtype = (cv2.NORM_L2, cv2.CV_32F) if cfg.descriptor == "sift" else (cv2.NORM_HAMMING, cv2.CV_32S)
+    dist, nn = cv2.batchDistance(a.desc, b.desc, dtype, normType=norm, K=2)  # two nearest, as arrays
+    ia = np.flatnonzero(dist[:, 0] < cfg.ratio * dist[:, 1])
+    ib = nn[ia, 0].astype(np.int64)
+    o = np.lexsort((dist[ia, 0], ib))  # by b index, best distance first
+    ia, ib = ia[o], ib[o]
+    first = np.ones(len(ib), bool)
+    np.not_equal(ib[1:], ib[:-1], out=first[1:])
+    return ia[first], ib[first]
 
 
 # ---------------------------------------------------------------------------
