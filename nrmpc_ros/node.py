@@ -8,7 +8,7 @@ thread fed by a bounded queue, and synchronized sets arriving while it is
 full are dropped and counted. Publishes ``~/relative_pose``
 (geometry_msgs/PoseStamped: the current body frame in the reference view's
 body frame), ``~/gravity`` (geometry_msgs/Vector3Stamped, current body frame,
-m/s^2; the pair's own, or the fused one when the pair's is weak or an outlier:
+m/s^2; the pair's own, or the fused one when the pair's is weak or outvoted:
 see ``gravity_source`` in the diagnostics), ``~/gravity_fused`` (the fused estimate, same frame), ``~/attitude``
 (sensor_msgs/Imu with roll and pitch only) and diagnostics on ``/diagnostics``.
 

@@ -42,14 +42,34 @@ def test_fusion_through_rotating_frames_beats_single_estimates():
     assert f.state.sigma_rad < 0.01 / math.sqrt(10)
 
 
+def test_challenger_with_more_support_takes_over():
+    """Rejected estimates build a challenger; it replaces the state once it has more support, even when the
+    state keeps accepting some (interleaved wrong estimates, as from sign-ambiguous pairs)."""
+    cov = np.eye(3) * 1e-6
+    down, side = np.array([0, 0, -9.81]), np.array([0, 9.81, 0])
+    f = GravityFusion(max_rejections=10)
+    assert f.update(down, cov)  # a wrong first estimate
+    assert not f.update(side, cov)  # challenger: 1 vs 1
+    assert f.update(down, cov)  # the state: 2
+    assert not f.update(side, cov)  # challenger: 2 vs 2
+    assert f.update(side, cov)  # challenger: 3 > 2, takes over
+    assert np.allclose(f.state.gravity, side) and f.state.num_fused == 3
+    assert not f.update(down, cov)
+
+
 def test_fusion_restarts_after_repeated_rejections():
+    """max_rejections mutually inconsistent rejections in a row: the most precise of them takes over."""
     f = GravityFusion(max_rejections=3)
     cov = np.eye(3) * 1e-6
     f.update(np.array([0, 0, -9.81]), cov)
-    for _ in range(2):
-        assert not f.update(np.array([0, 9.81, 0]), cov)
-    assert f.update(np.array([0, 9.81, 0]), cov)  # third in a row: the state was wrong, restart
-    assert np.allclose(f.state.gravity, [0, 9.81, 0])
+    f.update(np.array([0, 0, -9.81]), cov)
+    assert not f.update(np.array([0, 9.81, 0]), cov)
+    assert not f.update(np.array([9.81, 0, 0]), cov)
+    assert f.update(np.array([0, -9.81, 0]), 0.5 * cov)  # third in a row: the state was wrong, restart
+    assert np.allclose(f.state.gravity, [0, -9.81, 0]) and f.state.num_fused == 1
+    for _ in range(2):  # the old state, kept as a challenger, comes back with more support
+        f.update(np.array([0, 0, -9.81]), cov)
+    assert np.allclose(f.state.gravity, [0, 0, -9.81]) and f.state.num_fused == 4
 
 
 def test_roll_pitch():

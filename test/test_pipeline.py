@@ -165,19 +165,21 @@ def test_weak_gravity_is_not_fused_and_the_fused_one_is_published(rig3, static_r
 
 
 def test_published_gravity_choice():
-    """The pair's gravity unless weak or rejected by the fusion; then the fused one (current body frame)."""
+    """The pair's gravity unless weak or outvoted by a fused state of min_support estimates; then the fused one
+    (current body frame); a weak one when nothing is fused."""
     from nrmpc_ros.frontend.pipeline import Pipeline, PipelineEstimate
 
-    def est(fused, accepted):
+    def est(fused, accepted, count=1):
         return PipelineEstimate(stamp=1.0, ref_stamp=0.0, method="6pt-bending", R=np.eye(3), t=np.zeros(3),
                                 gravity=np.array([0.0, 0.0, -9.81]), num_inliers=50, time_ms=1.0,
                                 cov_gravity=np.eye(3), gravity_fused=fused, cov_gravity_fused=2 * np.eye(3),
-                                fused_accepted=accepted, gravity_source="pair")
+                                fused_accepted=accepted, gravity_source="pair", fused_count=count)
 
     fused = np.array([0.0, 9.81, 0.0])
-    for weak, accepted, source in [(False, True, "pair"), (False, False, "fused"), (True, None, "fused")]:
-        e = est(fused, accepted)
-        Pipeline._published_gravity(e, weak)
+    for weak, accepted, count, source in [(False, True, 5, "pair"), (False, False, 2, "pair"),
+                                          (False, False, 3, "fused"), (True, None, 1, "fused")]:
+        e = est(fused, accepted, count)
+        Pipeline._published_gravity(e, weak, min_support=3)
         assert e.gravity_source == source
         assert np.allclose(e.gravity, fused if source == "fused" else [0, 0, -9.81])
         assert np.allclose(e.cov_gravity, 2 * np.eye(3) if source == "fused" else np.eye(3))

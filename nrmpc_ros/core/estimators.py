@@ -24,12 +24,9 @@ from .rig import Rig
 from .so3 import angle_between, fibonacci_sphere, normalize
 
 METHODS = ("6pt-nonbending", "6pt-bending", "4pt-bending")
-REUSE_RANSAC_RAD = 0.35  # a start this close to an earlier one reuses its 6-point RANSAC pose (not on parallel bars)
 INLIER_CHANGE_SHARE = 0.01  # the refinement is repeated while the inlier set changes by more than this share
 SCORE_POINTS = 50  # correspondences scoring the full pose of each gravity hypothesis (parallel bars)
 START_TOL = 1e-3  # relative cost decrease that ends a start's bundle adjustment (starts are only compared)
-PROBE_ITERATIONS = 5  # a later start is first refined this far ...
-ABANDON_SHARE = 0.3  # ... and abandoned if this share more of all correspondences are outliers than for the best
 
 
 @dataclass
@@ -264,27 +261,20 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, w
     RANSAC on those lines then gives (R, t) and inliers jointly over all
     cameras (single-camera rotations suffer from the bas-relief ambiguity of
     narrow fields of view, the whole rig does not). With weak_geometry
-    (parallel bars) the gravity grid is ranked by full-pose scores and every
-    start gets its own RANSAC.
+    (parallel bars) the gravity grid is ranked by full-pose scores.
     """
     cams, Rc, counts, cam_inl = camera_rotations(m, rig.num_cameras, 3.0 * tight, seed=int(rng.integers(1 << 30)))
     if len(cams) < 2:
         return [], {"cameras_with_rotation": int(len(cams))}
     starts = []
     iterations = 0
-    done = []  # (g, RANSAC result) of the starts so far
     scoring = None
     if weak_geometry:  # the camera rotations barely tell gravity apart: rank by the full pose (translations too)
         scoring = (m, _subset(rng, np.flatnonzero(cam_inl), SCORE_POINTS), 3.0 * tight)
     for g0, R0, _ in gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses),
                                                  num_starts, scoring=scoring):
-        near = [rr for g, rr in done if angle_between(g, g0) < (0.0 if weak_geometry else REUSE_RANSAC_RAD)]
-        if near:  # lines bent at a nearby gravity give nearly the same pose: the bundle adjustment adapts it
-            rr = near[0]
-        else:
-            rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt)
-            done.append((g0, rr))
-            iterations += 0 if rr is None else rr.iterations
+        rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt)
+        iterations += 0 if rr is None else rr.iterations
         if rr is not None and rr.num_inliers >= 12:
             idx = _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size))
             starts.append((*rr.model, g0, idx))
@@ -305,27 +295,10 @@ def _start_score(rig, m: Matches, res, threshold) -> float:
     return float(np.minimum(err * err, threshold**2).sum())
 
 
-def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts, best_score=None):
-    """Short bundle adjustment of one start on correspondences idx at a fixed sigma; (result, score).
-
-    When a best score exists, the start is first refined PROBE_ITERATIONS
-    far and abandoned (None) if ABANDON_SHARE more of all correspondences
-    are outliers than for the best start: it is in a worse basin.
-    """
-    kw = dict(huber_k=opts.huber_k, sigma_rad=tight / 2.0, tol=START_TOL)
-    f1, f2, cam = m.f1[idx], m.f2[idx], m.cam[idx]
-    total = int(opts.start_ba_iterations)
-    if best_score is None or total <= PROBE_ITERATIONS:
-        res = refine_two_view(rig, f1, f2, cam, R, t, g, max_iter=total, **kw)
-        return res, _start_score(rig, m, res, tight)
-    res = refine_two_view(rig, f1, f2, cam, R, t, g, max_iter=PROBE_ITERATIONS, **kw)
-    score = _start_score(rig, m, res, tight)
-    if score > best_score + ABANDON_SHARE * len(m) * tight**2:
-        return None
-    if res.iterations < PROBE_ITERATIONS:
-        return res, score  # converged
-    res = refine_two_view(rig, f1, f2, cam, res.R, res.t, res.g, points=res.points,
-                          max_iter=total - PROBE_ITERATIONS, **kw)
+def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts):
+    """Short bundle adjustment of one start on correspondences idx at a fixed sigma; (result, score)."""
+    res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R, t, g, max_iter=int(opts.start_ba_iterations),
+                          huber_k=opts.huber_k, sigma_rad=tight / 2.0, tol=START_TOL)
     return res, _start_score(rig, m, res, tight)
 
 
@@ -363,10 +336,9 @@ def _six_point_bending(rig, m, opts, rng):
         return None
     best = best_score = None
     for R0, t0, g0, idx in starts:
-        # parallel bars: starts in the right basin may begin as badly as wrong ones, refine all to the end
-        out = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts, None if axis is not None else best_score)
-        if out is not None and (best is None or out[1] < best_score):
-            (best, best_score), best_idx = out, idx
+        res, score = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
+        if best is None or score < best_score:
+            best, best_score, best_idx = res, score, idx
     if axis is not None:
         # All observing cameras sit on parallel bars: mirroring gravity's axial component leaves view 1's
         # bending unchanged, so the mirrored gravity is a second, nearly as good basin (paper, section 3.3,

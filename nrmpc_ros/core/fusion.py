@@ -19,6 +19,7 @@ import numpy as np
 from .so3 import exp_so3, matrix_to_quat_xyzw, normalize, tangent_basis
 
 CHI2_2DOF_999 = 13.8155  # 99.9 % quantile of chi-square with 2 d.o.f.
+MAX_CHALLENGERS = 3  # states built from rejected estimates that are kept
 
 
 def tangent_covariance(g: np.ndarray, cov_g: np.ndarray) -> np.ndarray:
@@ -33,8 +34,8 @@ def sphere_log(mean_dir: np.ndarray, x: np.ndarray) -> np.ndarray:
     c = float(np.clip(mean_dir @ x, -1.0, 1.0))
     v = x - c * mean_dir
     s = np.linalg.norm(v)
-    if s < 1e-15:
-        return np.zeros(2)
+    if s < 1e-15:  # x = mean_dir, or its antipode (any direction, pi away)
+        return np.zeros(2) if c > 0 else np.array([math.pi, 0.0])
     return B.T @ (v / s) * math.atan2(s, c)
 
 
@@ -65,8 +66,14 @@ class GravityFusion:
 
     process_sigma_rad is added (in quadrature) per propagation to account for
     errors of the relative rotation that the covariance does not cover.
-    After ``max_rejections`` consecutive rejections the filter restarts from
-    the newest estimate (the fused state was wrong, not the data).
+
+    Estimates the state rejects are not thrown away: those that agree build a
+    challenger state (up to MAX_CHALLENGERS), carried along the same way.
+    When a challenger has gathered more estimates than the state, or the
+    state has rejected ``max_rejections`` in a row (then the best supported
+    challenger), it takes over and the old state becomes a challenger: a state
+    started from a wrong first estimate (e.g. a sign-ambiguous pair on
+    two-camera bars) is replaced as soon as the consistent majority disagrees.
     """
 
     def __init__(self, gravity_magnitude: float = 9.81, gate: float = CHI2_2DOF_999, process_sigma_rad: float = 1e-3,
@@ -84,6 +91,7 @@ class GravityFusion:
         self.num_fused = 0
         self.num_rejected = 0
         self._consecutive = 0
+        self._challengers: list = []  # [dir, P, num_fused] of states built from rejected estimates
 
     @property
     def state(self) -> FusedGravity | None:
@@ -91,26 +99,45 @@ class GravityFusion:
             return None
         return FusedGravity(self.gm * self.dir, self.P.copy(), self.num_fused, self.num_rejected)
 
+    def _propagated(self, d, P, R_delta, cov_rotation):
+        B_old = tangent_basis(d)
+        new_dir = normalize(R_delta.T @ d)
+        B_new = tangent_basis(new_dir)
+        T = B_new.T @ R_delta.T @ B_old  # chart change (2x2 rotation)
+        P = T @ P @ T.T + self.q * np.eye(2)
+        if cov_rotation is not None:
+            J = B_new.T @ _skew(new_dir)  # d(R^T g)/d(dr) = [R^T g]_x for R -> R Exp(dr)
+            P = P + J @ np.asarray(cov_rotation) @ J.T
+        return new_dir, P
+
     def propagate(self, R_delta: np.ndarray, cov_rotation: np.ndarray | None = None) -> None:
-        """Move the estimate into a new body frame whose orientation in the old one is R_delta.
+        """Move the estimate (and the challenger) into a new body frame whose orientation in the old one is
+        R_delta.
 
         g_new = R_delta^T g_old; the rotation's covariance (3x3 rad^2, right perturbation
         R_delta Exp(dr)) projects onto the tangent plane of g_new.
         """
         if self.dir is None:
             return
-        B_old = tangent_basis(self.dir)
-        new_dir = normalize(R_delta.T @ self.dir)
-        B_new = tangent_basis(new_dir)
-        T = B_new.T @ R_delta.T @ B_old  # chart change (2x2 rotation)
-        P = T @ self.P @ T.T + self.q * np.eye(2)
-        if cov_rotation is not None:
-            J = B_new.T @ _skew(new_dir)  # d(R^T g)/d(dr) = [R^T g]_x for R -> R Exp(dr)
-            P = P + J @ np.asarray(cov_rotation) @ J.T
-        self.dir, self.P = new_dir, P
+        self.dir, self.P = self._propagated(self.dir, self.P, R_delta, cov_rotation)
+        for c in self._challengers:
+            c[0], c[1] = self._propagated(c[0], c[1], R_delta, cov_rotation)
+
+    def _gated_update(self, d, P, g, Rm):
+        """Kalman update of (d, P) with direction g (covariance Rm in g's chart); None if outside the gate."""
+        z = sphere_log(d, g)
+        S = P + _chart_change(g, d) @ Rm @ _chart_change(g, d).T
+        if float(z @ np.linalg.solve(S, z)) > self.gate:
+            return None
+        K = P @ np.linalg.inv(S)
+        new_dir = sphere_exp(d, K @ z)
+        T = tangent_basis(new_dir).T @ tangent_basis(d)
+        P = (np.eye(2) - K) @ P
+        return new_dir, T @ P @ T.T
 
     def update(self, gravity: np.ndarray, cov_gravity: np.ndarray) -> bool:
-        """Fuse one estimate (current body frame) with its 3x3 covariance; False if rejected as an outlier."""
+        """Fuse one estimate (current body frame) with its 3x3 covariance; False if rejected as an outlier
+        (True also when the estimate's challenger has just taken over)."""
         g = normalize(np.asarray(gravity, dtype=float))
         Rm = tangent_covariance(self.gm * g, np.asarray(cov_gravity, dtype=float))
         Rm = Rm + self.min_var * np.eye(2)
@@ -118,25 +145,32 @@ class GravityFusion:
             self.dir, self.P = g, Rm
             self.num_fused = 1
             return True
-        z = sphere_log(self.dir, g)
-        S = self.P + _chart_change(g, self.dir) @ Rm @ _chart_change(g, self.dir).T
-        d2 = float(z @ np.linalg.solve(S, z))
-        if d2 > self.gate:
-            self.num_rejected += 1
-            self._consecutive += 1
-            if self._consecutive >= self.max_rejections:
-                self.reset()
-                return self.update(gravity, cov_gravity)
-            return False
-        self._consecutive = 0
-        K = self.P @ np.linalg.inv(S)
-        dx = K @ z
-        P = (np.eye(2) - K) @ self.P
-        new_dir = sphere_exp(self.dir, dx)
-        T = tangent_basis(new_dir).T @ tangent_basis(self.dir)
-        self.dir, self.P = new_dir, T @ P @ T.T
-        self.num_fused += 1
-        return True
+        fused = self._gated_update(self.dir, self.P, g, Rm)
+        if fused is not None:
+            self.dir, self.P = fused
+            self.num_fused += 1
+            self._consecutive = 0
+            return True
+        self.num_rejected += 1
+        self._consecutive += 1
+        for c in self._challengers:
+            joined = self._gated_update(c[0], c[1], g, Rm)
+            if joined is not None:
+                c[0], c[1], c[2] = joined[0], joined[1], c[2] + 1
+                break
+        else:
+            self._challengers.append([g, Rm, 1])
+            if len(self._challengers) > MAX_CHALLENGERS:  # forget the least supported (the oldest of those)
+                del self._challengers[min(range(len(self._challengers)), key=lambda i: self._challengers[i][2])]
+        ch = self._challengers
+        k = max(range(len(ch)), key=lambda i: (ch[i][2], -np.trace(ch[i][1])))  # most support, then most precise
+        best = ch[k]
+        if best[2] > self.num_fused or self._consecutive >= self.max_rejections:
+            self._challengers[k] = [self.dir, self.P, self.num_fused]  # the old state may come back
+            self.dir, self.P, self.num_fused = best[0], best[1], best[2]
+            self.num_rejected, self._consecutive = 0, 0
+            return True
+        return False
 
 
 def _chart_change(src_dir, dst_dir):

@@ -44,7 +44,8 @@ class FusionConfig:
     cov_scale: float = 4.0  # variance inflation of the BA gravity covariance (it misses model and rendering errors)
     process_sigma_deg: float = 0.057  # added per propagation (rotation errors the covariance misses)
     gate: float = CHI2_2DOF_999  # Mahalanobis^2 above which an estimate is rejected as an outlier
-    max_rejections: int = 3  # consecutive rejections that restart the fused state from the newest estimate
+    max_rejections: int = 3  # rejections in a row after which the newest estimates replace the fused state
+    min_support: int = 3  # a pair rejected by a fused state of this many estimates publishes the fused gravity
 
     def __post_init__(self):
         for name in ("cov_scale", "gate"):
@@ -54,9 +55,10 @@ class FusionConfig:
         if not isinstance(self.process_sigma_deg, (int, float)) or not self.process_sigma_deg >= 0:
             raise InputError("pipeline config", f"must be >= 0, got {self.process_sigma_deg!r}",
                              "fusion.process_sigma_deg")
-        if not isinstance(self.max_rejections, int) or self.max_rejections < 1:
-            raise InputError("pipeline config", f"must be an integer >= 1, got {self.max_rejections!r}",
-                             "fusion.max_rejections")
+        for name in ("max_rejections", "min_support"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1:
+                raise InputError("pipeline config", f"must be an integer >= 1, got {v!r}", f"fusion.{name}")
 
 
 @dataclass
@@ -113,7 +115,7 @@ class FrameSet:
 
 GRAVITY_SOURCE_WORDS = {
     "pair": "from the pair itself",
-    "fused": "fused (the pair's own was weak or an outlier)",
+    "fused": "fused (the pair's own was weak or outvoted)",
     "weak-pair": "from a weak pair with nothing fused yet",
 }
 
@@ -386,22 +388,26 @@ class Pipeline:
         # weakly observable gravity (e.g. parallel bars, little rotation) stays out of the fused state
         weak = g_cur is not None and not sigma <= self.config.max_gravity_sigma_deg
         self._fuse(out, use_gravity=not weak)
-        self._published_gravity(out, weak)
+        self._published_gravity(out, weak, self.config.fusion.min_support)
         if out.gravity_source:
             self.stats.gravity_sources[out.gravity_source] += 1
         return out
 
     @staticmethod
-    def _published_gravity(e: PipelineEstimate, weak: bool) -> None:
+    def _published_gravity(e: PipelineEstimate, weak: bool, min_support: int = 3) -> None:
         """Choose the gravity this estimate publishes (``~/gravity``, CSV g; SPEC sections 10, 11).
 
-        The pair's own estimate, unless it is weak (std above max_gravity_sigma_deg) or an outlier to the
-        fused state; then the fused estimate, which is this same body frame's gravity from all views so
-        far. A weak first estimate (nothing fused yet) is published as ``weak-pair``, its std in the CSV.
+        The pair's own estimate, unless it is weak (std above max_gravity_sigma_deg) or contradicts a
+        fused state built from at least ``min_support`` estimates; then the fused estimate, which is this
+        same body frame's gravity from all views so far. A weak estimate with nothing fused yet is
+        published as ``weak-pair``, its std in the CSV. A pair rejected by a younger fused state still
+        publishes its own gravity: that state may be the wrong one (it is replaced when the estimates
+        it rejects agree among themselves, see GravityFusion).
         """
         if e.gravity is None:
             return
-        if e.gravity_fused is not None and (weak or e.fused_accepted is False):
+        outvoted = e.fused_accepted is False and e.fused_count >= min_support
+        if e.gravity_fused is not None and (weak or outvoted):
             e.gravity, e.cov_gravity, e.gravity_source = e.gravity_fused, e.cov_gravity_fused, "fused"
         elif weak:
             e.gravity_source = "weak-pair"
