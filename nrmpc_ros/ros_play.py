@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -168,3 +169,42 @@ def _play_once(reader, connections, pubs, clock_pub, rate: float, convert: bool,
         pubs[conn.topic].publish(bytes(raw))
         count += 1
     return count
+
+
+class BackgroundNode:
+    """An rclpy node in a context (DDS participant, ``domain``) of its own, spun in a daemon thread.
+
+    The listeners of the end-to-end tests and of ``scripts/bench_node.py``
+    subclass it: create subscriptions on ``self.node``, then call ``start``.
+    """
+
+    def __init__(self, name: str, domain: int):
+        try:
+            import rclpy
+            from rclpy.context import Context
+            from rclpy.executors import SingleThreadedExecutor
+        except ImportError as exc:
+            raise NrmpcError(f"rclpy is not importable ({exc}); {ROS_EXTRA_HINT}") from None
+        self.rclpy = rclpy
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node(name, context=self.ctx)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while self.ctx.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.1)
+            except Exception:  # shutdown while spinning
+                break
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        self.rclpy.try_shutdown(context=self.ctx)
+        self._thread.join(2.0)

@@ -23,9 +23,10 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
+
+from nrmpc_ros.ros_play import BackgroundNode
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -53,33 +54,18 @@ def _kill(proc):
             continue
 
 
-class DiagListener:
+class DiagListener(BackgroundNode):
     """Latest nrmpc_ros diagnostics and every estimate's arrival, in a context of its own."""
 
-    def __init__(self, rclpy, domain):
+    def __init__(self, domain):
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseStamped
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
 
-        self.rclpy = rclpy
-        self.ctx = Context()
-        rclpy.init(context=self.ctx, domain_id=domain)
-        self.node = rclpy.create_node("bench_listener", context=self.ctx)
+        super().__init__("bench_listener", domain)
         self.diag, self.poses = {}, 0
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
         self.node.create_subscription(PoseStamped, "/estimator/relative_pose", self._on_pose, 50)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        while self.ctx.ok():
-            try:
-                self.executor.spin_once(timeout_sec=0.1)
-            except Exception:
-                break
+        self.start()
 
     def _on_diag(self, msg):
         for st in msg.status:
@@ -108,10 +94,6 @@ class DiagListener:
         time.sleep(1.0)
         return dict(self.diag)
 
-    def close(self):
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self.rclpy.try_shutdown(context=self.ctx)
 
 
 def _load_bag_views():
@@ -219,7 +201,7 @@ def main(argv=None) -> int:
     for run in runs:
         domain = random.randint(1, 100)
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_LOG_DIR=str(logdir / "ros_log"))
-        listener = DiagListener(rclpy, domain)
+        listener = DiagListener(domain)
         node = player = None
         try:
             node = _start_node(env, args.cpus, ["-p", f"work_queue_size:={args.work_queue_size}"],

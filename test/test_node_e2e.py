@@ -14,7 +14,6 @@ import signal
 import statistics
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -33,11 +32,10 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: install th
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped, Vector3Stamped  # noqa: E402
-from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
 from nrmpc_ros.core.so3 import angle_between, quat_xyzw_to_matrix, rotation_angle  # noqa: E402
+from nrmpc_ros.ros_play import BackgroundNode  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not BAG.exists(), reason="the sample bag bags/sample is not in this checkout")
 
@@ -47,30 +45,18 @@ def _stamp(msg_stamp) -> float:
     return msg_stamp.sec + 1e-9 * msg_stamp.nanosec
 
 
-class Listener:
+class Listener(BackgroundNode):
     """Collects ~/relative_pose, ~/gravity and /diagnostics in this process (own context and domain)."""
 
     def __init__(self, domain: int):
-        self.ctx = Context()
-        rclpy.init(context=self.ctx, domain_id=domain)
-        self.node = rclpy.create_node("e2e_listener", context=self.ctx)
+        super().__init__("e2e_listener", domain)
         self.poses, self.gravity, self.diagnostics = [], [], []
         self.arrival = {}
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.node.create_subscription(PoseStamped, "/estimator/relative_pose", self._on_pose, qos)
         self.node.create_subscription(Vector3Stamped, "/estimator/gravity", self.gravity.append, qos)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, qos)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        while self.ctx.ok():
-            try:
-                self.executor.spin_once(timeout_sec=0.1)
-            except Exception:  # shutdown while spinning
-                break
+        self.start()
 
     def _on_pose(self, msg):
         self.arrival[_stamp(msg.header.stamp)] = time.monotonic()
@@ -92,11 +78,6 @@ class Listener:
             time.sleep(0.1)
         return False
 
-    def close(self):
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.ctx)
-        self.thread.join(2.0)
 
 
 def _env(domain: int, tmp: Path) -> dict:
