@@ -341,13 +341,15 @@ def _six_point_bending(rig, m, opts, rng):
             best, best_score, best_idx = res, score, idx
     if axis is not None:
         # All observing cameras sit on parallel bars: mirroring gravity's axial component leaves view 1's
-        # bending unchanged, so the mirrored gravity is a second, nearly as good basin (paper, section 3.3,
-        # degenerate cases). Refine from it too and keep the better.
-        g_m = best.g - 2.0 * (axis @ best.g) * axis
-        mirrored, score = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
-        info["mirrored_start"] = bool(score < best_score)
-        if info["mirrored_start"]:
-            best = mirrored
+        # bending unchanged, and on rendered two-camera bags the bending reversed (perpendicular part
+        # flipped) can fit as well; both are second basins (paper, section 3.3, degenerate cases).
+        # Refine from them too and keep the best.
+        ga = (axis @ best.g) * axis  # axial part; flipping it, or the rest (bars bent the other way):
+        info["mirrored_start"] = False
+        for g_m in (best.g - 2.0 * ga, 2.0 * ga - best.g):
+            mirrored, score = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
+            if score < best_score:
+                best, best_score, info["mirrored_start"] = mirrored, score, True
     info["gravity_starts"] = len(starts)
     R, t, g, inliers, res = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts)
     info.update(_pose_info(res, True))
