@@ -264,42 +264,44 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, w
     (parallel bars) the gravity grid is ranked by full-pose scores.
     """
     cams, Rc, counts, cam_inl = camera_rotations(m, rig.num_cameras, 3.0 * tight, seed=int(rng.integers(1 << 30)))
+    info = {"cameras_with_rotation": int(len(cams)), "camera_inliers": int(cam_inl.sum()), "ransac_iterations": 0}
     if len(cams) < 2:
-        return [], {"cameras_with_rotation": int(len(cams))}
-    starts = []
-    iterations = 0
+        return [], info
     scoring = None
     if weak_geometry:  # the camera rotations barely tell gravity apart: rank by the full pose (translations too)
         scoring = (m, _subset(rng, np.flatnonzero(cam_inl), SCORE_POINTS), 3.0 * tight)
-    for g0, R0, _ in gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses),
-                                                 num_starts, scoring=scoring):
-        rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt)
-        iterations += 0 if rr is None else rr.iterations
-        if rr is not None and rr.num_inliers >= 12:
-            idx = _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size))
-            starts.append((*rr.model, g0, idx))
-        else:
-            idx = _subset(rng, np.flatnonzero(cam_inl), int(opts.subset_size))
-            starts.append((R0, translation_given_rotation(rig, m, idx, R0, g0), g0, idx))
-    return starts, {"cameras_with_rotation": int(len(cams)), "ransac_iterations": iterations}
+    hypotheses = gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses), num_starts,
+                                             scoring=scoring)
+
+    def starts():  # lazily: the caller may stop once a start explains the data
+        for g0, R0, _ in hypotheses:
+            rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt)
+            info["ransac_iterations"] += 0 if rr is None else rr.iterations
+            if rr is not None and rr.num_inliers >= 12:
+                yield (*rr.model, g0, _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size)))
+            else:
+                idx = _subset(rng, np.flatnonzero(cam_inl), int(opts.subset_size))
+                yield R0, translation_given_rotation(rig, m, idx, R0, g0), g0, idx
+
+    return starts(), info
 
 
-def _start_score(rig, m: Matches, res, threshold) -> float:
-    """MSAC score of a refined start over all correspondences at the tight threshold.
+def _start_score(rig, m: Matches, res, threshold) -> tuple:
+    """MSAC score of a refined start over all correspondences at the tight threshold, and its inlier count.
 
     Starts are refined on different subsets (each start's own RANSAC
     inliers), so their bundle-adjustment costs are not comparable: a wrong
     start with fewer inliers has a smaller sum. This score is.
     """
     err = _bending_errors(rig, m, res.R, res.t, res.g)
-    return float(np.minimum(err * err, threshold**2).sum())
+    return float(np.minimum(err * err, threshold**2).sum()), int(np.count_nonzero(err < threshold))
 
 
 def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts):
-    """Short bundle adjustment of one start on correspondences idx at a fixed sigma; (result, score)."""
+    """Short bundle adjustment of one start on correspondences idx at a fixed sigma; (result, score, inliers)."""
     res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R, t, g, max_iter=int(opts.start_ba_iterations),
                           huber_k=opts.huber_k, sigma_rad=tight / 2.0, tol=START_TOL)
-    return res, _start_score(rig, m, res, tight)
+    return (res, *_start_score(rig, m, res, tight))
 
 
 def _common_bar_axis(rig, m: Matches, min_share: float = 0.9):
@@ -329,16 +331,21 @@ def _six_point_bending(rig, m, opts, rng):
                                                                           opts.weak_geometry_starts))
     starts, info = _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts,
                                                  weak_geometry=axis is not None)
-    if not starts:
+    if info["cameras_with_rotation"] < 2:
         starts, more = _starts_from_rigid_fit(rig, m, opts, rng, loose)
         info.update(more)
-    if not starts:
-        return None
+        info.pop("camera_inliers")  # of fewer than two cameras: no yardstick for the starts
     best = best_score = None
+    info["gravity_starts"] = 0
     for R0, t0, g0, idx in starts:
-        res, score = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
+        res, score, explained = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
+        info["gravity_starts"] += 1
         if best is None or score < best_score:
             best, best_score, best_idx = res, score, idx
+        if axis is None and explained >= info.get("camera_inliers", len(m) + 1):
+            break  # explains every correspondence the cameras' own epipolar geometry accepts: the right basin
+    if best is None:
+        return None
     if axis is not None:
         # All observing cameras sit on parallel bars: mirroring gravity's axial component leaves view 1's
         # bending unchanged, and on rendered two-camera bags the bending reversed (perpendicular part
@@ -347,10 +354,9 @@ def _six_point_bending(rig, m, opts, rng):
         ga = (axis @ best.g) * axis  # axial part; flipping it, or the rest (bars bent the other way):
         info["mirrored_start"] = False
         for g_m in (best.g - 2.0 * ga, 2.0 * ga - best.g):
-            mirrored, score = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
+            mirrored, score, _ = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
             if score < best_score:
                 best, best_score, info["mirrored_start"] = mirrored, score, True
-    info["gravity_starts"] = len(starts)
     R, t, g, inliers, res = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts)
     info.update(_pose_info(res, True))
     return R, t, g, inliers, info
