@@ -68,20 +68,11 @@ class TrackingConfig:
     min_klt_matches: int = 200  # auto: fewer verified KLT matches (or < half the cap) -> also try descriptors
 
     def __post_init__(self):
-        if self.mode not in MODES:
-            raise InputError("tracking config", f"mode must be one of {', '.join(MODES)}, got {self.mode!r}", "mode")
-        if self.corner_detector not in CORNER_DETECTORS:
-            raise InputError("tracking config", f"corner_detector must be one of {', '.join(CORNER_DETECTORS)}, "
-                             f"got {self.corner_detector!r}", "corner_detector")
-        if self.ransac not in RANSAC_METHODS:
-            raise InputError("tracking config", f"ransac must be one of {', '.join(RANSAC_METHODS)}, "
-                             f"got {self.ransac!r}", "ransac")
-        if self.orb_score not in ORB_SCORES:
-            raise InputError("tracking config", f"orb_score must be one of {', '.join(ORB_SCORES)}, "
-                             f"got {self.orb_score!r}", "orb_score")
-        if self.descriptor not in DESCRIPTORS:
-            raise InputError("tracking config", f"descriptor must be one of {', '.join(DESCRIPTORS)}, "
-                             f"got {self.descriptor!r}", "descriptor")
+        for name, allowed in (("mode", MODES), ("corner_detector", CORNER_DETECTORS), ("ransac", RANSAC_METHODS),
+                              ("orb_score", ORB_SCORES), ("descriptor", DESCRIPTORS)):
+            value = getattr(self, name)
+            if value not in allowed:
+                raise InputError("tracking config", f"{name} must be one of {', '.join(allowed)}, got {value!r}", name)
         for name in ("grid_rows", "grid_cols", "max_tracks", "num_features", "max_matches_per_camera", "orb_levels"):
             if int(getattr(self, name)) < 1:
                 raise InputError("tracking config", "must be >= 1", name)
