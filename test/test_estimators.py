@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from nrmpc_ros.core import METHODS, estimate, pose_errors
+from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.errors import EstimationError, InputError
 from nrmpc_ros.sim.synthetic import RigSpec, Scenario, make_problem
 
@@ -96,3 +97,31 @@ def test_same_seed_same_result():
     a = estimate(pb.rig, pb.matches, method="6pt-bending", seed=3)
     b = estimate(pb.rig, pb.matches, method="6pt-bending", seed=3)
     assert np.array_equal(a.R, b.R) and np.array_equal(a.inliers, b.inliers)
+
+
+# Two cameras on one bar (EI = 1): the bending reversed fits this pair about as well as the truth (seed 11).
+AMBIGUOUS_LINE = Scenario(rig=RigSpec(num_cameras=2, layout="line", EI=1.0), num_points=200, pixel_noise=0.5)
+
+
+def _reversed_bending(rig, g):
+    """Gravity with the part across the (common) bar axis flipped: the bars bend the other way."""
+    u = rig.positions[0] / np.linalg.norm(rig.positions[0])
+    return 2.0 * (u @ g) * u - g
+
+
+def test_gravity_hint_keeps_its_basin_and_is_checked():
+    pb = make_problem(AMBIGUOUS_LINE, seed=11)
+    own = estimate(pb.rig, pb.matches, method="6pt-bending")
+    near = estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=exp_so3([0.03, 0.0, 0.02]) @ pb.gravity)
+    far = estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=_reversed_bending(pb.rig, pb.gravity))
+    err = {k: pose_errors(e.R, e.t, pb.R, pb.t, e.gravity, pb.gravity) for k, e in (("near", near), ("far", far))}
+    assert near.info["gravity_hint"] and far.info["gravity_hint"] and "gravity_hint" not in own.info
+    assert err["near"]["gravity"] < math.radians(3) and err["near"]["rotation"] < math.radians(0.2)
+    assert err["far"]["gravity"] > math.radians(60)  # stayed in the hint's (wrong) basin ...
+    sigma2 = own.info["sigma_rad"] ** 2  # ... which fits the correspondences about as well (paper, section 3.3)
+    assert abs(far.info["msac_score_rad2"] - near.info["msac_score_rad2"]) / sigma2 < 9.21
+    with pytest.raises(EstimationError, match="6pt-bending only"):
+        estimate(pb.rig, pb.matches, method="4pt-bending", gravity_hint=pb.gravity)
+    for bad in ([0.0, 0.0, 0.0], [np.nan, 0.0, -9.8], [1.0, 2.0]):
+        with pytest.raises(InputError, match="gravity_hint"):
+            estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=bad)

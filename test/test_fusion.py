@@ -81,3 +81,34 @@ def test_roll_pitch():
     g_body = R_wb.T @ np.array([0, 0, -9.81])
     r, p, q, _ = roll_pitch_from_gravity(g_body)
     assert abs(r) < 1e-12 and math.isclose(abs(p), 0.2, rel_tol=1e-9)
+
+
+def test_agrees_and_carried_change_nothing():
+    rng = np.random.default_rng(3)
+    f = GravityFusion()
+    cov = np.eye(3) * 1e-4
+    for _ in range(3):
+        f.update(np.array([0.0, 0.0, -9.81]) + rng.normal(scale=0.01, size=3), cov)
+    before = (f.state.gravity.copy(), f.state.cov_tangent.copy(), f.state.num_fused, f.state.num_rejected)
+    R_delta = exp_so3(np.array([0.3, -0.1, 0.2]))
+    carried = f.carried(R_delta, np.eye(3) * 1e-6)
+    g_new = R_delta.T @ np.array([0.0, 0.0, -9.81])
+    assert angle_between(carried.gravity, g_new) < 0.01
+    assert f.agrees(g_new, cov, R_delta) and not f.agrees(-g_new, cov, R_delta)
+    assert not f.agrees(g_new, cov)  # not carried: the old frame's gravity is ~20 deg away
+    after = (f.state.gravity, f.state.cov_tangent, f.state.num_fused, f.state.num_rejected)
+    assert all(np.array_equal(a, b) for a, b in zip(before, after))
+    f.propagate(R_delta, np.eye(3) * 1e-6)  # what carried() predicted
+    assert np.allclose(f.state.gravity, carried.gravity) and np.allclose(f.state.cov_tangent, carried.cov_tangent)
+
+
+def test_takeover_by_another_challenger_leaves_the_estimate_out():
+    """The rejection that ends a run of max_rejections hands the state to the best challenger; an estimate
+    that is not part of that challenger is still reported as rejected."""
+    cov = np.eye(3) * 1e-6
+    f = GravityFusion(max_rejections=3)
+    f.update(np.array([0, 0, -9.81]), cov)
+    assert not f.update(np.array([0, 9.81, 0]), 0.1 * cov)  # the most precise challenger
+    assert not f.update(np.array([9.81, 0, 0]), cov)
+    assert not f.update(np.array([-9.81, 0, 0]), cov)  # third in a row: the precise challenger takes over
+    assert np.allclose(f.state.gravity, [0, 9.81, 0])

@@ -147,3 +147,30 @@ def test_replay_and_compare_report_fused_gravity(tmp_path, capsys):
     # the issue's target: fused vision-only gravity at least 2x better (median) than the per-pair estimates
     assert fused["median"] <= 0.5 * raw["median"]
     assert (tmp_path / "g.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_pair_contradicting_the_fused_gravity_is_settled_in_its_basin():
+    """Two cameras on one bar: the pair's estimate in the reversed-bending basin (as good a fit) is re-estimated
+    from a fused gravity of three views and replaced; a pair that agrees is left alone."""
+    from nrmpc_ros.core import estimate
+    from nrmpc_ros.frontend.pipeline import _View
+    from nrmpc_ros.sim.synthetic import Scenario, make_problem
+
+    pb = make_problem(Scenario(rig=RigSpec(num_cameras=2, layout="line", EI=1.0), num_points=200, pixel_noise=0.5),
+                      seed=11)
+    u = pb.rig.positions[0] / np.linalg.norm(pb.rig.positions[0])
+    pipe = Pipeline(pb.rig, PipelineConfig(), method="6pt-bending")
+    opts = pipe.estimator_options
+    wrong = estimate(pb.rig, pb.matches, seed=0, options=opts, gravity_hint=2.0 * (u @ pb.gravity) * u - pb.gravity)
+    right = estimate(pb.rig, pb.matches, seed=0, options=opts)
+    assert angle_between(wrong.gravity, pb.gravity) > math.radians(60)
+    ref = _View(stamp=1.0, images=[], tracks=[], imu=None)
+    assert pipe._settle_basin(ref, pb.matches, wrong) is wrong  # nothing fused yet: nothing to settle with
+    for _ in range(3):
+        pipe.fusion.update(pb.gravity, np.eye(3) * 0.1**2)  # view 1's body frame
+    pipe._orient, pipe._fused_stamp = {1.0: np.eye(3)}, 1.0
+    assert pipe._settle_basin(ref, pb.matches, right) is right
+    settled = pipe._settle_basin(ref, pb.matches, wrong)
+    assert settled.info["gravity_hint"] and angle_between(settled.gravity, pb.gravity) < math.radians(3)
+    assert rotation_angle(settled.R.T @ pb.R) < math.radians(0.2)
+    assert pipe.stats.hinted_pairs == pipe.stats.hinted_kept == 1

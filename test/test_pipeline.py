@@ -151,7 +151,7 @@ def test_without_imu_auto_runs_6pt_bending(rig3, static_run):
     assert all(e.gravity is not None and np.isfinite(e.tilt_deg) for e in ests)
     assert all(e.gravity_sigma_deg <= 2.0 for e in ests if e.gravity_source == "pair")
     assert sum(pipe.stats.gravity_sources.values()) == len(ests)
-    assert {e.gravity_source for e in ests} <= {"pair", "fused", "weak-pair"}
+    assert {e.gravity_source for e in ests} <= {"pair", "pair-hinted", "fused", "weak-pair"}
 
 
 def test_weak_gravity_is_not_fused_and_the_fused_one_is_published(rig3, static_run):
@@ -186,6 +186,10 @@ def test_published_gravity_choice():
     e = est(None, None)
     Pipeline._published_gravity(e, True)
     assert e.gravity_source == "weak-pair" and np.allclose(e.gravity, [0, 0, -9.81])
+    e = est(fused, True, 5)  # re-estimated from the fused gravity (Pipeline._settle_basin) and accepted
+    e.info["gravity_hint"] = True
+    Pipeline._published_gravity(e, False)
+    assert e.gravity_source == "pair-hinted" and np.allclose(e.gravity, [0, 0, -9.81])
 
 
 def test_nonbending_reports_no_gravity(rig3, static_run):

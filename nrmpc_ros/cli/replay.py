@@ -94,6 +94,9 @@ def run(args) -> int:
     if st.gravity_sources:
         print("published gravity (g columns): " + ", ".join(
             f"{n} {GRAVITY_SOURCE_WORDS.get(k, k)}" for k, n in sorted(st.gravity_sources.items())))
+    if st.hinted_pairs:
+        print(f"pairs contradicting the fused gravity, re-estimated from it: {st.hinted_pairs} "
+              f"({st.hinted_kept} fitted as well and replaced the pair's own)")
     if st.static_views > 1:
         print(f"static views with an estimate (after the first): {st.estimates}/{st.static_views - 1} "
               f"({100.0 * st.estimates / (st.static_views - 1):.0f}%)")

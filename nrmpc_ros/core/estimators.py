@@ -15,7 +15,12 @@ import numpy as np
 from ..errors import EstimationError, InputError
 from .bundle import GravityPrior, gravity_covariance, refine_two_view
 from .deformation import deformed_extrinsics, rays
-from .gravity_init import camera_rotations, gravity_rotation_hypotheses, translation_given_rotation
+from .gravity_init import (
+    camera_rotations,
+    gravity_rotation_hypotheses,
+    hinted_hypothesis,
+    translation_given_rotation,
+)
 from .matches import Matches
 from .minimal import UprightFrames, solve_6pt
 from .ransac import RansacOptions, ransac
@@ -254,24 +259,29 @@ def _starts_from_rigid_fit(rig, m, opts, rng, loose):
     return starts, {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers}
 
 
-def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, weak_geometry=False):
+def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, weak_geometry=False,
+                                  gravity_hint=None):
     """Starts (R, t, g, idx) from per-camera rotations (see :mod:`.gravity_init`).
 
     Each gravity hypothesis bends the Plücker lines of both views; a 6-point
     RANSAC on those lines then gives (R, t) and inliers jointly over all
     cameras (single-camera rotations suffer from the bas-relief ambiguity of
     narrow fields of view, the whole rig does not). With weak_geometry
-    (parallel bars) the gravity grid is ranked by full-pose scores.
+    (parallel bars) the gravity grid is ranked by full-pose scores. With a
+    gravity_hint (view 1), the only start is the hint and its rotation.
     """
     cams, Rc, counts, cam_inl = camera_rotations(m, rig.num_cameras, 3.0 * tight, seed=int(rng.integers(1 << 30)))
     info = {"cameras_with_rotation": int(len(cams)), "camera_inliers": int(cam_inl.sum()), "ransac_iterations": 0}
     if len(cams) < 2:
         return [], info
-    scoring = None
-    if weak_geometry:  # the camera rotations barely tell gravity apart: rank by the full pose (translations too)
-        scoring = (m, _subset(rng, np.flatnonzero(cam_inl), SCORE_POINTS), 3.0 * tight)
-    hypotheses = gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses), num_starts,
-                                             scoring=scoring)
+    if gravity_hint is not None:
+        hypotheses = hinted_hypothesis(rig, cams, Rc, counts, gravity_hint)
+    else:
+        scoring = None
+        if weak_geometry:  # the camera rotations barely tell gravity apart: rank by the full pose (translations too)
+            scoring = (m, _subset(rng, np.flatnonzero(cam_inl), SCORE_POINTS), 3.0 * tight)
+        hypotheses = gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses), num_starts,
+                                                 scoring=scoring)
 
     def starts():  # lazily: the caller may stop once a start explains the data
         for g0, R0, _ in hypotheses:
@@ -316,7 +326,7 @@ def _common_bar_axis(rig, m: Matches, min_share: float = 0.9):
     return u[keep[0]]
 
 
-def _six_point_bending(rig, m, opts, rng):
+def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
     loose, tight = _thresholds(rig, opts)
     if not rig.is_flexible:
         rr = _ransac_6pt(rig, m, loose, opts, rng)
@@ -330,7 +340,10 @@ def _six_point_bending(rig, m, opts, rng):
     num_starts = int(opts.gravity_refine_starts if axis is None else max(opts.gravity_refine_starts,
                                                                           opts.weak_geometry_starts))
     starts, info = _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts,
-                                                 weak_geometry=axis is not None)
+                                                 weak_geometry=axis is not None, gravity_hint=gravity_hint)
+    if gravity_hint is not None:
+        info["gravity_hint"] = True
+        axis = None  # stay in the hint's basin: no mirrored or reversed starts
     if info["cameras_with_rotation"] < 2:
         starts, more = _starts_from_rigid_fit(rig, m, opts, rng, loose)
         info.update(more)
@@ -359,6 +372,7 @@ def _six_point_bending(rig, m, opts, rng):
                 best, best_score, info["mirrored_start"] = mirrored, score, True
     R, t, g, inliers, res = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts)
     info.update(_pose_info(res, True))
+    info["msac_score_rad2"] = _start_score(rig, m, res, tight)[0] if res is not None else math.nan
     return R, t, g, inliers, info
 
 
@@ -403,16 +417,31 @@ _METHODS = {
 
 
 def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int = 0,
-             options: EstimatorOptions | dict | None = None) -> Estimate:
+             options: EstimatorOptions | dict | None = None, *, gravity_hint=None) -> Estimate:
     """Relative pose (R, t) and, for the bending methods, gravity from two views (SPEC section 5).
 
     ``seed`` makes RANSAC deterministic. Raises EstimationError / InputError for
     an unknown method, 4pt-bending without gravity measurements, or matches
     that do not fit the rig. A run that cannot produce a pose returns
     ``success=False`` with the reason in ``info['reason']``.
+
+    ``gravity_hint`` (6pt-bending only; view 1's body frame, m/s^2): gravity
+    known roughly from elsewhere, e.g. fused from earlier views. The search
+    then starts from it alone and stays in its basin, which settles the
+    two-fold ambiguity of parallel bars (paper, section 3.3) by history; the
+    result is still a vision-only estimate. ``info['msac_score_rad2']`` (MSAC
+    score over all correspondences at the inlier threshold) lets a caller
+    compare it with the unhinted estimate.
     """
     if method not in _METHODS:
         raise EstimationError(f"unknown method {method!r} (choose one of {', '.join(METHODS)})")
+    if gravity_hint is not None:
+        if method != "6pt-bending":
+            raise EstimationError(f"gravity_hint applies to 6pt-bending only, not {method}")
+        gravity_hint = np.asarray(gravity_hint, dtype=float).reshape(-1)
+        if gravity_hint.shape != (3,) or not np.all(np.isfinite(gravity_hint)) or not np.any(gravity_hint):
+            raise InputError("estimate()", f"must be a finite, non-zero 3-vector, got {gravity_hint.tolist()}",
+                             "gravity_hint")
     opts = options if isinstance(options, EstimatorOptions) else EstimatorOptions.from_dict(options)
     matches.check_rig(rig)
     t_start = time.perf_counter()
@@ -425,7 +454,8 @@ def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int 
                         info={"reason": f"needs at least {need + 2} correspondences seen by at least 2 cameras, "
                                         f"got {len(matches)} from {cams_seen} camera(s)"})
     rng = np.random.default_rng(seed)
-    out = _METHODS[method](rig, matches, opts, rng)
+    hint = {} if gravity_hint is None else {"gravity_hint": gravity_hint}
+    out = _METHODS[method](rig, matches, opts, rng, **hint)
     elapsed = time.perf_counter() - t_start
     if out is None:
         return Estimate(method=method, success=False, time_s=elapsed,

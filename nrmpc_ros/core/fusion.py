@@ -123,6 +123,23 @@ class GravityFusion:
         for c in self._challengers:
             c[0], c[1] = self._propagated(c[0], c[1], R_delta, cov_rotation)
 
+    def carried(self, R_delta: np.ndarray, cov_rotation: np.ndarray | None = None) -> FusedGravity | None:
+        """The state as :meth:`propagate` would make it, without changing anything."""
+        if self.dir is None:
+            return None
+        d, P = self._propagated(self.dir, self.P, R_delta, cov_rotation)
+        return FusedGravity(self.gm * d, P, self.num_fused, self.num_rejected)
+
+    def agrees(self, gravity: np.ndarray, cov_gravity: np.ndarray, R_delta: np.ndarray | None = None,
+               cov_rotation: np.ndarray | None = None) -> bool:
+        """Whether the state (carried by R_delta first, if given) would accept this estimate; changes nothing."""
+        if self.dir is None:
+            return True
+        d, P = (self.dir, self.P) if R_delta is None else self._propagated(self.dir, self.P, R_delta, cov_rotation)
+        g = normalize(np.asarray(gravity, dtype=float))
+        Rm = tangent_covariance(self.gm * g, np.asarray(cov_gravity, dtype=float)) + self.min_var * np.eye(2)
+        return self._gated_update(d, P, g, Rm) is not None
+
     def _gated_update(self, d, P, g, Rm):
         """Kalman update of (d, P) with direction g (covariance Rm in g's chart); None if outside the gate."""
         z = sphere_log(d, g)
@@ -137,10 +154,9 @@ class GravityFusion:
 
     def update(self, gravity: np.ndarray, cov_gravity: np.ndarray) -> bool:
         """Fuse one estimate (current body frame) with its 3x3 covariance; False if rejected as an outlier
-        (True also when the estimate's challenger has just taken over)."""
+        (True also when the challenger it joined has just taken over)."""
         g = normalize(np.asarray(gravity, dtype=float))
-        Rm = tangent_covariance(self.gm * g, np.asarray(cov_gravity, dtype=float))
-        Rm = Rm + self.min_var * np.eye(2)
+        Rm = tangent_covariance(self.gm * g, np.asarray(cov_gravity, dtype=float)) + self.min_var * np.eye(2)
         if self.dir is None:
             self.dir, self.P = g, Rm
             self.num_fused = 1
@@ -157,9 +173,11 @@ class GravityFusion:
             joined = self._gated_update(c[0], c[1], g, Rm)
             if joined is not None:
                 c[0], c[1], c[2] = joined[0], joined[1], c[2] + 1
+                mine = c
                 break
         else:
-            self._challengers.append([g, Rm, 1])
+            mine = [g, Rm, 1]
+            self._challengers.append(mine)
             if len(self._challengers) > MAX_CHALLENGERS:  # forget the least supported (the oldest of those)
                 del self._challengers[min(range(len(self._challengers)), key=lambda i: self._challengers[i][2])]
         ch = self._challengers
@@ -169,7 +187,7 @@ class GravityFusion:
             self._challengers[k] = [self.dir, self.P, self.num_fused]  # the old state may come back
             self.dir, self.P, self.num_fused = best[0], best[1], best[2]
             self.num_rejected, self._consecutive = 0, 0
-            return True
+            return best is mine  # a takeover by another challenger still leaves this estimate out
         return False
 
 

@@ -86,9 +86,7 @@ def gravity_rotation_hypotheses(rig: Rig, cams, Rc, weights, num_hypotheses=200,
     grids (coarse-to-fine, vectorised).
     """
     gm = rig.gravity_magnitude
-    weights = np.asarray(weights, dtype=float) / np.sum(weights)
-    V = rig.rotations[cams]
-    R_canonical = project_to_so3(np.einsum("j,jab->ab", weights, V @ Rc @ np.swapaxes(V, -1, -2)))
+    weights, R_canonical = _weights_and_rigid_rotation(rig, cams, Rc, weights)
     hyp = gm * fibonacci_sphere(num_hypotheses)
     R_h, cost = _body_rotation_from_cameras(rig, cams, Rc, weights, hyp, R_canonical)
     rank = cost if scoring is None else pose_hypothesis_scores(rig, *scoring, hyp, R_h)
@@ -101,6 +99,22 @@ def gravity_rotation_hypotheses(rig: Rig, cams, Rc, weights, num_hypotheses=200,
                 break
     g, R, c = _refine_locally(rig, cams, Rc, weights, hyp[picked], R_h[picked], cost[picked], spacing)
     return sorted(zip(g, R, c.tolist()), key=lambda x: x[2])
+
+
+def _weights_and_rigid_rotation(rig: Rig, cams, Rc, weights):
+    """Normalised camera weights and the body rotation the cameras agree on with canonical extrinsics."""
+    weights = np.asarray(weights, dtype=float) / np.sum(weights)
+    V = rig.rotations[cams]
+    return weights, project_to_so3(np.einsum("j,jab->ab", weights, V @ Rc @ np.swapaxes(V, -1, -2)))
+
+
+def hinted_hypothesis(rig: Rig, cams, Rc, weights, gravity_hint):
+    """[(g, R, cost)] for a gravity known roughly from elsewhere (view 1's body frame): the hint and the body
+    rotation agreeing best with the per-camera rotations when the bars bend under it."""
+    weights, R_canonical = _weights_and_rigid_rotation(rig, cams, Rc, weights)
+    g = rig.gravity_magnitude * normalize(np.asarray(gravity_hint, dtype=float))[None]
+    R, cost = _body_rotation_from_cameras(rig, cams, Rc, weights, g, R_canonical)
+    return [(g[0], R[0], float(cost[0]))]
 
 
 _OFFSETS = np.stack(np.meshgrid(np.linspace(-1, 1, 7), np.linspace(-1, 1, 7)), -1).reshape(-1, 2)

@@ -117,7 +117,11 @@ GRAVITY_SOURCE_WORDS = {
     "pair": "from the pair itself",
     "fused": "fused (the pair's own was weak or outvoted)",
     "weak-pair": "from a weak pair with nothing fused yet",
+    "pair-hinted": "from the pair, re-estimated in the fused gravity's basin (ambiguous pair)",
 }
+# chi^2 (2 d.o.f., 99 %): a pair re-estimated from the fused gravity is kept when its MSAC score exceeds its own
+# estimate's by less than this, in units of the pair's noise (Pipeline._settle_basin)
+AMBIGUITY_CHI2 = 9.21
 
 
 @dataclass
@@ -145,7 +149,7 @@ class PipelineEstimate:
     fused_count: int = 0  # estimates in the fused state since its last (re)start
     fused_rejected: int = 0  # estimates rejected as outliers since then
     fused_accepted: bool | None = None  # whether this estimate's gravity entered the fused state
-    gravity_source: str = ""  # what ``gravity`` is: pair | fused | weak-pair (see Pipeline._published_gravity)
+    gravity_source: str = ""  # what ``gravity`` is: pair, pair-hinted, fused, weak-pair (Pipeline._published_gravity)
 
 
 @dataclass
@@ -158,12 +162,15 @@ class PipelineStats:
     methods: Counter = field(default_factory=Counter)
     dropped: Counter = field(default_factory=Counter)  # reason -> count (frames, views or pairs)
     gravity_sources: Counter = field(default_factory=Counter)  # PipelineEstimate.gravity_source -> count
+    hinted_pairs: int = 0  # 6pt-bending pairs that contradicted the fused gravity and were estimated again from it
+    hinted_kept: int = 0  # ... whose re-estimate fitted as well and replaced the pair's own
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "static_views": self.static_views, "pairs": self.pairs,
                 "estimates": self.estimates, "reference_changes": self.reference_changes,
                 "methods": dict(self.methods), "dropped": dict(self.dropped),
-                "gravity_sources": dict(self.gravity_sources)}
+                "gravity_sources": dict(self.gravity_sources), "hinted_pairs": self.hinted_pairs,
+                "hinted_kept": self.hinted_kept}
 
 
 @dataclass
@@ -368,6 +375,8 @@ class Pipeline:
         if not est.success:
             self.stats.dropped[f"estimation failed: {est.info.get('reason', 'unknown')}"] += 1
             return None
+        if method == "6pt-bending" and est.gravity is not None:
+            est = self._settle_basin(ref, m, est)
         self._chain(ref, view, est.R)
         g_cur, cov, sigma, tilt = est.gravity2, None, math.nan, math.nan
         if g_cur is not None:
@@ -393,6 +402,38 @@ class Pipeline:
             self.stats.gravity_sources[out.gravity_source] += 1
         return out
 
+    def _settle_basin(self, ref: _View, m: Matches, est):
+        """Estimate again from the fused gravity a 6pt-bending pair that contradicts a fused state of at least
+        ``fusion.min_support`` estimates, and keep the hinted estimate when it fits the correspondences
+        statistically as well (MSAC score within AMBIGUITY_CHI2 in units of the pair's noise).
+
+        On parallel bars two gravity basins fit a pair about equally (bending reversed or mirrored; paper,
+        section 3.3); the history of views then decides, and the pair's rotation, which carries the fused
+        state on, comes from the right basin too. A hinted estimate that fits clearly worse is not used:
+        the pair's own then counts against the fused state (challengers, :class:`GravityFusion`).
+        """
+        fz = self.fusion
+        st = fz.state
+        cov_g, sigma = est.info.get("cov_gravity"), est.info.get("sigma_rad")
+        if (st is None or st.num_fused < self.config.fusion.min_support or cov_g is None or not sigma
+                or ref.stamp not in self._orient or self._fused_stamp not in self._orient):
+            return est
+        to_ref = self._orient[self._fused_stamp].T @ self._orient[ref.stamp]  # view 1 in the fused state's frame
+        cov_rot = est.info.get("cov_rotation")
+        cov2 = self.config.fusion.cov_scale * (est.R.T @ np.asarray(cov_g) @ est.R)
+        if fz.agrees(est.gravity2, cov2, to_ref @ est.R, None if cov_rot is None else np.asarray(cov_rot)):
+            return est
+        hinted = estimate(self.rig, m, method="6pt-bending", seed=self.config.seed, options=self.estimator_options,
+                          gravity_hint=fz.carried(to_ref).gravity)
+        self.stats.hinted_pairs += 1
+        if not hinted.success or hinted.gravity is None:
+            return est
+        excess = (hinted.info["msac_score_rad2"] - est.info["msac_score_rad2"]) / sigma**2
+        if not excess < AMBIGUITY_CHI2:
+            return est
+        self.stats.hinted_kept += 1
+        return hinted
+
     @staticmethod
     def _published_gravity(e: PipelineEstimate, weak: bool, min_support: int = 3) -> None:
         """Choose the gravity this estimate publishes (``~/gravity``, CSV g; SPEC sections 10, 11).
@@ -411,6 +452,8 @@ class Pipeline:
             e.gravity, e.cov_gravity, e.gravity_source = e.gravity_fused, e.cov_gravity_fused, "fused"
         elif weak:
             e.gravity_source = "weak-pair"
+        elif e.info.get("gravity_hint"):
+            e.gravity_source = "pair-hinted"
 
     # ----------------------------------------------------------- fused gravity
     def _chain(self, ref: _View, view: _View, R: np.ndarray) -> None:
