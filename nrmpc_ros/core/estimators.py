@@ -173,9 +173,14 @@ def _ransac_6pt(rig_rays: Rig, m: Matches, threshold, opts, rng, g=None, max_ite
 
 
 def _refine_loop(rig, m, R, t, g, threshold, opts, prior=None, optimize_gravity=True, inliers=None):
-    """Bundle adjustment on the inliers, re-score all correspondences, repeat while the inlier set grows."""
+    """Bundle adjustment on the inliers, re-score all correspondences, repeat while the inlier set grows.
+
+    Returns (R, t, g, inliers, BundleResult or None, MSAC score of all correspondences at threshold, rad^2).
+    """
+    err = None
     if inliers is None:
-        inliers = _bending_errors(rig, m, R, t, g) < threshold
+        err = _bending_errors(rig, m, R, t, g)
+        inliers = err < threshold
     res = None
     for _ in range(3):
         idx = np.flatnonzero(inliers)
@@ -185,12 +190,15 @@ def _refine_loop(rig, m, R, t, g, threshold, opts, prior=None, optimize_gravity=
                               prior=prior, max_iter=int(opts.max_ba_iterations), huber_k=opts.huber_k)
         R, t = res.R, res.t
         g = res.g if optimize_gravity else g
-        new_inliers = _bending_errors(rig, m, R, t, g) < threshold
+        err = _bending_errors(rig, m, R, t, g)
+        new_inliers = err < threshold
         changed = int(np.count_nonzero(new_inliers != inliers))
         inliers = new_inliers
         if changed <= max(2, INLIER_CHANGE_SHARE * inliers.sum()):
             break
-    return R, t, g, inliers, res
+    if err is None:
+        err = _bending_errors(rig, m, R, t, g)
+    return R, t, g, inliers, res, float(np.minimum(err * err, threshold**2).sum())
 
 
 def _pose_info(res, optimize_gravity):
@@ -224,7 +232,7 @@ def _six_point_nonbending(rig, m, opts, rng):
     if rr is None:
         return None
     R, t = rr.model
-    R, t, _, inliers, res = _refine_loop(rigid, m, R, t, None, loose, opts, optimize_gravity=False,
+    R, t, _, inliers, res, _ = _refine_loop(rigid, m, R, t, None, loose, opts, optimize_gravity=False,
                                          inliers=rr.inliers)
     info = {"ransac_iterations": rr.iterations, **_pose_info(res, False)}
     return R, t, None, inliers, info
@@ -332,7 +340,7 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         rr = _ransac_6pt(rig, m, loose, opts, rng)
         if rr is None:
             return None
-        R, t, _, inliers, res = _refine_loop(rig, m, *rr.model, None, tight, opts, optimize_gravity=False)
+        R, t, _, inliers, res, _ = _refine_loop(rig, m, *rr.model, None, tight, opts, optimize_gravity=False)
         return R, t, None, inliers, {"ransac_iterations": rr.iterations, **_pose_info(res, False),
                                      "gravity_unobservable": _RIGID_REASON}
     axis = _common_bar_axis(rig, m)
@@ -370,9 +378,8 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
             mirrored, score, _ = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
             if score < best_score:
                 best, best_score, info["mirrored_start"] = mirrored, score, True
-    R, t, g, inliers, res = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts)
+    R, t, g, inliers, res, info["msac_score_rad2"] = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts)
     info.update(_pose_info(res, True))
-    info["msac_score_rad2"] = _start_score(rig, m, res, tight)[0] if res is not None else math.nan
     return R, t, g, inliers, info
 
 
@@ -400,7 +407,7 @@ def _four_point_bending(rig, m, opts, rng):
     prior = None
     if flexible and math.isfinite(opts.gravity_prior_sigma):
         prior = GravityPrior(g1m, g2m, float(opts.gravity_prior_sigma))
-    R, t, g, inliers, res = _refine_loop(rig, m, R, t, g1m, tight, opts, prior=prior, optimize_gravity=flexible,
+    R, t, g, inliers, res, _ = _refine_loop(rig, m, R, t, g1m, tight, opts, prior=prior, optimize_gravity=flexible,
                                          inliers=rr.inliers)
     info.update(_pose_info(res, flexible))
     if not flexible:
