@@ -125,3 +125,19 @@ def test_gravity_hint_keeps_its_basin_and_is_checked():
     for bad in ([0.0, 0.0, 0.0], [np.nan, 0.0, -9.8], [1.0, 2.0]):
         with pytest.raises(InputError, match="gravity_hint"):
             estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=bad)
+
+
+def test_gravity_hint_on_the_rigid_fit_route(monkeypatch):
+    """With fewer than two cameras with their own rotation the starts come from a rigid 6-point fit; a hint is
+    then the only gravity start there."""
+    import nrmpc_ros.core.estimators as estimators
+
+    def no_camera_rotations(m, num_cameras, threshold_rad, seed=0):
+        return np.zeros(0, int), np.zeros((0, 3, 3)), np.zeros(0), np.zeros(len(m), bool)
+
+    monkeypatch.setattr(estimators, "camera_rotations", no_camera_rotations)
+    pb = make_problem(Scenario(), seed=3)
+    plain = estimate(pb.rig, pb.matches, method="6pt-bending")
+    hinted = estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=exp_so3([0.02, 0.0, 0.0]) @ pb.gravity)
+    assert plain.info["gravity_starts"] > 1 and hinted.info["gravity_starts"] == 1 and hinted.info["gravity_hint"]
+    assert pose_errors(hinted.R, hinted.t, pb.R, pb.t, hinted.gravity, pb.gravity)["gravity"] < 1e-3

@@ -249,13 +249,17 @@ def score_gravity_hypotheses(rig, m: Matches, idx, R, t, hypotheses, threshold):
     return np.minimum(err * err, threshold**2).sum(axis=1)
 
 
-def _starts_from_rigid_fit(rig, m, opts, rng, loose):
-    """The paper's route: 6-point RANSAC with canonical extrinsics, then gravity hypotheses scored at that pose."""
+def _starts_from_rigid_fit(rig, m, opts, rng, loose, gravity_hint=None):
+    """The paper's route: 6-point RANSAC with canonical extrinsics, then gravity hypotheses scored at that pose
+    (or only the gravity_hint)."""
     rr = _ransac_6pt(rig.as_rigid(), m, loose, opts, rng)
     if rr is None:
         return [], {}
     R0, t0 = rr.model
     idx = _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size))
+    info = {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers}
+    if gravity_hint is not None:
+        return [(R0, t0, gravity_hint, idx)], info
     hyp = rig.gravity_magnitude * fibonacci_sphere(int(opts.gravity_hypotheses))
     costs = score_gravity_hypotheses(rig, m, idx, R0, t0, hyp, loose)
     starts = []
@@ -264,7 +268,7 @@ def _starts_from_rigid_fit(rig, m, opts, rng, loose):
             starts.append((R0, t0, hyp[k], idx))
         if len(starts) >= int(opts.gravity_refine_starts):
             break
-    return starts, {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers}
+    return starts, info
 
 
 def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, weak_geometry=False,
@@ -353,7 +357,7 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         info["gravity_hint"] = True
         axis = None  # stay in the hint's basin: no mirrored or reversed starts
     if info["cameras_with_rotation"] < 2:
-        starts, more = _starts_from_rigid_fit(rig, m, opts, rng, loose)
+        starts, more = _starts_from_rigid_fit(rig, m, opts, rng, loose, gravity_hint)
         info.update(more)
         info.pop("camera_inliers")  # of fewer than two cameras: no yardstick for the starts
     best = best_score = None
