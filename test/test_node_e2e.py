@@ -205,17 +205,23 @@ def _errors(result: dict, truth: dict, replay: dict):
     return rows
 
 
-# --------------------------------------------------------------------------- tests
-def test_node_over_dds_matches_ground_truth_and_replay(tmp_path):
-    replay = _replay(BAG, tmp_path)
-    assert len(replay) >= 5
-    truth = _read_bag(BAG)
-    result = _run(tmp_path, BAG, ["-p", "work_queue_size:=2"])
-    diag = result["diag"]
-    rows = _errors(result, truth, replay)
-    print(f"node: {len(rows)} estimates, replay: {len(replay)}; diagnostics: {diag}")
+def _node_and_replay(bag: Path, tmp: Path, label: str):
+    """Replay ``bag`` offline, play it to the node over DDS; (replay, node result, per-estimate rows) against the
+    sample bag's ground truth."""
+    replay = _replay(bag, tmp)
+    result = _run(tmp, bag, ["-p", "work_queue_size:=2"])
+    rows = _errors(result, _read_bag(BAG), replay)
+    print(f"{label}node: {len(rows)} estimates, replay: {len(replay)}; diagnostics: {result['diag']}")
     for r in rows:
         print(r)
+    return replay, result, rows
+
+
+# --------------------------------------------------------------------------- tests
+def test_node_over_dds_matches_ground_truth_and_replay(tmp_path):
+    replay, result, rows = _node_and_replay(BAG, tmp_path, "")
+    assert len(replay) >= 5
+    diag = result["diag"]
 
     dropped = int(diag.get("dropped_sets_busy", 0))
     assert int(diag["synchronized_sets"]) == 18, "every image set of the bag reaches the node over DDS"
@@ -257,14 +263,8 @@ def _cut_imu(src: Path, dst: Path, keep_s: float) -> float:
 def test_imu_cut_off_half_way_falls_back_to_6pt_bending(tmp_path):
     bag = tmp_path / "imu_cut"
     cut = _cut_imu(BAG, bag, keep_s=8.0)
-    truth = _read_bag(BAG)
-    replay = _replay(bag, tmp_path)
-    result = _run(tmp_path, bag, ["-p", "work_queue_size:=2"])
+    _, result, rows = _node_and_replay(bag, tmp_path, f"IMU cut at {cut:.3f}; ")
     diag = result["diag"]
-    rows = _errors(result, truth, replay)
-    print(f"cut at {cut:.3f}; node: {len(rows)} estimates; diagnostics: {diag}")
-    for r in rows:
-        print(r)
 
     log = result["log"]
     assert log.count("falling back to 6pt-bending") == 1, "the switch is logged once"
