@@ -97,5 +97,9 @@ def test_huber_limits_a_gross_outlier(rng):
 
 
 def test_inv3(rng):
-    A = rng.normal(size=(20, 3, 3)) + 3 * np.eye(3)
+    J = rng.normal(size=(20, 4, 3))
+    A = np.swapaxes(J, 1, 2) @ J  # symmetric, as the normal-equation blocks
     assert np.allclose(inv3(A), np.linalg.inv(A))
+    singular = np.zeros((1, 3, 3))
+    singular[0, 0, 0] = 1.0
+    assert np.all(np.isfinite(inv3(singular)))

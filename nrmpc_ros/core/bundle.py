@@ -50,8 +50,8 @@ class TwoViewProblem:
         Jacobian columns follow (dr, t[, dg]) and are used by the bar calibration."""
         self.rig = rig
         self.f1, self.f2, self.cam = f1, f2, cam
-        self.T1t = np.swapaxes(tangent_basis(f1), 1, 2)  # residual = T^T p/|p| (2D, tangent plane of f)
-        self.T2t = np.swapaxes(tangent_basis(f2), 1, 2)
+        # residual = T^T p/|p| (2D, tangent plane of f), both views stacked: (N, 2 views, 2, 3)
+        self.Tt = np.swapaxes(tangent_basis(np.stack([f1, f2], axis=1)), -1, -2)
         self.optimize_gravity = optimize_gravity
         self.prior = prior
         self.nc = 8 if optimize_gravity else 6
@@ -62,6 +62,7 @@ class TwoViewProblem:
             self.nc += self.nk
         self.gm = rig.gravity_magnitude
         self._cache = {}
+        self.D = rig.bar_derivatives[0][cam]  # d w / d g of each correspondence's camera (constant)
         if prior is not None:
             self.P1 = tangent_basis(normalize(prior.g1))
             self.P2 = tangent_basis(normalize(prior.g2))
@@ -69,13 +70,14 @@ class TwoViewProblem:
     # -- model --------------------------------------------------------------
     @staticmethod
     def _residual_jac(p, Tt, want_jacobian=True):
-        """e = T^T p/|p| and de/dp = T^T (I - n n^T)/|p| (Tt = T^T, (N, 2, 3))."""
-        r = np.maximum(np.sqrt(np.einsum("ni,ni->n", p, p)), 1e-300)
-        n = p / r[:, None]
-        e = (Tt @ n[:, :, None])[:, :, 0]
+        """e = T^T p/|p| (N, 4) and de/dp = T^T (I - n n^T)/|p| (N, 2, 2, 3) of both views' points p (N, 2, 3)
+        (Tt = T^T, (N, 2, 2, 3))."""
+        r = np.maximum(np.sqrt(np.einsum("nvi,nvi->nv", p, p)), 1e-300)
+        n = p / r[:, :, None]
+        e = (Tt @ n[:, :, :, None])[:, :, :, 0]
         if not want_jacobian:
-            return e, None
-        return e, (Tt - e[:, :, None] * n[:, None, :]) / r[:, None, None]
+            return e.reshape(-1, 4), None
+        return e.reshape(-1, 4), (Tt - e[:, :, :, None] * n[:, :, None, :]) / r[:, :, None, None]
 
     def _model(self, g):
         """Per correspondence (w, W^T, D, K) of its camera at gravity g (SPEC 3), cached for the last few g
@@ -83,19 +85,13 @@ class TwoViewProblem:
         key = np.asarray(g, dtype=float).tobytes()
         hit = self._cache.get(key)
         if hit is None:
-            w, W, D, K = deformation_jacobians(self.rig, g)
+            w, W, _, K = deformation_jacobians(self.rig, g)
             c = self.cam
-            hit = (w[c], np.swapaxes(W, 1, 2)[c], D[c], K[c])
+            hit = (w[c], np.swapaxes(W, 1, 2)[c], self.D, K[c])
             if len(self._cache) >= 8:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[key] = hit
         return hit
-
-    def _project(self, g, P_view):
-        """Points of one view (its body frame) into the bent cameras: y = P - w(g), p = W(g)^T y."""
-        w, Wt, _, _ = self._model(g)
-        y = P_view - w
-        return Wt, y, (Wt @ y[:, :, None])[:, :, 0]
 
     def evaluate(self, R, t, g, P, want_jacobian=True):
         """Residuals e (N, 4) and, if asked, Jc (N, 4, nc), Jp (N, 4, 3) (want_jacobian="points": Jp only).
@@ -105,39 +101,43 @@ class TwoViewProblem:
         gg = g if g is not None else np.array([0.0, 0.0, -self.gm])
         g2 = R.T @ gg
         z = (P - t) @ R  # R^T (P - t)
-        W1t, y1, p1 = self._project(gg, P)
-        W2t, y2, p2 = self._project(g2, z)
-        e1, Je1 = self._residual_jac(p1, self.T1t, want_jacobian)
-        e2, Je2 = self._residual_jac(p2, self.T2t, want_jacobian)
-        e = np.concatenate([e1, e2], axis=1)
+        w1, W1t, _, _ = self._model(gg)
+        w2, W2t, _, _ = self._model(g2)
+        N = len(P)
+        y1, y2 = P - w1, z - w2  # points relative to the bent camera centres, each view's body frame
+        p = np.empty((N, 2, 3))  # ... in the bent cameras: p = W^T y
+        p[:, 0] = np.einsum("nij,nj->ni", W1t, y1)
+        p[:, 1] = np.einsum("nij,nj->ni", W2t, y2)
+        e, Je = self._residual_jac(p, self.Tt, want_jacobian)
         if not want_jacobian:
             return e, None, None
-        N = len(P)
         Jp = np.empty((N, 4, 3))
-        A1 = Je1 @ W1t  # de1/dP
-        A2 = Je2 @ W2t  # de2/dy2
+        A1 = Je[:, 0] @ W1t  # de1/dP
+        A2 = Je[:, 1] @ W2t  # de2/dy2
         Jp[:, :2] = A1
         Jp[:, 2:] = A2 @ R.T
         if want_jacobian == "points":
             return e, None, Jp
         Jc = np.zeros((N, 4, self.nc))
-        de2_dg2 = self._de_dg(A2, y2, g2)
-        Jc[:, 2:, 0:3] = cross(A2, z[:, None, :]) + cross(de2_dg2, g2)
+        Jc[:, 2:, 0:3] = A2 @ skew(z)  # rows a^T [z]_x = (a x z)^T
         Jc[:, 2:, 3:6] = -Jp[:, 2:]
+        de2_dg2 = None
+        if self.rig.is_flexible:
+            de2_dg2 = A2 @ self._dy_dg(y2, g2)
+            Jc[:, 2:, 0:3] += de2_dg2 @ skew(g2)
         if self.groups is not None:
-            self._compliance_columns(Jc, Je1, W1t, y1, gg, Je2, W2t, y2, g2)
-        if self.optimize_gravity:
+            self._compliance_columns(Jc, Je[:, 0], W1t, y1, gg, Je[:, 1], W2t, y2, g2)
+        if self.optimize_gravity and de2_dg2 is not None:
             B = self.gm * tangent_basis(normalize(gg))
-            Jc[:, :2, 6:8] = self._de_dg(A1, y1, gg) @ B
+            Jc[:, :2, 6:8] = A1 @ (self._dy_dg(y1, gg) @ B)
             Jc[:, 2:, 6:8] = de2_dg2 @ (R.T @ B)
         return e, Jc, Jp
 
-    def _de_dg(self, A, y, g):
-        """de/dg = A ([y]_x K - D) for de/dy = A (N, 2, 3) and the model derivatives at g (SPEC 3)."""
-        if not self.rig.is_flexible:
-            return np.zeros_like(A)
+    def _dy_dg(self, y, g):
+        """d(W^T y)/dg expressed before W^T: [y]_x K - D (N, 3, 3), so de/dg = A ([y]_x K - D) for de/dy = A
+        (model derivatives at g, SPEC 3)."""
         _, _, D, K = self._model(g)
-        return cross(A, y[:, None, :]) @ K - A @ D
+        return skew(y) @ K - D
 
     def _compliance_columns(self, Jc, Je1, W1t, y1, g1, Je2, W2t, y2, g2):
         """d residual / d compliance k_i: d(W^T y)/dk = W^T [y]_x J_r(-phi) phi/k, dw/dk = delta/k."""
@@ -232,17 +232,24 @@ class InverseDepthChart:
 
 
 def inv3(A: np.ndarray) -> np.ndarray:
-    """Inverse of a batch of 3x3 matrices (N, 3, 3) by the adjugate (much faster than np.linalg.inv)."""
+    """Inverse of a batch of symmetric 3x3 matrices (N, 3, 3) by the adjugate (much faster than np.linalg.inv).
+
+    Only the upper triangle is read (the normal-equation blocks J^T J are symmetric). A singular block
+    gets a huge inverse, not NaN.
+    """
     a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
-    d, e, f = A[:, 1, 0], A[:, 1, 1], A[:, 1, 2]
-    g, h, i = A[:, 2, 0], A[:, 2, 1], A[:, 2, 2]
-    co = np.stack([e * i - f * h, c * h - b * i, b * f - c * e,
-                   f * g - d * i, a * i - c * g, c * d - a * f,
-                   d * h - e * g, b * g - a * h, a * e - b * d], axis=1).reshape(-1, 3, 3)
-    det = a * co[:, 0, 0] + b * co[:, 1, 0] + c * co[:, 2, 0]
-    scale = np.abs(A).reshape(len(A), -1).max(axis=1) ** 3
-    det = np.where(np.abs(det) > 1e-14 * scale + 1e-300, det, 1e-14 * scale + 1e-300)  # singular block: huge, not NaN
-    return co / det[:, None, None]
+    d, e, f = A[:, 1, 1], A[:, 1, 2], A[:, 2, 2]
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * c00 + b * c01 + c * c02
+    floor = 1e-14 * np.max(np.abs(np.stack([a, d, f, b, c, e], axis=1)), axis=1) ** 3 + 1e-300
+    inv_det = 1.0 / np.where(np.abs(det) > floor, det, floor)
+    out = np.empty(A.shape)
+    out[:, 0, 0], out[:, 1, 1], out[:, 2, 2] = c00 * inv_det, c11 * inv_det, c22 * inv_det
+    out[:, 0, 1] = out[:, 1, 0] = c01 * inv_det
+    out[:, 0, 2] = out[:, 2, 0] = c02 * inv_det
+    out[:, 1, 2] = out[:, 2, 1] = c12 * inv_det
+    return out
 
 
 def _sum_outer(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -286,16 +293,17 @@ class Solver:
     damping_up = 10.0
     damping_down = 10.0
 
-    def refine_points(self, R, t, g, P, iterations):
+    def refine_points(self, R, t, g, P, iterations, e=None):
         """Gauss-Newton on each point alone for fixed (R, t, g): independent 3x3 systems, vectorised.
 
         Re-optimising the points after each camera step (embedded point
         iterations) keeps the LM step valid where the linear point update is
         not (low parallax). A point stuck far off (e.g. started at infinity)
         first restarts from triangulation. Returns the points and their
-        residuals in units of sigma.
+        residuals in units of sigma (``e``: those at P, when the caller has them).
         """
-        e = self.prob.evaluate(R, t, g, P, want_jacobian=False)[0] / self.sigma
+        if e is None:
+            e = self.prob.evaluate(R, t, g, P, want_jacobian=False)[0] / self.sigma
         if iterations:
             P_tri = self.prob.triangulate(R, t, g)
             e_tri = self.prob.evaluate(R, t, g, P_tri, want_jacobian=False)[0] / self.sigma
@@ -433,7 +441,7 @@ class Solver:
             if not new_cost <= cost and self.point_iterations:
                 # the linear point update failed (low parallax is very nonlinear): re-fit the points to the new
                 # camera block before judging the step (embedded point iterations)
-                Pn, e = self.refine_points(Rn, tn, gn, Pn, self.point_iterations)
+                Pn, e = self.refine_points(Rn, tn, gn, Pn, self.point_iterations, e)
                 new_cost = self._cost_from(e, Rn, gn)
             if not (np.isfinite(new_cost) and new_cost <= cost):
                 if new_cost - cost < COST_TOL:

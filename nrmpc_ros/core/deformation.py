@@ -45,13 +45,12 @@ def deformation_jacobians(rig: Rig, g):
     g = np.asarray(g, dtype=float)
     if g.shape != (3,):
         raise ValueError(f"gravity must have shape (3,), got {g.shape}")
-    phi = cr[:, None] * cross(u, g[None, :])
+    phi = cr[:, None] * (u @ skew(g))  # rows u_i^T [g]_x = (u_i x g)^T
     E, J = exp_and_left_jacobian(phi)  # J_l(phi) = J_r(-phi)
     W = E @ rig.rotations
     w = rig.positions + cd[:, None] * (g - (u @ g)[:, None] * u)
-    D = cd[:, None, None] * (np.eye(3) - u[:, :, None] * u[:, None, :])
-    K = cr[:, None, None] * (J @ skew(u))
-    return w, W, D, K
+    D, cr_ux = rig.bar_derivatives  # D_i and c_r [u_i]_x, constant
+    return w, W, D, J @ cr_ux
 
 
 def rays(rig: Rig, f, cam, g=None):

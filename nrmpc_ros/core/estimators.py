@@ -32,6 +32,10 @@ METHODS = ("6pt-nonbending", "6pt-bending", "4pt-bending")
 INLIER_CHANGE_SHARE = 0.01  # the refinement is repeated while the inlier set changes by more than this share
 SCORE_POINTS = 50  # correspondences scoring the full pose of each gravity hypothesis (parallel bars)
 START_TOL = 1e-3  # relative cost decrease that ends a start's bundle adjustment (starts are only compared)
+# A start's 6-point RANSAC may stop after this many samples once the inlier ratio says it can: it only has to
+# give the start's translation and inliers (at the loose threshold nearly all correspondences are inliers;
+# each gen_relpose_6pt call costs ~0.8 ms)
+START_MIN_SAMPLES = 2
 
 
 @dataclass
@@ -161,13 +165,14 @@ def _subset(rng, idx, k):
     return idx if len(idx) <= k else np.sort(rng.choice(idx, size=k, replace=False))
 
 
-def _ransac_6pt(rig_rays: Rig, m: Matches, threshold, opts, rng, g=None, max_iterations=None):
+def _ransac_6pt(rig_rays: Rig, m: Matches, threshold, opts, rng, g=None, max_iterations=None, min_iterations=5):
     """6-point RANSAC on rays of rig_rays; g=None canonical, else (g1, g2) bends each view."""
     g1, g2 = (None, None) if g is None else g
     o1, d1 = rays(rig_rays, m.f1, m.cam, g1)
     o2, d2 = rays(rig_rays, m.f2, m.cam, g2)
     cap = int(opts.max_iterations_6pt if max_iterations is None else max_iterations)
     ro = RansacOptions(threshold=threshold, confidence=opts.confidence, max_iterations=cap,
+                       min_iterations=min(int(min_iterations), cap),
                        patience=min(int(opts.patience_6pt), cap), local_optimization=False)
     return ransac(SixPointProblem(o1, d1, o2, d2), ro, rng, groups=m.cam)
 
@@ -297,7 +302,8 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, w
 
     def starts():  # lazily: the caller may stop once a start explains the data
         for g0, R0, _ in hypotheses:
-            rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt)
+            rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt,
+                             min_iterations=START_MIN_SAMPLES)
             info["ransac_iterations"] += 0 if rr is None else rr.iterations
             if rr is not None and rr.num_inliers >= 12:
                 yield (*rr.model, g0, _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size)))

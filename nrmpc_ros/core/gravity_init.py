@@ -21,21 +21,62 @@ from .rig import Rig
 from .so3 import angle_between, cross, fibonacci_sphere, normalize, tangent_basis
 
 MIN_POINTS_PER_CAMERA = 12
+CHEIRALITY_POINTS = 40  # inliers that choose among the four decompositions of a camera's essential matrix
+FAR = 1e9  # recoverPose drops points beyond this many baselines; rotation-dominant motion puts most of them far
 
 
-def project_to_so3(A: np.ndarray) -> np.ndarray:
-    """Nearest rotation (Frobenius) of a batch (..., 3, 3)."""
+def _svd_projection(A: np.ndarray) -> np.ndarray:
     U, _, Vt = np.linalg.svd(A)
     D = np.ones(A.shape[:-1])
     D[..., -1] = np.sign(np.linalg.det(U @ Vt))
     return (U * D[..., None, :]) @ Vt
 
 
+def _inverse_transpose_and_det(X: np.ndarray):
+    """X^-T and det X of a batch (K, 3, 3) by the adjugate (the cofactor matrix is det X * X^-T)."""
+    a, b, c = X[:, 0, 0], X[:, 0, 1], X[:, 0, 2]
+    d, e, f = X[:, 1, 0], X[:, 1, 1], X[:, 1, 2]
+    g, h, i = X[:, 2, 0], X[:, 2, 1], X[:, 2, 2]
+    cof = np.stack([e * i - f * h, f * g - d * i, d * h - e * g,
+                    c * h - b * i, a * i - c * g, b * g - a * h,
+                    b * f - c * e, c * d - a * f, a * e - b * d], axis=1).reshape(-1, 3, 3)
+    det = a * cof[:, 0, 0] + b * cof[:, 0, 1] + c * cof[:, 0, 2]
+    safe = np.where(np.abs(det) > 1e-300, det, 1.0)
+    return cof / safe[:, None, None], det
+
+
+def project_to_so3(A: np.ndarray, iterations: int = 4) -> np.ndarray:
+    """Nearest rotation (Frobenius) of a batch (..., 3, 3).
+
+    The polar factor by scaled Newton iterations X <- (g X + X^-T / g) / 2
+    (Higham, 1986), about four times cheaper than a batched SVD on the
+    near-rotations this is used for (weighted means of rotations); matrices
+    with det <= 0 or not converged go through the SVD.
+    """
+    A = np.asarray(A, dtype=float)
+    X = A.reshape(-1, 3, 3)
+    det = np.ones(len(X))
+    for k in range(iterations):
+        Xit, det = _inverse_transpose_and_det(X)
+        gamma = 1.0
+        if k < 2:  # Frobenius-norm scaling speeds up the first steps of matrices far from orthogonal
+            gamma = np.sqrt(np.sqrt(np.sum(Xit * Xit, axis=(1, 2)) / np.maximum(np.sum(X * X, axis=(1, 2)), 1e-300)))
+            gamma = gamma[:, None, None]
+        X = 0.5 * (gamma * X + Xit / gamma)
+    off = np.abs(np.swapaxes(X, 1, 2) @ X - np.eye(3)).reshape(len(X), -1).max(axis=1)
+    bad = ~((off < 1e-8) & (det > 0))
+    if bad.any():
+        X[bad] = _svd_projection(A.reshape(-1, 3, 3)[bad])
+    return X.reshape(A.shape)
+
+
 def camera_rotations(m: Matches, num_cameras: int, threshold_rad: float, seed: int = 0):
     """Relative rotation of each camera (maps its view-2 frame into its view-1 frame) and inlier masks.
 
     Returns (cams, Rc, counts, inlier_mask) for the cameras where a 5-point
-    essential matrix (OpenCV RANSAC) was found with enough inliers.
+    essential matrix (OpenCV RANSAC) was found with enough inliers. (USAC is
+    several times cheaper, but on a rendered fisheye-rig bag its essential
+    matrices put some narrow cameras 8-12 deg off where RANSAC's did not.)
     """
     cams, rots, counts = [], [], []
     inlier = np.zeros(len(m), dtype=bool)
@@ -49,9 +90,14 @@ def camera_rotations(m: Matches, num_cameras: int, threshold_rad: float, seed: i
         E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=threshold_rad)
         if E is None or E.shape != (3, 3) or mask is None:
             continue
-        n_in, Rcv, _, mask2 = cv2.recoverPose(E, p1, p2, np.eye(3), mask=mask.copy())
         ok = mask.ravel().astype(bool)
-        if n_in < MIN_POINTS_PER_CAMERA // 2 or ok.sum() < MIN_POINTS_PER_CAMERA:
+        if ok.sum() < MIN_POINTS_PER_CAMERA:
+            continue
+        # the decomposition with the points in front: a spread sample of the inliers decides it
+        sub = np.flatnonzero(ok)
+        sub = sub[np.linspace(0, len(sub) - 1, min(len(sub), CHEIRALITY_POINTS)).astype(int)]
+        n_in, Rcv, _, _, _ = cv2.recoverPose(E, p1[sub], p2[sub], np.eye(3), distanceThresh=FAR)  # far points count too
+        if n_in < len(sub) // 2:
             continue
         cams.append(j)
         rots.append(Rcv.T)  # OpenCV: x2 = Rcv x1 + t
@@ -60,7 +106,7 @@ def camera_rotations(m: Matches, num_cameras: int, threshold_rad: float, seed: i
     return np.array(cams, dtype=int), np.array(rots).reshape(-1, 3, 3), np.array(counts), inlier
 
 
-def _body_rotation_from_cameras(rig: Rig, cams, Rc, weights, g1, R0, iterations=4):
+def _body_rotation_from_cameras(rig: Rig, cams, Rc, weights, g1, R0, iterations=3):
     """For each gravity hypothesis g1 (K, 3): the body rotation agreeing best with all cameras, and the cost."""
     _, W1 = deformed_extrinsics(rig, g1)
     W1 = W1[:, cams]

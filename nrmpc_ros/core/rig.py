@@ -45,6 +45,17 @@ class Camera:
     image_topic: str = ""
     info_topic: str = ""
 
+    @cached_property
+    def bar_derivatives(self):
+        """Constant parts of the model's derivatives (SPEC section 3), (M, 3, 3) each: D_i = d delta_i / d g =
+        c_d (I - u_i u_i^T) and c_r [u_i]_x (see :func:`.deformation.deformation_jacobians`)."""
+        u, cd, cr = self.bar_coefficients
+        D = cd[:, None, None] * (np.eye(3) - u[:, :, None] * u[:, None, :])
+        ux = np.zeros((len(u), 3, 3))
+        ux[:, 0, 1], ux[:, 0, 2], ux[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
+        ux[:, 1, 0], ux[:, 2, 0], ux[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
+        return _frozen(D), _frozen(cr[:, None, None] * ux)
+
     @property
     def is_flexible(self) -> bool:
         return self.mass > 0.0 and math.isfinite(self.EI)
@@ -104,6 +115,17 @@ class Rig:
         u = np.where(L[:, None] > 0, v / np.maximum(L, 1e-300)[:, None], 0.0)
         k = self.compliance
         return _frozen(u), _frozen(k * L**3 / 3.0), _frozen(k * L**2 / 2.0)
+
+    @cached_property
+    def bar_derivatives(self):
+        """Constant parts of the model's derivatives (SPEC section 3), (M, 3, 3) each: D_i = d delta_i / d g =
+        c_d (I - u_i u_i^T) and c_r [u_i]_x (see :func:`.deformation.deformation_jacobians`)."""
+        u, cd, cr = self.bar_coefficients
+        D = cd[:, None, None] * (np.eye(3) - u[:, :, None] * u[:, None, :])
+        ux = np.zeros((len(u), 3, 3))
+        ux[:, 0, 1], ux[:, 0, 2], ux[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
+        ux[:, 1, 0], ux[:, 2, 0], ux[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
+        return _frozen(D), _frozen(cr[:, None, None] * ux)
 
     @property
     def is_flexible(self) -> bool:

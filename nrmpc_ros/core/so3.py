@@ -40,6 +40,9 @@ def skew(v: np.ndarray) -> np.ndarray:
 def _rodrigues_coeffs(theta: np.ndarray):
     """sin(t)/t, (1-cos t)/t^2, (t - sin t)/t^3 with series near zero."""
     small = theta < 1e-4
+    if not small.any():  # the usual case, without the series branch
+        s, c = np.sin(theta), np.cos(theta)
+        return s / theta, (1.0 - c) / (theta * theta), (theta - s) / (theta * theta * theta)
     ts = np.where(small, 1.0, theta)
     t2 = theta * theta
     a = np.where(small, 1.0 - t2 / 6.0, np.sin(ts) / ts)
@@ -69,10 +72,10 @@ def exp_so3(phi: np.ndarray) -> np.ndarray:
 def exp_and_left_jacobian(phi: np.ndarray):
     """Exp(phi) and J_l(phi) = J_r(-phi) of rotation vectors (..., 3), sharing one Rodrigues evaluation."""
     phi = np.asarray(phi, dtype=float)
-    theta = np.sqrt(np.sum(phi * phi, axis=-1))
-    a, b, c = _rodrigues_coeffs(theta)
+    theta2 = np.sum(phi * phi, axis=-1)
+    a, b, c = _rodrigues_coeffs(np.sqrt(theta2))
     K = skew(phi)
-    K2 = K @ K
+    K2 = phi[..., :, None] * phi[..., None, :] - theta2[..., None, None] * np.eye(3)  # [phi]_x^2
     eye = np.eye(3)
     return (eye + a[..., None, None] * K + b[..., None, None] * K2,
             eye + b[..., None, None] * K + c[..., None, None] * K2)
@@ -141,11 +144,12 @@ def tangent_basis(n: np.ndarray) -> np.ndarray:
     switch, which is fine because callers only use it as a local chart.
     """
     n = normalize(n)
-    if n.ndim == 1:  # fast path for one vector
-        x, y, z = (float(c) for c in n)
-        b1 = np.array([-y, x, 0.0]) if abs(z) < 0.9 else np.array([0.0, -z, y])  # helper e_z, else e_x, cross n
-        b1 /= math.sqrt(float(b1 @ b1))
-        return np.stack([b1, np.cross(n, b1)], axis=-1)
+    if n.ndim == 1:  # fast path for one vector (hot in the bundle adjustment): plain floats
+        x, y, z = n.tolist()
+        a, b, c = (-y, x, 0.0) if abs(z) < 0.9 else (0.0, -z, y)  # helper e_z, else e_x, cross n
+        s = 1.0 / math.sqrt(a * a + b * b + c * c)
+        a, b, c = a * s, b * s, c * s
+        return np.array([[a, y * c - z * b], [b, z * a - x * c], [c, x * b - y * a]])
     helper = np.where(np.abs(n[..., 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
     b1 = normalize(cross(helper, n))
     b2 = cross(n, b1)

@@ -55,7 +55,7 @@ class TrackingConfig:
     seed_from_features: bool = True  # tracks starting afresh (a jump): seed them with the view's ORB keypoints
     descriptor: str = "orb"  # orb | sift
     num_features: int = 300  # descriptor features detected per camera image
-    orb_levels: int = 2  # ORB pyramid levels (scale factor 1.2): views differ by rotation, hardly by scale
+    orb_levels: int = 1  # ORB pyramid levels (scale factor 1.2): views differ by rotation, hardly by scale
     orb_score: str = "harris"  # ORB keypoint ranking: harris | fast
     ratio: float = 0.8  # Lowe ratio test
     subpixel: bool = False  # refine ORB keypoints with cornerSubPix (~1 ms per image; no gain on the bags)
