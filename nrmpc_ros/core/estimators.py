@@ -49,7 +49,7 @@ class EstimatorOptions:
     max_iterations_4pt: int = 1000
     patience_6pt: int = 30  # stop once the best 6pt model has not improved for this many samples
     start_iterations_6pt: int = 12  # 6pt samples per gravity start in 6pt-bending (lines bent at that start)
-    start_ba_iterations: int = 15  # bundle-adjustment iterations that compare gravity starts (on subset_size points)
+    start_ba_iterations: int = 10  # bundle-adjustment iterations that compare gravity starts (on subset_size points)
     weak_geometry_starts: int = 6  # gravity starts when all observing cameras sit on parallel bars
     patience_4pt: int = 200
     gravity_hypotheses: int = 200  # directions scored cheaply in 6pt-bending before refining

@@ -18,7 +18,7 @@ from .deformation import deformed_extrinsics, rays
 from .matches import Matches
 from .residuals import two_view_angular_errors
 from .rig import Rig
-from .so3 import angle_between, cross, fibonacci_sphere, normalize, tangent_basis
+from .so3 import angle_between, cross, exp_so3, fibonacci_sphere, normalize, tangent_basis
 
 MIN_POINTS_PER_CAMERA = 12
 CHEIRALITY_POINTS = 40  # inliers that choose among the four decompositions of a camera's essential matrix
@@ -107,14 +107,21 @@ def camera_rotations(m: Matches, num_cameras: int, threshold_rad: float, seed: i
 
 
 def _body_rotation_from_cameras(rig: Rig, cams, Rc, weights, g1, R0, iterations=3):
-    """For each gravity hypothesis g1 (K, 3): the body rotation agreeing best with all cameras, and the cost."""
-    _, W1 = deformed_extrinsics(rig, g1)
-    W1 = W1[:, cams]
+    """For each gravity hypothesis g1 (K, 3): the body rotation agreeing best with all cameras, and the cost.
+
+    With W_j(g) = Exp(phi_j(g)) V_j (SPEC 3), each camera's estimate of R is
+    W_j(g1) Rc_j W_j(R^T g1)^T = Exp(phi_j(g1)) (V_j Rc_j V_j^T) Exp(phi_j(R^T g1))^T.
+    """
+    u, _, cr = rig.bar_coefficients
+    u, cr = u[cams], cr[cams][:, None]
+    V = rig.rotations[cams]
+    A = V @ Rc @ np.swapaxes(V, -1, -2)  # (J, 3, 3)
+    E1 = exp_so3(cr * cross(u, g1[:, None, :]))  # (K, J, 3, 3)
     R = np.broadcast_to(R0, (len(g1), 3, 3)).copy()
     for _ in range(iterations):
         g2 = np.einsum("kji,kj->ki", R, g1)
-        _, W2 = deformed_extrinsics(rig, g2)
-        Rj = W1 @ Rc @ np.swapaxes(W2[:, cams], -1, -2)  # (K, J, 3, 3), each an estimate of R
+        E2 = exp_so3(cr * cross(u, g2[:, None, :]))
+        Rj = E1 @ A @ np.swapaxes(E2, -1, -2)  # (K, J, 3, 3), each an estimate of R
         R = project_to_so3(np.einsum("j,kjab->kab", weights, Rj))
     cost = np.einsum("j,kj->k", weights, np.sum((Rj - R[:, None]) ** 2, axis=(-1, -2)))
     return R, cost

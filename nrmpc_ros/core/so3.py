@@ -62,11 +62,10 @@ def exp_so3(phi: np.ndarray) -> np.ndarray:
         else:
             a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / (theta * theta)
         return np.eye(3) + a * K + b * (K @ K)
-    theta = np.linalg.norm(phi, axis=-1)
-    a, b, _ = _rodrigues_coeffs(theta)
-    K = skew(phi)
-    eye = np.broadcast_to(np.eye(3), K.shape)
-    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    theta2 = np.sum(phi * phi, axis=-1)
+    a, b, _ = _rodrigues_coeffs(np.sqrt(theta2))
+    K2 = phi[..., :, None] * phi[..., None, :] - theta2[..., None, None] * np.eye(3)  # [phi]_x^2
+    return np.eye(3) + a[..., None, None] * skew(phi) + b[..., None, None] * K2
 
 
 def exp_and_left_jacobian(phi: np.ndarray):
