@@ -20,6 +20,22 @@ def test_project_to_so3(rng):
     assert rotation_angle(P.T @ R) < 1e-2
 
 
+def test_project_to_so3_matches_the_svd_projection(rng):
+    """Newton's polar iteration agrees with the SVD on means of rotations near and far apart, and on
+    matrices it cannot handle (det < 0, singular) the SVD fallback gives the nearest rotation."""
+    R = exp_so3(rng.normal(size=(50, 3)))
+    for spread in (0.01, 0.5, 2.0):
+        A = np.mean([R @ exp_so3(spread * rng.normal(size=(50, 3))) for _ in range(4)], axis=0)
+        U, _, Vt = np.linalg.svd(A)
+        D = np.ones((50, 3))
+        D[:, 2] = np.sign(np.linalg.det(U @ Vt))
+        assert np.abs(project_to_so3(A) - (U * D[:, None, :]) @ Vt).max() < 1e-7
+    bad = np.stack([np.diag([1.0, 1.0, -1.0]), np.diag([1.0, 0.0, 0.0]), -np.eye(3)])
+    P = project_to_so3(bad)
+    assert np.allclose(np.swapaxes(P, 1, 2) @ P, np.eye(3)) and np.allclose(np.linalg.det(P), 1.0)
+    assert project_to_so3(np.eye(3)).shape == (3, 3)
+
+
 def test_camera_rotations_are_the_bent_camera_rotations():
     pb = make_problem(Scenario(pixel_noise=0.0, outlier_fraction=0.1), seed=4)
     cams, Rc, counts, inl = camera_rotations(pb.matches, pb.rig.num_cameras, 1e-3)

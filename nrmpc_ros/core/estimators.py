@@ -36,6 +36,7 @@ START_TOL = 1e-3  # relative cost decrease that ends a start's bundle adjustment
 # give the start's translation and inliers (at the loose threshold nearly all correspondences are inliers;
 # each gen_relpose_6pt call costs ~0.8 ms)
 START_MIN_SAMPLES = 2
+WEAK_START_MIN_SAMPLES = 5  # ... but on parallel bars the basins are close and the starts' models decide them
 
 
 @dataclass
@@ -303,7 +304,7 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, w
     def starts():  # lazily: the caller may stop once a start explains the data
         for g0, R0, _ in hypotheses:
             rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt,
-                             min_iterations=START_MIN_SAMPLES)
+                             min_iterations=WEAK_START_MIN_SAMPLES if weak_geometry else START_MIN_SAMPLES)
             info["ransac_iterations"] += 0 if rr is None else rr.iterations
             if rr is not None and rr.num_inliers >= 12:
                 yield (*rr.model, g0, _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size)))
