@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from ..errors import InputError
-from .so3 import matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from .so3 import matrix_to_quat_xyzw, quat_xyzw_to_matrix, skew
 
 CAMERA_MODELS = ("pinhole", "equidistant")
 _DISTORTION_LENGTHS = {"pinhole": (0, 4, 5), "equidistant": (0, 4)}
@@ -44,17 +44,6 @@ class Camera:
     EI: float = math.inf  # flexural rigidity (N m^2)
     image_topic: str = ""
     info_topic: str = ""
-
-    @cached_property
-    def bar_derivatives(self):
-        """Constant parts of the model's derivatives (SPEC section 3), (M, 3, 3) each: D_i = d delta_i / d g =
-        c_d (I - u_i u_i^T) and c_r [u_i]_x (see :func:`.deformation.deformation_jacobians`)."""
-        u, cd, cr = self.bar_coefficients
-        D = cd[:, None, None] * (np.eye(3) - u[:, :, None] * u[:, None, :])
-        ux = np.zeros((len(u), 3, 3))
-        ux[:, 0, 1], ux[:, 0, 2], ux[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
-        ux[:, 1, 0], ux[:, 2, 0], ux[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
-        return _frozen(D), _frozen(cr[:, None, None] * ux)
 
     @property
     def is_flexible(self) -> bool:
@@ -122,10 +111,7 @@ class Rig:
         c_d (I - u_i u_i^T) and c_r [u_i]_x (see :func:`.deformation.deformation_jacobians`)."""
         u, cd, cr = self.bar_coefficients
         D = cd[:, None, None] * (np.eye(3) - u[:, :, None] * u[:, None, :])
-        ux = np.zeros((len(u), 3, 3))
-        ux[:, 0, 1], ux[:, 0, 2], ux[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
-        ux[:, 1, 0], ux[:, 2, 0], ux[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
-        return _frozen(D), _frozen(cr[:, None, None] * ux)
+        return _frozen(D), _frozen(cr[:, None, None] * skew(u))
 
     @property
     def is_flexible(self) -> bool:
