@@ -403,11 +403,14 @@ class Solver:
         return (Hpp_inv @ (bp - np.swapaxes(Hcp, 1, 2) @ dc)[:, :, None])[:, :, 0]
 
     def solve_damped(self, Hcc, bc, Hcp, Hpp, bp, lam):
+        """Camera and point steps of the damped system; ``self.camera_decrease`` is the cost decrease the
+        camera step alone predicts (points re-fitted: dc^T S dc / 2, chi^2/2 units)."""
         S, rhs, Hpp_inv = self.reduced_system(Hcc, bc, Hcp, Hpp, bp, lam)
         try:
             dc = np.linalg.solve(S, rhs)
         except np.linalg.LinAlgError:
             dc = np.linalg.lstsq(S, rhs, rcond=None)[0]
+        self.camera_decrease = 0.5 * float(dc @ S @ dc)
         return dc, self.back_substitute(Hcp, Hpp_inv, bp, dc)
 
     def reduced_information(self, R=None, t=None, g=None, P=None):
@@ -426,8 +429,9 @@ class Solver:
         """LM iterations; optionally re-estimate sigma (robustly) after that many accepted steps, and again
         whenever it has changed by more than half since (the Huber zone follows the shrinking residuals).
 
-        Stops when a step changes the cost by less than ``COST_TOL`` (or tol relative), i.e. moves the
-        parameters by a negligible fraction of their standard deviation. The normal equations at the
+        Stops when a step changes the cost by less than ``COST_TOL`` (or tol relative), or when the camera
+        block's part of the step would (``camera_decrease``), i.e. moves the parameters of interest by a
+        negligible fraction of their standard deviation. The normal equations at the
         returned point are kept in ``self.system``.
         """
         lam = self.initial_damping
@@ -450,7 +454,10 @@ class Solver:
                 if lam > 1e8:
                     break
                 continue
-            converged = cost - new_cost < max(tol * cost, COST_TOL) or np.linalg.norm(dc) < tol
+            # converged when the cost barely changes, or when what still changes is only the points (far ones
+            # creep along their rays) while the cameras move by a negligible fraction of their uncertainty
+            converged = (cost - new_cost < max(tol * cost, COST_TOL) or np.linalg.norm(dc) < tol
+                         or self.camera_decrease < COST_TOL)
             R, t, g, P = Rn, tn, gn, Pn
             accepted += 1
             lam = max(lam / self.damping_down, 1e-9)
