@@ -76,7 +76,7 @@ def camera_rotations(m: Matches, num_cameras: int, threshold_rad: float, seed: i
     Returns (cams, Rc, counts, inlier_mask) for the cameras where a 5-point
     essential matrix (OpenCV RANSAC) was found with enough inliers. (USAC is
     several times cheaper, but on a rendered fisheye-rig bag its essential
-    matrices put some narrow cameras 8-12 deg off where RANSAC's did not.)
+    matrices put some narrow cameras 8-15 deg off where RANSAC's did not.)
     """
     cams, rots, counts = [], [], []
     inlier = np.zeros(len(m), dtype=bool)
