@@ -13,6 +13,15 @@ from .rig import Rig
 from .so3 import cross, exp_and_left_jacobian, exp_so3, normalize, skew, tangent_basis
 
 
+def bend_rotation_vectors(rig: Rig, g, cams=None) -> np.ndarray:
+    """phi_i(g) = c_r,i (u_i x g) (SPEC section 3) of all cameras (or of ``cams``): (M, 3), or (K, M, 3)
+    for a batch of gravity vectors (K, 3)."""
+    cr_ux = rig.bar_derivatives[1]
+    if cams is not None:
+        cr_ux = cr_ux[cams]
+    return np.einsum("mab,...b->...ma", cr_ux, np.asarray(g, dtype=float))
+
+
 def deformed_extrinsics(rig: Rig, g):
     """Bent extrinsics (w_i(g), W_i(g)) of all cameras (SPEC section 3).
 
@@ -23,13 +32,12 @@ def deformed_extrinsics(rig: Rig, g):
     g = np.asarray(g, dtype=float)
     if g.shape[-1:] != (3,):
         raise ValueError(f"gravity must have shape (3,) or (K, 3), got {g.shape}")
-    u, cd, cr = rig.bar_coefficients
+    u, cd, _ = rig.bar_coefficients
     gb = g[..., None, :]  # (..., 1, 3)
     ug = np.sum(u * gb, axis=-1, keepdims=True)  # (..., M, 1)
     delta = cd[:, None] * (gb - ug * u)
-    phi = cr[:, None] * cross(u, gb)
     w = rig.positions + delta
-    W = exp_so3(phi) @ rig.rotations
+    W = exp_so3(bend_rotation_vectors(rig, g)) @ rig.rotations
     return w, W
 
 
@@ -41,12 +49,11 @@ def deformation_jacobians(rig: Rig, g):
         d (W_i^T y) / d g    = W_i^T [y]_x K_i        for any fixed y.
     (W^T y = V^T Exp(-phi) y; differentiate Exp with its right Jacobian.)
     """
-    u, cd, cr = rig.bar_coefficients
+    u, cd, _ = rig.bar_coefficients
     g = np.asarray(g, dtype=float)
     if g.shape != (3,):
         raise ValueError(f"gravity must have shape (3,), got {g.shape}")
-    phi = cr[:, None] * (u @ skew(g))  # rows u_i^T [g]_x = (u_i x g)^T
-    E, J = exp_and_left_jacobian(phi)  # J_l(phi) = J_r(-phi)
+    E, J = exp_and_left_jacobian(bend_rotation_vectors(rig, g))  # J_l(phi) = J_r(-phi)
     W = E @ rig.rotations
     w = rig.positions + cd[:, None] * (g - (u @ g)[:, None] * u)
     D, cr_ux = rig.bar_derivatives  # D_i and c_r [u_i]_x, constant

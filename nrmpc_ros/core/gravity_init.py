@@ -14,7 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .deformation import deformed_extrinsics, rays
+from .deformation import bend_rotation_vectors, deformed_extrinsics, rays
 from .matches import Matches
 from .residuals import two_view_angular_errors
 from .rig import Rig
@@ -112,15 +112,13 @@ def _body_rotation_from_cameras(rig: Rig, cams, Rc, weights, g1, R0, iterations=
     With W_j(g) = Exp(phi_j(g)) V_j (SPEC 3), each camera's estimate of R is
     W_j(g1) Rc_j W_j(R^T g1)^T = Exp(phi_j(g1)) (V_j Rc_j V_j^T) Exp(phi_j(R^T g1))^T.
     """
-    u, _, cr = rig.bar_coefficients
-    u, cr = u[cams], cr[cams][:, None]
     V = rig.rotations[cams]
     A = V @ Rc @ np.swapaxes(V, -1, -2)  # (J, 3, 3)
-    E1 = exp_so3(cr * cross(u, g1[:, None, :]))  # (K, J, 3, 3)
+    E1 = exp_so3(bend_rotation_vectors(rig, g1, cams))  # (K, J, 3, 3)
     R = np.broadcast_to(R0, (len(g1), 3, 3)).copy()
     for _ in range(iterations):
         g2 = np.einsum("kji,kj->ki", R, g1)
-        E2 = exp_so3(cr * cross(u, g2[:, None, :]))
+        E2 = exp_so3(bend_rotation_vectors(rig, g2, cams))
         Rj = E1 @ A @ np.swapaxes(E2, -1, -2)  # (K, J, 3, 3), each an estimate of R
         R = project_to_so3(np.einsum("j,kjab->kab", weights, Rj))
     cost = np.einsum("j,kj->k", weights, np.sum((Rj - R[:, None]) ** 2, axis=(-1, -2)))

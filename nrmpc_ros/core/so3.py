@@ -51,6 +51,14 @@ def _rodrigues_coeffs(theta: np.ndarray):
     return a, b, c
 
 
+def _rodrigues_terms(phi: np.ndarray):
+    """Coefficients (each (..., 1, 1)), [phi]_x and [phi]_x^2 = phi phi^T - |phi|^2 I of rotation vectors (..., 3)."""
+    theta2 = np.sum(phi * phi, axis=-1)
+    coeffs = tuple(x[..., None, None] for x in _rodrigues_coeffs(np.sqrt(theta2)))
+    K2 = phi[..., :, None] * phi[..., None, :] - theta2[..., None, None] * np.eye(3)
+    return coeffs, skew(phi), K2
+
+
 def exp_so3(phi: np.ndarray) -> np.ndarray:
     """SO(3) exponential (Rodrigues) of rotation vectors (..., 3) -> (..., 3, 3)."""
     phi = np.asarray(phi, dtype=float)
@@ -62,32 +70,21 @@ def exp_so3(phi: np.ndarray) -> np.ndarray:
         else:
             a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / (theta * theta)
         return np.eye(3) + a * K + b * (K @ K)
-    theta2 = np.sum(phi * phi, axis=-1)
-    a, b, _ = _rodrigues_coeffs(np.sqrt(theta2))
-    K2 = phi[..., :, None] * phi[..., None, :] - theta2[..., None, None] * np.eye(3)  # [phi]_x^2
-    return np.eye(3) + a[..., None, None] * skew(phi) + b[..., None, None] * K2
+    (a, b, _), K, K2 = _rodrigues_terms(phi)
+    return np.eye(3) + a * K + b * K2
 
 
 def exp_and_left_jacobian(phi: np.ndarray):
     """Exp(phi) and J_l(phi) = J_r(-phi) of rotation vectors (..., 3), sharing one Rodrigues evaluation."""
-    phi = np.asarray(phi, dtype=float)
-    theta2 = np.sum(phi * phi, axis=-1)
-    a, b, c = _rodrigues_coeffs(np.sqrt(theta2))
-    K = skew(phi)
-    K2 = phi[..., :, None] * phi[..., None, :] - theta2[..., None, None] * np.eye(3)  # [phi]_x^2
+    (a, b, c), K, K2 = _rodrigues_terms(np.asarray(phi, dtype=float))
     eye = np.eye(3)
-    return (eye + a[..., None, None] * K + b[..., None, None] * K2,
-            eye + b[..., None, None] * K + c[..., None, None] * K2)
+    return eye + a * K + b * K2, eye + b * K + c * K2
 
 
 def right_jacobian(phi: np.ndarray) -> np.ndarray:
     """Right Jacobian J_r of SO(3): Exp(phi + d) ~ Exp(phi) Exp(J_r(phi) d)."""
-    phi = np.asarray(phi, dtype=float)
-    theta = np.linalg.norm(phi, axis=-1)
-    _, b, c = _rodrigues_coeffs(theta)
-    K = skew(phi)
-    eye = np.broadcast_to(np.eye(3), K.shape)
-    return eye - b[..., None, None] * K + c[..., None, None] * (K @ K)
+    (_, b, c), K, K2 = _rodrigues_terms(np.asarray(phi, dtype=float))
+    return np.eye(3) - b * K + c * K2
 
 
 def log_so3(R: np.ndarray) -> np.ndarray:
