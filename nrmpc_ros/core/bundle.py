@@ -72,12 +72,14 @@ class TwoViewProblem:
     def _residual_jac(p, Tt, want_jacobian=True):
         """e = T^T p/|p| (N, 4) and de/dp = T^T (I - n n^T)/|p| (N, 2, 2, 3) of both views' points p (N, 2, 3)
         (Tt = T^T, (N, 2, 2, 3))."""
-        r = np.maximum(np.sqrt(np.einsum("nvi,nvi->nv", p, p)), 1e-300)
-        n = p / r[:, :, None]
-        e = (Tt @ n[:, :, :, None])[:, :, :, 0]
+        inv_r = 1.0 / np.maximum(np.sqrt(np.einsum("nvi,nvi->nv", p, p)), 1e-300)
+        n = p * inv_r[:, :, None]
+        e = np.einsum("nvij,nvj->nvi", Tt, n)
         if not want_jacobian:
             return e.reshape(-1, 4), None
-        return e.reshape(-1, 4), (Tt - e[:, :, :, None] * n[:, :, None, :]) / r[:, :, None, None]
+        Je = Tt - e[:, :, :, None] * n[:, :, None, :]
+        Je *= inv_r[:, :, None, None]
+        return e.reshape(-1, 4), Je
 
     def _model(self, g):
         """Per correspondence (w, W^T, D, K) of its camera at gravity g (SPEC 3), cached for the last few g
@@ -115,22 +117,23 @@ class TwoViewProblem:
         A1 = Je[:, 0] @ W1t  # de1/dP
         A2 = Je[:, 1] @ W2t  # de2/dy2
         Jp[:, :2] = A1
-        Jp[:, 2:] = A2 @ R.T
+        Jp[:, 2:] = (A2.reshape(-1, 3) @ R.T).reshape(N, 2, 3)  # constant right factors: one 2-D product
         if want_jacobian == "points":
             return e, None, Jp
         Jc = np.zeros((N, 4, self.nc))
-        Jc[:, 2:, 0:3] = A2 @ skew(z)  # rows a^T [z]_x = (a x z)^T
+        dr2 = skew(z)  # rows a^T [z]_x = (a x z)^T
         Jc[:, 2:, 3:6] = -Jp[:, 2:]
-        de2_dg2 = None
+        dy2_dg2 = None
         if self.rig.is_flexible:
-            de2_dg2 = A2 @ self._dy_dg(y2, g2)
-            Jc[:, 2:, 0:3] += de2_dg2 @ skew(g2)
+            dy2_dg2 = self._dy_dg(y2, g2)
+            dr2 += (dy2_dg2.reshape(-1, 3) @ skew(g2)).reshape(N, 3, 3)
+        Jc[:, 2:, 0:3] = A2 @ dr2
         if self.groups is not None:
             self._compliance_columns(Jc, Je[:, 0], W1t, y1, gg, Je[:, 1], W2t, y2, g2)
-        if self.optimize_gravity and de2_dg2 is not None:
+        if self.optimize_gravity and dy2_dg2 is not None:
             B = self.gm * tangent_basis(normalize(gg))
-            Jc[:, :2, 6:8] = A1 @ (self._dy_dg(y1, gg) @ B)
-            Jc[:, 2:, 6:8] = de2_dg2 @ (R.T @ B)
+            Jc[:, :2, 6:8] = A1 @ (self._dy_dg(y1, gg).reshape(-1, 3) @ B).reshape(N, 3, 2)
+            Jc[:, 2:, 6:8] = A2 @ (dy2_dg2.reshape(-1, 3) @ (R.T @ B)).reshape(N, 3, 2)
         return e, Jc, Jp
 
     def _dy_dg(self, y, g):
@@ -231,18 +234,21 @@ class InverseDepthChart:
         return np.where(self.front[:, None], P_chart, self.P + dq)
 
 
-def inv3(A: np.ndarray) -> np.ndarray:
-    """Inverse of a batch of symmetric 3x3 matrices (N, 3, 3) by the adjugate (much faster than np.linalg.inv).
+def inv3(A: np.ndarray, diag: np.ndarray | None = None) -> np.ndarray:
+    """Inverse of a batch of symmetric positive semi-definite 3x3 matrices (N, 3, 3), with ``diag`` (N, 3)
+    added to their diagonals first, by the adjugate (much faster than np.linalg.inv).
 
     Only the upper triangle is read (the normal-equation blocks J^T J are symmetric). A singular block
     gets a huge inverse, not NaN.
     """
-    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
-    d, e, f = A[:, 1, 1], A[:, 1, 2], A[:, 2, 2]
+    a, d, f = A[:, 0, 0], A[:, 1, 1], A[:, 2, 2]
+    if diag is not None:
+        a, d, f = a + diag[:, 0], d + diag[:, 1], f + diag[:, 2]
+    b, c, e = A[:, 0, 1], A[:, 0, 2], A[:, 1, 2]
     c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
     c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
     det = a * c00 + b * c01 + c * c02
-    floor = 1e-14 * np.max(np.abs(np.stack([a, d, f, b, c, e], axis=1)), axis=1) ** 3 + 1e-300
+    floor = 1e-14 * np.maximum(np.maximum(a, d), f) ** 3 + 1e-300  # semi-definite: no entry exceeds these
     inv_det = 1.0 / np.where(np.abs(det) > floor, det, floor)
     out = np.empty(A.shape)
     out[:, 0, 0], out[:, 1, 1], out[:, 2, 2] = c00 * inv_det, c11 * inv_det, c22 * inv_det
@@ -255,6 +261,12 @@ def inv3(A: np.ndarray) -> np.ndarray:
 def _sum_outer(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """sum_n A_n B_n^T for batches (N, k, 3) -> (k, k)."""
     return np.swapaxes(A, 0, 1).reshape(A.shape[1], -1) @ np.swapaxes(B, 0, 1).reshape(B.shape[1], -1).T
+
+
+def _view_norms(e: np.ndarray) -> np.ndarray:
+    """Norms (N, 2) of each view's 2-D residual in e (N, 4)."""
+    e = e.reshape(-1, 2, 2)
+    return np.sqrt(np.einsum("nvi,nvi->nv", e, e))
 
 
 def _huber(r_norm, delta):
@@ -310,18 +322,16 @@ class Solver:
             use_tri = self._point_costs(e_tri) < self._point_costs(e)
             P = np.where(use_tri[:, None], P_tri, P)
             e = np.where(use_tri[:, None], e_tri, e)
+        tiny = np.full((len(P), 3), 1e-12)
         for _ in range(iterations):
             _, _, Jp = self.prob.evaluate(R, t, g, P, want_jacobian="points")
             chart = self.prob.point_chart(g, P)
-            Jp = (Jp @ chart.M) / self.sigma
-            r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
-            c0, wts = _huber(r, self.delta)
+            c0, wts = _huber(_view_norms(e), self.delta)
             sw = np.sqrt(np.repeat(wts, 2, axis=1))
-            Jw = Jp * sw[:, :, None]
-            JT = np.swapaxes(Jw, 1, 2)
-            H = JT @ Jw + 1e-12 * np.eye(3)
-            b = -(JT @ (e * sw)[:, :, None])[:, :, 0]
-            Pn = chart.retract((inv3(H) @ b[:, :, None])[:, :, 0])
+            Jw = (Jp @ chart.M) * (sw / self.sigma)[:, :, None]
+            H = np.swapaxes(Jw, 1, 2) @ Jw
+            b = -np.einsum("nki,nk->ni", Jw, e * sw)
+            Pn = chart.retract(np.einsum("nij,nj->ni", inv3(H, tiny), b))
             en = self.prob.evaluate(R, t, g, Pn, want_jacobian=False)[0] / self.sigma
             better = self._point_costs(en) < c0.sum(axis=1)  # a point keeps its step only if it helps it
             P = np.where(better[:, None], Pn, P)
@@ -330,7 +340,7 @@ class Solver:
 
     def _point_costs(self, e):
         """Huber cost of each point's residuals (in units of sigma)."""
-        c, _ = _huber(np.linalg.norm(e.reshape(-1, 2, 2), axis=2), self.delta)
+        c, _ = _huber(_view_norms(e), self.delta)
         return c.sum(axis=1)
 
     def cost(self, R, t, g, P):
@@ -343,7 +353,7 @@ class Solver:
 
     def _cost_from(self, e, R, g):
         """Cost of residuals e already in units of sigma."""
-        r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
+        r = _view_norms(e)
         c, _ = _huber(r, self.delta)
         total = float(c.sum())
         if self.prob.prior is not None:
@@ -357,22 +367,19 @@ class Solver:
         e, Jc, Jp = self.prob.evaluate(R, t, g, P)
         self.chart = self.prob.point_chart(g, P)
         e = e / self.sigma
-        Jc = Jc / self.sigma
-        Jp = (Jp @ self.chart.M) / self.sigma
-        r = np.linalg.norm(e.reshape(-1, 2, 2), axis=2)
-        c, wts = _huber(r, self.delta)
+        c, wts = _huber(_view_norms(e), self.delta)
         sw = np.sqrt(np.repeat(wts, 2, axis=1))  # (N, 4)
         ew = e * sw
+        sw /= self.sigma  # the Jacobians are scaled by 1/sigma like the residuals
         Jcw = Jc * sw[:, :, None]
-        Jpw = Jp * sw[:, :, None]
+        Jpw = (Jp @ self.chart.M) * sw[:, :, None]
         Jc2 = Jcw.reshape(-1, Jcw.shape[2])
         Hcc = Jc2.T @ Jc2
-        bc = -(Jc2.T @ ew.reshape(-1))
-        JcT = np.swapaxes(Jcw, 1, 2)
+        bc = -(ew.reshape(-1) @ Jc2)
         JpT = np.swapaxes(Jpw, 1, 2)
-        Hcp = JcT @ Jpw
+        Hcp = np.swapaxes(Jcw, 1, 2) @ Jpw
         Hpp = JpT @ Jpw
-        bp = -(JpT @ ew[:, :, None])[:, :, 0]
+        bp = -np.einsum("nki,nk->ni", Jpw, ew)
         cost = float(c.sum())
         if self.prob.prior is not None:
             rp, Jpr = self.prob.prior_terms(R, g)
@@ -387,7 +394,7 @@ class Solver:
         nc = len(bc)
         Hcc_d = Hcc + lam * np.diag(np.diag(Hcc)) + 1e-12 * np.eye(nc)
         dpp = np.diagonal(Hpp, axis1=1, axis2=2)
-        Hpp_inv = inv3(Hpp + (lam * dpp + 1e-12)[:, :, None] * np.eye(3))
+        Hpp_inv = inv3(Hpp, lam * dpp + 1e-12)
         HcpHi = Hcp @ Hpp_inv  # (N, nc, 3)
         S = Hcc_d - _sum_outer(HcpHi, Hcp)
         rhs = bc - np.swapaxes(HcpHi, 0, 1).reshape(nc, -1) @ bp.reshape(-1)
@@ -422,7 +429,7 @@ class Solver:
             Hcc, _, Hcp, Hpp, _ = self.system
         else:
             _, Hcc, _, Hcp, Hpp, _ = self.normal_equations(R, t, g, P)
-        Hpp_inv = inv3(Hpp + 1e-12 * np.eye(3))
+        Hpp_inv = inv3(Hpp, np.full((len(Hpp), 3), 1e-12))
         return Hcc - _sum_outer(Hcp @ Hpp_inv, Hcp)
 
     def run(self, R, t, g, P, max_iter, tol=1e-6, reestimate_sigma_after: int | None = None):

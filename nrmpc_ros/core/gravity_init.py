@@ -37,21 +37,23 @@ def _inverse_transpose_and_det(X: np.ndarray):
     a, b, c = X[:, 0, 0], X[:, 0, 1], X[:, 0, 2]
     d, e, f = X[:, 1, 0], X[:, 1, 1], X[:, 1, 2]
     g, h, i = X[:, 2, 0], X[:, 2, 1], X[:, 2, 2]
-    cof = np.stack([e * i - f * h, f * g - d * i, d * h - e * g,
-                    c * h - b * i, a * i - c * g, b * g - a * h,
-                    b * f - c * e, c * d - a * f, a * e - b * d], axis=1).reshape(-1, 3, 3)
+    cof = np.empty(X.shape)
+    cof[:, 0, 0], cof[:, 0, 1], cof[:, 0, 2] = e * i - f * h, f * g - d * i, d * h - e * g
+    cof[:, 1, 0], cof[:, 1, 1], cof[:, 1, 2] = c * h - b * i, a * i - c * g, b * g - a * h
+    cof[:, 2, 0], cof[:, 2, 1], cof[:, 2, 2] = b * f - c * e, c * d - a * f, a * e - b * d
     det = a * cof[:, 0, 0] + b * cof[:, 0, 1] + c * cof[:, 0, 2]
     safe = np.where(np.abs(det) > 1e-300, det, 1.0)
     return cof / safe[:, None, None], det
 
 
-def project_to_so3(A: np.ndarray, iterations: int = 4) -> np.ndarray:
+def project_to_so3(A: np.ndarray, iterations: int = 3) -> np.ndarray:
     """Nearest rotation (Frobenius) of a batch (..., 3, 3).
 
     The polar factor by scaled Newton iterations X <- (g X + X^-T / g) / 2
     (Higham, 1986), about half the cost of a batched SVD on the
-    near-rotations this is used for (weighted means of rotations); matrices
-    with det <= 0 or not converged go through the SVD.
+    near-rotations this is used for (weighted means of rotations: three
+    iterations bring them to orthogonality within 1e-15); matrices with
+    det <= 0 or not converged go through the SVD.
     """
     A = np.asarray(A, dtype=float)
     X = A.reshape(-1, 3, 3)
@@ -114,12 +116,12 @@ def _body_rotation_from_cameras(rig: Rig, cams, Rc, weights, g1, R0, iterations=
     """
     V = rig.rotations[cams]
     A = V @ Rc @ np.swapaxes(V, -1, -2)  # (J, 3, 3)
-    E1 = exp_so3(bend_rotation_vectors(rig, g1, cams))  # (K, J, 3, 3)
+    E1A = exp_so3(bend_rotation_vectors(rig, g1, cams)) @ A  # (K, J, 3, 3), fixed over the iterations
     R = np.broadcast_to(R0, (len(g1), 3, 3)).copy()
     for _ in range(iterations):
         g2 = np.einsum("kji,kj->ki", R, g1)
         E2 = exp_so3(bend_rotation_vectors(rig, g2, cams))
-        Rj = E1 @ A @ np.swapaxes(E2, -1, -2)  # (K, J, 3, 3), each an estimate of R
+        Rj = E1A @ np.swapaxes(E2, -1, -2)  # (K, J, 3, 3), each an estimate of R
         R = project_to_so3(np.einsum("j,kjab->kab", weights, Rj))
     cost = np.einsum("j,kj->k", weights, np.sum((Rj - R[:, None]) ** 2, axis=(-1, -2)))
     return R, cost

@@ -60,7 +60,11 @@ def _rodrigues_terms(phi: np.ndarray):
 
 
 def exp_so3(phi: np.ndarray) -> np.ndarray:
-    """SO(3) exponential (Rodrigues) of rotation vectors (..., 3) -> (..., 3, 3)."""
+    """SO(3) exponential (Rodrigues) of rotation vectors (..., 3) -> (..., 3, 3).
+
+    Batches are built entry-wise as cos(t) I + (sin t / t) [phi]_x + ((1 - cos t) / t^2) phi phi^T, which
+    takes about half the array operations of I + a K + b K^2 (the gravity grid evaluates thousands).
+    """
     phi = np.asarray(phi, dtype=float)
     if phi.ndim == 1:  # fast path for one vector
         theta = math.sqrt(float(phi @ phi))
@@ -70,8 +74,20 @@ def exp_so3(phi: np.ndarray) -> np.ndarray:
         else:
             a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / (theta * theta)
         return np.eye(3) + a * K + b * (K @ K)
-    (a, b, _), K, K2 = _rodrigues_terms(phi)
-    return np.eye(3) + a * K + b * K2
+    theta = np.sqrt(np.einsum("...i,...i->...", phi, phi))
+    a, b, _ = _rodrigues_coeffs(theta)
+    c = np.cos(theta)
+    out = (b[..., None] * phi)[..., :, None] * phi[..., None, :]
+    ap = a[..., None] * phi
+    for i in range(3):
+        out[..., i, i] += c
+    out[..., 0, 1] -= ap[..., 2]
+    out[..., 1, 0] += ap[..., 2]
+    out[..., 0, 2] += ap[..., 1]
+    out[..., 2, 0] -= ap[..., 1]
+    out[..., 1, 2] -= ap[..., 0]
+    out[..., 2, 1] += ap[..., 0]
+    return out
 
 
 def exp_and_left_jacobian(phi: np.ndarray):
