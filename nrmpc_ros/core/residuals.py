@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .so3 import angle_between, cross
+from .so3 import cross
 
 
 def generalized_epipolar_residuals(l1, l2, R, t) -> np.ndarray:
@@ -51,17 +51,31 @@ def triangulate_midpoint(o1, d1, o2, d2, R, t):
 def two_view_angular_errors(o1, d1, o2, d2, R, t) -> np.ndarray:
     """RMS over both views of the angular reprojection error (rad) of the triangulated point.
 
-    Points that triangulate behind either camera, or from parallel rays, get
-    the error of the best point at infinity (half the angle between the rays),
-    so far points are not punished and wrong poses are.
+    The midpoint P of the common perpendicular w (from ray 1 at depth s to
+    ray 2 at depth u) is seen from either camera at atan2(|w|/2, depth) off its
+    ray, because w is orthogonal to both unit directions: closed form, no
+    point needed. Points that triangulate behind either camera, or from
+    parallel rays, get the error of the best point at infinity (half the angle
+    between the rays), so far points are not punished and wrong poses are.
     """
-    P, s, u, parallel = triangulate_midpoint(o1, d1, o2, d2, R, t)
     R = np.asarray(R, dtype=float)
-    c2 = np.einsum("...ij,...nj->...ni", R, o2) + np.asarray(t, dtype=float)[..., None, :]
+    t = np.asarray(t, dtype=float)
+    c2 = np.einsum("...ij,...nj->...ni", R, o2) + t[..., None, :]
     e2 = np.einsum("...ij,...nj->...ni", R, d2)
-    err1 = angle_between(d1, P - o1)
-    err2 = angle_between(e2, P - c2)
+    b = c2 - o1
+    k = np.sum(d1 * e2, axis=-1)
+    p = np.sum(d1 * b, axis=-1)
+    q = np.sum(e2 * b, axis=-1)
+    denom = 1.0 - k * k
+    parallel = denom < 1e-12
+    denom = np.where(parallel, 1.0, denom)
+    s = (p - k * q) / denom
+    u = (k * p - q) / denom
+    w = b + u[..., None] * e2 - s[..., None] * d1  # common perpendicular, orthogonal to d1 and e2
+    h = 0.5 * np.sqrt(np.sum(w * w, axis=-1))
+    err1 = np.arctan2(h, s)
+    err2 = np.arctan2(h, u)
     rms = np.sqrt(0.5 * (err1 * err1 + err2 * err2))
-    at_inf = 0.5 * angle_between(d1, e2)
+    at_inf = 0.5 * np.arctan2(np.sqrt(np.sum(cross(d1, e2) ** 2, axis=-1)), k)
     bad = parallel | (s <= 0) | (u <= 0)
     return np.where(bad, at_inf, rms)
