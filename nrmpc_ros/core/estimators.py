@@ -317,18 +317,18 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, w
 
 
 def _start_score(rig, m: Matches, res, threshold) -> tuple:
-    """MSAC score of a refined start over all correspondences at the tight threshold, and its inlier count.
+    """MSAC score of a refined start over all correspondences at the tight threshold, and its inlier mask.
 
     Starts are refined on different subsets (each start's own RANSAC
     inliers), so their bundle-adjustment costs are not comparable: a wrong
     start with fewer inliers has a smaller sum. This score is.
     """
     err = _bending_errors(rig, m, res.R, res.t, res.g)
-    return float(np.minimum(err * err, threshold**2).sum()), int(np.count_nonzero(err < threshold))
+    return float(np.minimum(err * err, threshold**2).sum()), err < threshold
 
 
 def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts):
-    """Short bundle adjustment of one start on correspondences idx at a fixed sigma; (result, score, inliers)."""
+    """Short bundle adjustment of one start on correspondences idx at a fixed sigma; (result, score, inlier mask)."""
     res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R, t, g, max_iter=int(opts.start_ba_iterations),
                           huber_k=opts.huber_k, sigma_rad=tight / 2.0, tol=START_TOL)
     return (res, *_start_score(rig, m, res, tight))
@@ -374,8 +374,8 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         res, score, explained = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
         info["gravity_starts"] += 1
         if best is None or score < best_score:
-            best, best_score, best_idx = res, score, idx
-        if axis is None and explained >= info.get("camera_inliers", len(m) + 1):
+            best, best_score, best_idx, best_inliers = res, score, idx, explained
+        if axis is None and np.count_nonzero(explained) >= info.get("camera_inliers", len(m) + 1):
             break  # explains every correspondence the cameras' own epipolar geometry accepts: the right basin
     if best is None:
         return None
@@ -387,10 +387,11 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         ga = (axis @ best.g) * axis  # axial part; flipping it, or the rest (bars bent the other way):
         info["mirrored_start"] = False
         for g_m in (best.g - 2.0 * ga, 2.0 * ga - best.g):
-            mirrored, score, _ = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
+            mirrored, score, explained = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
             if score < best_score:
-                best, best_score, info["mirrored_start"] = mirrored, score, True
-    R, t, g, inliers, res, info["msac_score_rad2"] = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts)
+                best, best_score, best_inliers, info["mirrored_start"] = mirrored, score, explained, True
+    R, t, g, inliers, res, info["msac_score_rad2"] = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts,
+                                                                   inliers=best_inliers)
     info.update(_pose_info(res, True))
     return R, t, g, inliers, info
 
