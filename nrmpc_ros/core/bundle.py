@@ -234,16 +234,15 @@ class InverseDepthChart:
         return np.where(self.front[:, None], P_chart, self.P + dq)
 
 
-def inv3(A: np.ndarray, diag: np.ndarray | None = None) -> np.ndarray:
+def inv3(A: np.ndarray, diag: np.ndarray | float = 0.0) -> np.ndarray:
     """Inverse of a batch of symmetric positive semi-definite 3x3 matrices (N, 3, 3), with ``diag`` (N, 3)
-    added to their diagonals first, by the adjugate (much faster than np.linalg.inv).
+    or a scalar added to their diagonals first, by the adjugate (much faster than np.linalg.inv).
 
     Only the upper triangle is read (the normal-equation blocks J^T J are symmetric). A singular block
     gets a huge inverse, not NaN.
     """
-    a, d, f = A[:, 0, 0], A[:, 1, 1], A[:, 2, 2]
-    if diag is not None:
-        a, d, f = a + diag[:, 0], d + diag[:, 1], f + diag[:, 2]
+    diag = np.broadcast_to(diag, (len(A), 3))
+    a, d, f = A[:, 0, 0] + diag[:, 0], A[:, 1, 1] + diag[:, 1], A[:, 2, 2] + diag[:, 2]
     b, c, e = A[:, 0, 1], A[:, 0, 2], A[:, 1, 2]
     c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
     c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
@@ -322,7 +321,6 @@ class Solver:
             use_tri = self._point_costs(e_tri) < self._point_costs(e)
             P = np.where(use_tri[:, None], P_tri, P)
             e = np.where(use_tri[:, None], e_tri, e)
-        tiny = np.full((len(P), 3), 1e-12)
         for _ in range(iterations):
             _, _, Jp = self.prob.evaluate(R, t, g, P, want_jacobian="points")
             chart = self.prob.point_chart(g, P)
@@ -331,7 +329,7 @@ class Solver:
             Jw = (Jp @ chart.M) * (sw / self.sigma)[:, :, None]
             H = np.swapaxes(Jw, 1, 2) @ Jw
             b = -np.einsum("nki,nk->ni", Jw, e * sw)
-            Pn = chart.retract(np.einsum("nij,nj->ni", inv3(H, tiny), b))
+            Pn = chart.retract(np.einsum("nij,nj->ni", inv3(H, 1e-12), b))
             en = self.prob.evaluate(R, t, g, Pn, want_jacobian=False)[0] / self.sigma
             better = self._point_costs(en) < c0.sum(axis=1)  # a point keeps its step only if it helps it
             P = np.where(better[:, None], Pn, P)
@@ -429,7 +427,7 @@ class Solver:
             Hcc, _, Hcp, Hpp, _ = self.system
         else:
             _, Hcc, _, Hcp, Hpp, _ = self.normal_equations(R, t, g, P)
-        Hpp_inv = inv3(Hpp, np.full((len(Hpp), 3), 1e-12))
+        Hpp_inv = inv3(Hpp, 1e-12)
         return Hcc - _sum_outer(Hcp @ Hpp_inv, Hcp)
 
     def run(self, R, t, g, P, max_iter, tol=1e-6, reestimate_sigma_after: int | None = None):

@@ -371,11 +371,11 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
     best = best_score = None
     info["gravity_starts"] = 0
     for R0, t0, g0, idx in starts:
-        res, score, explained = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
+        res, score, inliers = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
         info["gravity_starts"] += 1
         if best is None or score < best_score:
-            best, best_score, best_idx, best_inliers = res, score, idx, explained
-        if axis is None and np.count_nonzero(explained) >= info.get("camera_inliers", len(m) + 1):
+            best, best_score, best_idx, best_inliers = res, score, idx, inliers
+        if axis is None and np.count_nonzero(inliers) >= info.get("camera_inliers", len(m) + 1):
             break  # explains every correspondence the cameras' own epipolar geometry accepts: the right basin
     if best is None:
         return None
@@ -387,9 +387,9 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         ga = (axis @ best.g) * axis  # axial part; flipping it, or the rest (bars bent the other way):
         info["mirrored_start"] = False
         for g_m in (best.g - 2.0 * ga, 2.0 * ga - best.g):
-            mirrored, score, explained = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
+            mirrored, score, inliers = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
             if score < best_score:
-                best, best_score, best_inliers, info["mirrored_start"] = mirrored, score, explained, True
+                best, best_score, best_inliers, info["mirrored_start"] = mirrored, score, inliers, True
     R, t, g, inliers, res, info["msac_score_rad2"] = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts,
                                                                    inliers=best_inliers)
     info.update(_pose_info(res, True))
