@@ -1,219 +1,255 @@
-"""Robust two-view bundle adjustment over (R, t, g, points) with the bending model.
+"""Robust bundle adjustment over a sequence of static views with the bending model.
 
-Implements the refinement of SPEC section 5 (paper eq. 15): Huber loss on
-angular (tangent-plane) residuals of both views, gravity on the sphere
-(2 d.o.f., |g| fixed), rotation as a right perturbation R Exp(dr), points in
-view 1's body frame. The points are eliminated per correspondence by a Schur
-complement of 3x3 blocks, so one Levenberg-Marquardt iteration is O(N).
-Optionally, measured gravity in both views enters as a prior (4pt-bending).
+The refinement of docs/CONVENTIONS.md ("Refinement" and "Sequences"): over K
+views of one rig, the unknowns are the poses (R_k, t_k) of the free views
+(view k -> view 0, ``p_0 = R_k p_k + t_k``; view 0 is the identity), ONE
+gravity g_0 in view 0's body frame (2 d.o.f., |g| fixed; view k sees
+``g_k = R_k^T g_0``), the landmarks (in view 0's frame) and, for the bar
+calibration, bar compliances. Each observation (view k, camera i, landmark j,
+bearing f) has the 2-D tangent-plane residual of f against the landmark seen
+from camera i bent at g_k (deformation model, docs/CONVENTIONS.md "Bending");
+the loss is Huber on its norm in units of the angular noise sigma. Measured
+gravity per view (an accelerometer), optionally with a constant sensor tilt
+(bias), and condensed information on g_0 from views no longer in a sliding
+window enter as priors. The two-view refinement of the estimators is the K = 2
+case (:func:`refine_two_view`).
+
+Rotations are perturbed on the left, in view 0's frame (Exp(dr) R_k); gravity
+in the tangent plane of g_0; landmarks in an inverse-depth chart of their first
+observation's camera (:class:`InverseDepthChart`). The points are eliminated
+by 3x3 Schur blocks (:mod:`.lm`), so an iteration is linear in the number of
+observations; the reduced system's inverse is the covariance of the poses,
+the gravity and the compliances.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .deformation import deformation_jacobians
-from .residuals import triangulate_midpoint
+from .lm import LinearSystem, LMOptions, SchurStructure, inv3, levenberg_marquardt
+from .loss import HuberLoss
 from .rig import Rig
 from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
 
+POSE_DIM = 6  # dr (3, right perturbation of R_k), dt (3, metres)
+GRAVITY_DIM = 2  # tangent angles of g_0 (rad)
+BIAS_DIM = 3  # constant tilt of the measured gravity directions (unit-vector units ~ rad)
+
+
+# ---------------------------------------------------------------------------
+# Inputs
+# ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Observations:
+    """N observations: view (N,), camera (N,), landmark index point (N,) in 0..P-1, unit bearing f (N, 3)."""
+
+    view: np.ndarray
+    cam: np.ndarray
+    point: np.ndarray
+    f: np.ndarray
+    num_views: int
+    num_points: int
+    view_sequence: np.ndarray | None = None  # (K,) sequence of each view (None: one sequence)
+
+    def __len__(self) -> int:
+        return len(self.view)
+
+    @property
+    def num_sequences(self) -> int:
+        return 1 if self.view_sequence is None else int(self.view_sequence.max()) + 1
+
+    @property
+    def sequence_of_view(self) -> np.ndarray:
+        return np.zeros(self.num_views, np.int64) if self.view_sequence is None else self.view_sequence
+
+    @classmethod
+    def concatenate(cls, parts: list[Observations]) -> Observations:
+        """Independent sequences side by side (views and landmarks renumbered; each keeps its own gravity)."""
+        views = np.cumsum([0] + [p.num_views for p in parts])
+        points = np.cumsum([0] + [p.num_points for p in parts])
+        seqs = np.cumsum([0] + [p.num_sequences for p in parts])
+        return cls(np.concatenate([p.view + v for p, v in zip(parts, views)]),
+                   np.concatenate([p.cam for p in parts]),
+                   np.concatenate([p.point + q for p, q in zip(parts, points)]),
+                   np.concatenate([p.f for p in parts]), int(views[-1]), int(points[-1]),
+                   np.concatenate([p.sequence_of_view + s for p, s in zip(parts, seqs)]))
+
+    @classmethod
+    def from_arrays(cls, view, cam, track, f, num_views: int | None = None):
+        """Observations with landmark ids ``track`` (any integers) made dense; returns (obs, ids (P,))."""
+        view = np.asarray(view, dtype=np.int64)
+        ids, point = np.unique(np.asarray(track, dtype=np.int64), return_inverse=True)
+        K = int(view.max()) + 1 if num_views is None else int(num_views)
+        return cls(view, np.asarray(cam, dtype=np.int64), point.astype(np.int64), normalize(np.asarray(f, float)),
+                   K, len(ids)), ids
+
+    @classmethod
+    def two_view(cls, f1, f2, cam) -> Observations:
+        """Correspondence n of two views as landmark n seen in view 0 (bearing f1) and view 1 (bearing f2)."""
+        n = len(cam)
+        cam = np.asarray(cam, dtype=np.int64)
+        idx = np.arange(n, dtype=np.int64)
+        return cls(np.repeat(np.array([0, 1], dtype=np.int64), n), np.concatenate([cam, cam]),
+                   np.concatenate([idx, idx]), np.concatenate([f1, f2]).astype(float), 2, n)
+
+    def subset(self, keep) -> tuple[Observations, np.ndarray]:
+        """The observations ``keep`` (mask or indices), landmarks renumbered; returns (obs, old landmark index)."""
+        keep = np.asarray(keep)
+        idx = np.flatnonzero(keep) if keep.dtype == bool else keep
+        used, point = np.unique(self.point[idx], return_inverse=True)
+        return Observations(self.view[idx], self.cam[idx], point.astype(np.int64), self.f[idx], self.num_views,
+                            len(used), self.view_sequence), used
+
 
 @dataclass
-class GravityPrior:
-    """Measured gravity of both views (body frames) with angular std sigma_rad."""
+class GravityPriors:
+    """Measured gravity per view (body frames; NaN rows = none) with angular std per view (rad).
 
-    g1: np.ndarray
-    g2: np.ndarray
-    sigma_rad: float
-
-
-@dataclass
-class BundleResult:
-    R: np.ndarray
-    t: np.ndarray
-    g: np.ndarray | None
-    points: np.ndarray
-    cost: float
-    iterations: int
-    sigma_rad: float  # robust estimate of the angular noise (rad)
-    covariance: np.ndarray  # (nc, nc) over (dr, t[, dg]) in rad, m, rad
-
-
-class TwoViewProblem:
-    """Residuals and Jacobians of the two-view problem for fixed observations."""
-
-    def __init__(self, rig: Rig, f1, f2, cam, optimize_gravity: bool, prior: GravityPrior | None = None,
-                 compliance_groups: np.ndarray | None = None):
-        """compliance_groups (M,) maps each camera to a compliance parameter (-1: none); those
-        Jacobian columns follow (dr, t[, dg]) and are used by the bar calibration."""
-        self.rig = rig
-        self.f1, self.f2, self.cam = f1, f2, cam
-        # residual = T^T p/|p| (2D, tangent plane of f), both views stacked: (N, 2 views, 2, 3)
-        self.Tt = np.swapaxes(tangent_basis(np.stack([f1, f2], axis=1)), -1, -2)
-        self.optimize_gravity = optimize_gravity
-        self.prior = prior
-        self.nc = 8 if optimize_gravity else 6
-        self.groups = None
-        if compliance_groups is not None:
-            self.groups = np.asarray(compliance_groups, dtype=int)
-            self.nk = int(self.groups.max()) + 1
-            self.nc += self.nk
-        self.gm = rig.gravity_magnitude
-        self._cache = {}
-        self.D = rig.bar_derivatives[0][cam]  # d w / d g of each correspondence's camera (constant)
-        if prior is not None:
-            self.P1 = tangent_basis(normalize(prior.g1))
-            self.P2 = tangent_basis(normalize(prior.g2))
-
-    # -- model --------------------------------------------------------------
-    @staticmethod
-    def _residual_jac(p, Tt, want_jacobian=True):
-        """e = T^T p/|p| (N, 4) and de/dp = T^T (I - n n^T)/|p| (N, 2, 2, 3) of both views' points p (N, 2, 3)
-        (Tt = T^T, (N, 2, 2, 3))."""
-        inv_r = 1.0 / np.maximum(np.sqrt(np.einsum("nvi,nvi->nv", p, p)), 1e-300)
-        n = p * inv_r[:, :, None]
-        e = np.einsum("nvij,nvj->nvi", Tt, n)
-        if not want_jacobian:
-            return e.reshape(-1, 4), None
-        Je = Tt - e[:, :, :, None] * n[:, :, None, :]
-        Je *= inv_r[:, :, None, None]
-        return e.reshape(-1, 4), Je
-
-    def _model(self, g):
-        """Per correspondence (w, W^T, D, K) of its camera at gravity g (SPEC 3), cached for the last few g
-        (each LM step reuses them)."""
-        key = np.asarray(g, dtype=float).tobytes()
-        hit = self._cache.get(key)
-        if hit is None:
-            w, W, _, K = deformation_jacobians(self.rig, g)
-            c = self.cam
-            hit = (w[c], np.swapaxes(W, 1, 2)[c], self.D, K[c])
-            if len(self._cache) >= 8:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = hit
-        return hit
-
-    def evaluate(self, R, t, g, P, want_jacobian=True):
-        """Residuals e (N, 4) and, if asked, Jc (N, 4, nc), Jp (N, 4, 3) (want_jacobian="points": Jp only).
-
-        Uses a^T [y]_x = (a x y)^T row-wise, so the chain rule runs on 2x3 blocks.
-        """
-        gg = g if g is not None else np.array([0.0, 0.0, -self.gm])
-        g2 = R.T @ gg
-        z = (P - t) @ R  # R^T (P - t)
-        w1, W1t, _, _ = self._model(gg)
-        w2, W2t, _, _ = self._model(g2)
-        N = len(P)
-        y1, y2 = P - w1, z - w2  # points relative to the bent camera centres, each view's body frame
-        p = np.empty((N, 2, 3))  # ... in the bent cameras: p = W^T y
-        p[:, 0] = np.einsum("nij,nj->ni", W1t, y1)
-        p[:, 1] = np.einsum("nij,nj->ni", W2t, y2)
-        e, Je = self._residual_jac(p, self.Tt, want_jacobian)
-        if not want_jacobian:
-            return e, None, None
-        Jp = np.empty((N, 4, 3))
-        A1 = Je[:, 0] @ W1t  # de1/dP
-        A2 = Je[:, 1] @ W2t  # de2/dy2
-        Jp[:, :2] = A1
-        Jp[:, 2:] = (A2.reshape(-1, 3) @ R.T).reshape(N, 2, 3)  # constant right factors: one 2-D product
-        if want_jacobian == "points":
-            return e, None, Jp
-        Jc = np.zeros((N, 4, self.nc))
-        dr2 = skew(z)  # rows a^T [z]_x = (a x z)^T
-        Jc[:, 2:, 3:6] = -Jp[:, 2:]
-        dy2_dg2 = None
-        if self.rig.is_flexible:
-            dy2_dg2 = self._dy_dg(y2, g2)
-            dr2 += (dy2_dg2.reshape(-1, 3) @ skew(g2)).reshape(N, 3, 3)
-        Jc[:, 2:, 0:3] = A2 @ dr2
-        if self.groups is not None:
-            self._compliance_columns(Jc, Je[:, 0], W1t, y1, gg, Je[:, 1], W2t, y2, g2)
-        if self.optimize_gravity and dy2_dg2 is not None:
-            B = self.gm * tangent_basis(normalize(gg))
-            Jc[:, :2, 6:8] = A1 @ (self._dy_dg(y1, gg).reshape(-1, 3) @ B).reshape(N, 3, 2)
-            Jc[:, 2:, 6:8] = A2 @ (dy2_dg2.reshape(-1, 3) @ (R.T @ B)).reshape(N, 3, 2)
-        return e, Jc, Jp
-
-    def _dy_dg(self, y, g):
-        """d(W^T y)/dg expressed before W^T: [y]_x K - D (N, 3, 3), so de/dg = A ([y]_x K - D) for de/dy = A
-        (model derivatives at g, SPEC 3)."""
-        _, _, D, K = self._model(g)
-        return skew(y) @ K - D
-
-    def _compliance_columns(self, Jc, Je1, W1t, y1, g1, Je2, W2t, y2, g2):
-        """d residual / d compliance k_i: d(W^T y)/dk = W^T [y]_x J_r(-phi) phi/k, dw/dk = delta/k."""
-        u, _, _ = self.rig.bar_coefficients
-        k = self.rig.compliance
-        L = np.linalg.norm(self.rig.positions, axis=1)
-        cols = self.groups[self.cam]
-        has = cols >= 0
-        first = self.nc - self.nk
-        for Je, Wt, y, g, rows in ((Je1, W1t, y1, g1, slice(0, 2)), (Je2, W2t, y2, g2, slice(2, 4))):
-            a = (L**2 / 2.0)[:, None] * cross(u, g[None, :])  # phi / k
-            phi = k[:, None] * a
-            A = np.einsum("mij,mj->mi", right_jacobian(-phi), a)
-            b = (L**3 / 3.0)[:, None] * (g[None, :] - np.sum(u * g, axis=1, keepdims=True) * u)  # delta / k
-            dp = np.einsum("nij,nj->ni", Wt, cross(y, A[self.cam]) - b[self.cam])
-            de = np.einsum("nij,nj->ni", Je, dp)
-            idx = np.flatnonzero(has)
-            Jc[idx, rows, first + cols[idx]] = de[idx]
-
-    def triangulate(self, R, t, g):
-        """Midpoint triangulation at (R, t, g); points behind a camera or from parallel rays go far along ray 1."""
-        gg = g if g is not None else np.array([0.0, 0.0, -self.gm])
-        o1, W1t, _, _ = self._model(gg)
-        o2, W2t, _, _ = self._model(R.T @ gg)
-        d1 = (self.f1[:, None, :] @ W1t)[:, 0]  # W f = (f^T W^T)^T
-        d2 = (self.f2[:, None, :] @ W2t)[:, 0]
-        P, s, u, par = triangulate_midpoint(o1, d1, o2, d2, R, t)
-        bad = par | (s <= 0) | (u <= 0)
-        return np.where(bad[:, None], o1 + 1e3 * d1, P)
-
-    def point_chart(self, g, P) -> InverseDepthChart:
-        """Inverse-depth chart of the points in their view-1 cameras, bent at g (the linearisation point)."""
-        w, Wt, _, _ = self._model(g if g is not None else np.array([0.0, 0.0, -self.gm]))
-        return InverseDepthChart(w, Wt, P)
-
-    def prior_terms(self, R, g):
-        """Prior residuals (4,) and Jacobian (4, nc), already divided by sigma."""
-        pr = self.prior
-        gh = normalize(g)
-        B = tangent_basis(gh)
-        g2h = R.T @ gh
-        r = np.concatenate([self.P1.T @ gh, self.P2.T @ g2h]) / pr.sigma_rad
-        J = np.zeros((4, self.nc))
-        J[2:, 0:3] = self.P2.T @ skew(g2h)  # gravity columns are 6:8 (compliance, if any, after)
-        J[:2, 6:8] = self.P1.T @ B
-        J[2:, 6:8] = self.P2.T @ (R.T @ B)
-        return r, J / pr.sigma_rad
-
-    def update(self, R, t, g, dc):
-        """Apply the step of (dr, t[, dg]); compliance steps are applied by the caller, point steps by the chart."""
-        R = R @ exp_so3(dc[0:3])
-        t = t + dc[3:6]
-        if self.optimize_gravity:
-            gh = normalize(g)
-            g = self.gm * normalize(gh + tangent_basis(gh) @ dc[6:8])
-        return R, t, g
-
-
-class InverseDepthChart:
-    """Local coordinates q = (a, b, rho) of each point in its view-1 camera, frozen at the linearisation point:
-    P = w + W (a, b, 1) / rho.
-
-    Residuals of distant (low-parallax) points are nearly linear in the inverse
-    depth rho but not in P, so Levenberg-Marquardt point steps taken in this
-    chart stay valid where Euclidean steps overshoot. The Schur complement, and
-    so the covariance of (R, t, g), does not depend on the chart. Points not in
-    front of their camera keep Euclidean coordinates.
+    ``bias_sigma_rad`` adds a constant tilt b of all measured directions (body frame, unit-vector units,
+    prior std bias_sigma_rad): an accelerometer bias tilts every reading the same way in the sensor frame.
     """
 
-    def __init__(self, w, Wt, P):
-        """w (N, 3), Wt (N, 3, 3): bent centre and W^T of each point's view-1 camera; P (N, 3)."""
-        self.w, self.W, self.P = w, np.swapaxes(Wt, 1, 2), P
-        X = np.einsum("nij,nj->ni", Wt, P - w)
+    directions: np.ndarray  # (K, 3)
+    sigma_rad: np.ndarray  # (K,)
+    bias_sigma_rad: float | None = None
+
+    def __post_init__(self):
+        d = np.asarray(self.directions, dtype=float).reshape(-1, 3)
+        self.directions = np.where(np.all(np.isfinite(d), axis=1, keepdims=True), normalize(d), np.nan)
+        self.sigma_rad = np.broadcast_to(np.asarray(self.sigma_rad, dtype=float), (len(d),)).copy()
+
+    @property
+    def active(self) -> np.ndarray:
+        return np.all(np.isfinite(self.directions), axis=1) & np.isfinite(self.sigma_rad) & (self.sigma_rad > 0)
+
+
+@dataclass
+class GravityInformation:
+    """Gaussian information on view 0's gravity direction: Lambda (2, 2) in tangent_basis(direction), rad^-2.
+
+    What views that left a sliding window knew about gravity, condensed with their poses fixed
+    (:func:`condense_gravity`).
+    """
+
+    direction: np.ndarray  # (3,) unit
+    information: np.ndarray  # (2, 2)
+
+    def combined(self, other: GravityInformation | None) -> GravityInformation:
+        """Sum of two informations, in the chart of the better-informed one (moved to their weighted mean)."""
+        if other is None:
+            return self
+        a, b = (self, other) if np.trace(self.information) >= np.trace(other.information) else (other, self)
+        B = tangent_basis(a.direction)
+        T = B.T @ tangent_basis(b.direction)  # b's tangent angles in a's chart (close directions)
+        Lb = T @ b.information @ T.T
+        info = a.information + Lb
+        off = B.T @ (b.direction - a.direction)
+        shift = np.linalg.lstsq(info + 1e-12 * np.eye(2), Lb @ off, rcond=None)[0]
+        d = normalize(a.direction + B @ shift)
+        Bn = tangent_basis(d)
+        T2 = Bn.T @ B
+        return GravityInformation(d, T2 @ info @ T2.T)
+
+
+class ParameterLayout:
+    """Where each unknown sits in the camera block: poses of the free views (6 each, in view order: dr of
+    Exp(dr) R_k in view 0's frame, then t_k), then
+    gravity (2), then compliances (one per bar group), then the gravity-measurement bias (3)."""
+
+    def __init__(self, num_views: int, free_views, gravity: bool, num_compliance: int = 0, bias: bool = False,
+                 num_sequences: int = 1):
+        free = np.zeros(num_views, bool)
+        free[np.asarray(free_views, dtype=int)] = True
+        self.num_views = int(num_views)
+        self.free = free
+        self.pose_offset = np.full(num_views, -1, dtype=np.int64)
+        self.pose_offset[free] = POSE_DIM * np.arange(int(free.sum()))
+        n = POSE_DIM * int(free.sum())
+        self.num_sequences = int(num_sequences)
+        self.gravity = slice(n, n + GRAVITY_DIM * self.num_sequences) if gravity else None  # sequence-major
+        n += GRAVITY_DIM * self.num_sequences if gravity else 0
+        self.compliance = slice(n, n + num_compliance) if num_compliance else None
+        n += num_compliance
+        self.bias = slice(n, n + BIAS_DIM) if bias else None
+        n += BIAS_DIM if bias else 0
+        self.size = n
+
+    def pose(self, k: int) -> slice | None:
+        o = int(self.pose_offset[k])
+        return None if o < 0 else slice(o, o + POSE_DIM)
+
+    def gravity_of(self, sequence: int = 0) -> slice | None:
+        """The columns of one sequence's gravity."""
+        g = self.gravity
+        return None if g is None else slice(g.start + GRAVITY_DIM * sequence, g.start + GRAVITY_DIM * (sequence + 1))
+
+    def local_columns(self, view: np.ndarray, compliance_col: np.ndarray | None,
+                      sequence: np.ndarray | None = None) -> np.ndarray:
+        """Camera-block columns (N, 8 [+1]) of observations: pose of their view, their sequence's gravity,
+        their compliance; ``size`` where a column does not exist (fixed view, fixed gravity, rigid camera)."""
+        n = self.size
+        off = self.pose_offset[view]
+        pose = np.where(off[:, None] >= 0, off[:, None] + np.arange(POSE_DIM), n)
+        g = self.gravity
+        seq = np.zeros(len(view), np.int64) if sequence is None else sequence
+        grav = g.start + GRAVITY_DIM * seq[:, None] + np.arange(GRAVITY_DIM) if g else np.full((len(view), 2), n)
+        cols = [pose, grav]
+        if compliance_col is not None:
+            c = self.compliance
+            cols.append(np.where(compliance_col >= 0, c.start + compliance_col, n)[:, None])
+        return np.concatenate(cols, axis=1)
+
+
+@dataclass
+class BundleState:
+    """Poses (K, 3, 3), (K, 3) of view k in view 0; gravity of view 0 (m/s^2), (3,) -- or (S, 3), one per
+    sequence, for independent sequences -- or None; landmarks (P, 3) in view 0; compliance per group (or None);
+    bias (3,) of the measured gravity directions (or None)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    gravity: np.ndarray | None
+    points: np.ndarray
+    compliance: np.ndarray | None = None
+    bias: np.ndarray | None = None
+    view_sequence: np.ndarray | None = None  # (K,) with several sequences
+
+    def origin_gravity(self) -> np.ndarray | None:
+        """(K, 3) gravity of each view's sequence origin (body frame of that sequence's first view)."""
+        if self.gravity is None:
+            return None
+        g = np.asarray(self.gravity).reshape(-1, 3)
+        return g[np.zeros(len(self.R), np.int64) if self.view_sequence is None else self.view_sequence]
+
+    @property
+    def view_gravity(self) -> np.ndarray | None:
+        """(K, 3) gravity in each view's body frame, g_k = R_k^T g_0."""
+        return None if self.gravity is None else np.einsum("kji,kj->ki", self.R, self.origin_gravity())
+
+
+# ---------------------------------------------------------------------------
+# The problem
+# ---------------------------------------------------------------------------
+
+class InverseDepthChart:
+    """Local coordinates q = (a, b, rho) of each landmark in its anchor camera, frozen at the linearisation
+    point: P = c + Q (a, b, 1) / rho (c, Q: the anchor camera's centre and camera -> view-0 rotation).
+
+    Residuals of distant (low-parallax) landmarks are nearly linear in the inverse depth rho but not in P,
+    so steps taken in this chart stay valid where Euclidean steps overshoot. The Schur complement, and so the
+    covariance of the camera block, does not depend on the chart. Landmarks not in front of their anchor keep
+    Euclidean coordinates.
+    """
+
+    def __init__(self, c, Q, P):
+        """c (P, 3), Q (P, 3, 3): anchor camera centre and rotation (camera -> view 0); P (P, 3) landmarks."""
+        self.c, self.Q, self.P = c, Q, P
+        X = np.einsum("nji,nj->ni", Q, P - c)
         z = X[:, 2]
         self.front = z > 1e-9 * np.linalg.norm(X, axis=1) + 1e-12
         zs = np.where(self.front, z, 1.0)
@@ -223,319 +259,594 @@ class InverseDepthChart:
         L[:, 0, 2] = -X[:, 0] * zs
         L[:, 1, 2] = -X[:, 1] * zs
         L[:, 2, 2] = -zs * zs
-        self.M = np.where(self.front[:, None, None], self.W @ L, np.eye(3))  # dP/dq
+        self.M = np.where(self.front[:, None, None], Q @ L, np.eye(3))  # dP/dq
 
     def retract(self, dq):
-        """Points after a step dq in the chart; rho may shrink at most 100-fold per step (no jump through infinity)."""
+        """Landmarks after a step dq in the chart; rho may shrink at most 100-fold per step (no jump through
+        infinity)."""
         q = self.q + dq
         rho = np.maximum(q[:, 2], 1e-2 * self.q[:, 2])
         X = np.stack([q[:, 0], q[:, 1], np.ones(len(q))], axis=1) / rho[:, None]
-        P_chart = self.w + np.einsum("nij,nj->ni", self.W, X)
+        P_chart = self.c + np.einsum("nij,nj->ni", self.Q, X)
         return np.where(self.front[:, None], P_chart, self.P + dq)
 
 
-def inv3(A: np.ndarray, diag: np.ndarray | float = 0.0) -> np.ndarray:
-    """Inverse of a batch of symmetric positive semi-definite 3x3 matrices (N, 3, 3), with ``diag`` (N, 3)
-    or a scalar added to their diagonals first, by the adjugate (much faster than np.linalg.inv).
+def robust_sigma(e: np.ndarray, num_points: int, num_params: int = 0, floor: float = 1e-9) -> float:
+    """MAD-based std (rad) of the angular noise behind residual components e (N, 2).
 
-    Only the upper triangle is read (the normal-equation blocks J^T J are symmetric). A singular block
-    gets a huge inverse, not NaN.
-    """
-    diag = np.broadcast_to(diag, (len(A), 3))
-    a, d, f = A[:, 0, 0] + diag[:, 0], A[:, 1, 1] + diag[:, 1], A[:, 2, 2] + diag[:, 2]
-    b, c, e = A[:, 0, 1], A[:, 0, 2], A[:, 1, 2]
-    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
-    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
-    det = a * c00 + b * c01 + c * c02
-    floor = 1e-14 * np.maximum(np.maximum(a, d), f) ** 3 + 1e-300  # semi-definite: no entry exceeds these
-    inv_det = 1.0 / np.where(np.abs(det) > floor, det, floor)
-    out = np.empty(A.shape)
-    out[:, 0, 0], out[:, 1, 1], out[:, 2, 2] = c00 * inv_det, c11 * inv_det, c22 * inv_det
-    out[:, 0, 1] = out[:, 1, 0] = c01 * inv_det
-    out[:, 0, 2] = out[:, 2, 0] = c02 * inv_det
-    out[:, 1, 2] = out[:, 2, 1] = c12 * inv_det
-    return out
-
-
-def _sum_outer(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """sum_n A_n B_n^T for batches (N, k, 3) -> (k, k)."""
-    return np.swapaxes(A, 0, 1).reshape(A.shape[1], -1) @ np.swapaxes(B, 0, 1).reshape(B.shape[1], -1).T
-
-
-def _view_norms(e: np.ndarray) -> np.ndarray:
-    """Norms (N, 2) of each view's 2-D residual in e (N, 4)."""
-    e = e.reshape(-1, 2, 2)
-    return np.sqrt(np.einsum("nvi,nvi->nv", e, e))
-
-
-def _huber(r_norm, delta):
-    """Huber cost and IRLS weights of residual norms."""
-    quad = r_norm <= delta
-    cost = np.where(quad, 0.5 * r_norm**2, delta * (r_norm - 0.5 * delta))
-    weight = np.divide(delta, r_norm, out=np.ones_like(r_norm), where=~quad)
-    return cost, weight
-
-
-def robust_sigma(e: np.ndarray, num_params: int = 0, floor: float = 1e-9) -> float:
-    """MAD-based std (rad) of the angular noise behind residual components e (N, 4).
-
-    Each point absorbs 3 of its 4 residuals, so the residual spread is
-    corrected by sqrt(n_res / (n_res - n_params)) with n_params = 3N + num_params.
+    The landmarks and the camera block absorb 3 P + num_params of the 2 N residual components, so the
+    spread is corrected by sqrt(n_res / (n_res - n_params)).
     """
     n_res = e.size
-    dof = max(n_res - 3 * len(e) - num_params, 1)
+    dof = max(n_res - 3 * num_points - num_params, 1)
     med = np.median(np.abs(e))
-    return max(1.4826 * float(med) * np.sqrt(n_res / dof), floor)
+    return max(1.4826 * float(med) * math.sqrt(n_res / dof), floor)
 
 
-COST_TOL = 1e-2  # chi^2/2 units: a cost change this small moves the parameters by about 0.1 sigma
+@dataclass
+class _ViewModel:
+    """Per (view, camera), flattened view-major, in view 0's frame: bent centre c, camera -> view 0 rotation Q,
+    the model derivatives stacked as (Kw; -Dw) (6, 3), and the gravity g_k of each view (body frames) and g_0."""
+
+    c: np.ndarray
+    Q: np.ndarray
+    KD: np.ndarray
+    gk: np.ndarray
+    g0: np.ndarray
+    compliance: tuple | None
 
 
-class Solver:
-    """Levenberg-Marquardt on a TwoViewProblem with Huber weights and residuals scaled by sigma."""
+class SequenceBundleProblem:
+    """Residuals, Jacobians and normal equations of the joint bundle adjustment (the LM problem of :mod:`.lm`).
 
-    def __init__(self, prob: TwoViewProblem, sigma: float, huber_k: float):
-        self.prob = prob
-        self.sigma = sigma
-        self.delta = huber_k  # Huber threshold in units of sigma
+    ``sigma`` (rad) scales residuals; ``reestimate_sigma`` re-estimates it robustly after the second
+    accepted step and whenever it has moved by more than half since (the Huber zone follows the shrinking
+    residuals).
+    """
 
-    point_iterations = 1  # embedded point iterations for a step whose linear point update failed
-    initial_damping = 1e-4  # Levenberg-Marquardt lambda (relative to the diagonal) and its factors
-    damping_up = 10.0
-    damping_down = 10.0
+    def __init__(self, rig: Rig, obs: Observations, layout: ParameterLayout, sigma: float, huber_k: float = 3.0,
+                 priors: GravityPriors | None = None, gravity_information: GravityInformation | None = None,
+                 compliance_groups: np.ndarray | None = None, reestimate_sigma: bool = False):
+        self.rig, self.obs, self.layout = rig, obs, layout
+        self.sigma = float(sigma)
+        self.loss = HuberLoss(huber_k)
+        self.priors = priors
+        self.gravity_information = gravity_information
+        self.gm = rig.gravity_magnitude
+        self.M = rig.num_cameras
+        self.groups = None if compliance_groups is None else np.asarray(compliance_groups, dtype=np.int64)
+        comp_col = None if self.groups is None else self.groups[obs.cam]
+        self.structure = SchurStructure(layout.local_columns(obs.view, comp_col, obs.sequence_of_view[obs.view]),
+                                        layout.size, obs.point, obs.num_points)
+        self.Tt = np.swapaxes(tangent_basis(obs.f), 1, 2)  # (N, 2, 3): residual = T^T p / |p|
+        self._anchor = self._anchors()
+        self._vc = obs.view * self.M + obs.cam
+        self._single = obs.num_sequences == 1
+        self._view_cache = None  # (state, rig, _ViewModel) of the last evaluation
+        self._rig_cache = None  # (state, rig with its compliances)
+        self._reestimate = reestimate_sigma
+        self._accepted = 0
+        self._chart = None  # (state, chart) of the last linearisation
 
-    def refine_points(self, R, t, g, P, iterations, e=None):
-        """Gauss-Newton on each point alone for fixed (R, t, g): independent 3x3 systems, vectorised.
+    # -- model -------------------------------------------------------------
+    def _anchors(self) -> np.ndarray:
+        """Index of each landmark's first observation (lowest view, then camera): its chart's camera."""
+        o = self.obs
+        order = np.lexsort((o.cam, o.view, o.point))
+        first = np.ones(len(order), bool)
+        first[1:] = o.point[order][1:] != o.point[order][:-1]
+        return order[first]
 
-        Re-optimising the points after each camera step (embedded point
-        iterations) keeps the LM step valid where the linear point update is
-        not (low parallax). A point stuck far off (e.g. started at infinity)
-        first restarts from triangulation. Returns the points and their
-        residuals in units of sigma (``e``: those at P, when the caller has them).
+    def model_rig(self, state: BundleState) -> Rig:
+        """The rig with the state's compliances (the given rig when there are none)."""
+        if state.compliance is None:
+            return self.rig
+        if self._rig_cache is not None and self._rig_cache[0] is state:
+            return self._rig_cache[1]
+        k = self.rig.compliance.copy()
+        on = self.groups >= 0
+        k[on] = np.maximum(state.compliance[self.groups[on]], 1e-15)
+        rig = self.rig.with_compliance(k)
+        self._rig_cache = (state, rig)
+        return rig
+
+    def _views(self, state: BundleState, rig: Rig) -> _ViewModel:
+        """The bent cameras of every (view, camera) in view 0's frame with the model's derivatives (the last
+        result is reused: a trial state's cost and its linearisation once accepted share it)."""
+        hit = self._view_cache
+        if hit is not None and hit[0] is state and hit[1] is rig:
+            return hit[2]
+        g0 = state.origin_gravity() if state.gravity is not None else np.tile([0.0, 0.0, -self.gm], (len(state.R), 1))
+        gk = np.einsum("kji,kj->ki", state.R, g0)  # g_k = R_k^T g_0 (per view: its sequence's g_0)
+        R = state.R[:, None]  # (K, 1, 3, 3)
+        RT = np.swapaxes(R, -1, -2)
+        w, W, D, Kd = deformation_jacobians(rig, gk)  # (K, M, ...) in each view's body frame
+        Q = (R @ W).reshape(-1, 3, 3)  # camera -> view 0
+        c = (np.einsum("kaij,kmj->kmi", R, w) + state.t[:, None]).reshape(-1, 3)  # centre in view 0
+        # d(W^T y)/dg and dw/dg turned into view 0's frame, stacked (Kw; -Dw) for one product per observation
+        KD = np.concatenate([R @ Kd @ RT, -(R @ D[None] @ RT)], axis=-2).reshape(-1, 6, 3)
+        vm = _ViewModel(c, Q, KD, gk, g0, None)
+        if self.groups is not None:  # d(phi)/dk and d(delta)/dk of each camera, view 0's frame
+            u, _, _ = rig.bar_coefficients
+            L = np.linalg.norm(rig.positions, axis=1)
+            a = (L**2 / 2.0)[:, None] * cross(u, gk[:, None, :])  # phi / k (K, M, 3)
+            Ab = np.einsum("kmij,kmj->kmi", right_jacobian(-(rig.compliance[:, None] * a)), a)
+            gb = gk[:, None, :]
+            b = (L**3 / 3.0)[:, None] * (gb - np.sum(u * gb, axis=-1, keepdims=True) * u)
+            vm.compliance = (np.einsum("kij,kmj->kmi", state.R, Ab).reshape(-1, 3),
+                             np.einsum("kij,kmj->kmi", state.R, b).reshape(-1, 3))
+        self._view_cache = (state, rig, vm)
+        return vm
+
+    def residuals(self, state: BundleState, rig: Rig | None = None) -> np.ndarray:
+        """Angular residuals (N, 2), rad."""
+        return self._evaluate(state, rig or self.model_rig(state), jacobians=False)[0]
+
+    def _evaluate(self, state: BundleState, rig: Rig, jacobians: bool = True):
+        """Residuals e (N, 2) and, if asked, the local camera Jacobian (N, 2, L) and de/dX (N, 2, 3).
+
+        With z = X - t_k and d = X - c (c the bent camera centre) in view 0's frame, p = Q^T d in the camera
+        (Q = R_k W_i(g_k)). Rotations are perturbed on the left (R_k <- Exp(dr) R_k), so every derivative is
+        a product with view 0's vectors: de/dr = (de/dX [z]_x + de/dg [g_0]_x) for de/dg of the bending at
+        g_k expressed in view 0 (Kw, Dw).
         """
-        if e is None:
-            e = self.prob.evaluate(R, t, g, P, want_jacobian=False)[0] / self.sigma
-        if iterations:
-            P_tri = self.prob.triangulate(R, t, g)
-            e_tri = self.prob.evaluate(R, t, g, P_tri, want_jacobian=False)[0] / self.sigma
-            use_tri = self._point_costs(e_tri) < self._point_costs(e)
-            P = np.where(use_tri[:, None], P_tri, P)
-            e = np.where(use_tri[:, None], e_tri, e)
-        for _ in range(iterations):
-            _, _, Jp = self.prob.evaluate(R, t, g, P, want_jacobian="points")
-            chart = self.prob.point_chart(g, P)
-            c0, wts = _huber(_view_norms(e), self.delta)
-            sw = np.sqrt(np.repeat(wts, 2, axis=1))
-            Jw = (Jp @ chart.M) * (sw / self.sigma)[:, :, None]
-            H = np.swapaxes(Jw, 1, 2) @ Jw
-            b = -np.einsum("nki,nk->ni", Jw, e * sw)
-            Pn = chart.retract(np.einsum("nij,nj->ni", inv3(H, 1e-12), b))
-            en = self.prob.evaluate(R, t, g, Pn, want_jacobian=False)[0] / self.sigma
-            better = self._point_costs(en) < c0.sum(axis=1)  # a point keeps its step only if it helps it
-            P = np.where(better[:, None], Pn, P)
-            e = np.where(better[:, None], en, e)
-        return P, e
+        o = self.obs
+        vm = self._views(state, rig)
+        vc = self._vc
+        X = state.points[o.point]
+        d = X - vm.c[vc]
+        Qn = vm.Q[vc]
+        p = np.einsum("nji,nj->ni", Qn, d)
+        inv_r = 1.0 / np.maximum(np.sqrt(np.einsum("ni,ni->n", p, p)), 1e-300)
+        n = p * inv_r[:, None]
+        e = np.einsum("nij,nj->ni", self.Tt, n)
+        if not jacobians:
+            return e, None, None
+        A = (self.Tt - e[:, :, None] * n[:, None, :]) * inv_r[:, None, None]  # de/dp (N, 2, 3)
+        dX = np.einsum("nij,nkj->nik", A, Qn)  # de/dX = A Q^T
+        Jc = np.empty((len(e), 2, self.structure.cols.shape[1]))
+        Jc[:, :, 3:6] = -dX
+        dr = cross(dX, (X - state.t[o.view])[:, None, :])  # rows a^T [z]_x = (a x z)^T
+        if rig.is_flexible:
+            # de/dg (g in view 0's frame) = (de/dX [d]_x) Kw - de/dX Dw, as one product with the stacked (Kw; -Dw)
+            dg = np.concatenate([cross(dX, d[:, None, :]), dX], axis=2) @ vm.KD[vc]
+            if self._single:
+                dr += cross(dg, vm.g0[0])
+                Jc[:, :, 6:8] = (dg.reshape(-1, 3) @ (self.gm * tangent_basis(normalize(vm.g0[0])))).reshape(-1, 2, 2)
+            else:
+                g0n = vm.g0[o.view]
+                dr += cross(dg, g0n[:, None, :])
+                Jc[:, :, 6:8] = dg @ (self.gm * tangent_basis(normalize(g0n)))
+            if self.groups is not None:
+                Aw, bw = vm.compliance
+                Jc[:, :, 8] = np.einsum("nij,nj->ni", dX, cross(d, Aw[vc]) - bw[vc])
+        else:
+            Jc[:, :, 6:] = 0.0
+        Jc[:, :, 0:3] = dr
+        return e, Jc, dX
 
-    def _point_costs(self, e):
-        """Huber cost of each point's residuals (in units of sigma)."""
-        c, _ = _huber(_view_norms(e), self.delta)
-        return c.sum(axis=1)
+    def chart(self, state: BundleState, rig: Rig) -> _ChartByPoint:
+        """Inverse-depth chart of the landmarks in their anchor cameras (bent at the anchor view's gravity)."""
+        o = self.obs
+        a = self._anchor
+        vm = self._views(state, rig)
+        vc = self._vc[a]
+        return _ChartByPoint(InverseDepthChart(vm.c[vc], vm.Q[vc], state.points[o.point[a]]), o.point[a],
+                             o.num_points)
 
-    def cost(self, R, t, g, P):
-        return self._residuals_and_cost(R, t, g, P)[1]
+    # -- priors ------------------------------------------------------------
+    def prior_terms(self, state: BundleState):
+        """Prior residuals (k,) and their camera-block Jacobian (k, nc), divided by their std."""
+        rows, jacs = [], []
+        lay, nc = self.layout, self.layout.size
+        pr = self.priors
+        if pr is not None and state.gravity is not None and lay.gravity is not None:
+            origins = normalize(state.origin_gravity())
+            seq = self.obs.sequence_of_view
+            b = state.bias if state.bias is not None else np.zeros(3)
+            for k in np.flatnonzero(pr.active):
+                g0 = origins[k]
+                gk = state.R[k].T @ g0
+                P = tangent_basis(pr.directions[k])
+                s = pr.sigma_rad[k]
+                J = np.zeros((2, nc))
+                sl = lay.pose(k)
+                if sl is not None:  # left perturbation: g_k = R_k^T Exp(-dr) g_0
+                    J[:, sl.start:sl.start + 3] = P.T @ (state.R[k].T @ skew(g0))
+                J[:, lay.gravity_of(int(seq[k]))] = P.T @ (state.R[k].T @ tangent_basis(g0))
+                if lay.bias is not None:
+                    J[:, lay.bias] = P.T
+                rows.append(P.T @ (gk + b) / s)
+                jacs.append(J / s)
+            if lay.bias is not None:
+                J = np.zeros((3, nc))
+                J[:, lay.bias] = np.eye(3) / pr.bias_sigma_rad
+                rows.append(b / pr.bias_sigma_rad)
+                jacs.append(J)
+        gi = self.gravity_information
+        if gi is not None and state.gravity is not None and lay.gravity is not None:
+            g0 = normalize(state.origin_gravity()[0])
+            Bi = tangent_basis(gi.direction)
+            C = _sqrt_psd(gi.information)
+            J = np.zeros((2, nc))
+            J[:, lay.gravity] = C @ Bi.T @ tangent_basis(g0)
+            rows.append(C @ (Bi.T @ g0))
+            jacs.append(J)
+        if not rows:
+            return None, None
+        return np.concatenate(rows), np.concatenate(jacs)
 
-    def _residuals_and_cost(self, R, t, g, P):
-        """Residuals in units of sigma (N, 4) and the robust cost (chi^2 / 2 units, prior included)."""
-        e = self.prob.evaluate(R, t, g, P, want_jacobian=False)[0] / self.sigma
-        return e, self._cost_from(e, R, g)
+    # -- LM interface ------------------------------------------------------
+    def _robust(self, e_sigma: np.ndarray):
+        r2 = np.einsum("ni,ni->n", e_sigma, e_sigma)
+        return self.loss.loss(r2), self.loss.weight(r2)
 
-    def _cost_from(self, e, R, g):
-        """Cost of residuals e already in units of sigma."""
-        r = _view_norms(e)
-        c, _ = _huber(r, self.delta)
+    def cost(self, state: BundleState) -> float:
+        rig = self.model_rig(state)
+        c, _ = self._robust(self.residuals(state, rig) / self.sigma)
         total = float(c.sum())
-        if self.prob.prior is not None:
-            rp, _ = self.prob.prior_terms(R, g)
-            total += 0.5 * float(rp @ rp)
+        r, _ = self.prior_terms(state)
+        if r is not None:
+            total += 0.5 * float(r @ r)
         return total
 
-    def normal_equations(self, R, t, g, P):
-        """Cost and normal equations at (R, t, g, P); the point blocks are in the inverse-depth chart
-        ``self.chart`` of P (see :meth:`step`)."""
-        e, Jc, Jp = self.prob.evaluate(R, t, g, P)
-        self.chart = self.prob.point_chart(g, P)
+    def linearize(self, state: BundleState) -> LinearSystem:
+        rig = self.model_rig(state)
+        e, Jc, dX = self._evaluate(state, rig)
+        chart = self.chart(state, rig)
+        self._chart = (state, chart)
         e = e / self.sigma
-        c, wts = _huber(_view_norms(e), self.delta)
-        sw = np.sqrt(np.repeat(wts, 2, axis=1))  # (N, 4)
-        ew = e * sw
-        sw /= self.sigma  # the Jacobians are scaled by 1/sigma like the residuals
-        Jcw = Jc * sw[:, :, None]
-        Jpw = (Jp @ self.chart.M) * sw[:, :, None]
-        Jc2 = Jcw.reshape(-1, Jcw.shape[2])
-        Hcc = Jc2.T @ Jc2
-        bc = -(ew.reshape(-1) @ Jc2)
-        JpT = np.swapaxes(Jpw, 1, 2)
-        Hcp = np.swapaxes(Jcw, 1, 2) @ Jpw
-        Hpp = JpT @ Jpw
-        bp = -np.einsum("nki,nk->ni", Jpw, ew)
-        cost = float(c.sum())
-        if self.prob.prior is not None:
-            rp, Jpr = self.prob.prior_terms(R, g)
-            Hcc = Hcc + Jpr.T @ Jpr
-            bc = bc - Jpr.T @ rp
-            cost += 0.5 * float(rp @ rp)
-        return cost, Hcc, bc, Hcp, Hpp, bp
+        c, wts = self._robust(e)
+        sw = (np.sqrt(wts) / self.sigma)[:, None]
+        system = self.structure.accumulate(Jc * sw[:, :, None], e * np.sqrt(wts)[:, None],
+                                           (dX @ chart.M[self.obs.point]) * sw[:, :, None])
+        system.cost = float(c.sum())
+        r, J = self.prior_terms(state)
+        if r is not None:
+            system.add_dense(J, r)
+        return system
 
-    @staticmethod
-    def reduced_system(Hcc, bc, Hcp, Hpp, bp, lam):
-        """Damped normal equations with the points eliminated: S dc = rhs (plus what back-substitution needs)."""
-        nc = len(bc)
-        Hcc_d = Hcc + lam * np.diag(np.diag(Hcc)) + 1e-12 * np.eye(nc)
-        dpp = np.diagonal(Hpp, axis1=1, axis2=2)
-        Hpp_inv = inv3(Hpp, lam * dpp + 1e-12)
-        HcpHi = Hcp @ Hpp_inv  # (N, nc, 3)
-        S = Hcc_d - _sum_outer(HcpHi, Hcp)
-        rhs = bc - np.swapaxes(HcpHi, 0, 1).reshape(nc, -1) @ bp.reshape(-1)
-        return S, rhs, Hpp_inv
+    def step(self, state: BundleState, dc: np.ndarray, dp: np.ndarray | None) -> BundleState:
+        lay = self.layout
+        R, t = state.R.copy(), state.t.copy()
+        free = np.flatnonzero(lay.free)
+        if len(free):
+            d = dc[: POSE_DIM * len(free)].reshape(-1, POSE_DIM)
+            R[free] = exp_so3(d[:, :3]) @ R[free]
+            t[free] = t[free] + d[:, 3:]
+        g = state.gravity
+        if lay.gravity is not None and g is not None:
+            gh = normalize(np.asarray(g).reshape(-1, 3))
+            dg = dc[lay.gravity].reshape(-1, GRAVITY_DIM)
+            g = (self.gm * normalize(gh + np.einsum("sij,sj->si", tangent_basis(gh), dg))).reshape(np.shape(g))
+        comp = state.compliance
+        if lay.compliance is not None and comp is not None:
+            comp = np.maximum(comp + dc[lay.compliance], 0.0)
+        bias = state.bias
+        if lay.bias is not None and bias is not None:
+            bias = bias + dc[lay.bias]
+        P = state.points
+        if dp is not None:
+            chart = self._chart[1] if self._chart is not None and self._chart[0] is state else \
+                self.chart(state, self.model_rig(state))
+            P = chart.retract(dp)
+        return BundleState(R, t, g, P, comp, bias, state.view_sequence)
 
-    def step(self, R, t, g, dc, dq):
-        """State after a step: (dr, t[, dg]) on the cameras, dq in the chart of the last normal equations."""
-        return (*self.prob.update(R, t, g, dc), self.chart.retract(dq))
+    def rescale(self, state: BundleState) -> bool:
+        if not self._reestimate:
+            return False
+        self._accepted += 1
+        if self._accepted < 2:
+            return True  # sigma must fit the residuals before the run may converge
+        new = robust_sigma(self.residuals(state), self.obs.num_points, self.layout.size)
+        if self._accepted == 2 or abs(new / self.sigma - 1.0) > 0.5:
+            changed = abs(new / self.sigma - 1.0) > 1e-6
+            self.sigma = new
+            return changed
+        return False
 
-    @staticmethod
-    def back_substitute(Hcp, Hpp_inv, bp, dc):
-        """Point steps for a camera-block step dc."""
-        return (Hpp_inv @ (bp - np.swapaxes(Hcp, 1, 2) @ dc)[:, :, None])[:, :, 0]
+    # -- points alone ------------------------------------------------------
+    def triangulate(self, state: BundleState, rig: Rig | None = None) -> np.ndarray:
+        """Landmarks closest (least squares) to all rays that observe them; landmarks behind a camera or seen
+        along (nearly) parallel rays go far along their anchor's ray."""
+        rig = rig or self.model_rig(state)
+        o = self.obs
+        vm = self._views(state, rig)
+        origin = vm.c[self._vc]
+        d = np.einsum("nij,nj->ni", vm.Q[self._vc], o.f)  # Q f: the ray in view 0's frame
+        Pm = np.eye(3) - d[:, :, None] * d[:, None, :]
+        A = _group_sum(o.point, Pm, o.num_points)
+        b = _group_sum(o.point, np.einsum("nij,nj->ni", Pm, origin), o.num_points)
+        X = np.einsum("pij,pj->pi", inv3(A, 1e-12), b)
+        ev_min = np.linalg.eigvalsh(A)[:, 0]
+        depth = np.einsum("ni,ni->n", X[o.point] - origin, d)
+        behind = np.bincount(o.point, weights=(depth <= 0).astype(float), minlength=o.num_points) > 0
+        bad = behind | (ev_min < 1e-10) | ~np.all(np.isfinite(X), axis=1)
+        a = self._anchor
+        far = np.empty_like(X)
+        far[o.point[a]] = origin[a] + 1e3 * d[a]
+        return np.where(bad[:, None], far, X)
 
-    def solve_damped(self, Hcc, bc, Hcp, Hpp, bp, lam):
-        """Camera and point steps of the damped system; ``self.camera_decrease`` is the cost decrease the
-        camera step alone predicts (points re-fitted: dc^T S dc / 2, chi^2/2 units)."""
-        S, rhs, Hpp_inv = self.reduced_system(Hcc, bc, Hcp, Hpp, bp, lam)
-        try:
-            dc = np.linalg.solve(S, rhs)
-        except np.linalg.LinAlgError:
-            dc = np.linalg.lstsq(S, rhs, rcond=None)[0]
-        self.camera_decrease = 0.5 * float(dc @ S @ dc)
-        return dc, self.back_substitute(Hcp, Hpp_inv, bp, dc)
+    def point_costs(self, state: BundleState, rig: Rig | None = None) -> np.ndarray:
+        """Robust cost of each landmark's observations (P,)."""
+        c, _ = self._robust(self.residuals(state, rig or self.model_rig(state)) / self.sigma)
+        return np.bincount(self.obs.point, weights=c, minlength=self.obs.num_points)
 
-    def reduced_information(self, R=None, t=None, g=None, P=None):
-        """Schur complement of the undamped normal equations (Fisher information of the camera block).
-
-        Without arguments, at the point where the last ``run`` stopped.
-        """
-        if R is None:
-            Hcc, _, Hcp, Hpp, _ = self.system
-        else:
-            _, Hcc, _, Hcp, Hpp, _ = self.normal_equations(R, t, g, P)
-        Hpp_inv = inv3(Hpp, 1e-12)
-        return Hcc - _sum_outer(Hcp @ Hpp_inv, Hcp)
-
-    def run(self, R, t, g, P, max_iter, tol=1e-6, reestimate_sigma_after: int | None = None):
-        """LM iterations; optionally re-estimate sigma (robustly) after that many accepted steps, and again
-        whenever it has changed by more than half since (the Huber zone follows the shrinking residuals).
-
-        Stops when a step changes the cost by less than ``COST_TOL`` (or tol relative), or when the camera
-        block's part of the step would (``camera_decrease``), i.e. moves the parameters of interest by a
-        negligible fraction of their standard deviation. The normal equations at the
-        returned point are kept in ``self.system``.
-        """
-        lam = self.initial_damping
-        cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
-        it = accepted = 0
-        while it < max_iter:
-            it += 1
-            dc, dP = self.solve_damped(Hcc, bc, Hcp, Hpp, bp, lam)
-            Rn, tn, gn, Pn = self.step(R, t, g, dc, dP)
-            e, new_cost = self._residuals_and_cost(Rn, tn, gn, Pn)
-            if not new_cost <= cost and self.point_iterations:
-                # the linear point update failed (low parallax is very nonlinear): re-fit the points to the new
-                # camera block before judging the step (embedded point iterations)
-                Pn, e = self.refine_points(Rn, tn, gn, Pn, self.point_iterations, e)
-                new_cost = self._cost_from(e, Rn, gn)
-            if not (np.isfinite(new_cost) and new_cost <= cost):
-                if new_cost - cost < COST_TOL:
-                    break  # at the minimum: the step only sees rounding
-                lam = max(lam * self.damping_up, self.initial_damping)  # after many good steps lam may be tiny
-                if lam > 1e8:
-                    break
-                continue
-            # converged when the cost barely changes, or when what still changes is only the points (far ones
-            # creep along their rays) while the cameras move by a negligible fraction of their uncertainty
-            converged = (cost - new_cost < max(tol * cost, COST_TOL) or np.linalg.norm(dc) < tol
-                         or self.camera_decrease < COST_TOL)
-            R, t, g, P = Rn, tn, gn, Pn
-            accepted += 1
-            lam = max(lam / self.damping_down, 1e-9)
-            if reestimate_sigma_after is not None:
-                converged = converged and accepted >= reestimate_sigma_after  # sigma must fit the residuals first
-            if reestimate_sigma_after is not None and accepted >= reestimate_sigma_after:
-                new_sigma = robust_sigma(e * self.sigma, self.prob.nc)
-                if accepted == reestimate_sigma_after or abs(new_sigma / self.sigma - 1.0) > 0.5:
-                    converged = converged and abs(new_sigma / self.sigma - 1.0) < tol  # the cost changed meaning
-                    self.sigma = new_sigma
-            cost, Hcc, bc, Hcp, Hpp, bp = self.normal_equations(R, t, g, P)
-            if converged:
-                break
-        self.system = (Hcc, bc, Hcp, Hpp, bp)
-        return R, t, g, P, cost, it
+    def refit_points(self, state: BundleState, iterations: int = 1):
+        """Gauss-Newton on each landmark alone for a fixed camera block (independent 3x3 systems); a landmark
+        stuck far off first restarts from triangulation. Returns (state, cost)."""
+        rig = self.model_rig(state)
+        c0 = self.point_costs(state, rig)
+        tri = replace(state, points=self.triangulate(state, rig))
+        c_tri = self.point_costs(tri, rig)
+        use = c_tri < c0
+        state = replace(state, points=np.where(use[:, None], tri.points, state.points))
+        c0 = np.where(use, c_tri, c0)
+        for _ in range(iterations):
+            e, _, dX = self._evaluate(state, rig)
+            chart = self.chart(state, rig)
+            e = e / self.sigma
+            _, wts = self._robust(e)
+            sw = np.sqrt(wts)[:, None]
+            Jp = (dX @ chart.M[self.obs.point]) * (sw / self.sigma)[:, :, None]
+            H = _group_sum(self.obs.point, np.swapaxes(Jp, 1, 2) @ Jp, self.obs.num_points)
+            b = -_group_sum(self.obs.point, np.einsum("nki,nk->ni", Jp, e * sw), self.obs.num_points)
+            new = replace(state, points=chart.retract(np.einsum("pij,pj->pi", inv3(H, 1e-12), b)))
+            cn = self.point_costs(new, rig)
+            better = cn < c0
+            state = replace(state, points=np.where(better[:, None], new.points, state.points))
+            c0 = np.where(better, cn, c0)
+        return state, self.cost(state)
 
 
-def refine_two_view(
-    rig: Rig,
-    f1,
-    f2,
-    cam,
-    R,
-    t,
-    g=None,
-    points=None,
-    optimize_gravity: bool = True,
-    prior: GravityPrior | None = None,
-    max_iter: int = 30,
-    huber_k: float = 3.0,
-    sigma_rad: float | None = None,
-    tol: float = 1e-6,
-) -> BundleResult:
-    """Robust bundle adjustment of (R, t[, g], points) on correspondences (f1, f2, cam).
+class _ChartByPoint:
+    """An InverseDepthChart over the anchors, indexed by landmark."""
 
-    g is the starting gravity (body frame of view 1); it is kept with
-    |g| = gravity_magnitude. With optimize_gravity=False, g stays fixed (and
-    for a rigid rig is irrelevant). ``sigma_rad`` is the angular noise used to
-    scale residuals and the Huber threshold (huber_k * sigma); by default it is
-    estimated robustly from the residuals at the start and re-estimated as they
-    shrink. ``tol``: relative cost decrease below which the iterations stop
-    (a loose one suffices to compare starts). Returns the covariance of
-    (dr, t[, dg]) from the reduced normal equations.
-    """
-    R = np.asarray(R, dtype=float)
-    t = np.asarray(t, dtype=float)
-    gm = rig.gravity_magnitude
-    if g is None:
-        optimize_gravity = False
-    else:
-        g = gm * normalize(np.asarray(g, dtype=float))
-    if prior is not None and not optimize_gravity:
-        prior = None
-    prob = TwoViewProblem(rig, f1, f2, cam, optimize_gravity, prior)
-    P = prob.triangulate(R, t, g) if points is None else np.array(points, dtype=float)
-    fixed_sigma = sigma_rad is not None
-    if not fixed_sigma:  # start at the noise level of the start, re-estimate it once the fit has settled
-        e0, _, _ = prob.evaluate(R, t, g, P, want_jacobian=False)
-        sigma_rad = robust_sigma(e0, prob.nc)
-    solver = Solver(prob, sigma_rad, huber_k)
-    R, t, g, P, cost, it = solver.run(R, t, g, P, max_iter, tol=tol,
-                                      reestimate_sigma_after=None if fixed_sigma else 2)
-    sigma_rad = solver.sigma
-    info_mat = solver.reduced_information()
-    try:
-        cov = np.linalg.inv(info_mat)
-    except np.linalg.LinAlgError:
-        cov = np.full_like(info_mat, np.inf)
-    return BundleResult(R=R, t=t, g=g if optimize_gravity else None, points=P, cost=cost, iterations=it,
-                        sigma_rad=float(sigma_rad), covariance=cov)
+    def __init__(self, chart: InverseDepthChart, order: np.ndarray, num_points: int):
+        self._chart = chart
+        self._order = order
+        self.M = np.empty((num_points, 3, 3))
+        self.M[order] = chart.M
+
+    def retract(self, dp: np.ndarray) -> np.ndarray:
+        out = np.empty_like(dp)
+        out[self._order] = self._chart.retract(dp[self._order])
+        return out
+
+
+def _group_sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    shape = values.shape[1:]
+    k = int(np.prod(shape))
+    flat = (index[:, None] * k + np.arange(k)).reshape(-1)
+    return np.bincount(flat, weights=values.reshape(-1), minlength=n * k).reshape((n,) + shape)
+
+
+def _sqrt_psd(A: np.ndarray) -> np.ndarray:
+    """C with C^T C = A for a symmetric positive semi-definite A."""
+    ev, V = np.linalg.eigh(0.5 * (A + A.T))
+    return (V * np.sqrt(np.maximum(ev, 0.0))).T
+
+
+# ---------------------------------------------------------------------------
+# Results
+# ---------------------------------------------------------------------------
+
+@dataclass
+class BundleResult:
+    """The refined state with its statistics and the covariance of the camera block (``layout``)."""
+
+    state: BundleState
+    layout: ParameterLayout
+    cost: float
+    iterations: int
+    sigma_rad: float  # robust estimate of the angular noise (rad)
+    information: np.ndarray  # (nc, nc), rad / m units, 1/sigma^2 included
+    covariance: np.ndarray  # inverse of information (inf where not observable)
+    stop: str = ""
+
+    @property
+    def R(self) -> np.ndarray:
+        return self.state.R
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.state.t
+
+    @property
+    def gravity(self) -> np.ndarray | None:
+        return self.state.gravity
+
+    @property
+    def points(self) -> np.ndarray:
+        return self.state.points
+
+    def gravity_tangent_covariance(self, k: int = 0) -> np.ndarray:
+        """(2, 2) covariance (rad^2) of view k's gravity direction in tangent_basis(g_k)."""
+        lay = self.layout
+        if lay.gravity is None or self.state.gravity is None:
+            return np.full((2, 2), np.inf)
+        g0 = normalize(self.state.origin_gravity()[k])
+        Rk = self.state.R[k]
+        Bk = tangent_basis(Rk.T @ g0)
+        seq = 0 if self.state.view_sequence is None else int(self.state.view_sequence[k])
+        cols = [lay.gravity_of(seq)]
+        J = [Bk.T @ Rk.T @ tangent_basis(g0)]
+        sl = lay.pose(k)
+        if sl is not None:  # g_k = R_k^T g_0 moves with R_k too
+            cols.insert(0, slice(sl.start, sl.start + 3))
+            J.insert(0, Bk.T @ Rk.T @ skew(g0))
+        idx = np.concatenate([np.arange(s.start, s.stop) for s in cols])
+        Jm = np.concatenate(J, axis=1)
+        C = self.covariance[np.ix_(idx, idx)]
+        if not np.all(np.isfinite(C)):
+            return np.full((2, 2), np.inf)
+        return Jm @ C @ Jm.T
+
+    def gravity_sigma_rad(self, k: int = 0) -> float:
+        """Largest angular std (rad) of view k's gravity."""
+        C = self.gravity_tangent_covariance(k)
+        if not np.all(np.isfinite(C)):
+            return math.inf
+        return float(math.sqrt(max(np.linalg.eigvalsh(C).max(), 0.0)))
+
+    def gravity_covariance(self, k: int = 0) -> np.ndarray:
+        """(3, 3) covariance (m^2/s^4) of view k's gravity vector (rank 2, tangent to the sphere)."""
+        g = self.state.view_gravity[k]
+        return gravity_covariance(g, self.gravity_tangent_covariance(k))
+
+    def pose_covariance(self, k: int, body: bool = False) -> np.ndarray:
+        """(6, 6) covariance of view k's (dr, t) (dr in view 0's frame, or with ``body`` in view k's: the
+        right perturbation R_k Exp(dr)); zeros for a fixed view."""
+        sl = self.layout.pose(k)
+        if sl is None:
+            return np.zeros((6, 6))
+        C = self.covariance[sl, sl]
+        if body:
+            T = np.eye(6)
+            T[:3, :3] = self.state.R[k].T
+            C = T @ C @ T.T
+        return C
 
 
 def gravity_covariance(g, cov_dg) -> np.ndarray:
     """3x3 covariance of g (m^2/s^4) from the 2x2 tangent covariance of the chart (rad^2)."""
     B = np.linalg.norm(g) * tangent_basis(normalize(g))
     return B @ cov_dg @ B.T
+
+
+def covariance_from_information(info: np.ndarray) -> np.ndarray:
+    """Inverse of a Fisher information; inf where it is singular (e.g. gravity of a rigid rig)."""
+    if info.size == 0:
+        return info.copy()
+    scale = np.sqrt(np.maximum(np.abs(np.diag(info)), 1e-300))
+    A = info / np.outer(scale, scale)
+    try:
+        ev = np.linalg.eigvalsh(0.5 * (A + A.T))
+        if ev.min() <= 1e-13 * max(ev.max(), 1e-300):
+            raise np.linalg.LinAlgError
+        return np.linalg.inv(A) / np.outer(scale, scale)
+    except np.linalg.LinAlgError:
+        return np.full_like(info, np.inf)
+
+
+# ---------------------------------------------------------------------------
+# Entry points
+# ---------------------------------------------------------------------------
+
+def adjust_bundle(rig: Rig, obs: Observations, R, t, gravity=None, points=None, *, free_views=None,
+                  optimize_gravity: bool = True, priors: GravityPriors | None = None,
+                  gravity_information: GravityInformation | None = None, compliance_groups=None,
+                  compliance=None, bias=None, huber_k: float = 3.0, sigma_rad: float | None = None,
+                  max_iterations: int = 30, tol: float = 1e-6) -> BundleResult:
+    """Robust joint bundle adjustment of the views' poses, one gravity, the landmarks (and compliances).
+
+    R (K, 3, 3), t (K, 3): starting poses of view k in view 0 (view 0 is kept as given: the identity for a
+    sequence). ``gravity``: starting gravity in view 0's body frame (kept at |g| = gravity_magnitude); None
+    or ``optimize_gravity=False`` keeps it fixed (irrelevant for a rigid rig). ``free_views``: the views whose
+    pose is estimated (default all but 0). ``points`` (P, 3) default: triangulated. ``sigma_rad``: the
+    angular noise that scales residuals and the Huber threshold (huber_k sigma); by default estimated
+    robustly at the start and re-estimated as the fit settles. ``compliance_groups`` (M,) camera -> bar
+    group (-1: not estimated) with starting ``compliance`` per group estimates bar compliances too.
+    ``priors.bias_sigma_rad`` estimates a constant tilt of the measured gravity; ``bias`` starts it.
+    """
+    K = obs.num_views
+    R = np.array(R, dtype=float).reshape(K, 3, 3)
+    t = np.array(t, dtype=float).reshape(K, 3)
+    gm = rig.gravity_magnitude
+    optimize_gravity = optimize_gravity and gravity is not None and (rig.is_flexible or compliance_groups is not None)
+    if gravity is not None:
+        gravity = gm * normalize(np.asarray(gravity, dtype=float))
+        if gravity.size != 3 * obs.num_sequences:
+            raise ValueError(f"gravity must have shape (3,) or ({obs.num_sequences}, 3), got {gravity.shape}")
+    if free_views is None:  # all views but the first of each sequence
+        seq = obs.sequence_of_view
+        first = np.r_[True, seq[1:] != seq[:-1]]
+        free_views = np.flatnonzero(~first)
+    groups = None if compliance_groups is None else np.asarray(compliance_groups, dtype=np.int64)
+    num_comp = 0 if groups is None else int(groups.max()) + 1
+    use_bias = (priors is not None and priors.bias_sigma_rad is not None and optimize_gravity
+                and bool(priors.active.any()))
+    if gravity_information is not None and obs.num_sequences > 1:
+        raise ValueError("gravity_information applies to a single sequence")
+    layout = ParameterLayout(K, free_views, optimize_gravity, num_comp, use_bias, obs.num_sequences)
+    state = BundleState(R, t, gravity, np.zeros((obs.num_points, 3)),
+                        None if groups is None else np.asarray(compliance, dtype=float).copy(),
+                        (np.zeros(3) if bias is None else np.asarray(bias, float).copy()) if use_bias else None,
+                        obs.view_sequence)
+    fixed_sigma = sigma_rad is not None
+    prob = SequenceBundleProblem(rig, obs, layout, 1.0 if sigma_rad is None else sigma_rad, huber_k,
+                                 priors if optimize_gravity else None,
+                                 gravity_information if optimize_gravity else None, groups,
+                                 reestimate_sigma=not fixed_sigma)
+    state.points = prob.triangulate(state) if points is None else np.array(points, dtype=float)
+    if not fixed_sigma:  # start at the noise level of the start, re-estimate it once the fit has settled
+        prob.sigma = robust_sigma(prob.residuals(state), obs.num_points, layout.size)
+    state, system, stats = levenberg_marquardt(prob, state, LMOptions(max_iterations=int(max_iterations),
+                                                                      relative_tolerance=tol))
+    info = system.information()  # residuals were scaled by 1/sigma: this is the Fisher information
+    return BundleResult(state=state, layout=layout, cost=stats.cost, iterations=stats.iterations,
+                        sigma_rad=float(prob.sigma), information=info, covariance=covariance_from_information(info),
+                        stop=stats.stop)
+
+
+def condense_gravity(rig: Rig, obs: Observations, state: BundleState, sigma_rad: float,
+                     huber_k: float = 3.0) -> GravityInformation | None:
+    """Information on view 0's gravity from observations whose views keep their poses ``state`` fixed (the
+    landmarks eliminated): what views leaving a sliding window knew about gravity, linearised once."""
+    if state.gravity is None or not rig.is_flexible or len(obs) == 0:
+        return None
+    layout = ParameterLayout(obs.num_views, [], True)
+    prob = SequenceBundleProblem(rig, obs, layout, sigma_rad, huber_k)
+    system = prob.linearize(state)
+    info = system.information()
+    return GravityInformation(normalize(state.gravity), 0.5 * (info + info.T))
+
+
+@dataclass
+class TwoViewResult:
+    """Two-view refinement: (R, t) maps view 2 into view 1, g is view 1's gravity; covariance over
+    (dr, t[, dg]) (rad, m, rad)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    g: np.ndarray | None
+    points: np.ndarray
+    cost: float
+    iterations: int
+    sigma_rad: float
+    covariance: np.ndarray
+    bundle: BundleResult
+
+
+def refine_two_view(rig: Rig, f1, f2, cam, R, t, g=None, points=None, optimize_gravity: bool = True,
+                    prior=None, max_iter: int = 30, huber_k: float = 3.0, sigma_rad: float | None = None,
+                    tol: float = 1e-6) -> TwoViewResult:
+    """The K = 2 case of :func:`adjust_bundle` on correspondences (f1, f2, cam).
+
+    ``prior``: a :class:`GravityPriors` of both views (measured gravity, 4pt-bending) or None.
+    """
+    obs = Observations.two_view(f1, f2, cam)
+    Rs = np.stack([np.eye(3), np.asarray(R, float)])
+    ts = np.stack([np.zeros(3), np.asarray(t, float)])
+    res = adjust_bundle(rig, obs, Rs, ts, g, points, optimize_gravity=optimize_gravity and g is not None,
+                        priors=prior, huber_k=huber_k, sigma_rad=sigma_rad, max_iterations=max_iter, tol=tol)
+    st = res.state
+    cov = res.covariance
+    if np.all(np.isfinite(cov)):
+        T = np.eye(res.layout.size)  # rotation errors in view 2's body frame (right perturbation R Exp(dr))
+        T[0:3, 0:3] = st.R[1].T
+        cov = T @ cov @ T.T
+    return TwoViewResult(R=st.R[1], t=st.t[1], g=st.gravity if res.layout.gravity is not None else None,
+                         points=st.points, cost=res.cost, iterations=res.iterations, sigma_rad=res.sigma_rad,
+                         covariance=cov, bundle=res)
+
+
+def two_view_priors(g1, g2, sigma_rad: float) -> GravityPriors:
+    """Measured gravity of both views of a pair as priors of angular std sigma_rad."""
+    return GravityPriors(np.stack([np.asarray(g1, float), np.asarray(g2, float)]), np.full(2, float(sigma_rad)))
+
+
+__all__ = ["BundleResult", "BundleState", "GravityInformation", "GravityPriors", "InverseDepthChart",
+           "Observations", "ParameterLayout", "SequenceBundleProblem", "TwoViewResult", "adjust_bundle",
+           "condense_gravity", "covariance_from_information", "gravity_covariance", "inv3", "refine_two_view",
+           "robust_sigma", "two_view_priors"]

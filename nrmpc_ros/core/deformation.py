@@ -42,20 +42,22 @@ def deformed_extrinsics(rig: Rig, g):
 
 
 def deformation_jacobians(rig: Rig, g):
-    """Derivatives of the model at a single g (3,), for the bundle adjustment.
+    """Derivatives of the model at gravity g (3,), or at a batch of gravity vectors (K, 3).
 
-    Returns w, W and per-camera matrices D (M, 3, 3), K (M, 3, 3) with
-        d w_i / d g          = D_i
+    Returns w (M, 3), W (M, 3, 3) (or (K, M, ...) for a batch) and the matrices D (M, 3, 3) and
+    K (M, 3, 3) (or (K, M, 3, 3)) with
+        d w_i / d g          = D_i                    (constant)
         d (W_i^T y) / d g    = W_i^T [y]_x K_i        for any fixed y.
     (W^T y = V^T Exp(-phi) y; differentiate Exp with its right Jacobian.)
     """
     u, cd, _ = rig.bar_coefficients
     g = np.asarray(g, dtype=float)
-    if g.shape != (3,):
-        raise ValueError(f"gravity must have shape (3,), got {g.shape}")
+    if g.shape[-1:] != (3,) or g.ndim > 2:
+        raise ValueError(f"gravity must have shape (3,) or (K, 3), got {g.shape}")
     E, J = exp_and_left_jacobian(bend_rotation_vectors(rig, g))  # J_l(phi) = J_r(-phi)
     W = E @ rig.rotations
-    w = rig.positions + cd[:, None] * (g - (u @ g)[:, None] * u)
+    gb = g[..., None, :]
+    w = rig.positions + cd[:, None] * (gb - np.sum(u * gb, axis=-1, keepdims=True) * u)
     D, cr_ux = rig.bar_derivatives  # D_i and c_r [u_i]_x, constant
     return w, W, D, J @ cr_ux
 

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.random import default_rng  # imported here, not lazily at the first estimate (~15 ms)
 
 from ..errors import EstimationError, InputError
-from .bundle import GravityPrior, gravity_covariance, refine_two_view
+from .bundle import gravity_covariance, refine_two_view, two_view_priors
 from .deformation import deformed_extrinsics, rays
 from .gravity_init import (
     camera_rotations,
@@ -419,7 +419,7 @@ def _four_point_bending(rig, m, opts, rng):
     flexible = rig.is_flexible
     prior = None
     if flexible and math.isfinite(opts.gravity_prior_sigma):
-        prior = GravityPrior(g1m, g2m, float(opts.gravity_prior_sigma))
+        prior = two_view_priors(g1m, g2m, float(opts.gravity_prior_sigma))
     R, t, g, inliers, res, _ = _refine_loop(rig, m, R, t, g1m, tight, opts, prior=prior, optimize_gravity=flexible,
                                          inliers=rr.inliers)
     info.update(_pose_info(res, flexible))

@@ -5,12 +5,11 @@ eq. 15): the tangent-plane (angular) residuals of both bearings of every
 inlier, each component with Gaussian noise of std ``sigma_rad`` = pixel
 noise / focal length, which is exactly how :mod:`nrmpc_ros.sim.synthetic`
 perturbs bearings. The Fisher information of (dr, t, dg, points) is
-J^T J / sigma^2 with the analytic Jacobians of
-:class:`~nrmpc_ros.core.bundle.TwoViewProblem` at the ground truth; the
-points are eliminated by the Schur complement
-(``Solver.reduced_information``), leaving the 8x8 information of the
-camera block (rotation as a right perturbation R Exp(dr), t in metres,
-gravity as a 2-d.o.f. tangent angle).
+J^T J / sigma^2 with the analytic Jacobians of the bundle adjustment
+(:class:`~nrmpc_ros.core.bundle.SequenceBundleProblem`) at the ground truth;
+the points are eliminated by the Schur complement, leaving the 8x8
+information of the camera block (rotation as a right perturbation
+R Exp(dr), t in metres, gravity as a 2-d.o.f. tangent angle).
 
 The bound of an angle is reported two ways: ``rms`` = sqrt(trace) of the
 relevant covariance (what the RMS error of an efficient unbiased estimator
@@ -26,7 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.bundle import Solver, TwoViewProblem
+from ..core.bundle import BundleState, Observations, ParameterLayout, SequenceBundleProblem, two_view_priors
 from ..core.deformation import deformed_extrinsics
 from ..core.rig import Rig
 from ..core.so3 import normalize
@@ -65,17 +64,20 @@ def fisher_information(rig: Rig, P, cam, R, t, g, sigma_rad: float, gravity_prio
     ``gravity_prior_sigma`` (rad) adds measured gravity in both views as a
     prior of that angular std (SPEC section 5, 4pt-bending); inf = vision only.
     """
-    from ..core.bundle import GravityPrior
-
     P = np.asarray(P, dtype=float)
     cam = np.asarray(cam)
     f1, f2 = noise_free_bearings(rig, P, cam, R, t, g)
     prior = None
     if math.isfinite(gravity_prior_sigma):
-        prior = GravityPrior(np.asarray(g, float), R.T @ g, float(gravity_prior_sigma))
-    prob = TwoViewProblem(rig, f1, f2, cam, optimize_gravity=True, prior=prior)
+        prior = two_view_priors(np.asarray(g, float), R.T @ g, float(gravity_prior_sigma))
     # Huber threshold far out: plain least-squares information (residuals are zero at the truth anyway)
-    return Solver(prob, float(sigma_rad), huber_k=1e6).reduced_information(R, t, g, P)
+    prob = SequenceBundleProblem(rig, Observations.two_view(f1, f2, cam), ParameterLayout(2, [1], True),
+                                 float(sigma_rad), huber_k=1e6, priors=prior)
+    state = BundleState(np.stack([np.eye(3), R]), np.stack([np.zeros(3), t]), np.asarray(g, float), P)
+    info = prob.linearize(state).information()
+    T = np.eye(8)  # rotation errors in view 2's body frame (right perturbation)
+    T[:3, :3] = R.T
+    return T @ info @ T.T
 
 
 def _marginal(info: np.ndarray, idx) -> np.ndarray:

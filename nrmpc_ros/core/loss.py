@@ -1,0 +1,62 @@
+"""Robust loss functions, written once and used wherever a robust cost appears.
+
+Each loss works on squared residual norms ``r2`` (one per observation, in
+units of the noise sigma or in rad^2, as the caller decides), PoseLib-style:
+
+- ``loss(r2)``: the cost of each residual (for the quadratic part, r2 / 2);
+- ``weight(r2)``: the iteratively-reweighted-least-squares weight
+  rho'(r2) * 2, i.e. the factor that multiplies J^T J and J^T r.
+
+``HuberLoss`` is the refinement's loss (docs/CONVENTIONS.md, "Refinement");
+``TruncatedLoss`` is the MSAC score that RANSAC and the comparison of starts
+use: min(r2, threshold^2) summed over all correspondences (``msac_score``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class HuberLoss:
+    """Quadratic up to ``delta``, linear beyond: cost r2/2 or delta (r - delta/2) with r = sqrt(r2)."""
+
+    def __init__(self, delta: float):
+        if not delta > 0:
+            raise ValueError(f"Huber delta must be > 0, got {delta}")
+        self.delta = float(delta)
+
+    def loss(self, r2: np.ndarray) -> np.ndarray:
+        r2 = np.asarray(r2, dtype=float)
+        d = self.delta
+        r = np.sqrt(r2)
+        return np.where(r <= d, 0.5 * r2, d * (r - 0.5 * d))
+
+    def weight(self, r2: np.ndarray) -> np.ndarray:
+        r2 = np.asarray(r2, dtype=float)
+        r = np.sqrt(r2)
+        return np.divide(self.delta, r, out=np.ones_like(r), where=r > self.delta)
+
+
+class TruncatedLoss:
+    """MSAC: min(r2, threshold^2); inliers (r2 < threshold^2) weigh 1, outliers 0."""
+
+    def __init__(self, threshold: float):
+        if not threshold > 0:
+            raise ValueError(f"threshold must be > 0, got {threshold}")
+        self.threshold = float(threshold)
+
+    def loss(self, r2: np.ndarray) -> np.ndarray:
+        return np.minimum(np.asarray(r2, dtype=float), self.threshold**2)
+
+    def weight(self, r2: np.ndarray) -> np.ndarray:
+        return (np.asarray(r2, dtype=float) < self.threshold**2).astype(float)
+
+
+def msac_score(errors: np.ndarray, threshold: float, axis=None) -> np.ndarray | float:
+    """Sum of min(e^2, threshold^2) of angular errors ``errors`` (rad) along ``axis`` (all by default)."""
+    e = np.asarray(errors, dtype=float)
+    s = np.minimum(e * e, threshold * threshold).sum(axis=axis)
+    return float(s) if axis is None else s
+
+
+__all__ = ["HuberLoss", "TruncatedLoss", "msac_score"]
