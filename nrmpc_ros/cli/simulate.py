@@ -209,8 +209,8 @@ def _validate(sc, source: str) -> None:
 def add_sequence_arguments(p) -> None:
     """Flags of a simulated sequence of static views (``--sequence``)."""
     g = p.add_argument_group(
-        "sequence of static views (with --sequence; --noise then defaults to 0.3 px and --max-translation, the "
-        "half-size of the cube of body positions, to 0.3 m)")
+        "sequence of static views", "With --sequence, --noise defaults to 0.3 px and --max-translation (half-size of "
+        "the cube of body positions) to 0.3 m; the other SequenceScenario fields (tilts, depths) come from --scenario.")
     g.add_argument("--sequence", action="store_true",
                    help="write sequences of static views (tracks .npz) instead of two-view problems (matches .npz)")
     g.add_argument("--views", type=int, help="number of static views K (default 10)")

@@ -49,9 +49,11 @@ class Tracks:
     source: str = "<tracks>"
 
     def __post_init__(self):
+        """Validate and normalise in place (see :func:`validate_tracks`); sets num_views to K."""
         validate_tracks(self)
 
     def __len__(self) -> int:
+        """N, the number of observations."""
         return len(self.view)
 
     def check_rig(self, rig: Rig) -> None:
@@ -141,13 +143,13 @@ def _indices(src, key, value, n) -> np.ndarray:
         if bad.any():
             first = int(np.argmax(bad))
             raise InputError(src, f"expected integers, got dtype {a.dtype} with {int(bad.sum())} non-integer "
-                             f"values (first: entry {first} = {a[first]!r})", key)
+                             f"values (first: entry {first} = {a[first].item()!r})", key)
     if n and a.min() < 0:
         first = int(np.argmax(a < 0))
-        raise InputError(src, f"negative index at entry {first} ({a[first]!r})", key)
+        raise InputError(src, f"negative index at entry {first} ({a[first].item()!r})", key)
     if n and a.max() > _INT64_MAX // 2:
         first = int(np.argmax(a > _INT64_MAX // 2))
-        raise InputError(src, f"index too large at entry {first} ({a[first]!r})", key)
+        raise InputError(src, f"index too large at entry {first} ({a[first].item()!r})", key)
     return a.astype(np.int64)
 
 

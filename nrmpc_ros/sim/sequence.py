@@ -7,27 +7,32 @@ consecutive views are drawn as for a rendered bag, see
 in a cube. (R_k, t_k) maps view k into view 0 (p_0 = R_k p_k + t_k) and
 gravity in view k's body frame is g_k = R_k^T g_0.
 
-Each camera tracks its own landmarks, as a per-camera feature tracker does:
-in every view but the last, new landmarks are created for camera i (uniform
+Each camera tracks its own landmarks, as a per-camera feature tracker does.
+In every view but the last, new landmarks are created for camera i (uniform
 over the image, depth along the optical axis uniform in [min_depth,
-max_depth] m) until tracks_per_camera of its landmarks are visible, and at
-least one of them carries on into the next view, so consecutive views are
-always linked. A landmark is seen by the camera that created it for a run of
-consecutive views drawn in [min_track_views, max_track_views], cut short
-when it leaves the image (behind the camera or outside the pixel area) or the
-sequence ends; candidates that would be seen in one view only are not kept,
-so every track spans at least two views. Observations use the bent
-extrinsics of each view (w_i(g_k), W_i(g_k)); image noise is Gaussian in
-pixels (the projected pixel is perturbed and turned back into a bearing with
-the camera model), outliers replace a fraction of the observations by the
-bearings of random pixels, and measured gravity is the true g_k turned by
-Gaussian tangent-plane noise.
+max_depth] m) until tracks_per_camera of its landmarks are visible and at
+least one of them carries on into the next view. A landmark is seen by the
+camera that created it for a run of consecutive views drawn in
+[min_track_views, max_track_views], cut short when it leaves the image
+(behind the camera or outside the pixel area) or the sequence ends;
+candidates that would be seen in one view only are not kept, so every track
+spans at least two views. When less than about 2 % of a camera's image stays
+in view into the next hold, that camera gets fewer new landmarks in that
+view; when nothing stays in view (a large step about an axis across the
+optical axis, or a large translation) the attitudes are drawn again, so every
+camera shares landmarks between every two consecutive views.
+
+Observations use the bent extrinsics of each view (w_i(g_k), W_i(g_k)).
+Image noise is Gaussian in pixels (the projected pixel is perturbed and
+turned back into a bearing with the camera model); outliers replace a
+fraction of the observations by the bearings of random pixels; measured
+gravity is the true g_k turned by Gaussian tangent-plane noise.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,10 +43,11 @@ from ..core.so3 import normalize
 from ..core.tracks import Tracks
 from ..errors import InputError
 from ..render.sequence import WORLD_GRAVITY, MotionOptions, sample_attitudes
-from .synthetic import RigSpec, make_rig, perturb_directions
+from .synthetic import RigSpec, Scenario, make_rig, perturb_directions
 
 _SOURCE = "sequence scenario"
-_MAX_DRAWS = 200  # candidate batches per camera and view before the scenario is declared infeasible
+_MAX_DRAWS = 16  # candidate batches per camera and view: tops up unless under ~2 % of the image stays in view
+_MAX_SEQUENCES = 100  # attitude sequences drawn before the step limits are declared infeasible
 
 
 @dataclass
@@ -65,14 +71,9 @@ class SequenceScenario:
     gravity_noise_deg: float = 0.3  # std of each tangent-plane component of the measured gravity direction
     gravity_measured: bool = True  # write g_meas
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> SequenceScenario:
-        d = dict(d)
-        rig = RigSpec(**d.pop("rig", {}))
-        return cls(rig=rig, **d)
+    # plain mapping <-> scenario, the nested rig as a RigSpec mapping, exactly as for two-view scenarios
+    to_dict = Scenario.to_dict
+    from_dict = classmethod(Scenario.from_dict.__func__)
 
     def validate(self, source: str = _SOURCE) -> None:
         """Raise InputError(source, ..., field) for values the generator cannot use (the rig spec aside)."""
@@ -121,6 +122,7 @@ class SequenceProblem:
     inlier_mask: np.ndarray  # (N,) bool, False for the outlier observations
 
     def truth_dict(self) -> dict:
+        """R, t and gravity of every view, g_0 and the outlier observation indices, as JSON-ready lists."""
         return {
             "num_views": len(self.R), "R": self.R.tolist(), "t": self.t.tolist(), "gravity": self.gravity.tolist(),
             "g0": self.gravity[0].tolist(), "outliers": np.flatnonzero(~self.inlier_mask).tolist(),
@@ -165,7 +167,8 @@ def _random_pixels(rng, cam: Camera, n: int) -> np.ndarray:
 
 
 def _new_landmarks(rng, sc, cam: Camera, k: int, C, c, need: int):
-    """Landmarks created by one camera in view k: points (n, 3) in view 0 and their runs (n,) >= 2 views.
+    """Up to ``need`` landmarks created by one camera in view k: points (n, 3) in view 0 and their runs (n,),
+    each >= 2 views; fewer when too little of the image stays in view into view k + 1.
 
     C (K, 3, 3), c (K, 3): that camera's rotation (camera -> view 0) and centre in every view.
     """
@@ -186,13 +189,13 @@ def _new_landmarks(rng, sc, cam: Camera, k: int, C, c, need: int):
         runs.append(run[keep])
         have += len(keep)
         if have >= need:
-            return np.concatenate(pts), np.concatenate(runs)
-    raise InputError(_SOURCE, f"camera {cam.name!r} cannot keep {sc.tracks_per_camera} landmarks in view from view "
-                     f"{k} to view {k + 1}; lower max_step_deg or tracks_per_camera", "max_step_deg")
+            break
+    return np.concatenate(pts), np.concatenate(runs)
 
 
 def _make_landmarks(rng, sc, rig: Rig, C, c):
-    """Create the landmarks view by view, camera by camera: points (L, 3), camera, first view, run (L,)."""
+    """Create the landmarks view by view, camera by camera: points (L, 3), camera, first view, run (L,);
+    None when a camera shares no landmark between two consecutive views (the attitudes are then redrawn)."""
     K, M = C.shape[:2]
     P, cam, start, run = [np.zeros((0, 3))], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for k in range(K - 1):  # a landmark created in the last view would be seen once
@@ -205,6 +208,8 @@ def _make_landmarks(rng, sc, rig: Rig, C, c):
             if need == 0:
                 continue
             p, r = _new_landmarks(rng, sc, rig.cameras[i], k, C[:, i], c[:, i], need)
+            if not (goes_on or len(p)):
+                return None
             P.append(p)
             cam.append(np.full(len(p), i, np.int64))
             start.append(np.full(len(p), k, np.int64))
@@ -223,11 +228,18 @@ def make_sequence(scenario: SequenceScenario | None = None, seed: int = 0, rig: 
     rng = np.random.default_rng(seed)
     rig = rig or make_rig(sc.rig)
     gm = rig.gravity_magnitude
-    R, t, G = _view_poses(rng, sc, gm)
-    w, W = deformed_extrinsics(rig, G)  # (K, M, 3), (K, M, 3, 3): bent camera -> body at each view's gravity
-    C = np.einsum("kab,kmbc->kmac", R, W)  # camera -> view 0
-    c = np.einsum("kab,kmb->kma", R, w) + t[:, None, :]  # camera centres in view 0
-    P, lm_cam, lm_start, lm_run = _make_landmarks(rng, sc, rig, C, c)
+    for _ in range(_MAX_SEQUENCES):
+        R, t, G = _view_poses(rng, sc, gm)
+        w, W = deformed_extrinsics(rig, G)  # (K, M, 3), (K, M, 3, 3): bent camera -> body at each view's gravity
+        C = np.einsum("kab,kmbc->kmac", R, W)  # camera -> view 0
+        c = np.einsum("kab,kmb->kma", R, w) + t[:, None, :]  # camera centres in view 0
+        landmarks = _make_landmarks(rng, sc, rig, C, c)
+        if landmarks is not None:
+            break
+    else:
+        raise InputError(_SOURCE, f"no sequence of attitudes found in {_MAX_SEQUENCES} draws in which every camera "
+                         "keeps part of its view from one hold to the next; lower max_step_deg", "max_step_deg")
+    P, lm_cam, lm_start, lm_run = landmarks
 
     ids = np.repeat(np.arange(len(P)), lm_run)
     first = np.repeat(np.cumsum(lm_run) - lm_run, lm_run)
