@@ -1,11 +1,17 @@
-"""``nrmpc simulate``: synthetic rig, matches and ground truth (issue 3; paper section 4 set-up).
+"""``nrmpc simulate``: synthetic rig, matches or tracks, and ground truth (paper section 4 set-up).
 
-Writes into --out: ``rig.yaml`` (SPEC section 7), ``<prefix>_NNN.npz``
-(matches, SPEC section 7) and ``<prefix>_NNN.truth.json`` (R, t, gravity in
-both views, outlier indices, the scenario and the seed) for --count problems
-with seeds seed, seed+1, ... The scenario comes from flags, from a YAML
-scenario file (the fields of :class:`nrmpc_ros.sim.synthetic.Scenario`, plus
-optional ``seed``, ``count`` and ``rig_file``), or both (flags win).
+Writes into --out: ``rig.yaml`` (SPEC section 7), ``<prefix>_NNN.npz`` and
+``<prefix>_NNN.truth.json`` for --count problems with seeds seed, seed+1, ...
+Two-view problems (the default) give matches files (SPEC section 7) and truth
+with R, t, gravity in both views and the outlier indices; ``--sequence``
+gives sequences of static views instead: tracks files (see
+:mod:`nrmpc_ros.core.tracks`) and truth with R_k, t_k and g_k per view, g_0
+and the outlier observation indices (:class:`nrmpc_ros.sim.sequence.SequenceProblem`).
+Every truth file also holds the scenario and the seed. The scenario comes
+from flags, from a YAML scenario file (the fields of
+:class:`nrmpc_ros.sim.synthetic.Scenario`, or with --sequence of
+:class:`nrmpc_ros.sim.sequence.SequenceScenario`, plus optional ``seed``,
+``count`` and ``rig_file``), or both (flags win).
 
 The argument helpers here are shared with ``nrmpc observability``.
 """
@@ -21,12 +27,22 @@ import yaml
 
 from ..errors import InputError
 
-# flag dest -> (Scenario field or "rig.<RigSpec field>", type)
-_SCENARIO_FLAGS = {
+# flag dest -> Scenario field or "rig.<RigSpec field>"
+_RIG_FLAGS = {
     "cameras": "rig.num_cameras", "layout": "rig.layout", "looking": "rig.looking", "bar_length": "rig.bar_length",
-    "mass": "rig.mass", "EI": "rig.EI", "focal": "rig.focal", "points": "num_points", "noise": "pixel_noise",
+    "mass": "rig.mass", "EI": "rig.EI", "focal": "rig.focal",
+}
+_SCENARIO_FLAGS = {
+    **_RIG_FLAGS, "points": "num_points", "noise": "pixel_noise",
     "outliers": "outlier_fraction", "gravity_noise": "gravity_noise_px", "gravity_frame": "gravity_frame",
     "max_rotation": "max_rotation", "max_translation": "max_translation",
+}
+# flag dest -> SequenceScenario field (a pair of fields for a flag with two values)
+_SEQUENCE_FLAGS = {
+    **_RIG_FLAGS, "views": "num_views", "min_step": "min_step_deg", "max_step": "max_step_deg",
+    "tracks_per_camera": "tracks_per_camera", "track_views": ("min_track_views", "max_track_views"),
+    "noise": "pixel_noise", "outliers": "outlier_fraction", "gravity_noise_deg": "gravity_noise_deg",
+    "gravity_measured": "gravity_measured", "max_translation": "max_translation",
 }
 _EXTRA_KEYS = ("seed", "count", "rig_file")
 
@@ -80,10 +96,27 @@ def _check_keys(source, d: dict, allowed, prefix=""):
 
 def scenario_from_args(args):
     """(Scenario, custom Rig or None, extras {'seed', 'count'}) from --scenario and the flags, validated."""
-    from ..core import load_rig
-    from ..sim.synthetic import RigSpec, Scenario
+    from ..sim.synthetic import Scenario
 
-    sc_fields = {f.name for f in dataclasses.fields(Scenario)}
+    return _scenario_from_args(args, Scenario, _SCENARIO_FLAGS, _validate)
+
+
+def sequence_scenario_from_args(args):
+    """(SequenceScenario, custom Rig or None, extras) from --scenario and the flags, validated."""
+    from ..sim.sequence import SequenceScenario
+
+    def validate(sc, source):
+        _validate_rig_spec(sc.rig, source)
+        sc.validate(source)
+
+    return _scenario_from_args(args, SequenceScenario, _SEQUENCE_FLAGS, validate)
+
+
+def _scenario_from_args(args, scenario_cls, flags: dict, validate):
+    from ..core import load_rig
+    from ..sim.synthetic import RigSpec
+
+    sc_fields = {f.name for f in dataclasses.fields(scenario_cls)}
     rig_fields = {f.name for f in dataclasses.fields(RigSpec)}
     d: dict = {"rig": {}}
     extras: dict = {}
@@ -102,11 +135,13 @@ def scenario_from_args(args):
         if "rig_file" in extras:
             rf = Path(extras["rig_file"])
             extras["rig_file"] = str(rf if rf.is_absolute() else Path(args.scenario).parent / rf)
-    for dest, key in _SCENARIO_FLAGS.items():
+    for dest, key in flags.items():
         value = getattr(args, dest, None)
         if value is None:
             continue
-        if key.startswith("rig."):
+        if isinstance(key, tuple):
+            d.update(zip(key, value))
+        elif key.startswith("rig."):
             d["rig"][key[4:]] = value
         else:
             d[key] = value
@@ -116,10 +151,10 @@ def scenario_from_args(args):
     if "resolution" in r:
         r["resolution"] = tuple(r["resolution"])
     try:
-        sc = Scenario.from_dict(d)
+        sc = scenario_cls.from_dict(d)
     except TypeError as exc:
         raise InputError(source, f"bad scenario ({exc})") from None
-    _validate(sc, source)
+    validate(sc, source)
     rig = None
     rig_path = getattr(args, "rig", None) or extras.get("rig_file")
     if rig_path:
@@ -135,45 +170,89 @@ def scenario_from_args(args):
     return sc, rig, extras
 
 
-def _validate(sc, source: str) -> None:
-    """Scenario values a generator can use; InputError names the field."""
-    def need(ok, field, msg):
-        if not ok:
-            raise InputError(source, msg, field)
+def _need(source: str, ok: bool, field: str, msg: str) -> None:
+    if not ok:
+        raise InputError(source, msg, field)
 
-    r = sc.rig
-    need(isinstance(r.num_cameras, int) and r.num_cameras >= 1, "rig.num_cameras", "must be an integer >= 1")
+
+def _validate_rig_spec(r, source: str) -> None:
+    """RigSpec values make_rig can use; InputError names the field."""
+    _need(source, isinstance(r.num_cameras, int) and r.num_cameras >= 1, "rig.num_cameras", "must be an integer >= 1")
     try:
         r.validate()
     except ValueError as exc:
         raise InputError(source, str(exc), "rig") from None
-    need(r.bar_length > 0 and math.isfinite(r.bar_length), "rig.bar_length", "must be > 0 (m)")
-    need(r.mass >= 0 and math.isfinite(r.mass), "rig.mass", "must be >= 0 (kg)")
-    need(r.EI > 0, "rig.EI", "must be > 0 (N m^2; inf = rigid)")
-    need(r.focal > 0 and math.isfinite(r.focal), "rig.focal", "must be > 0 (px)")
+    _need(source, r.bar_length > 0 and math.isfinite(r.bar_length), "rig.bar_length", "must be > 0 (m)")
+    _need(source, r.mass >= 0 and math.isfinite(r.mass), "rig.mass", "must be >= 0 (kg)")
+    _need(source, r.EI > 0, "rig.EI", "must be > 0 (N m^2; inf = rigid)")
+    _need(source, r.focal > 0 and math.isfinite(r.focal), "rig.focal", "must be > 0 (px)")
+
+
+def _validate(sc, source: str) -> None:
+    """Scenario values a generator can use; InputError names the field."""
+    from ..sim.synthetic import GRAVITY_FRAMES
+
+    def need(ok, field, msg):
+        _need(source, ok, field, msg)
+
+    _validate_rig_spec(sc.rig, source)
     need(isinstance(sc.num_points, int) and sc.num_points >= 1, "num_points", "must be an integer >= 1")
-    need(sc.num_points >= r.num_cameras, "num_points", "must be at least the number of cameras")
+    need(sc.num_points >= sc.rig.num_cameras, "num_points", "must be at least the number of cameras")
     need(0 <= sc.pixel_noise < math.inf, "pixel_noise", "must be finite and >= 0 (px)")
     need(0 <= sc.outlier_fraction < 1, "outlier_fraction", "must be in [0, 1)")
     need(0 <= sc.gravity_noise_px < math.inf, "gravity_noise_px", "must be finite and >= 0 (px)")
-    from ..sim.synthetic import GRAVITY_FRAMES
-
     need(sc.gravity_frame in GRAVITY_FRAMES, "gravity_frame", f"must be one of {', '.join(GRAVITY_FRAMES)}")
     need(0 <= sc.max_rotation < math.inf, "max_rotation", "must be finite and >= 0 (rad)")
     need(0 <= sc.max_translation < math.inf, "max_translation", "must be finite and >= 0 (m)")
 
 
+def add_sequence_arguments(p) -> None:
+    """Flags of a simulated sequence of static views (``--sequence``)."""
+    g = p.add_argument_group(
+        "sequence of static views", "With --sequence, --noise defaults to 0.3 px and --max-translation (half-size of "
+        "the cube of body positions) to 0.3 m; the other SequenceScenario fields (tilts, depths) come from --scenario.")
+    g.add_argument("--sequence", action="store_true",
+                   help="write sequences of static views (tracks .npz) instead of two-view problems (matches .npz)")
+    g.add_argument("--views", type=int, help="number of static views K (default 10)")
+    g.add_argument("--min-step", type=float, help="least rotation between consecutive views (deg, default 5)")
+    g.add_argument("--max-step", type=float, help="largest rotation between consecutive views (deg, default 30)")
+    g.add_argument("--tracks-per-camera", type=int, help="landmarks visible per camera per view (default 120)")
+    g.add_argument("--track-views", type=int, nargs=2, metavar=("MIN", "MAX"),
+                   help="run of consecutive views a track is seen in, cut short when it leaves the image "
+                        "(default 2 6)")
+    g.add_argument("--gravity-noise-deg", type=float,
+                   help="measured gravity: std of each tangent-plane component (deg, default 0.3)")
+    g.add_argument("--no-gravity", dest="gravity_measured", action="store_const", const=False,
+                   help="write no measured gravity (g_meas)")
+
+
+# flags of one kind of problem that the other kind does not take
+_PAIR_ONLY = ("points", "gravity_noise", "gravity_frame", "max_rotation")
+_SEQUENCE_ONLY = ("views", "min_step", "max_step", "tracks_per_camera", "track_views", "gravity_noise_deg",
+                  "gravity_measured")
+
+
+def _check_mode_flags(args, sequence: bool) -> None:
+    for dest in _PAIR_ONLY if sequence else _SEQUENCE_ONLY:
+        if getattr(args, dest, None) is not None:
+            flag = "--no-gravity" if dest == "gravity_measured" else "--" + dest.replace("_", "-")
+            raise InputError(flag, "applies to two-view problems only, not with --sequence" if sequence
+                             else "applies to sequences only (add --sequence)")
+
+
 def register(sub):
     p = sub.add_parser(
-        "simulate", help="write a synthetic rig, matches .npz and ground-truth JSON",
-        description="Draws --count seeded two-view problems of a bending rig (the paper's section 4 set-up) and "
-                    "writes rig.yaml, <prefix>_NNN.npz and <prefix>_NNN.truth.json into --out. "
-                    "Solve them with: nrmpc solve --rig OUT/rig.yaml --method 4pt-bending OUT/*.npz")
+        "simulate", help="write a synthetic rig, matches (or tracks) .npz and ground-truth JSON",
+        description="Draws --count seeded two-view problems of a bending rig (the paper's section 4 set-up), or "
+                    "with --sequence sequences of static views with landmark tracks, and writes rig.yaml, "
+                    "<prefix>_NNN.npz and <prefix>_NNN.truth.json into --out. "
+                    "Solve pairs with: nrmpc solve --rig OUT/rig.yaml --method 4pt-bending OUT/*.npz")
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     p.add_argument("--seed", type=int, help="seed of the first problem (default 0); problem k uses seed + k")
     p.add_argument("--count", type=int, help="number of problems (default 1)")
-    p.add_argument("--prefix", default="pair", help="file name prefix (default: pair)")
+    p.add_argument("--prefix", help="file name prefix (default: pair, or seq with --sequence)")
     add_scenario_arguments(p)
+    add_sequence_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -181,13 +260,16 @@ def run(args) -> int:
     from ..core import save_matches, save_rig
     from ..sim.synthetic import make_problem, make_rig
 
-    sc, rig, extras = scenario_from_args(args)
+    sequence = bool(getattr(args, "sequence", False))
+    _check_mode_flags(args, sequence)
+    sc, rig, extras = (sequence_scenario_from_args if sequence else scenario_from_args)(args)
     seed = args.seed if args.seed is not None else int(extras.get("seed", 0))
     count = args.count if args.count is not None else int(extras.get("count", 1))
+    prefix = args.prefix if args.prefix is not None else ("seq" if sequence else "pair")
     if count < 1:
         raise InputError("--count", f"must be >= 1, got {count}")
-    if not args.prefix or "/" in args.prefix:
-        raise InputError("--prefix", f"must be a plain file name prefix, got {args.prefix!r}")
+    if not prefix or "/" in prefix:
+        raise InputError("--prefix", f"must be a plain file name prefix, got {prefix!r}")
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -199,13 +281,22 @@ def run(args) -> int:
     width = max(3, len(str(count - 1)))
     for k in range(count):
         s = seed + k
-        problem = make_problem(sc, seed=s, rig=rig)
-        name = f"{args.prefix}_{k:0{width}d}"
-        save_matches(problem.matches, out / f"{name}.npz")
-        truth = {"matches": f"{name}.npz", "rig": "rig.yaml", "seed": s, **problem.truth_dict(),
-                 "scenario": _jsonable(sc.to_dict())}
+        name = f"{prefix}_{k:0{width}d}"
+        if sequence:
+            from ..core.tracks import save_tracks
+            from ..sim.sequence import make_sequence
+
+            seq = make_sequence(sc, seed=s, rig=rig)
+            save_tracks(seq.tracks, out / f"{name}.npz")
+            truth = {"tracks": f"{name}.npz", "rig": "rig.yaml", "seed": s, **seq.truth_dict()}
+        else:
+            problem = make_problem(sc, seed=s, rig=rig)
+            save_matches(problem.matches, out / f"{name}.npz")
+            truth = {"matches": f"{name}.npz", "rig": "rig.yaml", "seed": s, **problem.truth_dict()}
+        truth["scenario"] = _jsonable(sc.to_dict())
         (out / f"{name}.truth.json").write_text(json.dumps(truth) + "\n")
-    print(f"wrote {rig_path} and {count} problem(s) {args.prefix}_*.npz / .truth.json to {out}")
+    kind = "sequence" if sequence else "problem"
+    print(f"wrote {rig_path} and {count} {kind}(s) {prefix}_*.npz / .truth.json to {out}")
     return 0
 
 
