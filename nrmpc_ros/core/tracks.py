@@ -1,4 +1,4 @@
-"""Observations of landmarks over a sequence of static views of one rig (tracks .npz, see docs/PIPELINE.md).
+"""Observations of landmarks over a sequence of static views of one rig, and the tracks .npz file that holds them.
 
 Over K static views, (R_k, t_k) maps view k into view 0 (p_0 = R_k p_k + t_k)
 and gravity in view k's body frame is g_k = R_k^T g_0. A *track* is one
