@@ -378,6 +378,13 @@ class SequenceBundleProblem:
         self._view_cache = (state, rig, vm)
         return vm
 
+    def predicted_bearings(self, state: BundleState) -> np.ndarray:
+        """Unit bearings (N, 3) the model predicts for every observation at ``state`` (noise-free data)."""
+        rig = self.model_rig(state)
+        vm = self._views(state, rig)
+        d = state.points[self.obs.point] - vm.c[self._vc]
+        return normalize(np.einsum("nji,nj->ni", vm.Q[self._vc], d))
+
     def residuals(self, state: BundleState, rig: Rig | None = None) -> np.ndarray:
         """Angular residuals (N, 2), rad."""
         return self._evaluate(state, rig or self.model_rig(state), jacobians=False)[0]

@@ -60,6 +60,8 @@ class EstimatorOptions:
     huber_k: float = 3.0  # Huber threshold on the 2D residual norm, in robust sigmas
     max_ba_iterations: int = 30
     subset_size: int = 300  # correspondences used while comparing gravity starts
+    final_refinement: bool = True  # 6pt-bending: robust refinement on all correspondences after the best start
+    # (off where the estimate only starts a joint adjustment over a sequence, which refines everything anyway)
 
     @classmethod
     def from_dict(cls, d: dict | None) -> EstimatorOptions:
@@ -370,9 +372,11 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         info.pop("camera_inliers")  # of fewer than two cameras: no yardstick for the starts
     best = best_score = None
     info["gravity_starts"] = 0
+    candidates = []  # (MSAC score, refined gravity of a start): the basins this pair leaves open
     for R0, t0, g0, idx in starts:
         res, score, inliers = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
         info["gravity_starts"] += 1
+        candidates.append((score, res.g))
         if best is None or score < best_score:
             best, best_score, best_idx, best_inliers = res, score, idx, inliers
         if axis is None and np.count_nonzero(inliers) >= info.get("camera_inliers", len(m) + 1):
@@ -388,8 +392,14 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         info["mirrored_start"] = False
         for g_m in (best.g - 2.0 * ga, 2.0 * ga - best.g):
             mirrored, score, inliers = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
+            candidates.append((score, mirrored.g))
             if score < best_score:
                 best, best_score, best_inliers, info["mirrored_start"] = mirrored, score, inliers, True
+    info["gravity_candidates"] = [gc for _, gc in sorted(candidates, key=lambda c: c[0]) if gc is not None]
+    if not opts.final_refinement:
+        info["msac_score_rad2"] = best_score
+        info.update(_pose_info(best, True))
+        return best.R, best.t, best.g, best_inliers, info
     R, t, g, inliers, res, info["msac_score_rad2"] = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts,
                                                                    inliers=best_inliers)
     info.update(_pose_info(res, True))

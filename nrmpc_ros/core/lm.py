@@ -51,7 +51,7 @@ def inv3(A: np.ndarray, diag: np.ndarray | float = 0.0) -> np.ndarray:
     out[:, 0, 1] = out[:, 1, 0] = c01 * inv_det
     out[:, 0, 2] = out[:, 2, 0] = c02 * inv_det
     out[:, 1, 2] = out[:, 2, 1] = c12 * inv_det
-    ill = np.abs(det) < ILL_CONDITIONED * np.abs(a * d * f) + 1e-300
+    ill = np.abs(det) < ILL_CONDITIONED * np.maximum(np.maximum(a, d), f) ** 3 + 1e-300
     if ill.any():
         B = np.array(A[ill])
         idx = np.arange(3)
@@ -61,7 +61,7 @@ def inv3(A: np.ndarray, diag: np.ndarray | float = 0.0) -> np.ndarray:
     return out
 
 
-ILL_CONDITIONED = 1e-7  # det below this share of the diagonal's product: invert by eigen-decomposition instead
+ILL_CONDITIONED = 1e-9  # det below this share of the largest diagonal entry cubed: eigen-decomposition instead
 
 
 DENSE_COST_RATIO = 20.0  # a GEMM flop costs about this much less than a scattered (bincount) entry

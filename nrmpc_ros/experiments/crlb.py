@@ -25,7 +25,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.bundle import BundleState, Observations, ParameterLayout, SequenceBundleProblem, two_view_priors
+from ..core.bundle import (
+    BundleResult,
+    BundleState,
+    GravityPriors,
+    Observations,
+    ParameterLayout,
+    SequenceBundleProblem,
+    covariance_from_information,
+    two_view_priors,
+)
 from ..core.deformation import deformed_extrinsics
 from ..core.rig import Rig
 from ..core.so3 import normalize
@@ -156,11 +165,67 @@ def summarize_bounds(bounds: list[Bound], seed: int = 0, draws: int = 4000) -> d
     return out
 
 
+@dataclass
+class SequenceBound:
+    """Bounds on each view's gravity direction over a sequence: joint (all views, one gravity) and, for view
+    k >= 1, from the pair (k-1, k) on its own (its shared tracks, two-view estimate); tangent covariances
+    (K, 2, 2) in rad^2 (view 0 of the pairwise bound is the pair (0, 1)'s view 0)."""
+
+    joint: np.ndarray
+    pairwise: np.ndarray
+
+    def median_angles(self, which: str = "joint", rng: np.random.Generator | None = None) -> np.ndarray:
+        """(K,) median angle (rad) an efficient estimator of each view's gravity reaches."""
+        rng = rng or np.random.default_rng(0)
+        covs = self.joint if which == "joint" else self.pairwise
+        return np.array([float(np.median(angle_samples(c, rng, 2000))) for c in covs])
+
+
+def _bound_result(rig, obs, state, sigma_rad, priors=None) -> BundleResult:
+    """Information and covariance of the camera block at ``state`` for noise-free observations."""
+    free = np.arange(1, obs.num_views)
+    layout = ParameterLayout(obs.num_views, free, True)
+    prob = SequenceBundleProblem(rig, obs, layout, float(sigma_rad), huber_k=1e6, priors=priors)
+    info = prob.linearize(state).information()
+    return BundleResult(state=state, layout=layout, cost=0.0, iterations=0, sigma_rad=float(sigma_rad),
+                        information=info, covariance=covariance_from_information(info))
+
+
+def sequence_bound(problem, sigma_rad: float, gravity_prior_sigma: float = math.inf) -> SequenceBound:
+    """Cramér-Rao bounds of a simulated sequence (:class:`nrmpc_ros.sim.sequence.SequenceProblem`) over its
+    inlier observations, joint and pair by pair; ``gravity_prior_sigma`` (rad) adds each view's measured
+    gravity as a prior (4pt-bending)."""
+    rig, tr = problem.rig, problem.tracks.subset(problem.inlier_mask)
+    K = tr.num_views
+    obs, ids = Observations.from_arrays(tr.view, tr.cam, tr.track, tr.f, K)
+    truth = BundleState(problem.R, problem.t, problem.gravity[0], problem.points[ids])
+    exact = SequenceBundleProblem(rig, obs, ParameterLayout(K, [], False), 1.0).predicted_bearings(truth)
+    obs = Observations(obs.view, obs.cam, obs.point, exact, K, obs.num_points)
+    finite = math.isfinite(gravity_prior_sigma)
+    priors = GravityPriors(problem.gravity, gravity_prior_sigma) if finite else None
+    joint = _bound_result(rig, obs, truth, sigma_rad, priors)
+    jcov = np.array([joint.gravity_tangent_covariance(k) for k in range(K)])
+    pair = np.full((K, 2, 2), np.inf)
+    for k in range(1, K):
+        sub, used = obs.subset(np.isin(obs.view, [k - 1, k]))
+        sub = Observations(np.where(sub.view == k, 1, 0), sub.cam, sub.point, sub.f, 2, sub.num_points)
+        Rk = problem.R[k - 1].T @ problem.R[k]
+        tk = problem.R[k - 1].T @ (problem.t[k] - problem.t[k - 1])
+        P = (problem.points[ids][used] - problem.t[k - 1]) @ problem.R[k - 1]
+        st = BundleState(np.stack([np.eye(3), Rk]), np.stack([np.zeros(3), tk]), problem.gravity[k - 1], P)
+        pr = GravityPriors(problem.gravity[[k - 1, k]], gravity_prior_sigma) if finite else None
+        res = _bound_result(rig, sub, st, sigma_rad, pr)
+        pair[k] = res.gravity_tangent_covariance(1)
+        if k == 1:
+            pair[0] = res.gravity_tangent_covariance(0)
+    return SequenceBound(joint=jcov, pairwise=pair)
+
+
 def set_bar_ei(rig: Rig, EI: float) -> Rig:
     """The rig with every bar that has a tip mass set to flexural rigidity EI (N m^2); inf = rigid."""
     cams = tuple(replace(c, EI=float(EI)) if c.mass > 0 else c for c in rig.cameras)
     return replace(rig, cameras=cams)
 
 
-__all__ = ["Bound", "KINDS", "angle_samples", "bound_from_information", "fisher_information", "noise_free_bearings",
+__all__ = ["Bound", "KINDS", "SequenceBound", "sequence_bound", "angle_samples", "bound_from_information", "fisher_information", "noise_free_bearings",
            "problem_bound", "set_bar_ei", "summarize_bounds"]

@@ -1,0 +1,325 @@
+"""Joint estimation over a sequence of static views: every pose and ONE gravity (docs/CONVENTIONS.md, "Sequences").
+
+Gravity is fixed in the world, so over K views g_k = R_k^T g_0: the
+sequence has one gravity unknown and every view's bending constrains it.
+:func:`estimate_sequence` is the entry point:
+
+1. **Initialisation from the pairwise estimators.** Each view is paired with
+   the nearest earlier view that shares enough tracks (the previous one
+   unless it shares too few) and estimated with the method's two-view
+   estimator; the pair poses are chained into poses in view 0.
+2. **Gravity basin by the joint cost.** Every pair's gravity, and the other
+   basins it left open (its refined starts: on parallel bars the bending
+   reversed or mirrored), carried into view 0, is a candidate for g_0
+   (for ``4pt-bending`` also the measured gravity). Each distinct candidate
+   gets a short joint bundle adjustment; the one with the best MSAC score over
+   all observations wins, so a pair in the wrong basin cannot capture the
+   sequence.
+3. **Robust joint bundle adjustment** (:func:`.bundle.adjust_bundle`) over
+   all observations, repeated while the inlier set (angular error below the
+   inlier threshold) changes. ``4pt-bending`` adds each view's measured
+   gravity as a prior (``gravity_prior_sigma``); ``6pt-bending`` is vision
+   only; ``6pt-nonbending`` refines the poses of the rigid rig.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..errors import EstimationError, InputError
+from .bundle import (
+    BundleResult,
+    BundleState,
+    GravityInformation,
+    GravityPriors,
+    Observations,
+    ParameterLayout,
+    SequenceBundleProblem,
+    adjust_bundle,
+)
+from .estimators import METHODS, EstimatorOptions, estimate
+from .loss import msac_score
+from .rig import Rig
+from .so3 import angle_between
+from .tracks import Tracks
+
+RIGID_REASON = "the rig has no flexible bar (every EI is inf or mass 0), so gravity is unobservable from vision"
+
+
+@dataclass
+class SequenceOptions:
+    """Tuning of :func:`estimate_sequence`; the pairwise estimators and thresholds come from ``estimator``."""
+
+    estimator: EstimatorOptions = field(default_factory=EstimatorOptions)
+    # the pairwise estimates only start the joint adjustment: compare gravity starts on fewer correspondences,
+    # and leave their final refinement to the joint adjustment
+    pair_options: dict = field(default_factory=lambda: {"subset_size": 100, "gravity_refine_starts": 2,
+                                                        "max_ba_iterations": 10, "final_refinement": False})
+    max_iterations: int = 50  # joint bundle adjustment, per inlier round
+    inlier_rounds: int = 4  # joint adjustments while the inlier set still changes
+    candidate_iterations: int = 8  # short joint adjustment of each gravity candidate
+    candidate_tracks: int = 300  # tracks (random subset) those short adjustments use
+    candidate_separation_deg: float = 3.0  # candidates closer than this are one
+    max_candidates: int = 8
+    max_pair_gap: int = 3  # a view is paired with at most this many views back
+    min_pair_matches: int = 12  # correspondences a pair needs
+    gravity_bias_sigma: float | None = None  # rad: 4pt-bending also estimates a constant tilt of the measurements
+
+    @classmethod
+    def from_dict(cls, d: dict | None, source: str = "sequence options") -> SequenceOptions:
+        d = dict(d or {})
+        est = d.pop("estimator", None)
+        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise InputError(source, f"unknown option (allowed: {', '.join(cls.__dataclass_fields__)})", unknown[0])
+        out = cls(estimator=EstimatorOptions.from_dict(est), **d)
+        EstimatorOptions.from_dict({**vars(out.estimator), **out.pair_options})  # validates
+        return out
+
+    def pair_estimator(self) -> EstimatorOptions:
+        """Options of the pairwise estimates that start the joint adjustment."""
+        return EstimatorOptions(**{**vars(self.estimator), **self.pair_options})
+
+
+@dataclass
+class SequenceEstimate:
+    """Result of :func:`estimate_sequence`: view k's pose in view 0 (p_0 = R_k p_k + t_k), its gravity."""
+
+    method: str
+    success: bool
+    R: np.ndarray | None = None  # (K, 3, 3)
+    t: np.ndarray | None = None  # (K, 3)
+    gravity: np.ndarray | None = None  # (K, 3) body frames, m/s^2; None without gravity
+    gravity_sigma_rad: np.ndarray | None = None  # (K,) largest angular std of each view's gravity
+    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (N,) over the tracks' observations
+    time_s: float = 0.0
+    reason: str = ""  # why not (success False), or why there is no gravity
+    bundle: BundleResult | None = None
+    pair_methods: list = field(default_factory=list)  # the two-view method and reference view of each view k >= 1
+    candidates: int = 0  # distinct gravity candidates compared
+
+    @property
+    def num_inliers(self) -> int:
+        return int(np.count_nonzero(self.inliers))
+
+    def to_json(self, tracks_path: str | None = None) -> dict:
+        """The result object of ``nrmpc solve-sequence`` (docs/CONVENTIONS.md, "Command line")."""
+        views = []
+        if self.success:
+            for k in range(len(self.R)):
+                g = None if self.gravity is None else self.gravity[k].tolist()
+                s = None if self.gravity is None else float(math.degrees(self.gravity_sigma_rad[k]))
+                views.append({"R": self.R[k].tolist(), "t": self.t[k].tolist(), "gravity": g,
+                              "gravity_sigma_deg": s if s is None or math.isfinite(s) else None})
+        out = {"tracks": tracks_path, "method": self.method, "success": bool(self.success), "views": views,
+               "num_inliers": self.num_inliers, "time_s": self.time_s}
+        if self.reason:
+            out["reason"] = self.reason
+        return out
+
+
+def _failure(method, t0, reason) -> SequenceEstimate:
+    return SequenceEstimate(method=method, success=False, time_s=time.perf_counter() - t0, reason=reason)
+
+
+def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, seed: int):
+    """Poses of every view in view 0 from two-view estimates, and gravity candidates for g_0.
+
+    Returns (R (K,3,3), t (K,3), candidates list of (g_0, weight), pair methods) or a str reason.
+    """
+    K = tracks.num_views
+    R, t = [np.eye(3)], [np.zeros(3)]
+    candidates, methods = [], []
+    pair_opts = opts.pair_estimator()
+    for k in range(1, K):
+        why = []
+        for j in range(k - 1, max(-1, k - 1 - opts.max_pair_gap), -1):
+            m = tracks.pair(j, k)
+            cams = len(np.unique(m.cam))
+            if len(m) < opts.min_pair_matches or cams < 2:
+                why.append(f"view {j}: {len(m)} shared tracks from {cams} camera(s)")
+                continue
+            pm = method if method != "4pt-bending" or m.has_gravity else "6pt-bending"
+            est = estimate(rig, m, method=pm, seed=seed + k, options=pair_opts)
+            if not est.success:
+                why.append(f"view {j}: {est.info.get('reason', 'estimation failed')}")
+                continue
+            R.append(R[j] @ est.R)
+            t.append(R[j] @ est.t + t[j])
+            methods.append((pm, j))
+            if est.gravity is not None:
+                weight = float(est.num_inliers)
+                for g in [est.gravity] + list(est.info.get("gravity_candidates", [])):
+                    candidates.append((R[j] @ np.asarray(g, float), weight))
+            break
+        else:
+            return f"view {k} cannot be linked to the views before it ({'; '.join(why) or 'no earlier view'})"
+    return np.array(R), np.array(t), candidates, methods
+
+
+def _distinct(candidates, separation_rad: float, limit: int):
+    """Greedy: candidates in order of weight, each at least separation_rad from those kept."""
+    kept = []
+    for g, _ in sorted(candidates, key=lambda c: -c[1]):
+        if all(angle_between(g, k) > separation_rad for k in kept):
+            kept.append(g)
+        if len(kept) >= limit:
+            break
+    return kept
+
+
+def _observations(tracks: Tracks):
+    """Observations of the tracks seen in at least two views (the others carry no information), and their
+    indices into the tracks."""
+    ids, inv = np.unique(tracks.track, return_inverse=True)
+    first = np.full(len(ids), np.iinfo(np.int64).max)
+    last = np.full(len(ids), -1)
+    np.minimum.at(first, inv, tracks.view)
+    np.maximum.at(last, inv, tracks.view)
+    keep = (last > first)[inv]
+    obs, _ = Observations.from_arrays(tracks.view[keep], tracks.cam[keep], tracks.track[keep], tracks.f[keep],
+                                      tracks.num_views)
+    return obs, np.flatnonzero(keep)
+
+
+def _triangulated(rig: Rig, obs: Observations, state: BundleState) -> tuple[BundleState, SequenceBundleProblem]:
+    """The state with every landmark of obs triangulated, and a problem that evaluates it."""
+    prob = SequenceBundleProblem(rig, obs, ParameterLayout(obs.num_views, [], False), 1.0)
+    return replace(state, points=prob.triangulate(replace(state, points=np.zeros((obs.num_points, 3))))), prob
+
+
+def _errors(prob: SequenceBundleProblem, state: BundleState) -> np.ndarray:
+    """Angular error (rad) of every observation."""
+    return np.linalg.norm(prob.residuals(state), axis=1)
+
+
+def _choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: SequenceOptions, rng):
+    """The candidate g_0 whose short joint adjustment has the best MSAC score over all observations."""
+    if len(candidates) == 1:
+        return candidates[0], 1
+    pts = np.arange(obs.num_points)
+    if len(pts) > opts.candidate_tracks:
+        pts = np.sort(rng.choice(pts, size=opts.candidate_tracks, replace=False))
+    sub, _ = obs.subset(np.isin(obs.point, pts))
+    best, best_score = None, math.inf
+    for g0 in candidates:
+        res = adjust_bundle(rig, sub, R, t, g0, priors=priors, max_iterations=opts.candidate_iterations,
+                            sigma_rad=threshold / 2.0, tol=1e-3)
+        st, prob = _triangulated(rig, obs, res.state)
+        st.points[np.isin(np.arange(obs.num_points), pts)] = res.state.points
+        score = msac_score(_errors(prob, st), threshold)
+        if score < best_score:
+            best, best_score = res.state, score
+    return best, len(candidates)
+
+
+def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float, *, priors=None,
+                    gravity_information: GravityInformation | None = None, points=None, free_views=None,
+                    max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0):
+    """Robust joint adjustment: classify observations as inliers (angular error below ``threshold``, rad,
+    ``start_factor`` times that at the start, where the poses are only roughly right), adjust on the inliers,
+    re-classify every observation and repeat while the inlier set changes by more than 1 %. Returns
+    (BundleResult on the inliers, inlier mask over obs)."""
+    state = BundleState(np.asarray(R, float), np.asarray(t, float), gravity,
+                        np.zeros((obs.num_points, 3)) if points is None else np.asarray(points, float),
+                        view_sequence=obs.view_sequence)
+    full, prob = _triangulated(rig, obs, state)
+    if points is not None:
+        full = replace(full, points=np.asarray(points, float))
+    inl = _seen_twice(obs, _errors(prob, full) < start_factor * threshold)
+    res = None
+    for r in range(max(1, rounds)):
+        sub, used = obs.subset(inl)
+        res = adjust_bundle(rig, sub, full.R, full.t, full.gravity, full.points[used], priors=priors,
+                            gravity_information=gravity_information, free_views=free_views,
+                            max_iterations=max_iterations if r == 0 else max(10, max_iterations // 3),
+                            huber_k=huber_k)
+        new_full, prob = _triangulated(rig, obs, res.state)
+        new_full.points[used] = res.state.points
+        full = new_full
+        new = _seen_twice(obs, _errors(prob, full) < threshold)
+        changed = int(np.count_nonzero(new != inl))
+        inl = new
+        if changed <= max(2, 0.01 * np.count_nonzero(inl)):
+            break
+    return res, inl
+
+
+def _seen_twice(obs: Observations, mask: np.ndarray) -> np.ndarray:
+    """mask restricted to landmarks that keep at least two of their observations in it."""
+    n = np.bincount(obs.point, weights=mask.astype(float), minlength=obs.num_points)
+    return mask & (n[obs.point] >= 2)
+
+
+def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", seed: int = 0,
+                      options: SequenceOptions | dict | None = None) -> SequenceEstimate:
+    """Poses of every view and one gravity from the tracks of a sequence of static views.
+
+    ``6pt-bending`` is vision only, ``4pt-bending`` adds the tracks' g_meas as priors
+    (``options.estimator.gravity_prior_sigma``; views without a measurement have none), ``6pt-nonbending``
+    refines the poses of the rig taken as rigid. Deterministic for ``seed``. Raises for an unknown method,
+    4pt-bending without measured gravity, or tracks that do not fit the rig; a sequence that cannot be
+    estimated returns success False with the reason.
+    """
+    t0 = time.perf_counter()
+    if method not in METHODS:
+        raise EstimationError(f"unknown method {method!r} (choose one of {', '.join(METHODS)})")
+    opts = options if isinstance(options, SequenceOptions) else SequenceOptions.from_dict(options)
+    tracks.check_rig(rig)
+    measured = tracks.measured_gravity(rig)
+    if method == "4pt-bending" and (measured is None or np.count_nonzero(np.all(np.isfinite(measured), 1)) < 2):
+        raise EstimationError(f"{tracks.source}: 4pt-bending needs measured gravity (g_meas) in at least two "
+                              "views; use 6pt-bending for vision only")
+    model_rig = rig.as_rigid() if method == "6pt-nonbending" else rig
+    with_gravity = method != "6pt-nonbending" and rig.is_flexible
+    K = tracks.num_views
+    if K < 2:
+        return _failure(method, t0, "needs at least two views")
+    chained = _chain_pairs(model_rig, tracks, method, opts, seed)
+    if isinstance(chained, str):
+        return _failure(method, t0, chained)
+    R, t, cands, pair_methods = chained
+    obs, obs_index = _observations(tracks)
+    if len(obs) == 0:
+        return _failure(method, t0, "no track is seen in two views")
+    focal = float(np.mean([c.focal_px for c in rig.cameras]))
+    threshold = opts.estimator.threshold_px / focal
+    priors = None
+    if method == "4pt-bending" and math.isfinite(opts.estimator.gravity_prior_sigma):
+        priors = GravityPriors(measured, opts.estimator.gravity_prior_sigma, opts.gravity_bias_sigma)
+    gravity, n_cand = None, 0
+    if with_gravity:
+        if method == "4pt-bending":
+            cands += [(R[k] @ measured[k], 0.0) for k in range(K) if np.all(np.isfinite(measured[k]))]
+        distinct = _distinct(cands, math.radians(opts.candidate_separation_deg), opts.max_candidates)
+        if not distinct:
+            return _failure(method, t0, "no pair gave a gravity estimate")
+        rng = np.random.default_rng(seed)
+        chosen, n_cand = _choose_gravity(model_rig, obs, R, t, distinct, priors, threshold, opts, rng)
+        if isinstance(chosen, np.ndarray):
+            gravity = chosen
+        else:
+            R, t, gravity = chosen.R, chosen.t, chosen.gravity
+    res, inl = refine_sequence(model_rig, obs, R, t, gravity, threshold, priors=priors,
+                               max_iterations=opts.max_iterations, rounds=opts.inlier_rounds,
+                               huber_k=opts.estimator.huber_k)
+    inliers = np.zeros(len(tracks), bool)
+    inliers[obs_index[inl]] = True
+    st = res.state
+    grav = sig = None
+    reason = ""
+    if with_gravity and st.gravity is not None:
+        grav = st.view_gravity
+        sig = np.array([res.gravity_sigma_rad(k) for k in range(K)])
+    elif method != "6pt-nonbending":
+        reason = RIGID_REASON
+    return SequenceEstimate(method=method, success=True, R=st.R, t=st.t, gravity=grav, gravity_sigma_rad=sig,
+                            inliers=inliers, time_s=time.perf_counter() - t0, reason=reason, bundle=res,
+                            pair_methods=pair_methods, candidates=n_cand)
+
+
+__all__ = ["SequenceEstimate", "SequenceOptions", "estimate_sequence", "refine_sequence"]
