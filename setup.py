@@ -29,7 +29,8 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        "test": ["pytest>=7", "ruff>=0.5", "colcon-core", "colcon-ros", "dask[distributed]>=2024.1"],
+        "test": ["pytest>=7", "ruff>=0.5", "colcon-core", "colcon-ros", "dask[distributed]>=2024.1",
+                 "hypothesis>=6.100"],
         "dask": ["dask[distributed]>=2024.1"],
     },
     zip_safe=True,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nrmpc_ros.core import load_rig, save_rig
+from nrmpc_ros.core import load_rig, rig_from_dict, save_rig
 from nrmpc_ros.errors import InputError
 
 GOOD = {
@@ -86,3 +86,146 @@ def test_unreadable_and_invalid_yaml(tmp_path):
     p.write_text("cameras: [\n")
     with pytest.raises(InputError, match="not valid YAML"):
         load_rig(p)
+
+
+# --- strict types, ROS names and topics, physical bounds -------------------------
+
+def _cam(i):
+    return lambda d: d["cameras"][i]
+
+
+BAD_VALUES = [
+    # YAML booleans and strings are not numbers
+    (lambda d: d["cameras"][0]["bar"].update(mass=True), "cameras[0].bar.mass", "got a boolean"),
+    (lambda d: d["cameras"][0]["bar"].update(EI="0.1"), "cameras[0].bar.EI", "got the string '0.1'"),
+    (lambda d: d.update(gravity_magnitude="9.81"), "gravity_magnitude", "expected a number"),
+    (lambda d: d["cameras"][0].update(intrinsics=[800, 800, "320", 240]), "cameras[0].intrinsics[2]", "string"),
+    (lambda d: d["cameras"][0].update(resolution=[640, False]), "cameras[0].resolution[1]", "boolean"),
+    (lambda d: d["cameras"][0].update(rotation_xyzw=[0.5, -0.5, 0.5, None]), "cameras[0].rotation_xyzw[3]", "null"),
+    (lambda d: d["cameras"][0].update(distortion=0), "cameras[0].distortion", "expected a list"),
+    (lambda d: d["cameras"][0].update(position=[10**400, 0, 0]), "cameras[0].position[0]", "integer too large"),
+    # names, strings and ROS rules
+    (lambda d: d["cameras"][0].update(name=None), "cameras[0].name", "expected a string, got null"),
+    (lambda d: d["cameras"][0].update(name=["cam0"]), "cameras[0].name", "expected a string, got a list"),
+    (lambda d: d["cameras"][0].update(name=7), "cameras[0].name", "expected a string"),
+    (lambda d: d["cameras"][0].update(name="cam-0"), "cameras[0].name", "not a valid ROS name"),
+    (lambda d: d["cameras"][0].update(name="0cam"), "cameras[0].name", "must not start with a digit"),
+    (lambda d: d["cameras"][0].update(name=""), "cameras[0].name", "must not be empty"),
+    (lambda d: d.update(body_frame="/base_link"), "body_frame", "not a valid ROS name"),
+    (lambda d: d.update(body_frame=None), "body_frame", "expected a string"),
+    (lambda d: d["cameras"][0].update(model=["pinhole"]), "cameras[0].model", "unknown camera model"),
+    (lambda d: d["imu"].update(topic=["/imu"]), "imu.topic", "expected a string"),
+    (lambda d: d["imu"].update(mount=None), "imu.mount", "expected a string"),
+    (lambda d: d["cameras"][0].update(image_topic=""), "cameras[0].image_topic", "empty"),
+    (lambda d: d["cameras"][0].update(image_topic="/cam0//image"), "cameras[0].image_topic", "empty token"),
+    (lambda d: d["cameras"][0].update(image_topic="/cam0/image/"), "cameras[0].image_topic", "end with '/'"),
+    (lambda d: d["cameras"][0].update(image_topic="/"), "cameras[0].image_topic", "end with '/'"),
+    (lambda d: d["cameras"][0].update(image_topic="/cam0/1st"), "cameras[0].image_topic", "starts with a digit"),
+    (lambda d: d["cameras"][0].update(image_topic="/cam0/~img"), "cameras[0].image_topic", "'~' may only be"),
+    (lambda d: d["cameras"][0].update(image_topic="~img"), "cameras[0].image_topic", "followed by '/'"),
+    (lambda d: d["cameras"][0].update(image_topic="/cam 0/img"), "cameras[0].image_topic", "found ' '"),
+    (lambda d: d["cameras"][0].update(image_topic="/{ns}/img"), "cameras[0].image_topic", "substitutions"),
+    (lambda d: d["cameras"][0].update(info_topic="/cam0/info/"), "cameras[0].info_topic", "end with '/'"),
+    (lambda d: d["imu"].update(topic="imu//data"), "imu.topic", "empty token"),
+    # topics that would mix two streams
+    (lambda d: d["cameras"][1].update(image_topic="/cam0/image_raw"), "cameras[1].image_topic", "also the image"),
+    (lambda d: d["cameras"][1].update(image_topic="/imu/data"), "imu.topic", "image topic of cameras[1]"),
+    (lambda d: d["imu"].update(topic="/cam1/camera_info"), "imu.topic", "info topic of cameras[1]"),
+    (lambda d: d["cameras"][1].update(info_topic="/cam0/image_raw"), "cameras[1].info_topic", "image topic of"),
+    (lambda d: d["cameras"][0].update(info_topic="/cam0/image_raw"), "cameras[0].info_topic", "image topic of"),
+    (lambda d: d["cameras"][1].update(info_topic="/cam0/camera_info"), "cameras[1].info_topic", "also the info"),
+    # physical plausibility
+    (lambda d: d["cameras"][0]["bar"].update(mass=1e300), "cameras[0].bar.mass", "[0, 1000] kg"),
+    (lambda d: d["cameras"][0]["bar"].update(mass=-1e-3), "cameras[0].bar.mass", "[0, 1000] kg"),
+    (lambda d: d["cameras"][0]["bar"].update(EI=1e-300), "cameras[0].bar", "tip displacement under 1 g"),
+    (lambda d: d["cameras"][0]["bar"].update(EI=0.07), "cameras[0].bar", "tip rotation under 1 g, m L^2 g / (2 EI) "
+                                                                           "= 64.2 deg, exceeds 60 deg"),
+    (lambda d: d["cameras"][0]["bar"].update(EI=0.0), "cameras[0].bar.EI", "must be > 0"),
+    (lambda d: d["cameras"][0]["bar"].update(EI=float("nan")), "cameras[0].bar.EI", "finite"),
+    (lambda d: d["cameras"][0]["bar"].update(EI=float("-inf")), "cameras[0].bar.EI", "finite"),
+    (lambda d: d["cameras"][0].update(position=[1e200, 0, 0]), "cameras[0].position", "beyond the plausible 100 m"),
+    (lambda d: d["cameras"][0].update(position=[0, 0, 0]), "cameras[0].position", "bar length 0"),
+    (lambda d: d.update(gravity_magnitude=1e308), "gravity_magnitude", "[0.1, 100] m/s^2"),
+    (lambda d: d.update(gravity_magnitude=0.0), "gravity_magnitude", "[0.1, 100] m/s^2"),
+    (lambda d: d.update(gravity_magnitude=float("inf")), "gravity_magnitude", "finite"),
+    (lambda d: d["cameras"][0].update(resolution=[64000, 480]), "cameras[0].resolution", "width = 64000 px"),
+    (lambda d: d["cameras"][0].update(resolution=[640.5, 480]), "cameras[0].resolution", "positive integers"),
+    (lambda d: d["cameras"][0].update(intrinsics=[1e6, 800, 320, 240]), "cameras[0].intrinsics", "fx = 1e+06 px"),
+    (lambda d: d["cameras"][0].update(intrinsics=[800, 1e-9, 320, 240]), "cameras[0].intrinsics", "fy = 1e-09 px"),
+    (lambda d: d["cameras"][0].update(intrinsics=[800, 800, 1e9, 240]), "cameras[0].intrinsics", "cx = 1e+09 px"),
+    (lambda d: d["cameras"][0].update(distortion=[1e9, 0, 0, 0]), "cameras[0].distortion[0]", "[-1000, 1000]"),
+    (lambda d: d["cameras"][1].update(distortion=[0, float("inf"), 0, 0]), "cameras[1].distortion[1]", "finite"),
+    (lambda d: d.update({1: 2}), "1", "unknown key"),
+    (lambda d: d.update(cameras={"cam0": {}}), "cameras", "non-empty list"),
+    (lambda d: d["cameras"].append("cam2"), "cameras[2]", "expected a mapping, got the string 'cam2'"),
+]
+
+
+@pytest.mark.parametrize("mutation, field, fragment", BAD_VALUES)
+def test_odd_values_name_file_field_and_reason(tmp_path, mutation, field, fragment):
+    path = write(tmp_path, _mutate(mutation))
+    with pytest.raises(InputError) as exc:
+        load_rig(path)
+    msg = str(exc.value)
+    assert msg.startswith(f"{path}: field '{field}': ") and fragment in msg, msg
+
+
+def test_camera_count_bounded():
+    d = _mutate(lambda d: d.update(cameras=d["cameras"] * 501))
+    with pytest.raises(InputError, match=r"<mine>: field 'cameras': 1002 cameras, more than the 1000"):
+        rig_from_dict(d, "<mine>")
+
+
+def test_nominal_rig_bends_45_degrees_and_loads(tmp_path):
+    """The paper's nominal bar (m 0.1 kg, L 0.4 m, EI 0.1 N m^2) is well inside the bounds."""
+    rig = load_rig(write(tmp_path, GOOD))
+    _, _, cr = rig.bar_coefficients
+    assert math.degrees(cr[0] * rig.gravity_magnitude) == pytest.approx(44.97, abs=0.01)
+
+
+def test_accepted_spellings(tmp_path):
+    text = yaml.safe_dump(GOOD).replace("EI: 0.1", "EI: 1e-1").replace("mass: 0.1", "mass: 1.0e-1")
+    assert "EI: 1e-1" in text
+    rig = load_rig(write_text(tmp_path, text))
+    assert rig.cameras[0].EI == 0.1 and rig.cameras[0].mass == 0.1
+    for spelling in ("inf", "Infinity", "+.inf", ".INF"):
+        d = _mutate(lambda d, s=spelling: d["cameras"][0]["bar"].update(EI=s))
+        assert math.isinf(load_rig(write(tmp_path, d)).cameras[0].EI)
+    d = _mutate(lambda d: (d["cameras"][0].update(image_topic="front/image"), d["imu"].update(topic="~/imu")))
+    rig = load_rig(write(tmp_path, d))
+    assert rig.cameras[0].info_topic == "front/camera_info" and rig.imu.topic == "~/imu"
+    assert load_rig(write(tmp_path, _mutate(lambda d: d["cameras"][0].update(image_topic="image")))
+                    ).cameras[0].info_topic == "camera_info"
+
+
+def write_text(tmp_path, text, name="rig.yaml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("name, payload, fragment", [
+    ("utf16", yaml.safe_dump(GOOD).encode("utf-16"), "rig file is UTF-16-LE text"),
+    ("latin1", yaml.safe_dump(GOOD).replace("cam1", "cam\u00e9").encode("latin-1"), "looks like Latin-1"),
+    ("binary", bytes(range(256)), "rig file is binary"),
+    ("alias_bomb", ("a: &a [x, x, x, x, x, x, x, x, x, x]\n"
+                    + "".join(f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n" for p, c in zip("abcdefg", "bcdefgh"))
+                    ).encode(), "alias bomb"),
+    ("deep", b"cameras: " + b"[" * 50_000 + b"]" * 50_000, "nested deeper than 64 levels"),
+    ("empty", b"", "the rig file is empty"),
+    ("list", b"- cam0\n- cam1\n", "expected a mapping, got a list"),
+])
+def test_hostile_rig_files(tmp_path, name, payload, fragment):
+    path = tmp_path / f"{name}.yaml"
+    path.write_bytes(payload)
+    with pytest.raises(InputError) as exc:
+        load_rig(path)
+    assert str(exc.value).startswith(str(path)) and fragment in str(exc.value), str(exc.value)
+
+
+def test_huge_rig_file_refused_before_reading(tmp_path):
+    path = tmp_path / "huge.yaml"
+    with open(path, "wb") as fh:
+        fh.truncate(50 * 1024 * 1024)  # sparse: instant, and reading it would show as time
+    with pytest.raises(InputError, match=r"rig file is 50 MiB, more than the 1 MiB"):
+        load_rig(path)

@@ -98,8 +98,8 @@ class Estimate:
         return self.R.T @ self.gravity
 
     def to_json(self, matches_path: str | None = None) -> dict:
-        """The SPEC section 7 result object."""
-        return {
+        """The SPEC section 7 result object; a failed estimate also says why (``reason``, from ``info``)."""
+        out = {
             "matches": matches_path,
             "method": self.method,
             "success": bool(self.success),
@@ -110,6 +110,9 @@ class Estimate:
             "inliers": [int(i) for i in self.inliers],
             "time_s": self.time_s,
         }
+        if not self.success:
+            out["reason"] = str(self.info.get("reason", "no reason recorded"))
+        return out
 
 
 # ---------------------------------------------------------------------------

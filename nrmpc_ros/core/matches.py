@@ -2,15 +2,24 @@
 
 from __future__ import annotations
 
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ..safeio import MiB, load_npz
 from .deformation import gravity_from_camera
-from .rig import Rig
+from .rig import MAX_CAMERAS, Rig
+
+# --- Limits of a matches file (see docs/INPUTS.md) ---------------------------
+MATCHES_MAX_BYTES = 1024 * MiB  # a two-view pair has thousands of correspondences (~50 B each): 1 GiB is generous
+MATCHES_MAX_ARRAY_BYTES = 256 * MiB  # one array, uncompressed: 11 million bearings of 3 float64
+# Bearings are unit vectors; the loader renormalises rounding, and homogeneous rays (x, y, 1) of normalised
+# image coordinates are accepted too. A norm outside this range is not a direction any camera measured (a
+# norm of 1e308 overflows to inf and normalises to a zero vector).
+BEARING_NORM_RANGE = (1e-6, 1e6)
+GRAVITY_NORM_RANGE = (1e-6, 1e6)  # m/s^2 or unit: only the direction of a gravity measurement is used
 
 
 @dataclass
@@ -74,32 +83,86 @@ class Matches:
         return out
 
 
-def _bearings(src, name, value) -> np.ndarray:
+def _real_array(src, name, value) -> np.ndarray:
+    """``value`` as float64 if its dtype is real (integer or float); a bool, string, complex dtype is an error."""
     a = np.asarray(value)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise InputError(src, f"expected shape (N, 3), got {a.shape}", name)
-    if not np.issubdtype(a.dtype, np.floating) and not np.issubdtype(a.dtype, np.integer):
-        raise InputError(src, f"expected float64 bearings, got dtype {a.dtype}", name)
-    a = a.astype(float)
+    if a.dtype == bool or not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+        raise InputError(src, f"expected float64 numbers, got dtype {a.dtype}", name)
+    return a.astype(float)
+
+
+def _unit_rows(src, name, a, norm_range, what) -> np.ndarray:
+    """Rows of ``a`` (K, 3) divided by their norms; NaN/inf rows and norms outside ``norm_range`` are errors."""
+    lo, hi = norm_range
     bad = ~np.all(np.isfinite(a), axis=1)
     if bad.any():
-        raise InputError(src, f"{int(bad.sum())} rows contain NaN or inf (first: row {int(np.argmax(bad))})", name)
-    n = np.linalg.norm(a, axis=1)
-    zero = n < 1e-12
-    if zero.any():
-        first = int(np.argmax(zero))
-        raise InputError(src, f"{int(zero.sum())} zero-length bearing vectors (first: row {first})", name)
+        raise InputError(src, f"{int(bad.sum())} {what} contain NaN or inf (first: row {int(np.argmax(bad))})", name)
+    huge = np.any(np.abs(a) > hi, axis=1)  # before the norm, which would overflow
+    if huge.any():
+        first = int(np.argmax(huge))
+        raise InputError(src, f"{int(huge.sum())} {what} have an entry beyond {hi:g} (first: row {first}): not "
+                              f"directions", name)
+    scale = np.max(np.abs(a), axis=1, initial=0.0)
+    n = scale * np.linalg.norm(a / np.where(scale > 0, scale, 1.0)[:, None], axis=1)  # scaled: 1e-300 stays > 0
+    small = n < lo
+    if small.any():
+        first = int(np.argmax(small))
+        kind = "zero-length" if n[first] == 0 else f"tiny (norm {n[first]:.3g} < {lo:g})"
+        raise InputError(src, f"{int(small.sum())} {what} are zero-length or tiny (first: row {first}, {kind})",
+                         name)
+    large = n > hi
+    if large.any():
+        first = int(np.argmax(large))
+        raise InputError(src, f"{int(large.sum())} {what} have a norm beyond {hi:g} (first: row {first})", name)
     return a / n[:, None]
 
 
+def _bearings(src, name, value) -> np.ndarray:
+    a = _real_array(src, name, value)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise InputError(src, f"expected shape (N, 3), got {a.shape}", name)
+    return _unit_rows(src, name, a, BEARING_NORM_RANGE, "bearing vectors")
+
+
 def _gravity(src, name, value) -> np.ndarray:
-    g = np.asarray(value)
+    g = _real_array(src, name, value)
     if g.shape != (3,):
         raise InputError(src, f"expected shape (3,), got {g.shape}", name)
-    g = g.astype(float)
-    if not np.all(np.isfinite(g)) or np.linalg.norm(g) < 1e-12:
-        raise InputError(src, f"expected a finite non-zero 3-vector, got {g!r}", name)
+    _unit_rows(src, name, g[None], GRAVITY_NORM_RANGE, "gravity vectors")
     return g
+
+
+def _camera_indices(src, cam, n) -> np.ndarray:
+    cam = np.asarray(cam)
+    if cam.ndim != 1 or len(cam) != n:
+        raise InputError(src, f"expected shape ({n},), got {cam.shape}", "cam")
+    if cam.dtype == bool or not (np.issubdtype(cam.dtype, np.integer) or np.issubdtype(cam.dtype, np.floating)):
+        raise InputError(src, f"expected integer camera indices, got dtype {cam.dtype}", "cam")
+    if not len(cam):
+        return cam.astype(np.int64)
+    if np.issubdtype(cam.dtype, np.floating):
+        whole = np.isfinite(cam) & (cam == np.round(cam))
+        if not whole.all():
+            first = int(np.argmin(whole))
+            raise InputError(src, f"camera indices must be integers, entry {first} is {cam[first]}", "cam")
+    neg = cam < 0
+    if neg.any():
+        raise InputError(src, f"negative camera index at entry {int(np.argmax(neg))}", "cam")
+    big = cam >= MAX_CAMERAS  # compared before the int64 cast, which would wrap uint64 and huge floats
+    if big.any():
+        first = int(np.argmax(big))
+        raise InputError(src, f"entry {first} has camera index {cam[first]}, beyond the {MAX_CAMERAS} cameras a rig "
+                              f"may have", "cam")
+    return cam.astype(np.int64)
+
+
+def _camera_index(src, value) -> int:
+    idx = np.asarray(value)
+    if idx.shape != () or idx.dtype == bool or not np.issubdtype(idx.dtype, np.integer):
+        raise InputError(src, f"expected a scalar integer camera index, got {value!r}", "g_cam_index")
+    if not 0 <= int(idx) < MAX_CAMERAS:
+        raise InputError(src, f"expected a camera index in [0, {MAX_CAMERAS}), got {int(idx)}", "g_cam_index")
+    return int(idx)
 
 
 def validate_matches(m: Matches) -> None:
@@ -109,15 +172,7 @@ def validate_matches(m: Matches) -> None:
     m.f2 = _bearings(src, "f2", m.f2)
     if len(m.f1) != len(m.f2):
         raise InputError(src, f"f1 has {len(m.f1)} rows but f2 has {len(m.f2)}", "f2")
-    cam = np.asarray(m.cam)
-    if cam.ndim != 1 or len(cam) != len(m.f1):
-        raise InputError(src, f"expected shape ({len(m.f1)},), got {cam.shape}", "cam")
-    if len(cam) and not np.issubdtype(cam.dtype, np.integer):
-        if not (np.issubdtype(cam.dtype, np.floating) and np.all(np.isfinite(cam)) and np.all(cam == np.round(cam))):
-            raise InputError(src, f"expected integer camera indices, got dtype {cam.dtype}", "cam")
-    m.cam = cam.astype(np.int64)
-    if len(m.cam) and m.cam.min() < 0:
-        raise InputError(src, f"negative camera index at entry {int(np.argmax(m.cam < 0))}", "cam")
+    m.cam = _camera_indices(src, m.cam, len(m.f1))
     body = m.g1 is not None or m.g2 is not None
     incam = m.g1_cam is not None or m.g2_cam is not None
     if body and incam:
@@ -131,10 +186,10 @@ def validate_matches(m: Matches) -> None:
             missing = [k for k in ("g1_cam", "g2_cam", "g_cam_index") if getattr(m, k) is None]
             raise InputError(src, "camera-frame gravity needs g1_cam, g2_cam and g_cam_index", missing[0])
         m.g1_cam, m.g2_cam = _gravity(src, "g1_cam", m.g1_cam), _gravity(src, "g2_cam", m.g2_cam)
-        idx = np.asarray(m.g_cam_index)
-        if idx.shape != () or not np.issubdtype(idx.dtype, np.integer) or int(idx) < 0:
-            raise InputError(src, f"expected a non-negative integer, got {m.g_cam_index!r}", "g_cam_index")
-        m.g_cam_index = int(idx)
+    if m.g_cam_index is not None:
+        if not incam:
+            raise InputError(src, "g_cam_index without g1_cam and g2_cam", "g_cam_index")
+        m.g_cam_index = _camera_index(src, m.g_cam_index)
 
 
 _KEYS = {"f1", "f2", "cam", "g1", "g2", "g1_cam", "g2_cam", "g_cam_index"}
@@ -143,26 +198,19 @@ _KEYS = {"f1", "f2", "cam", "g1", "g2", "g1_cam", "g2_cam", "g_cam_index"}
 def load_matches(path, rig: Rig | None = None) -> Matches:
     """Load and validate a matches .npz (SPEC section 7); bearings are normalised.
 
-    With ``rig`` the camera indices are also checked against the rig.
+    Read through :func:`nrmpc_ros.safeio.load_npz` (size limits, no pickle,
+    only the known keys). With ``rig`` the camera indices are also checked
+    against the rig. Every problem is an InputError naming the file and the key.
     """
     src = str(path)
-    try:
-        with np.load(Path(path), allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise InputError(src, "no such matches file") from None
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise InputError(src, f"not a readable .npz file ({exc})") from None
+    data = load_npz(path, what="matches file", max_bytes=MATCHES_MAX_BYTES, max_array_bytes=MATCHES_MAX_ARRAY_BYTES,
+                    allowed_keys=_KEYS)
     for key in ("f1", "f2", "cam"):
         if key not in data:
             raise InputError(src, "missing required array", key)
-    unknown = sorted(set(data) - _KEYS)
-    if unknown:
-        raise InputError(src, f"unknown array (allowed: {', '.join(sorted(_KEYS))})", unknown[0])
-    gci = data.get("g_cam_index")
     m = Matches(
         data["f1"], data["f2"], data["cam"], data.get("g1"), data.get("g2"), data.get("g1_cam"), data.get("g2_cam"),
-        gci if gci is not None else None, source=src,
+        data.get("g_cam_index"), source=src,
     )
     if rig is not None:
         m.check_rig(rig)

@@ -16,9 +16,28 @@ import numpy as np
 import yaml
 
 from ..errors import InputError
+from ..safeio import YAML_MAX_BYTES, load_yaml
 from .so3 import matrix_to_quat_xyzw, quat_xyzw_to_matrix, skew
 
 CAMERA_MODELS = ("pinhole", "equidistant")
+
+# --- Plausibility bounds of a rig file (see docs/INPUTS.md) ------------------
+# Values beyond these are typing errors or garbage; they would otherwise reach the
+# estimator and fail deep inside it (singular systems, divisions by ~0).
+MAX_CAMERAS = 1000  # a multi-camera rig has a handful of cameras; this bounds the stacked per-camera arrays
+MAX_TIP_ROTATION_DEG = 60.0  # c_r |g| = m L^2 |g| / (2 EI) under 1 g; the small-deflection cantilever model is
+#   meaningless far beyond (the paper's nominal rig, m 0.1 kg, L 0.4 m, EI 0.1 N m^2, bends 45 deg)
+MAX_RESOLUTION_PX = 20_000  # per image side; the largest sensors in use are ~15 000 px wide
+MIN_FOCAL_PX, MAX_FOCAL_PX = 1.0, 1e5  # below 1 px/rad an image holds no geometry; 1e5 px is a long telephoto
+PRINCIPAL_POINT_MARGIN = 1.0  # cx, cy may lie outside the image by at most this many image sizes (cropped sensors)
+MAX_DISTORTION_COEFF = 1e3  # real lenses calibrate to coefficients of order 1 (wide angles: tens at most)
+MAX_POSITION_M = 100.0  # |v_i|: a rig carried by a robot is a few metres across
+MAX_MASS_KG = 1000.0  # tip mass of one camera; a camera with its mount weighs a few kg
+GRAVITY_RANGE = (0.1, 100.0)  # m/s^2: 9.81 on Earth, 1.62 on the Moon; outside is a unit or typing error
+QUATERNION_NORM_TOLERANCE = 1e-3  # printed quaternions are rounded; further from unit norm is not a rotation
+MAX_NAME_CHARS = 255  # ROS 2 limit on a node name; applied to camera names and frame ids
+MAX_TOPIC_CHARS = 247  # ROS 2 limit on a topic name (255 less the 8 characters DDS prefixes take)
+EI_INF_SPELLINGS = ("inf", "+inf", ".inf", "+.inf", "infinity", "+infinity")  # EI written as a string, any case
 _DISTORTION_LENGTHS = {"pinhole": (0, 4, 5), "equidistant": (0, 4)}
 _TOP_KEYS = {"body_frame", "gravity_magnitude", "imu", "cameras"}
 _IMU_KEYS = {"topic", "mount", "rotation_xyzw"}
@@ -173,8 +192,9 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 
 def _default_info_topic(image_topic: str) -> str:
-    head, _, _ = image_topic.rpartition("/")
-    return f"{head}/camera_info"
+    """``camera_info`` beside the image topic: /cam0/image_raw -> /cam0/camera_info, image -> camera_info."""
+    head, sep, _ = image_topic.rpartition("/")
+    return f"{head}{sep}camera_info"
 
 
 def save_rig(rig: Rig, path, header: str | None = None) -> None:
@@ -186,140 +206,283 @@ def save_rig(rig: Rig, path, header: str | None = None) -> None:
 
 
 # ---------------------------------------------------------------------------
-# Validation
+# Validation (accepted values and bounds: docs/INPUTS.md)
 # ---------------------------------------------------------------------------
+
+def _type_name(value) -> str:
+    if isinstance(value, bool):
+        return "a boolean (YAML reads yes/no/on/off/true/false as booleans)"
+    if value is None:
+        return "null (nothing)"
+    if isinstance(value, str):
+        return f"the string {value!r}"
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    return f"{type(value).__name__} {value!r}"
+
+
+def _number(src, field_name, value, allow_inf=False) -> float:
+    """A YAML int or float as float; a bool, a string (but EI's inf spellings) or anything else is an error."""
+    if allow_inf and isinstance(value, str) and value.strip().lower() in EI_INF_SPELLINGS:
+        return math.inf  # YAML reads a bare `inf` as a string; `.inf` is the YAML float
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        hint = " (.inf for infinity)" if allow_inf else ""
+        raise InputError(src, f"expected a number{hint}, got {_type_name(value)}", field_name)
+    try:
+        x = float(value)
+    except OverflowError:  # an int beyond the float range (do not print it: it may have thousands of digits)
+        raise InputError(src, "integer too large to be a number of this file", field_name) from None
+    if math.isnan(x) or (math.isinf(x) and not (allow_inf and x > 0)):
+        raise InputError(src, f"must be a finite number, got {x}", field_name)
+    return x
+
+
+def _in_range(src, field_name, x, lo, hi, unit="", label=None) -> float:
+    """``x`` if lo <= x <= hi, else an InputError giving the plausible range (``label`` names the entry)."""
+    if not lo <= x <= hi:
+        u = f" {unit}" if unit else ""
+        what = f"{label} = " if label else ""
+        raise InputError(src, f"{what}{x:.6g}{u} is outside the plausible range [{lo:g}, {hi:g}]{u}", field_name)
+    return x
+
 
 def _vector(src, field_name, value, length=None, lengths=None) -> np.ndarray:
     if not isinstance(value, (list, tuple)):
-        raise InputError(src, f"expected a list of numbers, got {value!r}", field_name)
-    try:
-        arr = np.array([float(x) for x in value], dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(src, f"expected numbers, got {value!r}", field_name) from None
-    if length is not None and arr.shape != (length,):
-        raise InputError(src, f"expected {length} numbers, got {len(arr)}", field_name)
-    if lengths is not None and len(arr) not in lengths:
-        raise InputError(src, f"expected one of {lengths} numbers, got {len(arr)}", field_name)
-    if not np.all(np.isfinite(arr)):
-        raise InputError(src, f"must be finite, got {value!r}", field_name)
-    return arr
+        raise InputError(src, f"expected a list of numbers, got {_type_name(value)}", field_name)
+    if length is not None and len(value) != length:
+        raise InputError(src, f"expected {length} numbers, got {len(value)}", field_name)
+    if lengths is not None and len(value) not in lengths:
+        raise InputError(src, f"expected one of {lengths} numbers, got {len(value)}", field_name)
+    return np.array([_number(src, f"{field_name}[{j}]", x) for j, x in enumerate(value)], dtype=float)
 
 
 def _rotation(src, field_name, value) -> np.ndarray:
     q = _vector(src, field_name, value, length=4)
-    n = float(np.linalg.norm(q))
-    if abs(n - 1.0) > 1e-3:
+    n = math.hypot(*q)  # no overflow for absurd entries
+    if abs(n - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise InputError(src, f"quaternion (x, y, z, w) must have unit norm, got norm {n:.6g}", field_name)
     return quat_xyzw_to_matrix(q)
 
 
 def _check_keys(src, prefix, mapping, allowed, required=()):
     if not isinstance(mapping, dict):
-        raise InputError(src, f"expected a mapping, got {type(mapping).__name__}", prefix or None)
-    unknown = sorted(set(mapping) - allowed)
+        raise InputError(src, f"expected a mapping, got {_type_name(mapping)}", prefix or None)
+    unknown = sorted((k for k in mapping if k not in allowed), key=repr)
     if unknown:
-        name = f"{prefix}.{unknown[0]}" if prefix else unknown[0]
+        key = unknown[0] if isinstance(unknown[0], str) else repr(unknown[0])
+        name = f"{prefix}.{key}" if prefix else key
         raise InputError(src, f"unknown key (allowed: {', '.join(sorted(allowed))})", name)
     for key in required:
         if key not in mapping:
             raise InputError(src, "missing required field", f"{prefix}.{key}" if prefix else key)
 
 
-def _number(src, field_name, value, allow_inf=False) -> float:
-    if allow_inf and isinstance(value, str) and value.strip().lower().lstrip("+.") in ("inf", "infinity"):
-        return math.inf  # YAML reads a bare `inf` as a string; `.inf` is the YAML float
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InputError(src, f"expected a number, got {value!r}", field_name) from None
-    if math.isnan(x) or (math.isinf(x) and not allow_inf):
-        raise InputError(src, f"must be a finite number, got {value!r}", field_name)
-    return x
+def _string(src, field_name, value) -> str:
+    if not isinstance(value, str):
+        raise InputError(src, f"expected a string, got {_type_name(value)}", field_name)
+    return value
 
 
-def _parse_camera(src, i, d) -> Camera:
-    p = f"cameras[{i}]"
-    _check_keys(src, p, d, _CAMERA_KEYS, ("name", "model", "intrinsics", "resolution", "position", "rotation_xyzw"))
-    name = str(d["name"])
-    model = d["model"]
-    if model not in CAMERA_MODELS:
-        raise InputError(src, f"unknown camera model {model!r} (supported: {', '.join(CAMERA_MODELS)})", f"{p}.model")
+_NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
+
+
+def _ros_name(src, field_name, value) -> str:
+    """A ROS 2 base name (camera name, frame id): letters, digits and underscores, not starting with a digit."""
+    name = _string(src, field_name, value)
+    if not name:
+        raise InputError(src, "must not be empty", field_name)
+    if len(name) > MAX_NAME_CHARS:
+        raise InputError(src, f"longer than {MAX_NAME_CHARS} characters", field_name)
+    bad = sorted(set(name) - _NAME_CHARS)
+    if bad:
+        raise InputError(src, f"{name!r} is not a valid ROS name: only letters, digits and underscores "
+                              f"(found {bad[0]!r})", field_name)
+    if name[0].isdigit():
+        raise InputError(src, f"{name!r} is not a valid ROS name: must not start with a digit", field_name)
+    return name
+
+
+def _ros_topic(src, field_name, value) -> str:
+    """A ROS 2 topic name, absolute (/a/b) or relative (a/b, ~/a): tokens of letters, digits and underscores
+    that do not start with a digit, separated by single slashes, no trailing slash, ``~`` only as the first
+    token. Substitutions ({node}) are not accepted in a rig file."""
+    topic = _string(src, field_name, value)
+
+    def bad(why):
+        raise InputError(src, f"{topic!r} is not a valid ROS 2 topic name: {why}", field_name)
+
+    if not topic:
+        bad("empty")
+    if len(topic) > MAX_TOPIC_CHARS:
+        bad(f"longer than {MAX_TOPIC_CHARS} characters")
+    if "{" in topic or "}" in topic:
+        bad("substitutions ({...}) are not supported in a rig file")
+    if "~" in topic[1:]:
+        bad("'~' may only be the first character")
+    if topic.endswith("/"):
+        bad("must not end with '/'")
+    rest = topic[1:] if topic.startswith("~") else topic  # "~" alone is the node's private namespace
+    if topic.startswith("~") and rest and not rest.startswith("/"):
+        bad("'~' must be followed by '/'")
+    chars = sorted(set(rest) - _NAME_CHARS - {"/"})
+    if chars:
+        bad(f"only letters, digits, underscores and '/' (found {chars[0]!r})")
+    tokens = rest.split("/") if rest else []
+    for tok in tokens[1:] if rest.startswith("/") else tokens:
+        if not tok:
+            bad("empty token (repeated '/')")
+        if tok[0].isdigit():
+            bad(f"token {tok!r} starts with a digit")
+    return topic
+
+
+def _bar(src, p, name, bar, pos, gm) -> tuple[float, float]:
+    """(m_i in kg, EI_i in N m^2) of a ``bar`` block, refused where the cantilever model stops holding."""
+    _check_keys(src, f"{p}.bar", bar, _BAR_KEYS, ("mass", "EI"))
+    mass = _number(src, f"{p}.bar.mass", bar["mass"])
+    ei = _number(src, f"{p}.bar.EI", bar["EI"], allow_inf=True)
+    _in_range(src, f"{p}.bar.mass", mass, 0.0, MAX_MASS_KG, "kg", "tip mass")
+    if ei <= 0:
+        raise InputError(src, f"flexural rigidity must be > 0 N m^2 (.inf for rigid), got {ei}", f"{p}.bar.EI")
+    if mass == 0 or math.isinf(ei):
+        return mass, ei
+    L = math.hypot(*pos)
+    if L < 1e-9:
+        raise InputError(src, "a flexible bar needs a camera away from the body centre (bar length 0)",
+                         f"{p}.position")
+    # Under 1 g transverse: tip displacement c_d |g| = m L^3 |g| / (3 EI) (m), rotation c_r |g| = m L^2 |g| / (2 EI).
+    load = mass * gm / ei  # 1/m^2
+    disp, rot = load * L**3 / 3.0, load * L**2 / 2.0
+    if disp > L:
+        raise InputError(src, f"camera {name!r}: tip displacement under 1 g, m L^3 g / (3 EI) = {disp:.3g} m, "
+                              f"exceeds the bar length {L:.3g} m: check bar.mass, bar.EI and position", f"{p}.bar")
+    if math.degrees(rot) > MAX_TIP_ROTATION_DEG:
+        raise InputError(src, f"camera {name!r}: tip rotation under 1 g, m L^2 g / (2 EI) = {math.degrees(rot):.3g} "
+                              f"deg, exceeds {MAX_TIP_ROTATION_DEG:g} deg where the small-deflection bar model "
+                              f"stops holding: check bar.mass, bar.EI and position", f"{p}.bar")
+    return mass, ei
+
+
+def _intrinsics(src, p, d, model):
     intr = _vector(src, f"{p}.intrinsics", d["intrinsics"], length=4)
-    if intr[0] <= 0 or intr[1] <= 0:
-        raise InputError(src, "focal lengths fx, fy must be positive", f"{p}.intrinsics")
-    dist = _vector(src, f"{p}.distortion", d.get("distortion", []) or [], lengths=_DISTORTION_LENGTHS[model])
+    for j, axis in enumerate(("fx", "fy")):
+        if intr[j] <= 0:
+            raise InputError(src, "focal lengths fx, fy must be positive", f"{p}.intrinsics")
+        _in_range(src, f"{p}.intrinsics", intr[j], MIN_FOCAL_PX, MAX_FOCAL_PX, "px", axis)
     res = _vector(src, f"{p}.resolution", d["resolution"], length=2)
     if np.any(res <= 0) or np.any(res != np.round(res)):
         raise InputError(src, "width and height must be positive integers", f"{p}.resolution")
+    for j, axis in enumerate(("width", "height")):
+        _in_range(src, f"{p}.resolution", res[j], 1, MAX_RESOLUTION_PX, "px", axis)
+        m = PRINCIPAL_POINT_MARGIN * res[j]
+        _in_range(src, f"{p}.intrinsics", intr[j + 2], -m, res[j] + m, "px", "cx" if j == 0 else "cy")
+    dist = d.get("distortion")
+    dist = _vector(src, f"{p}.distortion", [] if dist is None else dist, lengths=_DISTORTION_LENGTHS[model])
+    for j, k in enumerate(dist):
+        _in_range(src, f"{p}.distortion[{j}]", k, -MAX_DISTORTION_COEFF, MAX_DISTORTION_COEFF)
+    return intr, dist, res
+
+
+def _parse_camera(src, i, d, gm) -> Camera:
+    p = f"cameras[{i}]"
+    _check_keys(src, p, d, _CAMERA_KEYS, ("name", "model", "intrinsics", "resolution", "position", "rotation_xyzw"))
+    name = _ros_name(src, f"{p}.name", d["name"])
+    model = d["model"]
+    if not isinstance(model, str) or model not in CAMERA_MODELS:
+        raise InputError(src, f"unknown camera model {model!r} (supported: {', '.join(CAMERA_MODELS)})", f"{p}.model")
+    intr, dist, res = _intrinsics(src, p, d, model)
     pos = _vector(src, f"{p}.position", d["position"], length=3)
+    if math.hypot(*pos) > MAX_POSITION_M:  # hypot: no overflow for absurd entries
+        raise InputError(src, f"|position| = {math.hypot(*pos):.3g} m is beyond the plausible "
+                              f"{MAX_POSITION_M:g} m from the body centre", f"{p}.position")
     rot = _rotation(src, f"{p}.rotation_xyzw", d["rotation_xyzw"])
     mass, ei = 0.0, math.inf
-    bar = d.get("bar")
-    if bar is not None:
-        _check_keys(src, f"{p}.bar", bar, _BAR_KEYS, ("mass", "EI"))
-        mass = _number(src, f"{p}.bar.mass", bar["mass"])
-        ei = _number(src, f"{p}.bar.EI", bar["EI"], allow_inf=True)
-        if mass < 0:
-            raise InputError(src, f"tip mass must be >= 0 kg, got {mass}", f"{p}.bar.mass")
-        if ei <= 0:
-            raise InputError(src, f"flexural rigidity must be > 0 N m^2 (.inf for rigid), got {ei}", f"{p}.bar.EI")
-        if mass > 0 and math.isfinite(ei) and np.linalg.norm(pos) < 1e-9:
-            raise InputError(src, "a flexible bar needs a camera away from the body centre (bar length 0)",
-                             f"{p}.position")
-    image_topic = str(d.get("image_topic", f"/{name}/image_raw"))
-    info_topic = str(d.get("info_topic", _default_info_topic(image_topic)))
+    if d.get("bar") is not None:
+        mass, ei = _bar(src, p, name, d["bar"], pos, gm)
+    image_topic = _ros_topic(src, f"{p}.image_topic", d.get("image_topic", f"/{name}/image_raw"))
+    info_topic = _ros_topic(src, f"{p}.info_topic", d.get("info_topic", _default_info_topic(image_topic)))
     return Camera(
         name=name, model=model, intrinsics=tuple(intr), distortion=tuple(dist), resolution=tuple(int(x) for x in res),
         position=pos, rotation=rot, mass=mass, EI=ei, image_topic=image_topic, info_topic=info_topic,
     )
 
 
+def _check_unique(src, cameras, imu) -> None:
+    """Names and topics that must not be shared: a topic read as two things would mix their messages."""
+    names, images, infos = {}, {}, {}
+    for i, c in enumerate(cameras):
+        if c.name in names:
+            raise InputError(src, f"duplicate camera name {c.name!r} (also cameras[{names[c.name]}])",
+                             f"cameras[{i}].name")
+        names[c.name] = i
+        if c.image_topic in images:
+            raise InputError(src, f"image topic {c.image_topic!r} is also the image topic of "
+                                  f"cameras[{images[c.image_topic]}]", f"cameras[{i}].image_topic")
+        images[c.image_topic] = i
+        if c.info_topic in infos:
+            raise InputError(src, f"info topic {c.info_topic!r} is also the info topic of "
+                                  f"cameras[{infos[c.info_topic]}]", f"cameras[{i}].info_topic")
+        infos[c.info_topic] = i
+    for i, c in enumerate(cameras):
+        if c.info_topic in images:
+            raise InputError(src, f"info topic {c.info_topic!r} is the image topic of "
+                                  f"cameras[{images[c.info_topic]}]", f"cameras[{i}].info_topic")
+    if imu is not None:
+        if imu.topic in images:
+            raise InputError(src, f"IMU topic {imu.topic!r} is the image topic of cameras[{images[imu.topic]}]",
+                             "imu.topic")
+        if imu.topic in infos:
+            raise InputError(src, f"IMU topic {imu.topic!r} is the info topic of cameras[{infos[imu.topic]}]",
+                             "imu.topic")
+
+
+def _parse_imu(src, d, camera_names) -> ImuMount:
+    _check_keys(src, "imu", d, _IMU_KEYS)
+    mount = _string(src, "imu.mount", d.get("mount", "body"))
+    if mount != "body" and mount not in camera_names:
+        raise InputError(src, f"mount must be 'body' or a camera name, got {mount!r}", "imu.mount")
+    rot = _rotation(src, "imu.rotation_xyzw", d.get("rotation_xyzw", [0, 0, 0, 1]))
+    return ImuMount(topic=_ros_topic(src, "imu.topic", d.get("topic", "/imu/data")), mount=mount, rotation=rot)
+
+
 def rig_from_dict(data, source: str = "<rig>") -> Rig:
-    """Validate a SPEC section 7 mapping and build a :class:`Rig`."""
+    """Validate a SPEC section 7 mapping and build a :class:`Rig`.
+
+    Types are strict (a YAML boolean is not a number, a name is a string),
+    names and topics follow the ROS 2 rules, and values beyond the
+    plausibility bounds of this module are refused (see docs/INPUTS.md).
+    Every error is an :class:`~nrmpc_ros.errors.InputError` naming ``source``
+    and the field.
+    """
     src = source
     _check_keys(src, "", data, _TOP_KEYS, ("cameras",))
+    gm = _number(src, "gravity_magnitude", data.get("gravity_magnitude", 9.81))
+    _in_range(src, "gravity_magnitude", gm, *GRAVITY_RANGE, "m/s^2")
+    body_frame = _ros_name(src, "body_frame", data.get("body_frame", "base_link"))
     cams_raw = data["cameras"]
     if not isinstance(cams_raw, list) or not cams_raw:
         raise InputError(src, "expected a non-empty list of cameras", "cameras")
-    cameras = tuple(_parse_camera(src, i, d) for i, d in enumerate(cams_raw))
-    seen = set()
-    for i, c in enumerate(cameras):
-        if c.name in seen:
-            raise InputError(src, f"duplicate camera name {c.name!r}", f"cameras[{i}].name")
-        seen.add(c.name)
-    gm = _number(src, "gravity_magnitude", data.get("gravity_magnitude", 9.81))
-    if gm <= 0:
-        raise InputError(src, f"must be > 0 m/s^2, got {gm}", "gravity_magnitude")
+    if len(cams_raw) > MAX_CAMERAS:
+        raise InputError(src, f"{len(cams_raw)} cameras, more than the {MAX_CAMERAS} a rig may have", "cameras")
+    cameras = tuple(_parse_camera(src, i, d, gm) for i, d in enumerate(cams_raw))
     imu = None
     if data.get("imu") is not None:
-        d = data["imu"]
-        _check_keys(src, "imu", d, _IMU_KEYS)
-        mount = str(d.get("mount", "body"))
-        if mount != "body" and mount not in seen:
-            raise InputError(src, f"mount must be 'body' or a camera name, got {mount!r}", "imu.mount")
-        rot = _rotation(src, "imu.rotation_xyzw", d.get("rotation_xyzw", [0, 0, 0, 1]))
-        imu = ImuMount(topic=str(d.get("topic", "/imu/data")), mount=mount, rotation=rot)
-    return Rig(
-        cameras=cameras, body_frame=str(data.get("body_frame", "base_link")), gravity_magnitude=gm, imu=imu, source=src,
-    )
+        imu = _parse_imu(src, data["imu"], {c.name for c in cameras})
+    _check_unique(src, cameras, imu)
+    return Rig(cameras=cameras, body_frame=body_frame, gravity_magnitude=gm, imu=imu, source=src)
 
 
 def load_rig(path) -> Rig:
     """Load and validate a rig YAML file (SPEC section 7).
 
-    Raises :class:`~nrmpc_ros.errors.InputError` naming the file and the field
-    for unknown keys, missing fields, negative mass or EI, non-unit
-    quaternions, unknown camera models and duplicate camera names.
+    The file is read through :func:`nrmpc_ros.safeio.load_yaml` (UTF-8, at most
+    ``YAML_MAX_BYTES``, bounded aliases and nesting) and validated by
+    :func:`rig_from_dict`. Raises :class:`~nrmpc_ros.errors.InputError` naming
+    the file and the field for anything it cannot use.
     """
-    p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise InputError(str(path), f"cannot read rig file ({exc.strerror})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise InputError(str(path), f"not valid YAML ({exc})") from None
+    data = load_yaml(path, what="rig file", max_bytes=YAML_MAX_BYTES)
     if data is None:
         raise InputError(str(path), "the rig file is empty")
     return rig_from_dict(data, source=str(path))
