@@ -296,12 +296,15 @@ class _ViewModel:
     compliance: tuple | None
 
 
+SIGMA_TOLERANCE = 0.2  # relative change of the robust noise estimate that is adopted (and delays convergence)
+
+
 class SequenceBundleProblem:
     """Residuals, Jacobians and normal equations of the joint bundle adjustment (the LM problem of :mod:`.lm`).
 
-    ``sigma`` (rad) scales residuals; ``reestimate_sigma`` re-estimates it robustly after the second
-    accepted step and whenever it has moved by more than half since (the Huber zone follows the shrinking
-    residuals).
+    ``sigma`` (rad) scales residuals; ``reestimate_sigma`` re-estimates it robustly after every accepted
+    step and adopts it when it moved by more than ``SIGMA_TOLERANCE`` (the Huber zone follows the shrinking
+    residuals, and the run converges only at a noise scale that fits them).
     """
 
     def __init__(self, rig: Rig, obs: Observations, layout: ParameterLayout, sigma: float, huber_k: float = 3.0,
@@ -327,6 +330,7 @@ class SequenceBundleProblem:
         self._reestimate = reestimate_sigma
         self._accepted = 0
         self._chart = None  # (state, chart) of the last linearisation
+        self._last_residuals = None  # (state, residuals in rad) of the last linearisation
 
     # -- model -------------------------------------------------------------
     def _anchors(self) -> np.ndarray:
@@ -500,6 +504,7 @@ class SequenceBundleProblem:
     def linearize(self, state: BundleState) -> LinearSystem:
         rig = self.model_rig(state)
         e, Jc, dX = self._evaluate(state, rig)
+        self._last_residuals = (state, e)
         chart = self.chart(state, rig)
         self._chart = (state, chart)
         e = e / self.sigma
@@ -540,16 +545,17 @@ class SequenceBundleProblem:
         return BundleState(R, t, g, P, comp, bias, state.view_sequence)
 
     def rescale(self, state: BundleState) -> bool:
+        """Re-estimate sigma from the residuals at ``state`` (robustly); adopt it when it moved by more than
+        ``SIGMA_TOLERANCE``, so the run only converges at a noise scale that fits its residuals."""
         if not self._reestimate:
             return False
         self._accepted += 1
-        if self._accepted < 2:
-            return True  # sigma must fit the residuals before the run may converge
-        new = robust_sigma(self.residuals(state), self.obs.num_points, self.layout.size)
-        if self._accepted == 2 or abs(new / self.sigma - 1.0) > 0.5:
-            changed = abs(new / self.sigma - 1.0) > 1e-6
+        e = self._last_residuals[1] if self._last_residuals and self._last_residuals[0] is state else \
+            self.residuals(state)
+        new = robust_sigma(e, self.obs.num_points, self.layout.size)
+        if self._accepted == 1 or abs(new / self.sigma - 1.0) > SIGMA_TOLERANCE:
             self.sigma = new
-            return changed
+            return True
         return False
 
     # -- points alone ------------------------------------------------------

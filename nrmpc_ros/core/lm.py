@@ -16,9 +16,10 @@ once)::
     step(state, dc, dp) -> state          # apply a camera step dc and point steps dp (P, 3)
     refit_points(state) -> (state, cost)  # optional: re-fit points alone after a failed step
 
-and optionally ``rescale(state) -> bool``, called after each accepted step,
-which may change the noise scale of the cost (returns True when it did: the
-convergence test then waits for the next step). Nothing is kept between
+and optionally ``rescale(state) -> bool``, called after each accepted step
+(once the state is linearised), which may change the noise scale of the cost
+(returns True when it did: the state is linearised again and the convergence
+test waits for the next step). Nothing is kept between
 calls: :func:`levenberg_marquardt` returns the final state, the normal
 equations there (for covariances) and its statistics.
 """
@@ -247,6 +248,9 @@ class LMOptions:
     max_iterations: int = 30
     relative_tolerance: float = 1e-6  # stop when a step decreases the cost by less than this share
     cost_tolerance: float = 1e-2  # ... or by less than this (about 0.1 sigma of movement in the parameters)
+    # ... or the camera step alone would gain less than cost_tolerance while the step gains less than this: only
+    # points still creep along their rays (a larger gain means the linearised camera block is not to be trusted)
+    creep_tolerance: float = 1.0
     initial_damping: float = 1e-4  # lambda relative to the diagonal
     damping_factor: float = 10.0  # lambda is multiplied / divided by this on a rejected / accepted step
     max_damping: float = 1e8  # give up beyond this
@@ -267,8 +271,8 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None):
     """Minimise problem's cost from ``state``; returns (state, LinearSystem at that state, LMStats).
 
     Converged when a step decreases the cost by less than ``cost_tolerance`` (or ``relative_tolerance`` of
-    it), or when the camera step's predicted decrease is that small (only far points still creep along their
-    rays). A rejected step whose cost only rose by rounding ends the run at the minimum.
+    it), or by less than ``creep_tolerance`` while the camera step's predicted decrease is below
+    ``cost_tolerance`` (only far points still creep along their rays). A rejected step whose cost only rose by rounding ends the run at the minimum.
     """
     opts = options or LMOptions()
     lam = opts.initial_damping
@@ -298,13 +302,14 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None):
             continue
         decrease = cost - new_cost
         converged = (decrease < max(opts.relative_tolerance * cost, opts.cost_tolerance)
-                     or camera_decrease < opts.cost_tolerance)
+                     or camera_decrease < opts.cost_tolerance and decrease < opts.creep_tolerance)
         state = new_state
         accepted += 1
         lam = max(lam / opts.damping_factor, 1e-9)
+        system = problem.linearize(state)
         if rescale is not None and rescale(state):
             converged = False  # the cost changed meaning: judge the next step
-        system = problem.linearize(state)
+            system = problem.linearize(state)
         cost = system.cost
         if converged:
             stop = "converged"

@@ -234,7 +234,9 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
     res = None
     for r in range(max(1, rounds)):
         sub, used = obs.subset(inl)
-        res = adjust_bundle(rig, sub, full.R, full.t, full.gravity, full.points[used], priors=priors,
+        # landmarks start from triangulation at the current poses each round: points carried over from a
+        # rougher state can hold the adjustment in a shallow local minimum
+        res = adjust_bundle(rig, sub, full.R, full.t, full.gravity, None, priors=priors,
                             gravity_information=gravity_information, free_views=free_views,
                             max_iterations=max_iterations if r == 0 else max(10, max_iterations // 3),
                             huber_k=huber_k)
