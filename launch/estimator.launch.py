@@ -1,0 +1,156 @@
+"""Launch the nrmpc_ros ``estimator`` node: relative pose and gravity of a non-rigid multi-camera rig.
+
+    ros2 launch nrmpc_ros estimator.launch.py rig_file:=my_rig.yaml namespace:=rig1 \\
+        image_remaps:='/cam0/image_raw:=/rig1/front/image_raw; /cam1/image_raw:=/rig1/left/image_raw'
+
+``ros2 launch nrmpc_ros estimator.launch.py --show-args`` lists the arguments.
+The node reads ``params_file`` first and then the overrides given here
+(``rig_file``, ``method``, ``use_sim_time``, and ``imu_topic`` when not empty).
+Relative ``rig_file`` and ``params_file`` paths are looked up in the working
+directory first, then in share/nrmpc_ros (and its config/), as the node does.
+
+Only ``generate_launch_description`` and the launch-time function import
+launch / launch_ros (and nrmpc_ros), so the file imports without them.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+PACKAGE = "nrmpc_ros"
+EXECUTABLE = "estimator"
+METHODS = ["auto", "4pt-bending", "6pt-bending", "6pt-nonbending"]
+LOG_LEVELS = ["debug", "info", "warn", "error", "fatal"]
+BOOLEANS = ["true", "false", "True", "False"]
+#: (name, default, description, choices); None defaults are the installed files of share/nrmpc_ros/config.
+ARGUMENTS = (
+    ("rig_file", None, "rig YAML file (cameras, bars, IMU mount); default: the installed sample_cross4.yaml", None),
+    ("params_file", None, "node parameter file (--params-file); default: the installed estimator.yaml", None),
+    ("method", "auto", "estimator: auto runs 4pt-bending while the IMU is fresh, 6pt-bending otherwise", METHODS),
+    ("namespace", "", "namespace of the node and of its relative topics (empty: the root namespace)", None),
+    ("imu_topic", "", "sensor_msgs/Imu topic the node subscribes to (remap target of its IMU input); "
+                      "empty: the params file's imu_topic, else the rig file's imu.topic", None),
+    ("image_remaps", "", "camera topic remaps FROM:=TO separated by spaces or ';', FROM being a rig file "
+                         "image_topic (or image_topic/compressed with image_transport compressed)", None),
+    ("use_sim_time", "false", "take time from /clock (e.g. with nrmpc play or ros2 bag play --clock)", BOOLEANS),
+    ("log_level", "info", "log level of the node", LOG_LEVELS),
+)
+DEFAULT_FILES = {"rig_file": ("config", "sample_cross4.yaml"), "params_file": ("config", "estimator.yaml")}
+
+
+def parse_remaps(text: str, argument: str = "image_remaps") -> list[tuple[str, str]]:
+    """The ``FROM:=TO`` pairs of ``text`` (separated by whitespace or ';'), in order; empty text gives none."""
+    from nrmpc_ros.errors import InputError
+
+    pairs = []
+    for token in re.split(r"[;\s]+", text.strip()):
+        if not token:
+            continue
+        src, sep, dst = token.partition(":=")
+        if not sep or not src or not dst or ":=" in dst:
+            raise InputError(f"launch argument {argument}", f"'{token}' is not FROM:=TO (pairs are separated by "
+                                                            "spaces or ';')")
+        pairs.append((src, dst))
+    sources = [s for s, _ in pairs]
+    duplicated = sorted({s for s in sources if sources.count(s) > 1})
+    if duplicated:
+        raise InputError(f"launch argument {argument}", f"{', '.join(duplicated)} remapped more than once")
+    return pairs
+
+
+def find_file(path: str, share: Path | None, argument: str) -> Path:
+    """``path`` as the node resolves it: absolute, or relative to the working directory, then to ``share``."""
+    from nrmpc_ros.errors import InputError
+
+    p = Path(path).expanduser()
+    candidates = [p] if p.is_absolute() else [Path.cwd() / p]
+    if share is not None and not p.is_absolute():
+        candidates += [share / p, share / "config" / p.name]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    where = ", ".join(str(c) for c in candidates)
+    raise InputError(f"launch argument {argument}", f"no such file: {path} (looked for {where})")
+
+
+def expand_topic(name: str, namespace: str) -> str:
+    """Fully qualified topic name: a relative ``name`` lies in ``namespace`` (absolute, '/' for the root)."""
+    if name.startswith("/"):
+        return name
+    return namespace.rstrip("/") + "/" + name
+
+
+def check_image_remaps(remaps: list[tuple[str, str]], image_topics: list[str], namespace: str, rig_source: str):
+    """Every remap source must be a camera topic of the rig: a remap that matches nothing would leave a camera
+    unsubscribed without a word. ``image_topic/compressed`` counts too (``image_transport: compressed``)."""
+    from nrmpc_ros.errors import InputError
+
+    known = {}
+    for topic in image_topics:
+        for name in (topic, topic.rstrip("/") + "/compressed"):
+            known[expand_topic(name, namespace)] = name
+    unknown = [src for src, _ in remaps if expand_topic(src, namespace) not in known]
+    if unknown:
+        raise InputError("launch argument image_remaps", f"{', '.join(unknown)} is no camera topic of the rig file "
+                                                         f"{rig_source} (its topics: {', '.join(image_topics)})")
+
+
+def _launch_setup(context, *args, **kwargs):
+    """The estimator Node with every launch argument resolved (runs at launch time, inside the launch service)."""
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    from launch_ros.actions import Node
+    from launch_ros.utilities import make_namespace_absolute, prefix_namespace
+
+    from nrmpc_ros.core.rig import load_rig
+
+    value = {name: context.launch_configurations.get(name, "") for name, *_ in ARGUMENTS}
+    try:
+        share = Path(get_package_share_directory(PACKAGE))
+    except PackageNotFoundError:
+        share = None
+    for name, (folder, file) in DEFAULT_FILES.items():
+        if not value[name] and share is not None:
+            value[name] = str(share / folder / file)
+    params_file = find_file(value["params_file"], share, "params_file")
+    rig_file = find_file(value["rig_file"], share, "rig_file")
+    rig = load_rig(rig_file)  # a bad rig file fails here with its file and field named
+    namespace = make_namespace_absolute(prefix_namespace(context.launch_configurations.get("ros_namespace"),
+                                                         value["namespace"] or None)) or "/"
+    remaps = parse_remaps(value["image_remaps"])
+    check_image_remaps(remaps, [c.image_topic for c in rig.cameras], namespace, str(rig_file))
+
+    overrides = {"rig_file": str(rig_file), "method": value["method"],
+                 "use_sim_time": value["use_sim_time"].lower() == "true"}
+    if value["imu_topic"]:
+        # The node subscribes to its imu_topic parameter (falling back to the rig file's imu.topic), so setting
+        # it is the remap that always names the right source topic.
+        overrides["imu_topic"] = value["imu_topic"]
+    node = Node(
+        package=PACKAGE,
+        executable=EXECUTABLE,
+        namespace=value["namespace"],
+        parameters=[str(params_file), overrides],
+        remappings=remaps,
+        ros_arguments=["--log-level", value["log_level"]],
+        output="screen",
+        emulate_tty=True,
+    )
+    return [node]
+
+
+def generate_launch_description():
+    """The launch arguments and the estimator node (see the module docstring)."""
+    from launch.actions import DeclareLaunchArgument, OpaqueFunction
+    from launch.substitutions import PathJoinSubstitution
+    from launch_ros.substitutions import FindPackageShare
+
+    from launch import LaunchDescription
+
+    declared = []
+    for name, default, description, choices in ARGUMENTS:
+        if default is None:
+            default = PathJoinSubstitution([FindPackageShare(PACKAGE), *DEFAULT_FILES[name]])
+        declared.append(DeclareLaunchArgument(name, default_value=default, description=description, choices=choices))
+    return LaunchDescription([*declared, OpaqueFunction(function=_launch_setup)])
+
