@@ -47,7 +47,9 @@ Policy:
   dropped ("stamp far in the past" / "stamp far in the future") as soon as its
   stream sends a stamp consistent with the old time. Adopting a jump back
   emits the queued sets of the old time (as :meth:`flush` does), clears the
-  queues and counts a "time jump back"; a jump ahead counts a "time jump ahead".
+  queues and counts a "time jump back"; a jump ahead counts a "time jump ahead"
+  (a pause longer than ``jump_periods`` periods between snapshots counts so
+  too; its frames are held until the second camera's frame arrives, not lost).
 - **Cost.** Queues are bounded (``queue_size`` per stream; the oldest message
   is dropped as "queue overflow"; keep ``queue_size`` above ``wait_periods`` + 1
   so a silent camera does not overflow the others' queues). Every message is

@@ -50,7 +50,9 @@ assumes the rig is still during part of the recording (more than
 follow s^2 chi2(k) / k, so the ``noise_quantile`` quantile of the windowed
 sum of squares divided by chi2.ppf(noise_quantile, k) is an unbiased
 estimate of s^2. The gyro bias and the still norm of the accelerometer come
-from the same quietest windows. A rig that never holds still makes the
+from the same quietest windows (their median): a constant slow rotation
+looks like gyro bias, so the still windows must be the majority of the
+quietest ones. A rig that never holds still makes the
 quietest *motion* look like noise: the estimate is too large and motion
 passes as still. Give the covariances (or a known :class:`ImuNoise`) then.
 """
@@ -207,6 +209,9 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     i0, i1, _ = _windows(t, period, cfg)
     n = i1 - i0
     ok = n >= cfg.min_window_samples
+    if not ok.any():
+        raise InputError(source, f"no {cfg.min_window_samples} samples in a row without a gap (longer than "
+                                 f"{cfg.gap_periods:g} sample periods of {period:.4f} s): cannot estimate the noise")
     mean_w, ssw, _ = _moments(w, i0, i1, np.median(w, axis=0))
     mean_a, ssa, _ = _moments(a, i0, i1, np.median(a, axis=0))
     q = cfg.noise_quantile
