@@ -364,7 +364,8 @@ class EstimatorNode(Node):
             "4pt-bending" if self.imu_topic else "6pt-bending")
         self.pipeline = Pipeline(self.rig, self.config, method=initial)
         self.sync = StampSynchronizer(
-            len(self.rig.cameras), tolerance_s=self.params["sync_tolerance_s"], queue_size=self.params["queue_size"])
+            len(self.rig.cameras), tolerance_s=self.params["sync_tolerance_s"], queue_size=self.params["queue_size"],
+            min_streams=len(self.rig.cameras))
         self.work = DropQueue(self.params["work_queue_size"])
         self.errors = ErrorLog()
         self._imu_buffer: collections.deque = collections.deque(maxlen=20000)

@@ -16,6 +16,7 @@ from ..frontend.evaluation import CsvWriter, evaluate, format_report, read_refer
 from ..frontend.pipeline import GRAVITY_SOURCE_WORDS, PIPELINE_METHODS, Pipeline, PipelineConfig
 from ..frontend.replay import check_camera_info, replay_bag, resolve_imu_topic
 from ..frontend.sync import StampSynchronizer
+from ..frontend.topics import bag_image_topics
 
 
 def register(sub):
@@ -31,7 +32,9 @@ def register(sub):
     p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig: tracking, static, imu, ...)")
     p.add_argument("--imu-topic", help="IMU topic (default: the rig file's imu.topic)")
     p.add_argument("--no-imu", action="store_true", help="ignore the IMU (auto then runs 6pt-bending)")
-    p.add_argument("--sync-tolerance", type=float, default=0.01, help="camera stamps of one set lie within this (s)")
+    p.add_argument("--sync-tolerance", type=float, default=None,
+                   help="camera stamps of one set lie within +- this (s) of the set's median stamp (default: 0.45 "
+                        "of the smallest camera frame period, estimated from the stamps)")
     p.add_argument("--queue-size", type=int, default=10, help="synchronizer queue depth per camera")
     p.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -63,15 +66,17 @@ def run(args) -> int:
         print(f"nrmpc replay: warning: {msg}", file=sys.stderr)
 
     with BagReader(args.bag) as bag:
-        bag.require([c.image_topic for c in rig.cameras])
+        image_topics = bag_image_topics(bag, rig, warn)
         imu_topic = resolve_imu_topic(bag, rig, args.imu_topic, use_imu=not args.no_imu, warn=warn)
         check_camera_info(bag, rig, warn)
         pipe = Pipeline(rig, cfg, method=args.method)
-        sync = StampSynchronizer(rig.num_cameras, args.sync_tolerance, args.queue_size)
+        sync = StampSynchronizer(rig.num_cameras, args.sync_tolerance, args.queue_size,
+                                 names=[c.name for c in rig.cameras])
         writer = CsvWriter(args.out)
         rows = []
         try:
-            for estimates in replay_bag(bag, rig, pipe, imu_topic, sync, warn, progress=not args.no_progress):
+            for estimates in replay_bag(bag, rig, pipe, imu_topic, sync, warn, progress=not args.no_progress,
+                                        image_topics=image_topics):
                 for est in estimates:
                     row = row_from_estimate(est)
                     writer.write(row)
@@ -91,6 +96,7 @@ def run(args) -> int:
           f"reference changes {st.reference_changes}")
     if dropped:
         print("dropped: " + "; ".join(f"{k}: {v}" for k, v in sorted(dropped.items())))
+    print(f"camera sync: {sync.describe()}")
     if st.gravity_sources:
         print("published gravity (g columns): " + ", ".join(
             f"{n} {GRAVITY_SOURCE_WORDS.get(k, k)}" for k, n in sorted(st.gravity_sources.items())))

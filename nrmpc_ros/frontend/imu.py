@@ -72,10 +72,10 @@ class ImuBuffer:
     by moving ``_i0`` and compacted (or grown) only when the end is reached.
     """
 
-    def __init__(self, rig: Rig, config: ImuConfig | None = None):
-        self.rig = rig
+    def __init__(self, rig: Rig | None = None, config: ImuConfig | None = None):
+        self.rig = rig  # None: a bare sample store (no gravity, e.g. for the stillness detector)
         self.config = config or ImuConfig()
-        self.source = rig.imu.topic if rig.imu is not None else "imu"
+        self.source = rig.imu.topic if rig is not None and rig.imu is not None else "imu"
         self._buf = np.empty((1024, 7))
         self._i0 = self._n = 0  # live rows of _buf
         self._pending: list = []  # (t, ax, ay, az, wx, wy, wz) appended since the last consolidation
@@ -163,7 +163,7 @@ class ImuBuffer:
     def gravity(self, t0: float, t1: float):
         """(ImuGravity, None) from samples in [t0, t1] (at least pad_s long), or (None, reason) without IMU."""
         cfg = self.config
-        if self.rig.imu is None:
+        if self.rig is None or self.rig.imu is None:
             return None, "the rig file has no imu block"
         t, a, w = self.window(min(t0, t1 - cfg.pad_s), t1)
         if len(t) < cfg.min_samples:

@@ -24,6 +24,7 @@ from ..errors import InputError
 from .images import decode_image, stamp_seconds
 from .pipeline import FrameSet, Pipeline, PipelineConfig
 from .sync import StampSynchronizer
+from .topics import bag_image_topics
 
 
 def _stderr_warn(msg: str) -> None:
@@ -78,21 +79,42 @@ def check_camera_info(bag: BagReader, rig: Rig, warn: Callable = _stderr_warn) -
 
 def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline, imu_topic: str | None = None,
                sync: StampSynchronizer | None = None, warn: Callable = _stderr_warn,
-               progress: bool = False) -> Iterator[list]:
+               progress: bool = False, image_topics: list | None = None) -> Iterator[list]:
     """Feed a bag's images (synchronised) and IMU samples through ``pipe`` in bag order.
 
     Yields the list of estimates of every frame set handed to the pipeline
     (usually empty), so ``pipe.last_pair`` can be read after each. Undecodable
     images and bad frame sets are counted in ``pipe.stats.dropped`` and warned
-    about once per topic.
+    about once per topic. ``image_topics`` (from
+    :func:`~nrmpc_ros.frontend.topics.bag_image_topics`) defaults to the rig's
+    cameras' topics, raw or compressed, as the bag has them. Frame sets missing
+    a camera (a dropped frame) are counted and skipped: the pipeline takes
+    complete sets only.
     """
-    cam_topics = [c.image_topic for c in rig.cameras]
-    bag.require(cam_topics)
-    sync = sync or StampSynchronizer(rig.num_cameras, 0.01, 10)
+    if image_topics is None:
+        image_topics = bag_image_topics(bag, rig, warn)
+    cam_topics = [t.topic for t in image_topics]
+    sync = sync or StampSynchronizer(rig.num_cameras, names=[c.name for c in rig.cameras])
     topics = cam_topics + ([imu_topic] if imu_topic else [])
     index = {t: i for i, t in enumerate(cam_topics)}
     warned = set()
     bar = None
+
+    def frame_sets(groups) -> Iterator[list]:
+        for group in groups:
+            if not group.complete:
+                pipe.stats.dropped["frame set missing a camera"] += 1
+                continue
+            try:
+                ests = pipe.add_frames(FrameSet(group.stamp, group.items))
+            except InputError as exc:
+                pipe.stats.dropped["bad frame set"] += 1
+                if exc.source not in warned:
+                    warned.add(exc.source)
+                    warn(str(exc))
+                continue
+            yield ests
+
     if progress:
         from tqdm import tqdm
 
@@ -113,16 +135,8 @@ def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline, imu_topic: str | None =
                     warned.add(topic)
                     warn(str(exc))
                 continue
-            for group in sync.add(index[topic], stamp_seconds(msg), img):
-                try:
-                    ests = pipe.add_frames(FrameSet(group.stamp, group.items))
-                except InputError as exc:
-                    pipe.stats.dropped["bad frame set"] += 1
-                    if exc.source not in warned:
-                        warned.add(exc.source)
-                        warn(str(exc))
-                    continue
-                yield ests
+            yield from frame_sets(sync.add(index[topic], stamp_seconds(msg), img))
+        yield from frame_sets(sync.flush())
     finally:
         if bar is not None:
             bar.close()

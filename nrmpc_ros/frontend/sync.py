@@ -1,96 +1,385 @@
-"""Approximate-time synchronisation of per-camera messages by stamp (shared by the replay and the node).
+"""Approximate-time grouping of per-camera messages by stamp (shared by the replay and the node).
 
-Each stream keeps a bounded queue sorted by stamp. A set is emitted when every
-stream has a message within ``tolerance_s`` of the others; messages that can
-no longer be part of any set are dropped and counted. Every message is queued
-and popped once and each matching step looks at the queue heads only, so the
-cost is linear in streams x queue depth (unlike a combinatorial search).
+Policy:
+
+- **Sets.** A set holds at most one message per stream (camera). Every stamp
+  of a set lies within ``tolerance`` of the set's reference stamp (the median
+  of its stamps), and a message joins a set only if it is nearer to the
+  set's reference than to the next frames of the set's streams (their median;
+  a stream's next frame is its next queued message, else predicted one
+  estimated period later): a frame of the next trigger does not fill the gap
+  of a dropped frame. Sets are formed from the
+  oldest queued message on; among several queued messages of one stream (a
+  faster camera) the one nearest the set's reference is taken and the older
+  ones are dropped as "unmatched". Stamps are told apart up to a jitter of
+  about a quarter period off the trigger (+-8 ms at 30 Hz, +-25 ms at 10 Hz):
+  there a trigger's frames may rarely end in two partial sets, but frames of
+  two triggers are never mixed. Above it no grouping by stamps is reliable.
+- **Tolerance.** Given ``tolerance_s``, it is fixed. Otherwise it follows
+  the cameras: each stream's frame period is estimated from its last
+  ``period_window`` inter-frame intervals (their median, refined by their mean
+  with an interval of k periods -- a dropped frame -- counted k times;
+  intervals longer than ``gap_periods`` periods -- pauses between snapshots --
+  are left out) and the tolerance is
+  ``period_fraction`` (0.45) of the smallest period, capped by
+  ``max_tolerance_s``. Below half a period, a window of +-tolerance holds at
+  most one frame of a regular stream. Until a period is known (4 frames of one
+  stream) the tolerance is ``initial_tolerance_s`` = 15 ms, 0.45 periods of a
+  30 Hz camera. Snapshot streams (one frame per hold, seconds apart) get a
+  tolerance of about a second; their synchronised stamps (a few ms apart)
+  still group correctly, since the nearest-frame rule decides.
+- **Partial sets.** A set missing a stream is emitted, with None for that
+  stream, once the missing frame can no longer arrive: the stream has a
+  message newer than the set's reference + tolerance, or the streams of the
+  set have moved on by ``wait_periods`` frame periods beyond it (a silent or
+  unplugged camera). Sets with fewer than ``min_streams`` messages are
+  dropped ("unmatched"); ``min_streams`` = the number of streams emits
+  complete sets only. :meth:`StampSynchronizer.flush` (end of a bag) emits
+  what is left, partial sets included.
+- **Late and early stamps.** A message not newer than the last message its
+  stream contributed is "late". A stamp more than ``jump_periods`` periods
+  behind its stream's newest (a bag played again, a clock reset), or more than
+  ``jump_periods`` of the largest period ahead of every stream's newest (a
+  clock jump, a corrupt stamp such as year 2038), is held apart (once the
+  periods are known; before, nothing is a jump). It is adopted
+  when another stream's message confirms the new time (or, with no other
+  stream talking, ``confirm`` messages of its own stream do); else it is
+  dropped ("stamp far in the past" / "stamp far in the future") as soon as its
+  stream sends a stamp consistent with the old time. Adopting a jump back
+  emits the queued sets of the old time (as :meth:`flush` does), clears the
+  queues and counts a "time jump back"; a jump ahead counts a "time jump ahead"
+  (a pause longer than ``jump_periods`` periods between snapshots counts so
+  too; its frames are held until the second camera's frame arrives, not lost).
+- **Cost.** Queues are bounded (``queue_size`` per stream; the oldest message
+  is dropped as "queue overflow"; keep ``queue_size`` above ``wait_periods`` + 1
+  so a silent camera does not overflow the others' queues). Every message is
+  queued and popped once and each set looks at the queue heads and the
+  messages within its window only, so the cost is linear in streams x queue
+  depth (times the few streams of a set, for the medians).
 """
 
 from __future__ import annotations
 
 import bisect
-from collections import Counter
-from dataclasses import dataclass
+import math
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from statistics import median
 
 
 @dataclass
 class SyncedSet:
-    """One message per stream; ``stamp`` is the stamp of stream 0's message."""
+    """One message (or None) per stream.
+
+    ``stamp`` is the stamp of the lowest-numbered stream present (stream 0's
+    when the set is complete); ``reference`` the median of the set's stamps.
+    """
 
     stamp: float
     stamps: list
     items: list
+    reference: float = math.nan
+    missing: list = field(default_factory=list)  # indices of the streams without a message
+
+    @property
+    def complete(self) -> bool:
+        return not self.missing
+
+
+@dataclass
+class _Pending:
+    """Messages held apart because their stamps jump far from their streams' time."""
+
+    kind: str  # "back" or "ahead"
+    latest: float
+    threshold: float
+    messages: list  # (stream, stamp, item) in arrival order
+    others_talked: bool = False  # another stream sent a stamp consistent with the old time meanwhile
+
+    @property
+    def streams(self) -> set:
+        return {m[0] for m in self.messages}
 
 
 class StampSynchronizer:
-    """Groups messages of ``num_streams`` streams whose stamps lie within ``tolerance_s`` of each other."""
+    """Groups messages of ``num_streams`` streams by stamp (see the module docstring for the policy).
 
-    def __init__(self, num_streams: int, tolerance_s: float = 0.005, queue_size: int = 10):
+    ``tolerance_s`` None (default): derived from the estimated frame periods;
+    a number: fixed (seconds). ``names`` label the streams in :meth:`describe`.
+    """
+
+    def __init__(self, num_streams: int, tolerance_s: float | None = None, queue_size: int = 10, *,
+                 max_tolerance_s: float | None = None, period_fraction: float = 0.45,
+                 initial_tolerance_s: float = 0.015, min_streams: int = 1, wait_periods: float = 4.0,
+                 gap_periods: float = 3.0, jump_periods: float = 5.0, confirm: int = 3, period_window: int = 30,
+                 names=None):
         if num_streams < 1:
             raise ValueError("num_streams must be >= 1")
-        if not tolerance_s >= 0:
-            raise ValueError("tolerance_s must be >= 0")
+        if tolerance_s is not None and not tolerance_s >= 0:
+            raise ValueError("tolerance_s must be >= 0 (or None: derived from the frame periods)")
         if queue_size < 1:
             raise ValueError("queue_size must be >= 1")
+        if max_tolerance_s is not None and not max_tolerance_s > 0:
+            raise ValueError("max_tolerance_s must be > 0")
+        if not 0 < period_fraction < 0.5:
+            raise ValueError("period_fraction must be in (0, 0.5)")
+        if not 1 <= min_streams <= num_streams:
+            raise ValueError(f"min_streams must be in 1..{num_streams}")
         self.num_streams = int(num_streams)
-        self.tolerance = float(tolerance_s)
+        self.fixed_tolerance = None if tolerance_s is None else float(tolerance_s)
         self.queue_size = int(queue_size)
+        self.max_tolerance_s = max_tolerance_s
+        self.period_fraction = float(period_fraction)
+        self.initial_tolerance_s = float(initial_tolerance_s)
+        self.min_streams = int(min_streams)
+        self.wait_periods = float(wait_periods)
+        self.gap_periods = float(gap_periods)
+        self.jump_periods = float(jump_periods)
+        self.confirm = int(confirm)
+        self.period_window = int(period_window)
+        self.names = list(names) if names is not None else [f"stream {i}" for i in range(self.num_streams)]
+        if len(self.names) != self.num_streams:
+            raise ValueError(f"{len(self.names)} names for {self.num_streams} streams")
         self.reset()
 
+    # ------------------------------------------------------------------ state
     def reset(self) -> None:
+        """Forget every message, period and count."""
+        self._intervals = [deque(maxlen=self.period_window) for _ in range(self.num_streams)]
+        self._period = [math.nan] * self.num_streams
+        self.dropped = Counter()  # reason -> messages
+        self.events = Counter()  # "time jump back" / "time jump ahead" -> count
+        self.partial = Counter()  # stream index -> partial sets emitted without it
+        self.emitted = 0  # sets emitted
+        self.complete = 0  # of which complete
+        self.grouped = 0  # messages emitted in sets
+        self._restart()
+
+    def _restart(self) -> None:
+        """Empty queues and stream times (periods and counts are kept)."""
         self._stamps = [[] for _ in range(self.num_streams)]  # sorted stamps per stream
         self._items = [[] for _ in range(self.num_streams)]
-        self._last = [-float("inf")] * self.num_streams  # stamp of the last emitted message per stream
-        self.dropped = Counter()  # reason -> count
-        self.emitted = 0
+        self._last = [-math.inf] * self.num_streams  # newest stamp that left the queue, per stream
+        self._newest = [-math.inf] * self.num_streams  # newest stamp accepted, per stream
+        self._pending: _Pending | None = None
 
     @property
     def queued(self) -> list:
         return [len(s) for s in self._stamps]
 
-    def _pop(self, i: int, reason: str | None) -> tuple:
-        if reason:
-            self.dropped[reason] += 1
-        return self._stamps[i].pop(0), self._items[i].pop(0)
+    @property
+    def periods(self) -> list:
+        """Estimated frame period of each stream (s; nan until 3 frames were seen)."""
+        return list(self._period)
 
+    @property
+    def tolerance(self) -> float:
+        """Half-width (s) of the window around a set's reference stamp, in use now."""
+        if self.fixed_tolerance is not None:
+            return self.fixed_tolerance
+        known = [p for p in self._period if p > 0]
+        tol = self.period_fraction * min(known) if known else self.initial_tolerance_s
+        return min(tol, self.max_tolerance_s) if self.max_tolerance_s is not None else tol
+
+    def _stream_period(self, i: int) -> float:
+        """Stream i's period, else the largest known one, else the start value's period."""
+        if self._period[i] > 0:
+            return self._period[i]
+        known = [p for p in self._period if p > 0]
+        return max(known) if known else self.initial_tolerance_s / self.period_fraction
+
+    def _known_period(self, i: int | None = None) -> float:
+        """Stream i's period (i None: the largest of all streams); nan until known."""
+        known = [p for p in (self._period if i is None else self._period[i:i + 1]) if p > 0]
+        return max(known) if known else math.nan
+
+    # ------------------------------------------------------------------ input
     def add(self, stream: int, stamp: float, item) -> list:
-        """Queue one message; returns the sets (0 or more, oldest first) it completes."""
+        """Queue one message; returns the sets (0 or more, oldest first) it completes or makes final."""
         if not 0 <= stream < self.num_streams:
             raise ValueError(f"stream index {stream} out of range (0..{self.num_streams - 1})")
         stamp = float(stamp)
-        if stamp <= self._last[stream]:
+        if not math.isfinite(stamp):
+            self.dropped["stamp not finite"] += 1
+            return []
+        kind, threshold = self._classify(stream, stamp)
+        pend = self._pending
+        if kind is None:
+            if pend is not None and stream in pend.streams:  # its stream is back to the old time: a glitch
+                self._drop_pending()
+            elif pend is not None:
+                pend.others_talked = True
+            return self._accept(stream, stamp, item)
+        if pend is not None and (pend.kind != kind or abs(stamp - pend.latest) > pend.threshold):
+            self._drop_pending()  # a different jump: the first one was not confirmed
+            pend = None
+        if pend is None:
+            self._pending = pend = _Pending(kind, stamp, threshold, [])
+        pend.messages.append((stream, stamp, item))
+        pend.latest = max(pend.latest, stamp)
+        others = pend.streams - {stream}
+        own = sum(m[0] == stream for m in pend.messages)
+        if others or (own >= self.confirm and not pend.others_talked):
+            return self._adopt()
+        if len(pend.messages) > self.queue_size:
+            self._count_pending(pend.messages.pop(0))
+        return []
+
+    def _classify(self, i: int, stamp: float):
+        """(None, 0) for a stamp consistent with the streams' time, else ("back" | "ahead", threshold)."""
+        back = self.jump_periods * self._known_period(i)  # nan (no test) until the stream's period is known
+        if stamp < self._newest[i] - back:
+            return "back", back
+        ahead = self.jump_periods * self._known_period()
+        if stamp > max(self._newest) + ahead:
+            return "ahead", ahead
+        return None, 0.0
+
+    def _count_pending(self, msg) -> None:
+        self.dropped["stamp far in the past" if self._pending.kind == "back" else "stamp far in the future"] += 1
+
+    def _drop_pending(self) -> None:
+        for m in self._pending.messages:
+            self._count_pending(m)
+        self._pending = None
+
+    def _adopt(self) -> list:
+        """The held jump is confirmed: a jump back closes the old time first; then the held messages are queued."""
+        pend, self._pending = self._pending, None
+        out = []
+        if pend.kind == "back":
+            out = self._match(final=True)
+            self._restart()
+            self.events["time jump back"] += 1
+        else:
+            self.events["time jump ahead"] += 1
+        for stream, stamp, item in pend.messages:
+            out += self._accept(stream, stamp, item, jumped=True)
+        return out
+
+    def _accept(self, i: int, stamp: float, item, jumped: bool = False) -> list:
+        if stamp <= self._last[i]:
             self.dropped["late"] += 1
             return []
-        st, it = self._stamps[stream], self._items[stream]
-        k = bisect.bisect_right(st, stamp)
+        st, it = self._stamps[i], self._items[i]
+        k = bisect.bisect_left(st, stamp)
+        if k < len(st) and st[k] == stamp:
+            self.dropped["duplicate"] += 1
+            return []
+        if stamp > self._newest[i]:
+            if self._newest[i] > -math.inf and not jumped:
+                self._add_interval(i, stamp - self._newest[i])
+            self._newest[i] = stamp
         st.insert(k, stamp)
         it.insert(k, item)
         if len(st) > self.queue_size:
-            self._pop(stream, "queue overflow")
-        return self._match()
+            self._last[i] = st.pop(0)
+            it.pop(0)
+            self.dropped["queue overflow"] += 1
+        return self._match(final=False)
 
-    def _match(self) -> list:
-        out = []
-        tol = self.tolerance
-        qs = self._stamps
-        while all(qs):
-            t_max = max(q[0] for q in qs)
-            for i, q in enumerate(qs):  # heads too old to meet the newest head never will
-                while q and q[0] < t_max - tol:
-                    self._pop(i, "unmatched")
-            if not all(qs):
+    def _add_interval(self, i: int, dt: float) -> None:
+        """Record one inter-frame interval; gaps (drops, pauses) longer than gap_periods periods are left out."""
+        p = self._period[i]
+        if p > 0 and dt > self.gap_periods * p:
+            return
+        iv = self._intervals[i]
+        iv.append(dt)
+        if len(iv) >= 3:  # the median, refined by the mean over the window (a dropped frame spans 2 periods)
+            m = median(iv)
+            self._period[i] = sum(iv) / sum(max(1, round(d / m)) for d in iv)
+
+    # ------------------------------------------------------------------ grouping
+    def flush(self) -> list:
+        """Emit every queued message as sets (partial ones too), e.g. at the end of a bag; held jumps are dropped."""
+        if self._pending is not None:
+            self._drop_pending()
+        return self._match(final=True)
+
+    def _next_stamp(self, i: int, k: int) -> float:
+        """Stamp of stream i's frame after its queued message k: queued, else predicted one period later
+        (the start value's period while no period is known: splitting a set is safer than mixing two)."""
+        q = self._stamps[i]
+        return q[k + 1] if k + 1 < len(q) else q[k] + self._stream_period(i)
+
+    def _candidate_set(self, tol: float):
+        """(stream -> queue index of the set grown from the oldest queued message, streams whose head belongs
+        to a later set of a member stream)."""
+        heads = sorted((q[0], i) for i, q in enumerate(self._stamps) if q)
+        t0, a = heads[0]
+        members, vals, claimed = {a: 0}, [t0], set()
+        for h, j in heads[1:]:
+            if h > t0 + 2 * tol:
                 break
-            heads = [q[0] for q in qs]
-            if max(heads) - min(heads) > tol:
+            trial = vals + [h]
+            ref = median(trial)
+            if max(abs(v - ref) for v in trial) > tol:
                 continue
-            t_ref, t_lim = max(heads), min(heads) + tol
-            for i, q in enumerate(qs):  # a later queued message may be closer to the set's newest stamp
-                while len(q) > 1 and q[1] <= t_lim and abs(q[1] - t_ref) < abs(q[0] - t_ref):
-                    self._pop(i, "unmatched")
-            picked = [self._pop(i, None) for i in range(self.num_streams)]
-            stamps = [p[0] for p in picked]
-            self._last = stamps
-            self.emitted += 1
-            out.append(SyncedSet(stamps[0], stamps, [p[1] for p in picked]))
+            nxt = median(self._next_stamp(i, k) for i, k in members.items())
+            if h - median(vals) >= nxt - h:
+                claimed.add(j)  # nearer the next frames of the streams in the set: it belongs to a later set
+                continue
+            members[j] = 0
+            vals = trial
+        ref = median(vals)
+        for i in members:  # a faster stream: its queued message nearest the set's reference
+            q, k = self._stamps[i], 0
+            while k + 1 < len(q) and abs(q[k + 1] - ref) < abs(q[k] - ref) and abs(q[k + 1] - ref) <= tol:
+                k += 1
+            members[i] = k
+        return members, claimed
+
+    def _match(self, final: bool) -> list:
+        out = []
+        while any(self._stamps):
+            tol = self.tolerance
+            members, claimed = self._candidate_set(tol)
+            ref = median(self._stamps[i][k] for i, k in members.items())
+            missing = [i for i in range(self.num_streams) if i not in members]
+            if missing and not final:
+                moved_on = min(self._newest[i] for i in members)
+                if not all(i in claimed or self._newest[i] > ref + tol
+                           or moved_on > ref + tol + self.wait_periods * self._stream_period(i) for i in missing):
+                    break  # a missing frame may still arrive
+            out += self._emit(members, ref, missing)
         return out
+
+    def _emit(self, members: dict, ref: float, missing: list) -> list:
+        picked = {}
+        for i, k in members.items():
+            st, it = self._stamps[i], self._items[i]
+            if k:
+                self.dropped["unmatched"] += k
+            picked[i] = (st[k], it[k])
+            self._last[i] = st[k]
+            del st[:k + 1], it[:k + 1]
+        if len(picked) < self.min_streams:
+            self.dropped["unmatched"] += len(picked)
+            return []
+        stamps = [picked[i][0] if i in picked else None for i in range(self.num_streams)]
+        items = [picked[i][1] if i in picked else None for i in range(self.num_streams)]
+        self.emitted += 1
+        self.grouped += len(picked)
+        if missing:
+            self.partial.update(missing)
+        else:
+            self.complete += 1
+        return [SyncedSet(picked[min(picked)][0], stamps, items, ref, missing)]
+
+    # ------------------------------------------------------------------ report
+    def describe(self) -> str:
+        """One line: sets, partial sets per stream, drops by reason, time jumps, tolerance and periods."""
+        parts = [f"{self.emitted} sets ({self.complete} complete"]
+        if self.emitted > self.complete:
+            miss = ", ".join(f"{self.names[i]} {n}" for i, n in sorted(self.partial.items()))
+            parts[0] += f", {self.emitted - self.complete} partial; missing: {miss}"
+        parts[0] += f"; {self.grouped} messages grouped)"
+        drops = "; ".join(f"{k} {v}" for k, v in sorted(self.dropped.items()))
+        parts.append(f"dropped: {drops}" if drops else "nothing dropped")
+        if self.events:
+            parts.append(", ".join(f"{k}: {v}" for k, v in sorted(self.events.items())))
+        how = "fixed" if self.fixed_tolerance is not None else (
+            f"{self.period_fraction:g} x the smallest period" if any(p > 0 for p in self._period) else "start value")
+        periods = ", ".join(f"{n} {1e3 * p:.1f}" if p > 0 else f"{n} ?" for n, p in zip(self.names, self._period))
+        parts.append(f"tolerance +-{1e3 * self.tolerance:.1f} ms ({how}); periods (ms): {periods}")
+        return "; ".join(parts)

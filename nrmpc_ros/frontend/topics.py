@@ -1,0 +1,116 @@
+"""Which topic carries each rig camera's images, raw or compressed, in a bag or on the ROS graph.
+
+Policy (compressed fallback): a camera's ``image_topic`` from the rig file is
+used when it exists; its type decides how it is decoded (a sensor_msgs/Image,
+or a sensor_msgs/CompressedImage recorded under the plain name). When it is
+absent but ``image_topic + '/compressed'`` exists as a CompressedImage (what
+image_transport records), that topic is used and the choice is reported in
+the :class:`ImageTopic`'s ``note``. Neither present: one
+:class:`~nrmpc_ros.errors.InputError` naming the topic and listing the image
+topics the bag has. The topic used having another type is an error too. Decoding is
+:func:`nrmpc_ros.frontend.images.decode_image`'s job (it takes both types).
+
+For the node's ``image_transport: auto``, :func:`choose_transport` makes the
+same choice from the topic names and types it sees on the graph; with neither
+published yet it takes the raw topic (and waits for it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import InputError
+
+RAW_TYPE = "sensor_msgs/msg/Image"
+COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
+COMPRESSED_SUFFIX = "/compressed"
+
+
+@dataclass(frozen=True)
+class ImageTopic:
+    """The topic a camera's images are read from."""
+
+    topic: str
+    msgtype: str
+    compressed: bool
+    note: str = ""  # why this topic, when it is not the rig file's image_topic as is
+
+
+def _kind(msgtype: str) -> str | None:
+    """'raw' or 'compressed' for the image message types (ROS 2 or ROS 1 spelling), else None."""
+    name = str(msgtype).replace("/msg/", "/")
+    return {"sensor_msgs/Image": "raw", "sensor_msgs/CompressedImage": "compressed"}.get(name)
+
+
+def compressed_topic(topic: str) -> str:
+    """The image_transport topic of compressed images beside ``topic``."""
+    return topic.rstrip("/") + COMPRESSED_SUFFIX
+
+
+def _image_topics(bag_topics: dict) -> str:
+    listed = [f"{t} ({m})" for t, m in sorted(bag_topics.items()) if _kind(m)]
+    return ", ".join(listed) or "none"
+
+
+def resolve_image_topics(bag_topics: dict, rig, source: str = "bag") -> list:
+    """One :class:`ImageTopic` per rig camera (rig order) from the bag's topics (name -> message type).
+
+    Raises :class:`InputError` naming ``source`` (the bag) and the topic when a
+    camera's images are in neither the raw nor the compressed topic.
+    """
+    out = []
+    for cam in rig.cameras:
+        topic = cam.image_topic
+        if not topic:
+            raise InputError(rig.source, f"camera {cam.name!r} has no image_topic", f"cameras[{cam.name}].image_topic")
+        comp = compressed_topic(topic)
+        used = topic if topic in bag_topics else comp if comp in bag_topics else None
+        if used is None:
+            raise InputError(source, f"camera {cam.name!r}: image topic {topic!r} not in the bag, nor {comp!r} (rig "
+                                     f"file {rig.source}); image topics in the bag: {_image_topics(bag_topics)}",
+                             "topic")
+        msgtype = bag_topics[used]
+        kind = _kind(msgtype)
+        if kind is None or (used == comp and kind == "raw"):
+            want = f"{RAW_TYPE} or {COMPRESSED_TYPE}" if used == topic else COMPRESSED_TYPE
+            raise InputError(source, f"camera {cam.name!r}: topic {used!r} has type {msgtype}, not {want}", "topic")
+        note = ""
+        if used == comp:
+            note = f"{topic} (camera {cam.name}) is not in the bag: using {comp} ({msgtype})"
+        elif kind == "compressed":
+            note = f"{topic} (camera {cam.name}) holds compressed images ({msgtype})"
+        out.append(ImageTopic(used, msgtype, kind == "compressed", note))
+    return out
+
+
+def bag_image_topics(bag, rig, warn=None) -> list:
+    """:func:`resolve_image_topics` for an open :class:`~nrmpc_ros.bag.reader.BagReader`; ``warn(note)`` is
+    called for every fallback taken."""
+    out = resolve_image_topics({t: m for t, (m, _) in bag.topics.items()}, rig, bag.source)
+    for t in out:
+        if t.note and warn is not None:
+            warn(t.note)
+    return out
+
+
+def choose_transport(topic: str, available: dict) -> tuple:
+    """(topic to subscribe, compressed?) for ``image_transport: auto``.
+
+    ``available`` maps topic names to the type names published on them (as
+    rclpy's ``get_topic_names_and_types`` lists them). Raw images on ``topic``
+    win; else CompressedImage on ``topic + '/compressed'``; else CompressedImage
+    on ``topic`` itself; with nothing there yet, the raw topic.
+    """
+    kinds = {t: {_kind(m) for m in types} for t, types in available.items()}
+    comp = compressed_topic(topic)
+    if "raw" in kinds.get(topic, ()):
+        return topic, False
+    if "compressed" in kinds.get(comp, ()):
+        return comp, True
+    if "compressed" in kinds.get(topic, ()):
+        return topic, True
+    return topic, False
+
+
+__all__ = ["COMPRESSED_TYPE", "RAW_TYPE", "ImageTopic", "bag_image_topics", "choose_transport", "compressed_topic",
+           "resolve_image_topics"]

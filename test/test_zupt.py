@@ -1,0 +1,232 @@
+"""Zero-velocity detection: still rigs, creep, vibration, holds between moves, rates, noise sources, gaps, online."""
+
+import math
+
+import numpy as np
+import pytest
+
+from nrmpc_ros.core.so3 import exp_so3
+from nrmpc_ros.errors import InputError
+from nrmpc_ros.frontend.zupt import (
+    ImuNoise,
+    ZuptConfig,
+    ZuptDetector,
+    estimate_noise,
+    still_intervals,
+    still_mask,
+    still_statistic,
+)
+
+BIAS = np.array([0.003, -0.002, 0.001])  # rad/s
+AXIS = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
+
+
+def trace(rng, rate, plan, accel_sigma=0.02, gyro_sigma=0.002, bias=BIAS):
+    """IMU samples of a rig that holds and moves: plan = [("hold" | "move", seconds), ...].
+
+    A move turns the rig about a fixed axis (rate 0.6 sin^2 rad/s) while it
+    translates back and forth (1 m/s^2 sin); the accelerometer reads the specific
+    force in the turned body frame. Returns t, accel, gyro and the true holds.
+    """
+    t = np.arange(0.0, sum(d for _, d in plan), 1.0 / rate)
+    w, lin, holds, t0 = np.zeros((len(t), 3)), np.zeros((len(t), 3)), [], 0.0
+    for kind, d in plan:
+        m = (t >= t0) & (t < t0 + d)
+        tau = (t[m] - t0) / d
+        if kind == "move":
+            w[m] = 0.6 * np.sin(np.pi * tau)[:, None] ** 2 * AXIS
+            lin[m] = np.sin(2 * np.pi * tau)[:, None] * np.array([1.0, 0.4, 0.0])
+        else:
+            holds.append((t0, t0 + d))
+        t0 += d
+    rate_norm = np.linalg.norm(w, axis=1)
+    angle = np.concatenate([[0.0], np.cumsum(0.5 * (rate_norm[1:] + rate_norm[:-1]) * np.diff(t))])
+    R = exp_so3(angle[:, None] * AXIS)  # body -> world
+    accel = np.einsum("nji,nj->ni", R, lin + np.array([0.0, 0.0, 9.81]))
+    accel = accel + rng.normal(scale=accel_sigma, size=accel.shape)
+    gyro = w + bias + rng.normal(scale=gyro_sigma, size=w.shape)
+    return t, accel, gyro, holds
+
+
+def still_trace(rng, rate=200.0, seconds=10.0, accel_sigma=0.02, gyro_sigma=0.002):
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    accel = np.array([0.2, -0.1, 9.8]) + rng.normal(scale=accel_sigma, size=(len(t), 3))
+    gyro = BIAS + rng.normal(scale=gyro_sigma, size=(len(t), 3))
+    return t, accel, gyro
+
+
+def test_still_rig_with_noise_and_bias_is_still(rng):
+    t, a, w = still_trace(rng, seconds=20.0)
+    noise = estimate_noise(t, a, w)
+    assert noise.source == "data"
+    assert noise.accel_sigma == pytest.approx(0.02, rel=0.1)
+    assert noise.gyro_sigma == pytest.approx(0.002, rel=0.1)
+    assert np.abs(noise.gyro_bias - BIAS).max() < 3e-4
+    assert noise.accel_norm == pytest.approx(np.linalg.norm([0.2, -0.1, 9.8]), abs=0.01)
+    assert noise.period_s == pytest.approx(0.005)
+    assert still_intervals(t, a, w, noise) == [(t[0], t[-1])]
+    assert still_mask(t, a, w, noise).all()
+
+
+@pytest.mark.parametrize("deg_s, still", [(0.5, False), (0.01, True)])
+def test_slow_creep(rng, deg_s, still):
+    """7 s still, then a constant rotation: 0.5 deg/s is motion, 0.01 deg/s is below the detection limit.
+
+    A constant rate looks like gyro bias; the bias estimate follows the majority of the quietest windows,
+    here the still part.
+    """
+    t, a, w = still_trace(rng)
+    w[t >= 7.0] += math.radians(deg_s) * np.array([0.0, 0.0, 1.0])
+    noise = estimate_noise(t, a, w)
+    iv = still_intervals(t, a, w, noise)
+    if still:
+        assert iv == [(t[0], t[-1])]
+    else:
+        assert np.abs(noise.gyro_bias - BIAS).max() < 3e-4
+        assert len(iv) == 1 and iv[0][0] == t[0] and abs(iv[0][1] - 7.0) < 0.1
+        assert not still_mask(t, a, w, noise)[t > 7.1].any()
+
+
+def test_vibration_is_not_still(rng):
+    t, a, w = still_trace(rng)
+    vib = (t > 4.0) & (t < 6.0)
+    a[vib, 0] += 0.3 * np.sin(2 * np.pi * 20.0 * t[vib])  # 20 Hz, 0.3 m/s^2
+    noise = estimate_noise(t, a, w)
+    iv = still_intervals(t, a, w, noise)
+    assert len(iv) == 2 and abs(iv[0][1] - 4.0) < 0.1 and abs(iv[1][0] - 6.0) < 0.1
+    assert not still_mask(t, a, w, noise)[(t > 4.05) & (t < 5.95)].any()
+
+
+@pytest.mark.parametrize("rate", [100.0, 400.0])
+def test_holds_between_moves(rng, rate):
+    plan = [("hold", 3.0), ("move", 1.5), ("hold", 2.0), ("move", 1.0), ("hold", 0.15), ("move", 1.0), ("hold", 3.0)]
+    t, a, w, holds = trace(rng, rate, plan)
+    cfg = ZuptConfig()
+    noise = estimate_noise(t, a, w, cfg)
+    iv = still_intervals(t, a, w, noise, cfg)
+    expected = [h for h in holds if h[1] - h[0] >= cfg.min_still_s]  # the 0.15 s pause is too short to report
+    assert len(iv) == len(expected) == 3
+    for (f0, f1), (h0, h1) in zip(iv, expected):
+        assert h0 - 1.0 / rate <= f0 <= h0 + cfg.window_s
+        assert h1 - cfg.window_s <= f1 <= h1
+    stat = still_statistic(t, a, w, noise, cfg)
+    assert stat.shape == t.shape and np.nanmax(stat) > 100  # moves are far above the threshold
+
+
+def test_single_still_sample_between_moves_is_no_interval(rng):
+    t, a, w, _ = trace(rng, 200.0, [("move", 1.0), ("move", 1.0)], accel_sigma=0.0, gyro_sigma=0.0, bias=np.zeros(3))
+    k = int(np.argmin(np.abs(t - 1.0)))  # between the moves the rate is zero for one sample
+    noise = ImuNoise(0.02, 0.002, np.zeros(3), "covariance", 9.81, 0.005)
+    assert np.linalg.norm(w[k]) < 1e-12
+    assert still_intervals(t, a, w, noise) == []
+    assert not still_mask(t, a, w, noise)[k]
+
+
+def test_noise_free_imu_uses_the_floors(rng):
+    plan = [("hold", 2.0), ("move", 1.0), ("hold", 2.0)]
+    t, a, w, holds = trace(rng, 200.0, plan, accel_sigma=0.0, gyro_sigma=0.0, bias=np.zeros(3))
+    noise = estimate_noise(t, a, w)
+    assert noise.accel_sigma < 1e-6 and noise.gyro_sigma < 1e-6
+    iv = still_intervals(t, a, w, noise)
+    assert len(iv) == 2 and iv[0][1] < 2.0 and iv[1][0] > 3.0
+
+
+def test_noise_from_covariance_or_data(rng):
+    t, a, w, holds = trace(rng, 200.0, [("hold", 3.0), ("move", 1.0), ("hold", 3.0)])
+    cov_a, cov_w = (np.eye(3) * 0.02 ** 2).ravel(), (np.eye(3) * 0.002 ** 2).ravel()
+    from_cov = estimate_noise(t, a, w, covariance=(cov_a, cov_w))
+    assert from_cov.source == "covariance"
+    assert (from_cov.accel_sigma, from_cov.gyro_sigma) == pytest.approx((0.02, 0.002))
+    assert np.abs(from_cov.gyro_bias - BIAS).max() < 3e-4  # the bias always comes from the data
+    from_data = estimate_noise(t, a, w)
+    assert from_data.source == "data"
+    assert from_data.gyro_sigma == pytest.approx(0.002, rel=0.15)
+    unknown = np.zeros(9)
+    unknown[0] = -1.0
+    for cov in [(unknown, cov_w), (cov_a, np.zeros(9)), None]:  # unknown covariances: estimated from the data
+        assert estimate_noise(t, a, w, covariance=cov).source == "data"
+    a_cov = still_intervals(t, a, w, from_cov)
+    a_data = still_intervals(t, a, w, from_data)
+    assert len(a_cov) == len(a_data) == 2
+    assert np.allclose(a_cov, a_data, atol=0.05)
+    with pytest.raises(InputError, match="angular_velocity"):
+        estimate_noise(t, a, w, covariance=(cov_a, np.ones(4)))
+
+
+def test_gap_breaks_a_still_run_and_nan_samples_are_skipped(rng):
+    t, a, w = still_trace(rng, seconds=6.0)
+    keep = (t < 2.0) | (t > 2.5)  # half a second without samples
+    t, a, w = t[keep], a[keep], w[keep]
+    a[700] = np.nan  # one unusable sample: skipped, not a gap
+    noise = estimate_noise(t, a, w)
+    iv = still_intervals(t, a, w, noise)
+    assert len(iv) == 2
+    assert iv[0] == (t[0], t[t < 2.0][-1]) and iv[1] == (t[t > 2.5][0], t[-1])
+    mask = still_mask(t, a, w, noise)
+    assert not mask[700] and mask[699] and mask[701]
+    assert np.isnan(still_statistic(t, a, w, noise)[700])
+
+
+def test_non_uniform_sampling(rng):
+    t, a, w, holds = trace(rng, 200.0, [("hold", 3.0), ("move", 1.0), ("hold", 3.0)])
+    t = t + rng.uniform(-0.4, 0.4, len(t)) * 0.005  # +-40 % of a period, order kept
+    noise = estimate_noise(t, a, w)
+    iv = still_intervals(t, a, w, noise)
+    assert len(iv) == 2 and abs(iv[0][1] - 3.0) < 0.1 and abs(iv[1][0] - 4.0) < 0.1
+
+
+def test_bad_input_is_one_clear_error(rng):
+    t, a, w = still_trace(rng, seconds=2.0)
+    with pytest.raises(InputError, match="/imu: .*need"):
+        estimate_noise(t[:50], a[:50], w[:50], source="/imu")
+    with pytest.raises(InputError, match="field 'accel'"):
+        estimate_noise(t, a[:, :2], w)
+    with pytest.raises(InputError, match="without a gap"):
+        estimate_noise(t[::10], a[::10], w[::10], ZuptConfig(min_window_samples=4, gap_periods=0.5))
+    t2 = t.copy()
+    t2[10] = t2[5]
+    with pytest.raises(InputError, match="field 't'.*backwards at sample 10"):
+        still_mask(t2, a, w, ImuNoise(0.02, 0.002))
+
+
+def test_online_detector_matches_the_offline_test(rng):
+    plan = [("hold", 3.0), ("move", 1.0), ("hold", 2.0), ("move", 1.0), ("hold", 2.0)]
+    t, a, w, holds = trace(rng, 200.0, plan)
+    det = ZuptDetector()
+    assert det.is_still(0.0, 1.0) is None and det.still_since(1.0) is None
+    since = {}
+    for k in range(len(t)):
+        assert det.add(t[k], a[k], w[k]) is None
+        if k % 25 == 0 and det.noise is not None:  # queried while the samples arrive (cache of settled windows)
+            since[k] = det.still_since(t[k])
+    assert det.noise.source == "data"
+    assert det.add(t[-1], a[-1], w[-1]) == "out of order"
+    noise = det.noise
+    offline = still_intervals(t, a, w, noise)
+    assert len(offline) == 3
+    for h0, h1 in offline:
+        assert det.still_since(h1) == h0
+        assert det.still_since(0.5 * (h0 + h1)) == h0
+        assert det.is_still(h0, h1) is True
+        assert det.is_still(h0 - 0.2, h1) is bool(h0 == t[0])  # before the first sample nothing says it moved
+    assert det.is_still(3.3, 3.6) is False and det.still_since(3.5) is None
+    assert det.is_still(100.0, 101.0) is None
+    # online answers agree with the offline runs known up to that sample
+    for k, s in since.items():
+        run = [h0 for h0, h1 in offline if h0 <= t[k] <= h1 + 0.1]
+        if s is not None:
+            assert run and s == run[0]
+    assert sum(s is not None for s in since.values()) > 0.6 * len(since)
+
+
+def test_online_detector_with_known_noise(rng):
+    t, a, w = still_trace(rng, seconds=1.0)
+    noise = ImuNoise(0.02, 0.002, BIAS, "covariance", float(np.linalg.norm([0.2, -0.1, 9.8])), 0.005)
+    det = ZuptDetector(noise=noise)
+    for k in range(len(t)):
+        det.add(t[k], a[k], w[k])
+    assert det.noise is noise
+    assert det.is_still(0.1, 0.9) is True
+    assert det.still_since(0.9) == t[0]
+    det.add(1.0, a[0] + np.array([1.0, 0.0, 0.0]), w[0])  # a jolt: the newest sample is not still
+    assert det.is_still(0.1, 1.0) is False
