@@ -64,7 +64,8 @@ class SequenceOptions:
     candidate_iterations: int = 8  # short joint adjustment of each gravity candidate
     candidate_tracks: int = 300  # tracks (random subset) those short adjustments use
     candidate_separation_deg: float = 3.0  # candidates closer than this are one
-    max_candidates: int = 8
+    max_candidates: int = 8  # distinct candidates scored at the chained poses ...
+    refined_candidates: int = 3  # ... of which the best get a short joint adjustment
     max_pair_gap: int = 3  # a view is paired with at most this many views back
     min_pair_matches: int = 12  # correspondences a pair needs
     gravity_bias_sigma: float | None = None  # rad: 4pt-bending also estimates a constant tilt of the measurements
@@ -198,19 +199,27 @@ def _errors(prob: SequenceBundleProblem, state: BundleState) -> np.ndarray:
 
 
 def _choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: SequenceOptions, rng):
-    """The candidate g_0 whose short joint adjustment has the best MSAC score over all observations."""
+    """The candidate g_0 whose short joint adjustment has the best MSAC score over all observations.
+
+    Every candidate is first scored at the chained poses (landmarks triangulated, no adjustment); the best
+    ``refined_candidates`` of them get the short adjustment on a subset of the tracks.
+    """
     if len(candidates) == 1:
         return candidates[0], 1
+    quick = []
+    for g0 in candidates:
+        st, prob = _triangulated(rig, obs, BundleState(R, t, g0, np.zeros((obs.num_points, 3))))
+        quick.append(msac_score(_errors(prob, st), threshold))
+    keep = [candidates[i] for i in np.argsort(quick)[: opts.refined_candidates]]
     pts = np.arange(obs.num_points)
     if len(pts) > opts.candidate_tracks:
         pts = np.sort(rng.choice(pts, size=opts.candidate_tracks, replace=False))
     sub, _ = obs.subset(np.isin(obs.point, pts))
     best, best_score = None, math.inf
-    for g0 in candidates:
+    for g0 in keep:
         res = adjust_bundle(rig, sub, R, t, g0, priors=priors, max_iterations=opts.candidate_iterations,
                             sigma_rad=threshold / 2.0, tol=1e-3)
         st, prob = _triangulated(rig, obs, res.state)
-        st.points[np.isin(np.arange(obs.num_points), pts)] = res.state.points
         score = msac_score(_errors(prob, st), threshold)
         if score < best_score:
             best, best_score = res.state, score
@@ -222,7 +231,8 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
                     max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0):
     """Robust joint adjustment: classify observations as inliers (angular error below ``threshold``, rad,
     ``start_factor`` times that at the start, where the poses are only roughly right), adjust on the inliers,
-    re-classify every observation and repeat while the inlier set changes by more than 1 %. Returns
+    re-classify every observation and repeat (at least twice, each round from landmarks triangulated at the
+    poses so far) while the inlier set changes by more than 1 %. Returns
     (BundleResult on the inliers, inlier mask over obs)."""
     state = BundleState(np.asarray(R, float), np.asarray(t, float), gravity,
                         np.zeros((obs.num_points, 3)) if points is None else np.asarray(points, float),
@@ -246,8 +256,8 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
         new = _seen_twice(obs, _errors(prob, full) < threshold)
         changed = int(np.count_nonzero(new != inl))
         inl = new
-        if changed <= max(2, 0.01 * np.count_nonzero(inl)):
-            break
+        if r >= 1 and changed <= max(2, 0.01 * np.count_nonzero(inl)):
+            break  # a second round always runs: from landmarks triangulated at the refined poses
     return res, inl
 
 
