@@ -160,9 +160,10 @@ def test_continuous_motion_png_mcap(tmp_path):
     assert rc == 0
     assert list(out.glob("*.mcap"))
     msgs, types = read_bag(out)
-    assert types["/cam0/image_raw"] == "sensor_msgs/msg/CompressedImage"
-    assert "png" in msgs["/cam0/image_raw"][0][1].format
-    ts = [t for t, _ in msgs["/cam0/image_raw"]]
+    assert "/cam0/image_raw" not in types, "compressed images go on <image_topic>/compressed"
+    assert types["/cam0/image_raw/compressed"] == "sensor_msgs/msg/CompressedImage"
+    assert "png" in msgs["/cam0/image_raw/compressed"][0][1].format
+    ts = [t for t, _ in msgs["/cam0/image_raw/compressed"]]
     assert len(ts) > 2 and np.all(np.diff(ts) == 200_000_000), "frames stream through the move at the camera rate"
     assert len(msgs["/ground_truth/pose"]) == len(ts)
 
