@@ -215,10 +215,9 @@ def resolve_options(args) -> dict:
 def rig_from_options(o: dict):
     """The rig of --rig, or a simulated one from the layout flags (with an IMU at the body centre unless --no-imu)."""
     if o["rig"]:
-        for key in ("width", "height"):
-            if o[key] is not None:
-                raise InputError(f"--{key}", "only for rigs built from flags; the rig file fixes each camera's "
-                                             "resolution")
+        if o["width"] is not None or o["height"] is not None:
+            raise InputError("--resolution/--width/--height", "only for rigs built from flags; the rig file "
+                                                              "fixes each camera's resolution")
         rig = load_rig(o["rig"])
         return replace(rig, imu=None) if o["no_imu"] else rig
     checks = [("--bar-length", 0 < o["bar_length"] < math.inf), ("--mass", 0 <= o["mass"] < math.inf),

@@ -13,10 +13,24 @@ the bar's bending (unit DC gain: a settled bar bends as the static model
 says). zeta is the damping ratio. A rigid bar (EI = inf or m = 0, or a
 camera at the body centre) has w_i = inf: it follows the load at once.
 
-:class:`DampedResponse` integrates the system exactly for a load sampled on a
-fine time grid and linear between samples (first-order hold), so the only
-approximation is that interpolation: an error of order dt^2 |u''| / 8, about
-1e-5 m/s^2 (1e-6 of gravity) at 1 ms steps for the moves of rendered bags.
+:class:`DampedResponse` integrates the system exactly for a load that is
+linear between samples and may jump at a sample (an acceleration step), so
+the only approximation is the linear interpolation of a smooth load between
+samples: an error of order dt^2 |u''| / 8 (for the moves of rendered bags at
+0.5 ms steps, below 1e-4 m/s^2, i.e. 1e-5 of gravity).
+
+Between samples t_k and t_{k+1} the load is u(t) = u_k+ + s_k (t - t_k) and
+the response is x = u - 2 zeta s_k / w + Re(C_k exp(lambda (t - t_k))): the
+ramp's particular solution plus the free ringing, lambda = -zeta w + i w_d,
+w_d = w sqrt(1 - zeta^2), with complex amplitude C_k (|C_k| is the ringing
+amplitude). x and x' are continuous at a sample while the particular
+solution jumps with the load (J_k = u_k+ - u_k-) and changes slope, so
+
+    C_{k+1} = exp(lambda h_k) C_k + kappa (s_{k+1} - s_k) - mu J_{k+1},
+    kappa = 2 zeta / w + i (1 - 2 zeta^2) / w_d,   mu = 1 - i zeta w / w_d,
+
+a first-order recursion that runs in :func:`scipy.signal.lfilter` over each
+stretch of equal steps. At rest at t_0 (x = u_0, x' = 0): C_0 = kappa s_0.
 """
 
 from __future__ import annotations
@@ -24,7 +38,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter, lfilter_zi
+from scipy.signal import lfilter
 
 from ..errors import InputError
 from .rig import Rig
@@ -60,82 +74,68 @@ def check_damping(zeta: float, source: str = "--damping") -> None:
         raise InputError(source, f"damping ratio must be in (0, 1) (under-damped bars ring), got {zeta!r}")
 
 
-def _propagate(x0, v0, u0, u1, h, dt, w, zeta):
-    """State (x, x') after time h from (x0, v0) for an input linear from u0 (at 0) with slope (u1 - u0) / dt.
-
-    Exact: x = x_p + y with the particular solution x_p(tau) = u0 + s tau - 2 zeta s / w of the ramp
-    u0 + s tau and y the free under-damped oscillation from y(0) = x0 - x_p(0), y'(0) = v0 - s.
-    All arguments broadcast; w must be finite.
-    """
-    s = (u1 - u0) / dt
-    xp0 = u0 - 2.0 * zeta * s / w
-    y0 = x0 - xp0
-    yd0 = v0 - s
-    sigma = zeta * w
-    wd = w * math.sqrt(1.0 - zeta * zeta)
-    e = np.exp(-sigma * h)
-    c, sn = np.cos(wd * h), np.sin(wd * h)
-    y = e * (y0 * c + (yd0 + sigma * y0) / wd * sn)
-    yd = e * (yd0 * c - (w * w * y0 + sigma * yd0) / wd * sn)
-    return xp0 + s * h + y, s + yd
-
-
-def _step_filters(dt: float, w: float, zeta: float):
-    """IIR coefficients (b_x, b_v, a) of the exact one-step recursion, for x and x' driven by the sampled input.
-
-    The step is z_{k+1} = A z_k + B0 u_k + B1 u_{k+1} with z = (x, x'); as transfer functions in z^-1
-    (C adj(zI - A) (B0 + z B1) / det(zI - A)) it runs through :func:`scipy.signal.lfilter` in C.
-    """
-    basis = np.eye(4)
-    cols = np.array(_propagate(basis[0], basis[1], basis[2], basis[3], dt, dt, w, zeta))  # (2, 4)
-    A, B0, B1 = cols[:, :2], cols[:, 2], cols[:, 3]
-    a = np.array([1.0, -np.trace(A), np.linalg.det(A)])
-    b_x = np.array([B1[0], B0[0] - A[1, 1] * B1[0] + A[0, 1] * B1[1], -A[1, 1] * B0[0] + A[0, 1] * B0[1]])
-    b_v = np.array([B1[1], A[1, 0] * B1[0] + B0[1] - A[0, 0] * B1[1], A[1, 0] * B0[0] - A[0, 0] * B0[1]])
-    return b_x, b_v, a
 
 
 class DampedResponse:
-    """Each bar's damped response x_i(t) (and x_i'(t)) to a load u(t) sampled every ``dt`` seconds.
+    """Each bar's damped response x_i(t) (and x_i'(t)) to a load u(t) given at sample times, see the module doc.
 
-    u: (N, 3) input samples at t = 0, dt, ..., (N - 1) dt (body frame, m/s^2); the bars start at rest
-    at the first sample (x = u[0], x' = 0). freq_hz: (M,) natural frequencies (inf = rigid);
-    zeta: damping ratio in (0, 1). :meth:`at` evaluates the exact state at any times in [0, (N - 1) dt].
+    t: (N,) increasing sample times (s); u: (N, 3) the load just after each sample (body frame, m/s^2);
+    u_before: (N, 3) the load just before each sample where it jumps (default: u, a continuous load).
+    freq_hz: (M,) natural frequencies (inf = rigid: x follows the interpolated load); zeta: damping
+    ratio in (0, 1). The bars start at rest at t[0] (x = u[0], x' = 0). Fast when the steps are
+    piecewise equal (one lfilter call per stretch of equal steps and camera).
     """
 
-    def __init__(self, u, dt: float, freq_hz, zeta: float):
+    def __init__(self, t, u, freq_hz, zeta: float, u_before=None):
         check_damping(zeta)
+        self.t = np.asarray(t, dtype=float).reshape(-1)
         self.u = np.asarray(u, dtype=float).reshape(-1, 3)
-        if len(self.u) < 2 or not dt > 0:
-            raise ValueError("DampedResponse needs at least two input samples and a positive step")
-        self.dt = float(dt)
+        before = self.u if u_before is None else np.asarray(u_before, dtype=float).reshape(-1, 3)
+        h = np.diff(self.t)
+        if len(self.t) < 2 or len(self.u) != len(self.t) or len(before) != len(self.t) or not np.all(h > 0):
+            raise ValueError("DampedResponse needs >= 2 increasing sample times and one load (3,) per sample")
         self.zeta = float(zeta)
         self.freq_hz = np.asarray(freq_hz, dtype=float).reshape(-1)
         self.rigid = ~np.isfinite(self.freq_hz)
-        self.w = np.where(self.rigid, 1.0, 2.0 * math.pi * np.where(self.rigid, 1.0, self.freq_hz))  # rad/s
-        N, M = len(self.u), len(self.freq_hz)
-        self.x = np.broadcast_to(self.u[:, None, :], (N, M, 3)).copy()
-        self.v = np.zeros((N, M, 3))
-        for i in np.flatnonzero(~self.rigid):  # a few cameras; the samples run inside lfilter
-            b_x, b_v, a = _step_filters(self.dt, float(self.w[i]), self.zeta)
-            at_rest = self.u[0][None, :]  # steady state of a constant input u[0] before t = 0
-            self.x[:, i] = lfilter(b_x, a, self.u, axis=0, zi=lfilter_zi(b_x, a)[:, None] * at_rest)[0]
-            self.v[:, i] = lfilter(b_v, a, self.u, axis=0, zi=lfilter_zi(b_v, a)[:, None] * at_rest)[0]
+        w = 2.0 * math.pi * np.where(self.rigid, 1.0, self.freq_hz)  # rad/s (dummy 1 for rigid bars)
+        wd = w * math.sqrt(1.0 - self.zeta**2)
+        self.w, self.lam = w, -self.zeta * w + 1j * wd
+        kappa = 2.0 * self.zeta / w + 1j * (1.0 - 2.0 * self.zeta**2) / wd
+        mu = 1.0 - 1j * self.zeta * w / wd
+        self.slope = (before[1:] - self.u[:-1]) / h[:, None]  # (N-1, 3): s_k of interval k
+        jump = self.u[1:-1] - before[1:-1]  # J_k at the inner samples k = 1 .. N-2
+        # Stretches of (numerically) equal steps over the transitions C_k -> C_{k+1}, k = 0 .. N-3.
+        hk = h[:-1]
+        cuts = np.flatnonzero(np.abs(np.diff(hk)) > 1e-9 * hk[1:]) + 1
+        bounds = np.concatenate([[0], cuts, [len(hk)]])
+        M = len(self.freq_hz)
+        self.C = np.zeros((len(h), M, 3), dtype=complex)  # ringing amplitude at the start of each interval
+        for i in np.flatnonzero(~self.rigid):  # a few cameras x a few stretches; the samples run in lfilter
+            drive = kappa[i] * np.diff(self.slope, axis=0) - mu[i] * jump  # (N-2, 3): C_{k+1} - p C_k
+            self.C[0, i] = kappa[i] * self.slope[0]
+            for a, b in zip(bounds[:-1], bounds[1:]):
+                if b <= a:
+                    continue
+                p = np.exp(self.lam[i] * hk[a])
+                self.C[a + 1:b + 1, i] = lfilter([1.0], [1.0, -p], drive[a:b], axis=0, zi=(p * self.C[a, i])[None])[0]
 
-    @property
-    def duration(self) -> float:
-        return (len(self.u) - 1) * self.dt
+    def _locate(self, t):
+        t = np.clip(np.asarray(t, dtype=float).reshape(-1), self.t[0], self.t[-1])
+        k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 2)
+        return k, (t - self.t[k])[:, None, None]
 
     def at(self, t):
-        """Loads x (K, M, 3) and their rates x' (K, M, 3, per second) at times t (K,) in seconds from the start."""
-        t = np.clip(np.asarray(t, dtype=float).reshape(-1), 0.0, self.duration)
-        j = np.clip(np.floor(t / self.dt).astype(np.int64), 0, len(self.u) - 2)
-        h = (t - j * self.dt)[:, None, None]
-        u0, u1 = self.u[j][:, None, :], self.u[j + 1][:, None, :]
-        w = self.w[None, :, None]
-        x, v = _propagate(self.x[j], self.v[j], u0, u1, h, self.dt, w, self.zeta)
+        """Loads x (K, M, 3) and their rates x' (K, M, 3, per second) at times t (K,) in [t[0], t[-1]]."""
+        k, h = self._locate(t)
+        s = self.slope[k][:, None, :]
+        ring = self.C[k] * np.exp(self.lam[None, :, None] * h)
+        ramp = self.u[k][:, None, :] + s * h
         rigid = self.rigid[None, :, None]
-        s = (u1 - u0) / self.dt
-        x = np.where(rigid, u0 + s * h, x)
-        v = np.where(rigid, s, v)
+        x = np.where(rigid, ramp, ramp - 2.0 * self.zeta * s / self.w[None, :, None] + ring.real)
+        v = np.where(rigid, s, s + (self.lam[None, :, None] * ring).real)
         return x, v
+
+    def amplitude(self, t) -> np.ndarray:
+        """(K, M) ringing amplitude of each bar at times t: the norm over the axes of |C exp(lambda h)| (m/s^2)."""
+        k, h = self._locate(t)
+        return np.linalg.norm(np.abs(self.C[k] * np.exp(self.lam[None, :, None] * h)), axis=-1)

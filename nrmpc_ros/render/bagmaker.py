@@ -28,10 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..bag.writer import COMPRESSED_FORMATS, DEFAULT_JPEG_QUALITY, ENCODINGS, BagWriter, image_topic_for
-from ..core.deformation import bend_rotation_vectors, deformed_extrinsics
+from ..core.deformation import bend_rotation_vectors
 from ..core.dynamics import check_damping
 from ..core.rig import ImuMount, Rig
-from ..core.so3 import exp_and_left_jacobian, normalize
+from ..core.so3 import cross, exp_and_left_jacobian, normalize
 from ..errors import InputError
 from .bars import CameraLoads, bent_extrinsics
 from .raycast import Renderer
@@ -97,12 +97,13 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
     """Accelerometer (N, 3) and gyro (N, 3) in the IMU frame at times t_ns, with noise and constant bias.
 
     Specific force f = R^T (acc_world - g_world) = -u in the body frame (u the body's load); an IMU at the
-    body centre reads R_body_imu^T f. One inside camera i reads R_cam_imu^T W_i^T f with the camera bent
-    by its bar's load (SPEC section 4). When that bar rings (``loads`` with a damping ratio), the tip's own
-    motion adds: the accelerometer feels the bar's spring and damper force per unit tip mass,
-    f_tip = -u + P_i (u - x_i - 2 zeta / w_i x_i') (P_i removes the axial part, which the bar carries rigidly),
-    and the gyro the bar's bending rate J_l(phi_i) phi_i' on top of the body rate. Lever-arm terms of the
-    body's rotation are neglected, as in the static bending model.
+    body centre reads R_body_imu^T f and the body rate. One inside camera i reads R_cam_imu^T W_i^T f_i with
+    the camera bent by its bar's load (SPEC section 4), where f_i adds the lever arm of the bent camera
+    position w_i: alpha x w_i + omega x (omega x w_i). When that bar rings (``loads`` with a damping ratio)
+    the tip's own motion adds too: its acceleration c_d P_i x_i'' = P_i (u - x_i - 2 zeta / w x_i') (the
+    bar's spring and damper force per unit tip mass; P_i removes the axial part, which the bar carries
+    rigidly), the Coriolis term 2 omega x w_i', and, on the gyro, the bending rate J_l(phi_i) phi_i'.
+    Quasi-static bars have no motion of their own.
     """
     imu = rig.imu or ImuMount()
     R, _, omega, acc = traj.state(t_ns)
@@ -112,19 +113,24 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
         mount_R = np.broadcast_to(np.eye(3), (len(R), 3, 3))
     else:
         i = rig.camera_index(imu.mount)
+        u_dir, c_d, _ = (c[i] for c in rig.bar_coefficients)
         if loads is not None and loads.ringing:
             x, v, _ = loads.state(t_ns)
             xi, vi = x[:, i], v[:, i]
-            u_dir = rig.bar_coefficients[0][i]
-            w_i = 2.0 * math.pi * loads.frequencies[i]
-            bend = load - xi - (2.0 * loads.damping / w_i) * vi
-            f_body = -load + bend - np.outer(bend @ u_dir, u_dir)
-            E, J_l = exp_and_left_jacobian(bend_rotation_vectors(rig, xi, cams=[i])[:, 0])
-            w_body = omega + np.einsum("nij,nj->ni", J_l, bend_rotation_vectors(rig, vi, cams=[i])[:, 0])
-            mount_R = E @ rig.rotations[i]
         else:
-            _, W = deformed_extrinsics(rig, load)  # (N, M, 3, 3)
-            mount_R = W[:, i]
+            xi, vi = load, np.zeros_like(load)
+        w, _ = bent_extrinsics(rig, np.broadcast_to(xi[:, None], (len(xi), rig.num_cameras, 3)))
+        alpha = traj.angular_acceleration(t_ns)
+        f_body = f_body + cross(alpha, w[:, i]) + cross(omega, cross(omega, w[:, i]))
+        E, J_l = exp_and_left_jacobian(bend_rotation_vectors(rig, xi, cams=[i])[:, 0])
+        mount_R = E @ rig.rotations[i]
+        if loads is not None and loads.ringing:
+            def perp(y):
+                return y - np.outer(y @ u_dir, u_dir)
+
+            f_body = f_body + perp(load - xi - (2.0 * loads.damping / (2.0 * math.pi * loads.frequencies[i])) * vi)
+            f_body = f_body + 2.0 * cross(omega, c_d * perp(vi))
+            w_body = omega + np.einsum("nij,nj->ni", J_l, bend_rotation_vectors(rig, vi, cams=[i])[:, 0])
     to_imu = np.einsum("ji,njk->nik", imu.rotation, np.swapaxes(mount_R, 1, 2))  # body -> IMU
     accel = np.einsum("nij,nj->ni", to_imu, f_body)
     gyro = np.einsum("nij,nj->ni", to_imu, w_body)

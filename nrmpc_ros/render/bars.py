@@ -4,8 +4,10 @@ Quasi-static (no damping given): every bar carries the body's load
 u = R^T (g_world - a) at once (:meth:`Trajectory.load_body`), so all cameras
 bend for the same load. Ringing (a damping ratio zeta): bar i's load x_i is
 the damped second-order response of :mod:`nrmpc_ros.core.dynamics` to u at
-the bar's natural frequency, integrated exactly on a 1 ms grid from rest at
-the first hold; each camera then bends for its own load.
+the bar's natural frequency, integrated exactly from rest at the first hold
+on a grid of at most 0.5 ms steps whose nodes include every instant where the
+acceleration jumps (:meth:`Trajectory.breakpoints`), so the jumps are exact;
+each camera then bends for its own load.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from ..core.dynamics import DampedResponse, bar_natural_frequencies, check_dampi
 from ..core.rig import Rig
 from .sequence import Trajectory
 
-DYNAMICS_STEP_NS = 1_000_000  # 1 ms grid of the bar dynamics
+DYNAMICS_STEP_NS = 500_000  # longest step of the bar dynamics' grid, ns
 
 
 def bent_extrinsics(rig: Rig, loads):
@@ -42,11 +44,21 @@ class CameraLoads:
         self.response = None
         if damping is not None:
             check_damping(damping)
-            n = (traj.end_ns - traj.start_ns) // step_ns + 2  # the grid covers the whole trajectory
-            self._grid0 = traj.start_ns
-            grid = traj.start_ns + step_ns * np.arange(n, dtype=np.int64)
-            R, _, _, acc = traj.state(grid)
-            self.response = DampedResponse(traj.load_body(R, acc), step_ns * 1e-9, self.frequencies, damping)
+            self._t0 = traj.start_ns
+            t, at_break = self._grid(step_ns)
+            t_ns = self._t0 + np.rint(t).astype(np.int64)
+            after = self.quasi_static(t_ns + at_break)  # one-sided loads at a jump, 1 ns off it
+            before = self.quasi_static(t_ns - at_break)
+            self.response = DampedResponse(t * 1e-9, after, self.frequencies, damping, u_before=before)
+
+    def _grid(self, step_ns: int):
+        """Node times (ns after the start, float) of equal steps <= step_ns between breakpoints; 1 at breakpoints."""
+        b = self.traj.breakpoints() - self._t0
+        n = np.maximum(1, -(-np.diff(b) // step_ns))  # steps per stretch
+        piece = np.repeat(np.arange(len(n)), n)
+        j = np.arange(len(piece)) - np.repeat(np.cumsum(n) - n, n)
+        t = np.append(b[piece] + np.diff(b)[piece] * (j / n[piece]), float(b[-1]))
+        return t, np.append(j == 0, True).astype(np.int64)
 
     @property
     def ringing(self) -> bool:
@@ -63,7 +75,7 @@ class CameraLoads:
         u = self.quasi_static(t_ns)
         if self.response is None:
             return np.broadcast_to(u[:, None, :], (len(u), self.rig.num_cameras, 3)), None, u
-        t = (np.asarray(t_ns, dtype=np.int64).reshape(-1) - self._grid0) * 1e-9
+        t = (np.asarray(t_ns, dtype=np.int64).reshape(-1) - self._t0).astype(float) * 1e-9
         x, v = self.response.at(t)
         rigid = ~np.isfinite(self.frequencies)[None, :, None]
         return np.where(rigid, u[:, None, :], x), v, u

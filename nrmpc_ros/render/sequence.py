@@ -171,6 +171,15 @@ class Trajectory:
     def end_ns(self) -> int:
         return int(self.hold_end[-1])
 
+    def breakpoints(self) -> np.ndarray:
+        """Sorted instants (ns) where the body's acceleration may jump: hold starts and ends, and the trapezoid's
+        switches between accelerating, coasting and decelerating."""
+        b = [self.hold_start, self.hold_end]
+        if self.profile == "trapezoid" and len(self.move_ns):
+            ramp = np.rint(self.accel_fraction * self.move_ns).astype(np.int64)
+            b += [self.hold_end[:-1] + ramp, self.hold_end[:-1] + self.move_ns - ramp]
+        return np.unique(np.concatenate(b))
+
     def frame_times(self, capture: str = "holds"):
         """Trigger times (ns) of the cameras in a capture mode, and the hold index of each (-1 while moving)."""
         if capture == "stream":
@@ -192,26 +201,38 @@ class Trajectory:
         inside = (k >= 0) & (t < self.hold_end[kc])
         return np.where(inside, kc, -1)
 
+    def _moves(self, t_ns):
+        """Times (N,) int64, the hold each follows (N,), which are moving, and for those: move index, duration
+        T (s) and the profile s, ds/dtau, d2s/dtau2."""
+        t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+        k = np.clip(np.searchsorted(self.hold_start, t, side="right") - 1, 0, len(self.R) - 1)
+        moving = (t >= self.hold_end[k]) & (k < len(self.R) - 1)
+        km = k[moving]
+        T = self.move_ns[km] * 1e-9
+        return t, k, moving, km, T, move_profile(self.profile, (t[moving] - self.hold_end[km]) * 1e-9 / T,
+                                                 self.accel_fraction)
+
     def state(self, t_ns):
         """Pose and motion at times t_ns (N,): R (N,3,3) body->world, p (N,3), omega (N,3) body frame rad/s,
         acceleration (N,3) of the body origin in the world, m/s^2."""
-        t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
-        k = np.clip(np.searchsorted(self.hold_start, t, side="right") - 1, 0, len(self.R) - 1)
+        t, k, moving, km, T, (s, ds, dds) = self._moves(t_ns)
         R = self.R[k].copy()
         p = self.p[k].copy()
         omega = np.zeros((len(t), 3))
         acc = np.zeros((len(t), 3))
-        moving = (t >= self.hold_end[k]) & (k < len(self.R) - 1)
         if moving.any():
-            km = k[moving]
-            T = self.move_ns[km] * 1e-9
-            tau = (t[moving] - self.hold_end[km]) * 1e-9 / T
-            s, ds, dds = move_profile(self.profile, tau, self.accel_fraction)
             R[moving] = self.R[km] @ exp_so3(s[:, None] * self.phi[km])
             p[moving] = self.p[km] + s[:, None] * self.dp[km]
             omega[moving] = (ds / T)[:, None] * self.phi[km]
             acc[moving] = (dds / T**2)[:, None] * self.dp[km]
         return R, p, omega, acc
+
+    def angular_acceleration(self, t_ns) -> np.ndarray:
+        """(N, 3) body-frame angular acceleration, rad/s^2 (the rotation axis of a move is fixed: s'' phi / T^2)."""
+        t, _, moving, km, T, (_, _, dds) = self._moves(t_ns)
+        out = np.zeros((len(t), 3))
+        out[moving] = (dds / T**2)[:, None] * self.phi[km]
+        return out
 
     def gravity_body(self, R) -> np.ndarray:
         """Gravity in the body frame, g_B = R^T (0, 0, -|g|), for R (N, 3, 3)."""
