@@ -471,6 +471,16 @@ def test_scenario_file_and_flag_overrides(tmp_path):
     assert msgs["/cam0/camera_info"][0][1].width == 160
 
 
+def test_scenario_rig_path_is_relative_to_the_file(tmp_path):
+    d = tmp_path / "scenarios"
+    d.mkdir()
+    save_rig(make_rig(RigSpec(num_cameras=2, layout="line", focal=60.0, resolution=(80, 60))), d / "rig.yaml")
+    (d / "sc.yaml").write_text("rig: rig.yaml\nviews: 2\nhold_seconds: 0.2\nrate: 5\ncapture: snapshot\n")
+    assert main(["make-bag", "--scenario", str(d / "sc.yaml"), "--no-progress", "--out", str(tmp_path / "b")]) == 0
+    msgs, _ = read_bag(tmp_path / "b")
+    assert msgs["/cam1/camera_info"][0][1].width == 80 and len(msgs["/cam1/image_raw"]) == 2
+
+
 @pytest.mark.parametrize("text, key", [
     ("holds_seconds: 2\n", "holds_seconds"), ("views: two\n", "views"), ("views: 2.5\n", "views"),
     ("no-imu: 1\n", "no-imu"), ("capture: bursts\n", "capture"), ("motion: static\ncapture: stream\n", "motion"),
@@ -491,7 +501,7 @@ def test_bad_scenario_files(tmp_path, capsys, text, key):
     (["--move-seconds", "-1"], "--move-seconds"), (["--hold-seconds", "0"], "--hold-seconds"),
     (["--motion", "static", "--capture", "stream"], "--motion"), (["--imu-noise", "-1"], "--imu-noise"),
     (["--rig", "config/sample_cross4.yaml", "--resolution", "320x240"], "--resolution"),
-    (["--width", "1"], "--width"), (["--cameras", "0", "--layout", "ring"], "--cameras"),
+    (["--width", "1"], "--width"), (["--cameras", "0", "--layout", "ring"], "--cameras"), (["--seed", "-1"], "--seed"),
 ])
 def test_bad_options_name_the_flag(tmp_path, capsys, args, flag):
     assert main(["make-bag", "--no-progress", *args, "--out", str(tmp_path / "b")]) == 2

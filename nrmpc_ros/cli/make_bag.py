@@ -62,7 +62,8 @@ def register(sub):
                     "/ground_truth/{pose,gravity} at every trigger. Capture modes, move profiles, ringing bars, "
                     "stamp jitter and frame drops make it look like a real recording.")
     p.add_argument("--scenario", metavar="FILE.yaml",
-                   help="options from a YAML mapping (keys = option names, e.g. hold-seconds: 2); flags override it")
+                   help="options from a YAML mapping (keys = option names, e.g. hold-seconds: 2; a relative rig path "
+                        "is relative to the file); flags override it")
     rig = p.add_argument_group("rig (a rig file, or one built from these flags)")
     rig.add_argument("--rig", help="rig YAML file (SPEC section 7); the layout flags below are then ignored")
     rig.add_argument("--cameras", type=int, help=f"number of cameras (default {d['cameras']})")
@@ -282,9 +283,12 @@ def run(args) -> int:
           f"{rig.num_cameras} cameras, {summary['dropped']} frames dropped, {summary['duration_s']:.1f} s, "
           f"tilts {min(tilts):.0f}-{max(tilts):.0f} deg", file=sys.stderr)
     if opts.damping is not None:
-        settle = [h["settled"] - h["start"] for h in summary["holds"][1:] if h["settled"] is not None]
+        settle = max([h["settled"] - h["start"] for h in summary["holds"][1:] if h["settled"] is not None],
+                     default=0.0)
+        hold = summary["holds"][0]["end"] - summary["holds"][0]["start"]
         freqs = ", ".join(f"{f:.2f}" for f in summary["bar_frequencies_hz"])
-        print(f"  bars ring at {freqs} Hz; ringing below 1e-3 after {max(settle, default=0.0):.1f} s of each hold",
+        late = f" (longer than the {hold:g} s holds: the bars still ring when they end)" if settle > hold else ""
+        print(f"  bars ring at {freqs} Hz; ringing below 1e-3 after {settle:.1f} s of each hold{late}",
               file=sys.stderr)
     for topic, n in sorted(summary["counts"].items()):
         print(f"  {topic}: {n}", file=sys.stderr)

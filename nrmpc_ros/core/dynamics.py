@@ -38,7 +38,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..errors import InputError
 from .rig import Rig
@@ -87,6 +86,8 @@ class DampedResponse:
     """
 
     def __init__(self, t, u, freq_hz, zeta: float, u_before=None):
+        from scipy.signal import lfilter  # on first use: importing scipy.signal takes about 0.5 s
+
         check_damping(zeta)
         self.t = np.asarray(t, dtype=float).reshape(-1)
         self.u = np.asarray(u, dtype=float).reshape(-1, 3)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..bag.writer import COMPRESSED_FORMATS, DEFAULT_JPEG_QUALITY, ENCODINGS, BagWriter, image_topic_for
+from ..bag.writer import COMPRESSED_FORMATS, DEFAULT_JPEG_QUALITY, ENCODINGS, STORAGES, BagWriter, image_topic_for
 from ..core.deformation import bend_rotation_vectors
 from ..core.dynamics import check_damping
 from ..core.rig import ImuMount, Rig
@@ -72,6 +72,10 @@ class BagOptions:
 
     def validate(self) -> None:
         """One InputError naming the flag of the first bad option."""
+        if not (isinstance(self.seed, numbers.Integral) and self.seed >= 0):
+            raise InputError("--seed", f"must be an integer >= 0, got {self.seed!r}")
+        if self.storage not in STORAGES:
+            raise InputError("--storage", f"unknown storage {self.storage!r} (supported: {', '.join(STORAGES)})")
         if self.encoding not in ENCODINGS:
             raise InputError("--encoding", f"unsupported {self.encoding!r} (supported: {', '.join(ENCODINGS)})")
         if not (isinstance(self.jpeg_quality, numbers.Integral) and 0 <= self.jpeg_quality <= 100):

@@ -118,7 +118,9 @@ class Renderer:
         """
         cam = self.rig.cameras[i]
         w, h = cam.resolution
-        d = self.bearings(i) @ np.asarray(R_world_cam, dtype=np.float32).T
+        # einsum, not a BLAS product: a (H*W, 3) x (3, 3) product gains nothing from threads, and waking
+        # BLAS threads on a busy machine costs more than the product itself.
+        d = np.einsum("nj,ij->ni", self.bearings(i), np.asarray(R_world_cam, dtype=np.float32))
         c = np.asarray(c_world, dtype=np.float32)
         t, face = cast_rays(self.scene, c, d)
         pts = c + t[:, None] * d
