@@ -1,4 +1,8 @@
-"""``nrmpc make-bag``: topics, counts, stamps, IMU a = -g, bent extrinsics (issue 4; SPEC sections 3, 4, 11)."""
+"""``nrmpc make-bag``: topics, counts, stamps, IMU a = -g, bent extrinsics, and the recording styles (capture
+modes, move profiles, ringing bars, jitter, drops, compressed images, no IMU, scenario files)."""
+
+import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -7,9 +11,12 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
 from nrmpc_ros.cli.main import main
-from nrmpc_ros.core import gravity_from_accelerometer, load_rig
-from nrmpc_ros.core.so3 import angle_between, quat_xyzw_to_matrix, rotation_angle
+from nrmpc_ros.core import ImuMount, gravity_from_accelerometer, load_rig, save_rig
+from nrmpc_ros.core.so3 import angle_between, exp_so3, log_so3, quat_xyzw_to_matrix, rotation_angle
 from nrmpc_ros.render import Renderer, make_scene
+from nrmpc_ros.render.bagmaker import BagOptions, imu_readings, make_bag
+from nrmpc_ros.render.bars import CameraLoads, bent_extrinsics
+from nrmpc_ros.render.sequence import MotionOptions, make_trajectory
 from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 
 TS = get_typestore(Stores.ROS2_JAZZY)
@@ -160,9 +167,10 @@ def test_continuous_motion_png_mcap(tmp_path):
     assert rc == 0
     assert list(out.glob("*.mcap"))
     msgs, types = read_bag(out)
-    assert types["/cam0/image_raw"] == "sensor_msgs/msg/CompressedImage"
-    assert "png" in msgs["/cam0/image_raw"][0][1].format
-    ts = [t for t, _ in msgs["/cam0/image_raw"]]
+    assert "/cam0/image_raw" not in types, "compressed images go on <image_topic>/compressed"
+    assert types["/cam0/image_raw/compressed"] == "sensor_msgs/msg/CompressedImage"
+    assert "png" in msgs["/cam0/image_raw/compressed"][0][1].format
+    ts = [t for t, _ in msgs["/cam0/image_raw/compressed"]]
     assert len(ts) > 2 and np.all(np.diff(ts) == 200_000_000), "frames stream through the move at the camera rate"
     assert len(msgs["/ground_truth/pose"]) == len(ts)
 
@@ -219,3 +227,291 @@ def test_image_encodings(tmp_path, encoding):
         assert np.array_equal(np.asarray(m.data).reshape(6, 10), img)
     else:
         assert np.array_equal(np.asarray(m.data).reshape(6, 10, 3)[:, :, 1], img) and m.step == 30
+
+
+# -- recording styles ------------------------------------------------------------------------------------------
+
+TINY = ["--cameras", "2", "--layout", "line", "--resolution", "160x120", "--no-progress"]
+QUIET = ["--image-noise", "0", "--imu-noise", "0", "--gyro-noise", "0", "--imu-bias", "0", "--gyro-bias", "0"]
+
+
+def make(tmp_path, name, *args):
+    out = tmp_path / name
+    assert main(["make-bag", *TINY, *args, "--out", str(out)]) == 0
+    return read_bag(out)
+
+
+def vectors(msgs, topic, attr):
+    return np.array([[getattr(getattr(m, attr), k) for k in "xyz"] for _, m in msgs[topic]])
+
+
+@pytest.fixture(scope="module")
+def styles(tmp_path_factory):
+    """One trajectory recorded as holds, with jitter, with drops, as png and as jpeg (same seed)."""
+    d = tmp_path_factory.mktemp("styles")
+    base = ["--views", "3", "--hold-seconds", "0.5", "--rate", "10", "--seed", "5", "--imu-noise", "0"]
+    return {name: make(d, name, *base, *extra)[0] for name, extra in {
+        "plain": [], "jitter": ["--jitter-ms", "4"], "drops": ["--drop-rate", "0.3"],
+        "png": ["--encoding", "png"], "jpeg": ["--encoding", "jpeg", "--jpeg-quality", "40"],
+    }.items()}
+
+
+def test_snapshot_one_image_per_camera_per_hold(tmp_path):
+    msgs, _ = make(tmp_path, "s", "--capture", "snapshot", "--views", "3", "--hold-seconds", "2",
+                   "--move-seconds", "0.5", "--seed", "2")
+    for topic in ["/cam0/image_raw", "/cam1/image_raw", "/cam0/camera_info", "/ground_truth/pose",
+                  "/ground_truth/gravity"]:
+        ts = [t for t, _ in msgs[topic]]
+        assert len(ts) == 3 and np.all(np.diff(ts) == 2_500_000_000), topic
+    imu_t = np.array([t for t, _ in msgs["/imu/data"]])
+    assert len(imu_t) == 7 * 200 and np.all(np.diff(imu_t) == 5_000_000), "IMU throughout, holds and moves"
+    # Each snapshot is the last frame of its hold: the next 100 ms are still, then the rig moves.
+    gyro = vectors(msgs, "/imu/data", "angular_velocity")
+    for t, _ in msgs["/cam0/image_raw"][:2]:
+        still = (imu_t >= t - 1_900_000_000) & (imu_t < t + 100_000_000)
+        after = (imu_t > t + 100_000_000) & (imu_t < t + 600_000_000)
+        assert np.abs(gyro[still]).max() < 0.01 < np.abs(gyro[after]).max()
+
+
+@pytest.mark.parametrize("capture, expected", [("holds", 3 * 5), ("stream", 3 * 5 + 2 * 5)])
+def test_holds_and_stream_counts(tmp_path, capture, expected):
+    msgs, _ = make(tmp_path, capture, "--capture", capture, "--views", "3", "--hold-seconds", "0.5",
+                   "--move-seconds", "0.5", "--stream-hz", "10")
+    ts = np.array([t for t, _ in msgs["/cam1/image_raw"]])
+    assert len(ts) == expected and len(msgs["/ground_truth/pose"]) == expected
+    assert np.all(np.diff(ts) % 100_000_000 == 0) and np.all(np.diff(ts) > 0)
+    assert (np.diff(ts) == 100_000_000).all() == (capture == "stream")
+
+
+def test_jitter_moves_each_camera_stamp_but_not_the_content(styles):
+    plain, jit = styles["plain"], styles["jitter"]
+    assert [t for t, _ in jit["/ground_truth/pose"]] == [t for t, _ in plain["/ground_truth/pose"]]
+    trigger = np.array([t for t, _ in plain["/cam0/image_raw"]])
+    offsets = []
+    for i in range(2):
+        img, info = jit[f"/cam{i}/image_raw"], jit[f"/cam{i}/camera_info"]
+        ts = np.array([t for t, _ in img])
+        assert all(t == stamp(m) for t, m in img + info), "header stamp = bag time"
+        assert [t for t, _ in info] == ts.tolist()
+        off = ts - trigger
+        assert np.abs(off).max() <= 4_000_000 and np.abs(off).max() > 1_000_000
+        offsets.append(off)
+        for (_, a), (_, b) in zip(img, plain[f"/cam{i}/image_raw"]):
+            assert np.array_equal(a.data, b.data), "rendered (and noised) at the trigger time"
+    assert np.count_nonzero(offsets[0] != offsets[1]) == len(trigger), "cameras are not synchronised"
+    # The IMU and the ground truth are untouched; the bag stays in time order.
+    assert [t for t, _ in jit["/imu/data"]] == [t for t, _ in plain["/imu/data"]]
+
+
+def test_drops_remove_image_and_camera_info(styles):
+    plain, drops = styles["plain"], styles["drops"]
+    n = len(plain["/ground_truth/pose"])
+    assert len(drops["/ground_truth/pose"]) == n == 15
+    kept = []
+    for i in range(2):
+        img, info = drops[f"/cam{i}/image_raw"], drops[f"/cam{i}/camera_info"]
+        assert [t for t, _ in info] == [t for t, _ in img]
+        kept.append([t for t, _ in img])
+        ref = {t: m for t, m in plain[f"/cam{i}/image_raw"]}
+        assert all(np.array_equal(m.data, ref[t].data) for t, m in img), "a drop changes no other image"
+    assert 0 < len(kept[0]) < n and 0 < len(kept[1]) < n and kept[0] != kept[1], "independent per camera"
+
+
+def test_compressed_images_on_the_compressed_topic(styles):
+    import cv2
+
+    plain = styles["plain"]
+    for name in ("png", "jpeg"):
+        msgs = styles[name]
+        assert "/cam0/image_raw" not in msgs and len(msgs["/cam0/image_raw/compressed"]) == 15
+        assert len(msgs["/cam0/camera_info"]) == 15
+        for (t, m), (tr, raw) in zip(msgs["/cam1/image_raw/compressed"], plain["/cam1/image_raw"]):
+            dec = cv2.imdecode(np.asarray(m.data), cv2.IMREAD_UNCHANGED)
+            ref = raw.data.reshape(raw.height, raw.width)
+            assert t == tr and dec.shape == (120, 160) and m.format.startswith(f"mono8; {name}")
+            err = np.abs(dec.astype(int) - ref).mean()
+            assert err == 0 if name == "png" else 0 < err < 20
+    size = {name: np.mean([len(m.data) for _, m in styles[name]["/cam0/image_raw/compressed"]])
+            for name in ("png", "jpeg")}
+    assert size["jpeg"] < 0.5 * size["png"], "--jpeg-quality 40 compresses"
+
+
+def test_no_imu_and_resolution(tmp_path):
+    rig_path = tmp_path / "rig.yaml"
+    msgs, _ = make(tmp_path, "n", "--no-imu", "--views", "2", "--hold-seconds", "0.2", "--rate", "5",
+                   "--resolution", "320x240", "--save-rig", str(rig_path))
+    assert "/imu/data" not in msgs and len(msgs["/cam0/image_raw"]) == 2
+    m = msgs["/cam0/image_raw"][0][1]
+    assert (m.width, m.height) == (320, 240)
+    assert msgs["/cam0/camera_info"][0][1].k.tolist() == [235.0, 0, 159.5, 0, 235.0, 119.5, 0, 0, 1]
+    assert "imu" not in yaml.safe_load(rig_path.read_text())
+    rig = load_rig(rig_path)
+    assert rig.imu is None and rig.cameras[0].resolution == (320, 240)
+
+
+@pytest.mark.parametrize("profile", ["min-jerk", "trapezoid"])
+def test_move_profiles_through_the_imu(tmp_path, profile):
+    """The integrated gyro reproduces each move's attitude change; the accelerometer is smooth (min-jerk) or
+    steps where the trapezoid switches between accelerating, coasting and decelerating."""
+    msgs, _ = make(tmp_path, "p", "--capture", "snapshot", "--views", "3", "--hold-seconds", "0.3",
+                   "--move-seconds", "1.0", "--move-profile", profile, "--accel-fraction", "0.25", "--seed", "3",
+                   *QUIET)
+    imu_t = np.array([t for t, _ in msgs["/imu/data"]])
+    gyro = vectors(msgs, "/imu/data", "angular_velocity")
+    acc = vectors(msgs, "/imu/data", "linear_acceleration")
+    poses = [m.pose for _, m in msgs["/ground_truth/pose"]]
+    Rs = [quat_xyzw_to_matrix([p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w]) for p in poses]
+    ps = np.array([[p.position.x, p.position.y, p.position.z] for p in poses])
+    snaps = [t for t, _ in msgs["/ground_truth/pose"]]
+    for k in range(2):
+        window = (imu_t >= snaps[k]) & (imu_t <= snaps[k + 1])
+        rotvec = np.trapezoid(gyro[window], imu_t[window] * 1e-9, axis=0)  # the axis is fixed during a move
+        expected = log_so3(Rs[k].T @ Rs[k + 1])
+        assert np.degrees(np.linalg.norm(rotvec - expected)) < 0.01
+        assert np.degrees(np.linalg.norm(expected)) > 4.0
+        jumps = np.linalg.norm(np.diff(acc[window], axis=0), axis=1)
+        peak = np.linalg.norm(ps[k + 1] - ps[k]) / (0.25 * 0.75)  # |dp| s''_max / T^2, T = 1 s
+        if profile == "min-jerk":
+            assert jumps.max() < 0.05 * peak + 0.05, "acceleration continuous"
+        else:
+            assert np.sort(jumps)[-4:] == pytest.approx([peak] * 4, rel=0.1, abs=0.05), "four acceleration steps"
+            assert np.sort(jumps)[-5] < 0.2 * peak
+
+
+def test_make_bag_summary_hold_intervals(tmp_path):
+    rig = make_rig(RigSpec(num_cameras=2, layout="line", EI=0.2, focal=117.5, resolution=(160, 120)))
+    opts = BagOptions(motion=MotionOptions(views=3, hold_seconds=0.5, rate=10, capture="snapshot"), seed=1,
+                      gyro_noise=0.0, gyro_bias=0.0, image_noise=0.0)
+    summary = make_bag(rig, tmp_path / "b", opts, progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b"], "nothing written outside --out"
+    holds = summary["holds"]
+    assert len(holds) == 3 and all(h["settled"] is None for h in holds)
+    assert holds[0]["start"] == pytest.approx(1_700_000_000.0)
+    assert all(h["end"] - h["start"] == pytest.approx(0.5, abs=1e-6) for h in holds)
+    msgs, _ = read_bag(tmp_path / "b")
+    imu_t = np.array([t for t, _ in msgs["/imu/data"]]) * 1e-9
+    gyro = np.linalg.norm(vectors(msgs, "/imu/data", "angular_velocity"), axis=1)
+    still = np.zeros(len(imu_t), bool)
+    for h in holds:
+        still |= (imu_t >= h["start"] - 1e-6) & (imu_t <= h["end"] + 1e-6)
+    assert np.all(gyro[still] == 0.0) and np.all(gyro[~still] > 0.0), "the body is still exactly in the holds"
+    assert summary["bar_frequencies_hz"] == pytest.approx([math.sqrt(3 * 0.2 / (0.1 * 0.4**3)) / (2 * math.pi)] * 2)
+
+
+def test_ringing_bars_render_their_own_load(tmp_path):
+    """With --damping every frame of a hold is re-rendered at each camera's filtered load."""
+    rig = make_rig(RigSpec(num_cameras=2, layout="line", EI=0.2, focal=117.5, resolution=(160, 120)))
+    opts = BagOptions(motion=MotionOptions(views=2, hold_seconds=1.0, rate=5, move_seconds=0.6), seed=4,
+                      image_noise=0.0, damping=0.05)
+    summary = make_bag(rig, tmp_path / "b", opts, progress=False)
+    traj = summary["trajectory"]
+    h = summary["holds"][1]
+    assert h["settled"] - h["start"] == pytest.approx(math.log(1e3) / (0.05 * 2 * math.pi * 1.5411), rel=1e-3)
+    assert summary["holds"][0]["settled"] == summary["holds"][0]["start"]
+    msgs, _ = read_bag(tmp_path / "b")
+    frames = msgs["/cam0/image_raw"]
+    second = [(t, m) for t, m in frames if t >= traj.hold_start[1]]
+    assert len(second) == 5
+    a, b = (m.data.reshape(120, 160).astype(int) for _, m in second[:2])
+    assert np.abs(a - b).mean() > 1.0, "the bars still ring: frames of one hold differ"
+    loads = CameraLoads(rig, traj, damping=0.05)
+    renderer = Renderer(rig, make_scene(4))
+    for t, m in second[:2]:
+        R, p, _, _ = traj.state([t])
+        expected = renderer.render_rig(R[0], p[0], loads.at([t])[0])[0]
+        assert np.abs(m.data.reshape(120, 160) - np.clip(np.rint(expected), 0, 255)).max() <= 1.0
+        quasi = renderer.render_rig(R[0], p[0], traj.gravity_body(R)[0])[0]
+        assert np.abs(m.data.reshape(120, 160) - quasi).mean() > 1.0
+    # First hold: at rest, so its frames are identical.
+    first = [m.data for t, m in frames if t < traj.hold_end[0]]
+    assert len(first) == 5 and all(np.array_equal(first[0], x) for x in first)
+
+
+def test_imu_inside_a_ringing_camera_feels_the_tip_motion():
+    """An IMU in a ringing camera reads the specific force of the moving, bending tip and the camera's angular
+    velocity: both checked against finite differences of the bent camera's pose in the world, during the move
+    (body rotation: lever arm, Coriolis) and while it rings in the next hold."""
+    rig = make_rig(RigSpec(num_cameras=2, layout="line", EI=2.0, mass=0.1, focal=100.0, resolution=(160, 120)))
+    rig = dataclasses.replace(rig, imu=ImuMount(mount="cam1", rotation=exp_so3(np.array([0.3, -0.2, 0.1]))))
+    traj = make_trajectory(np.random.default_rng(8), MotionOptions(views=2, hold_seconds=0.5, move_seconds=0.6))
+    opts = BagOptions(imu_noise=0.0, gyro_noise=0.0, imu_bias=0.0, gyro_bias=0.0, damping=0.05)
+    loads = CameraLoads(rig, traj, damping=0.05)
+    t = np.linspace(traj.hold_end[0] + 50_000_000, traj.end_ns - 50_000_000, 40).astype(np.int64)
+    accel, gyro = imu_readings(rig, traj, t, np.random.default_rng(0), opts, loads)
+    h = 20_000  # 20 us
+
+    def camera_in_world(tt):
+        R, p, _, _ = traj.state(tt)
+        w, W = bent_extrinsics(rig, loads.at(tt))
+        return R @ W[:, 1], np.einsum("nij,nj->ni", R, w[:, 1]) + p
+
+    Rc, pc = camera_in_world(t)
+    Rp, pp = camera_in_world(t + h)
+    Rm, pm = camera_in_world(t - h)
+    a_world = (pp - 2 * pc + pm) / (h * 1e-9) ** 2
+    f_cam = np.einsum("nji,nj->ni", Rc, a_world - np.array([0.0, 0.0, -9.81]))  # specific force, camera frame
+    w_cam = log_so3(np.einsum("nji,njk->nik", Rm, Rp)) / (2 * h * 1e-9)
+    to_imu = rig.imu.rotation.T
+    assert np.abs(accel - f_cam @ to_imu.T).max() < 1e-4  # m/s^2, of readings up to 10
+    assert np.abs(gyro - w_cam @ to_imu.T).max() < 1e-6
+    swing = np.linalg.norm(np.diff(accel, axis=0), axis=1).max()
+    assert swing > 1.0, "the ringing tip shakes the accelerometer"
+
+
+def test_scenario_file_and_flag_overrides(tmp_path):
+    sc = tmp_path / "sc.yaml"
+    sc.write_text("cameras: 2\nlayout: line\nresolution: 160x120\nviews: 2\nhold-seconds: 0.2\nrate: 5\n"
+                  "capture: snapshot\nno_imu: true\nencoding: jpeg\n")
+    out = tmp_path / "b"
+    assert main(["make-bag", "--scenario", str(sc), "--views", "3", "--no-progress", "--out", str(out)]) == 0
+    msgs, _ = read_bag(out)
+    assert set(msgs) == {"/cam0/image_raw/compressed", "/cam1/image_raw/compressed", "/cam0/camera_info",
+                         "/cam1/camera_info", "/ground_truth/pose", "/ground_truth/gravity"}
+    assert len(msgs["/cam0/image_raw/compressed"]) == 3, "--views on the command line overrides the file"
+    assert msgs["/cam0/camera_info"][0][1].width == 160
+
+
+def test_scenario_rig_path_is_relative_to_the_file(tmp_path):
+    d = tmp_path / "scenarios"
+    d.mkdir()
+    save_rig(make_rig(RigSpec(num_cameras=2, layout="line", focal=60.0, resolution=(80, 60))), d / "rig.yaml")
+    (d / "sc.yaml").write_text("rig: rig.yaml\nviews: 2\nhold_seconds: 0.2\nrate: 5\ncapture: snapshot\n")
+    assert main(["make-bag", "--scenario", str(d / "sc.yaml"), "--no-progress", "--out", str(tmp_path / "b")]) == 0
+    msgs, _ = read_bag(tmp_path / "b")
+    assert msgs["/cam1/camera_info"][0][1].width == 80 and len(msgs["/cam1/image_raw"]) == 2
+
+
+@pytest.mark.parametrize("text, key", [
+    ("holds_seconds: 2\n", "holds_seconds"), ("views: two\n", "views"), ("views: 2.5\n", "views"),
+    ("no-imu: 1\n", "no-imu"), ("capture: bursts\n", "capture"), ("motion: static\ncapture: stream\n", "motion"),
+    ("- 1\n", None),
+])
+def test_bad_scenario_files(tmp_path, capsys, text, key):
+    sc = tmp_path / "sc.yaml"
+    sc.write_text(text)
+    assert main(["make-bag", "--scenario", str(sc), "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert str(sc) in err and (key is None or f"'{key}'" in err)
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["--drop-rate", "1"], "--drop-rate"), (["--jitter-ms", "60"], "--jitter-ms"), (["--damping", "0"], "--damping"),
+    (["--accel-fraction", "0.7"], "--accel-fraction"), (["--jpeg-quality", "101"], "--jpeg-quality"),
+    (["--move-seconds", "-1"], "--move-seconds"), (["--hold-seconds", "0"], "--hold-seconds"),
+    (["--motion", "static", "--capture", "stream"], "--motion"), (["--imu-noise", "-1"], "--imu-noise"),
+    (["--rig", "config/sample_cross4.yaml", "--resolution", "320x240"], "--resolution"),
+    (["--width", "1"], "--width"), (["--cameras", "0", "--layout", "ring"], "--cameras"), (["--seed", "-1"], "--seed"),
+])
+def test_bad_options_name_the_flag(tmp_path, capsys, args, flag):
+    assert main(["make-bag", "--no-progress", *args, "--out", str(tmp_path / "b")]) == 2
+    assert flag in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()
+
+
+def test_save_rig_never_overwrites_the_input_rig(tmp_path, capsys):
+    rig_path = tmp_path / "rig.yaml"
+    save_rig(make_rig(RigSpec(num_cameras=2, layout="line", resolution=(160, 120))), rig_path)
+    before = rig_path.read_text()
+    assert main(["make-bag", "--rig", str(rig_path), "--save-rig", str(rig_path), "--out", str(tmp_path / "b")]) == 2
+    assert "--save-rig" in capsys.readouterr().err and rig_path.read_text() == before

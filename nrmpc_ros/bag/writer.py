@@ -25,6 +25,7 @@ RAW_ENCODINGS = ("mono8", "bgr8", "rgb8", "mono16")
 COMPRESSED_FORMATS = ("png", "jpeg")
 ENCODINGS = RAW_ENCODINGS + COMPRESSED_FORMATS
 BAG_VERSION = 9
+DEFAULT_JPEG_QUALITY = 95
 
 _TYPES = {
     "image": "sensor_msgs/msg/Image",
@@ -34,6 +35,12 @@ _TYPES = {
     "pose": "geometry_msgs/msg/PoseStamped",
     "vector": "geometry_msgs/msg/Vector3Stamped",
 }
+
+
+def image_topic_for(image_topic: str, encoding: str) -> str:
+    """The topic an image of ``encoding`` goes on: the raw image topic, or ``<image_topic>/compressed`` for png/jpeg
+    (image_transport's compressed transport, which the node subscribes to with ``image_transport: compressed``)."""
+    return image_topic.rstrip("/") + "/compressed" if encoding in COMPRESSED_FORMATS else image_topic
 
 
 def typestore():
@@ -90,15 +97,19 @@ class BagWriter:
         return Header(stamp=Time(sec=int(sec), nanosec=int(nsec)), frame_id=frame_id)
 
     # -- message builders -------------------------------------------------
-    def image_msg(self, image: np.ndarray, stamp_ns: int, frame_id: str, encoding: str = "mono8"):
-        """sensor_msgs/Image (raw encodings) or CompressedImage (png/jpeg) of a 2-D uint8 grey image."""
+    def image_msg(self, image: np.ndarray, stamp_ns: int, frame_id: str, encoding: str = "mono8",
+                  jpeg_quality: int = DEFAULT_JPEG_QUALITY):
+        """sensor_msgs/Image (raw encodings) or CompressedImage (png/jpeg) of a 2-D uint8 grey image.
+
+        A CompressedImage belongs on :func:`image_topic_for` of the camera's image topic.
+        """
         img = np.asarray(image)
         if img.ndim != 2 or img.dtype != np.uint8:
             raise ValueError("image_msg expects a 2-D uint8 grey image")
         header = self.header(stamp_ns, frame_id)
         if encoding in COMPRESSED_FORMATS:
             ok, buf = cv2.imencode(".png" if encoding == "png" else ".jpg", img,
-                                   [cv2.IMWRITE_JPEG_QUALITY, 95] if encoding == "jpeg" else [])
+                                   [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)] if encoding == "jpeg" else [])
             if not ok:
                 raise RuntimeError(f"OpenCV could not encode a {encoding} image")
             return self._t[_TYPES["compressed"]](header=header, format=f"mono8; {encoding} compressed mono8",

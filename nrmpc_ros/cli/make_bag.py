@@ -1,92 +1,295 @@
-"""``nrmpc make-bag``: render a synthetic rosbag2 of a bending rig (issue 4; SPEC sections 3, 4, 11)."""
+"""``nrmpc make-bag``: render a synthetic rosbag2 of a bending rig, recorded the way real rigs are recorded.
+
+Options come from the flags, from a scenario file (``--scenario FILE.yaml``:
+a mapping whose keys are the option names, e.g. ``hold-seconds: 2`` or
+``hold_seconds: 2``, ``no-imu: true``), or both: flags override the file, the
+file overrides the defaults. An unknown key is an error naming it. A
+relative ``rig`` path in the file is relative to the file's directory.
+"""
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
+from dataclasses import replace
+from pathlib import Path
 
 from ..bag.writer import ENCODINGS, STORAGES
 from ..core.rig import load_rig, save_rig
 from ..errors import InputError
-from ..render.sequence import MOTIONS, MotionOptions
+from ..render.bagmaker import BagOptions
+from ..render.sequence import CAPTURES, PROFILES, MotionOptions
 from ..sim.synthetic import LAYOUTS, RigSpec, make_rig
+from .simulate import _load_scenario_file
+
+MOTION_ALIASES = {"static": "holds", "continuous": "stream"}  # --motion: the older name of --capture
+VGA_WIDTH, VGA_FOCAL = 640, 470.0  # the default focal length belongs to 640 px wide images
+
+_M, _B = MotionOptions(), BagOptions()  # the library's defaults, shown in --help
+DEFAULTS = {
+    "rig": None, "cameras": 4, "layout": "cross", "EI": 0.2, "mass": 0.1, "bar_length": 0.4, "focal": None,
+    "width": None, "height": None, "save_rig": None, "views": _M.views, "hold_seconds": _M.hold_seconds,
+    "rate": _M.rate, "imu_rate": _M.imu_rate, "capture": _M.capture, "move_seconds": None,
+    "min_move_seconds": _M.min_move_seconds, "speed": _M.speed, "move_profile": _M.move_profile,
+    "accel_fraction": _M.accel_fraction, "min_tilt": _M.min_tilt, "max_tilt": _M.max_tilt,
+    "min_step": _M.min_step, "max_step": _M.max_step, "max_translation": _M.max_translation, "damping": None,
+    "seed": _B.seed, "image_noise": _B.image_noise, "imu_noise": _B.imu_noise, "gyro_noise": _B.gyro_noise,
+    "imu_bias": _B.imu_bias, "gyro_bias": _B.gyro_bias, "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
+    "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
+    "out": None, "no_progress": False,
+}
+_INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
+
+
+def _resolution(text: str):
+    """'WxH' -> (W, H) pixels."""
+    try:
+        w, h = (int(x) for x in str(text).lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 320x240, got {text!r}") from None
+    return w, h
 
 
 def register(sub):
+    d = DEFAULTS
     p = sub.add_parser(
-        "make-bag", help="render a synthetic rosbag2 of a bending rig in a textured room",
-        description="Holds the rig still at a sequence of attitudes (5-30 deg apart, tilted 10-40 deg), renders "
-                    "every camera with the bent extrinsics of that attitude's gravity and writes images, "
-                    "CameraInfo, a 200 Hz IMU (a = -g + noise + bias) and /ground_truth/{pose,gravity}.")
+        "make-bag", argument_default=argparse.SUPPRESS,
+        help="render a synthetic rosbag2 of a bending rig in a textured room",
+        description="Holds the rig still at a sequence of attitudes (5-30 deg apart, tilted 10-40 deg) joined by "
+                    "moves, renders every camera with its bent extrinsics and writes images (raw, or png/jpeg on "
+                    "<image_topic>/compressed), CameraInfo, a 200 Hz IMU (a = -g + noise + bias) and "
+                    "/ground_truth/{pose,gravity} at every trigger. Capture modes, move profiles, ringing bars, "
+                    "stamp jitter and frame drops make it look like a real recording.")
+    p.add_argument("--scenario", metavar="FILE.yaml",
+                   help="options from a YAML mapping (keys = option names, e.g. hold-seconds: 2; a relative rig path "
+                        "is relative to the file); flags override it")
     rig = p.add_argument_group("rig (a rig file, or one built from these flags)")
-    rig.add_argument("--rig", help="rig YAML file (SPEC section 7); overrides the flags below")
-    rig.add_argument("--cameras", type=int, default=4, help="number of cameras (default 4)")
-    rig.add_argument("--layout", choices=LAYOUTS, default="cross", help="camera layout (default cross)")
-    rig.add_argument("--EI", type=float, default=0.2, help="bar flexural rigidity N m^2 (default 0.2; inf = rigid)")
-    rig.add_argument("--mass", type=float, default=0.1, help="tip mass kg (default 0.1)")
-    rig.add_argument("--bar-length", type=float, default=0.4, help="bar length m (default 0.4)")
-    rig.add_argument("--focal", type=float, default=470.0, help="focal length px of the VGA cameras (default 470)")
+    rig.add_argument("--rig", help="rig YAML file (SPEC section 7); the layout flags below are then ignored")
+    rig.add_argument("--cameras", type=int, help=f"number of cameras (default {d['cameras']})")
+    rig.add_argument("--layout", choices=LAYOUTS, help=f"camera layout (default {d['layout']})")
+    rig.add_argument("--EI", type=float, help=f"bar flexural rigidity N m^2 (default {d['EI']}; inf = rigid)")
+    rig.add_argument("--mass", type=float, help=f"tip mass kg (default {d['mass']})")
+    rig.add_argument("--bar-length", type=float, help=f"bar length m (default {d['bar_length']})")
+    rig.add_argument("--width", type=int, help="image width px of the cameras built from flags (default 640)")
+    rig.add_argument("--height", type=int, help="image height px (default 480)")
+    rig.add_argument("--resolution", type=_resolution, metavar="WxH", help="--width and --height in one, e.g. 320x240")
+    rig.add_argument("--focal", type=float,
+                     help=f"focal length px (default {VGA_FOCAL:g} at {VGA_WIDTH} px wide, scaled with --width)")
     rig.add_argument("--save-rig", metavar="RIG.yaml", help="also write the rig used to this file")
-    mo = p.add_argument_group("motion")
-    mo.add_argument("--views", type=int, default=10, help="number of static attitudes (default 10)")
-    mo.add_argument("--static-seconds", type=float, default=2.0, help="seconds still at each attitude (default 2)")
-    mo.add_argument("--rate", type=float, default=10.0, help="camera frames per second (default 10)")
-    mo.add_argument("--imu-rate", type=float, default=200.0, help="IMU samples per second (default 200)")
-    mo.add_argument("--motion", choices=MOTIONS, default="static",
-                    help="static: frames only while still; continuous: frames also stream during the moves")
-    mo.add_argument("--min-tilt", type=float, default=10.0, help="deg (default 10)")
-    mo.add_argument("--max-tilt", type=float, default=40.0, help="deg (default 40)")
-    mo.add_argument("--min-step", type=float, default=5.0, help="min rotation between attitudes, deg (default 5)")
-    mo.add_argument("--max-step", type=float, default=30.0, help="max rotation between attitudes, deg (default 30)")
-    mo.add_argument("--max-translation", type=float, default=0.15, help="m, half-size of the position cube")
-    mo.add_argument("--speed", type=float, default=30.0, help="deg/s during moves (default 30)")
+    mo = p.add_argument_group("motion and capture")
+    mo.add_argument("--views", type=int, help=f"number of holds (static attitudes) (default {d['views']})")
+    mo.add_argument("--hold-seconds", "--static-seconds", dest="hold_seconds", type=float,
+                    help=f"seconds still at each attitude (default {d['hold_seconds']:g})")
+    mo.add_argument("--rate", "--stream-hz", dest="rate", type=float,
+                    help=f"camera frames per second; holds and moves last whole frame periods (default {d['rate']:g})")
+    mo.add_argument("--imu-rate", type=float, help=f"IMU samples per second (default {d['imu_rate']:g})")
+    mo.add_argument("--capture", choices=CAPTURES,
+                    help="holds: frames at --rate while still; snapshot: one synchronised frame per camera at the end "
+                         "of each hold; stream: frames at --rate throughout (default holds)")
+    mo.add_argument("--motion", choices=sorted(MOTION_ALIASES),
+                    help="older name of --capture: static = holds, continuous = stream")
+    mo.add_argument("--move-seconds", type=float, help="fixed duration of every move (default: from --speed)")
+    mo.add_argument("--speed", type=float, help=f"deg/s of the moves without --move-seconds (default {d['speed']:g})")
+    mo.add_argument("--min-move-seconds", type=float,
+                    help=f"shortest move without --move-seconds (default {d['min_move_seconds']:g})")
+    mo.add_argument("--move-profile", choices=PROFILES,
+                    help="cosine: (1 - cos pi tau) / 2; min-jerk: 10 tau^3 - 15 tau^4 + 6 tau^5; trapezoid: "
+                         "trapezoidal velocity, acceleration steps (default cosine)")
+    mo.add_argument("--accel-fraction", type=float,
+                    help=f"trapezoid: fraction of a move spent accelerating, and again decelerating, in (0, 0.5] "
+                         f"(default {d['accel_fraction']:g})")
+    mo.add_argument("--min-tilt", type=float, help=f"deg (default {d['min_tilt']:g})")
+    mo.add_argument("--max-tilt", type=float, help=f"deg (default {d['max_tilt']:g})")
+    mo.add_argument("--min-step", type=float, help=f"min rotation between attitudes, deg (default {d['min_step']:g})")
+    mo.add_argument("--max-step", type=float, help=f"max rotation between attitudes, deg (default {d['max_step']:g})")
+    mo.add_argument("--max-translation", type=float,
+                    help=f"m, half-size of the position cube (default {d['max_translation']:g})")
+    mo.add_argument("--damping", type=float, metavar="ZETA",
+                    help="bars ring after each move with this damping ratio in (0, 1), e.g. 0.03, at their natural "
+                         "frequency sqrt(3 EI / (m L^3)) / (2 pi) (default: none, quasi-static bending)")
     se = p.add_argument_group("sensors and output")
-    se.add_argument("--seed", type=int, default=0, help="seed of everything random (default 0)")
-    se.add_argument("--image-noise", type=float, default=1.0, help="pixel noise std, grey levels (default 1)")
-    se.add_argument("--imu-noise", type=float, default=0.02, help="accelerometer noise std m/s^2 (default 0.02)")
-    se.add_argument("--gyro-noise", type=float, default=0.002, help="gyro noise std rad/s (default 0.002)")
-    se.add_argument("--imu-bias", type=float, default=0.05, help="accelerometer bias norm m/s^2 (default 0.05)")
-    se.add_argument("--gyro-bias", type=float, default=0.002, help="gyro bias norm rad/s (default 0.002)")
-    se.add_argument("--encoding", choices=ENCODINGS, default="mono8",
-                    help="Image encoding, or png/jpeg for CompressedImage (default mono8)")
-    se.add_argument("--storage", choices=sorted(STORAGES), default="sqlite3", help="rosbag2 storage (default sqlite3)")
-    se.add_argument("--out", required=True, metavar="DIR", help="output bag directory (must not exist)")
+    se.add_argument("--seed", type=int, help="seed of everything random (default 0)")
+    se.add_argument("--image-noise", type=float, help=f"pixel noise std, grey levels (default {d['image_noise']:g})")
+    se.add_argument("--imu-noise", type=float, help=f"accelerometer noise std m/s^2 (default {d['imu_noise']:g})")
+    se.add_argument("--gyro-noise", type=float, help=f"gyro noise std rad/s (default {d['gyro_noise']:g})")
+    se.add_argument("--imu-bias", type=float, help=f"accelerometer bias norm m/s^2 (default {d['imu_bias']:g})")
+    se.add_argument("--gyro-bias", type=float, help=f"gyro bias norm rad/s (default {d['gyro_bias']:g})")
+    se.add_argument("--no-imu", action="store_true", help="write no IMU topic (and --save-rig writes no imu block)")
+    se.add_argument("--jitter-ms", type=float,
+                    help="each camera's stamp is off the trigger by a uniform random amount within +-J ms (default 0)")
+    se.add_argument("--drop-rate", type=float, help="probability that a camera loses a frame, in [0, 1) (default 0)")
+    se.add_argument("--encoding", choices=ENCODINGS,
+                    help="raw sensor_msgs/Image encoding, or png/jpeg for CompressedImage on <image_topic>/compressed "
+                         "(default mono8)")
+    se.add_argument("--jpeg-quality", type=int, help=f"0-100 (default {d['jpeg_quality']})")
+    se.add_argument("--storage", choices=sorted(STORAGES), help="rosbag2 storage (default sqlite3)")
+    se.add_argument("--out", metavar="DIR", help="output bag directory (must not exist; required)")
     se.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, make_bag_parser=p)
 
 
-def rig_from_args(args):
-    """The rig of --rig, or a simulated one from the layout flags (with an IMU at the body centre)."""
-    if args.rig:
-        return load_rig(args.rig)
+# -- options: defaults < scenario file < flags ------------------------------------------------------------------
+
+def _actions(parser) -> dict:
+    """Option name (without dashes, '-' or '_') -> argparse action, for every option of the parser."""
+    out = {}
+    for a in parser._actions:
+        for s in a.option_strings:
+            if s.startswith("--") and a.dest not in _INTERNAL | {"help"}:
+                out[s[2:]] = out[s[2:].replace("-", "_")] = a
+    return out
+
+
+def _coerce(action, value, source: str, key: str):
+    """A scenario file value checked like the flag would check it."""
+    def bad(msg):
+        return InputError(source, msg, key)
+
+    if isinstance(action, argparse._StoreTrueAction):
+        if not isinstance(value, bool):
+            raise bad(f"must be true or false, got {value!r}")
+        return value
+    if value is None:
+        if DEFAULTS.get(action.dest, 0) is not None:
+            raise bad("needs a value")
+        return None
+    kind = action.type
+    if kind is _resolution and isinstance(value, (list, tuple)):
+        if len(value) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+            raise bad(f"expected [width, height] in pixels, got {value!r}")
+        return tuple(value)
+    if isinstance(value, bool) or isinstance(value, (list, dict)):
+        raise bad(f"expected a single {getattr(kind, '__name__', 'value')}, got {value!r}")
+    if kind is int and isinstance(value, float):
+        raise bad(f"expected an integer, got {value!r}")
     try:
-        spec = RigSpec(num_cameras=args.cameras, layout=args.layout, bar_length=args.bar_length, mass=args.mass,
-                       EI=args.EI, focal=args.focal)
-        return make_rig(spec, imu=True)
+        value = kind(value) if kind is not None else str(value)
+    except (TypeError, ValueError, argparse.ArgumentTypeError) as exc:
+        raise bad(str(exc)) from None
+    if action.choices is not None and value not in action.choices:
+        raise bad(f"must be one of {', '.join(map(str, action.choices))}, got {value!r}")
+    return value
+
+
+def _normalise(values: dict, source: str) -> dict:
+    """Fold the aliases of one level (file or flags): --motion into --capture, --resolution into --width/--height."""
+    values = dict(values)
+    if "motion" in values:
+        capture = MOTION_ALIASES[values.pop("motion")]
+        if values.setdefault("capture", capture) != capture:
+            raise InputError(source, f"--motion asks for {capture!r} but --capture for {values['capture']!r}",
+                             "motion")
+    if "resolution" in values:
+        for key, v in zip(("width", "height"), values.pop("resolution")):
+            if values.setdefault(key, v) != v:
+                raise InputError(source, f"--resolution and --{key} disagree", "resolution")
+    return values
+
+
+def resolve_options(args) -> dict:
+    """All option values (dests of the parser), merged as defaults < --scenario file < flags."""
+    flags = {k: v for k, v in vars(args).items() if k not in _INTERNAL}
+    merged = dict(DEFAULTS)
+    scenario = getattr(args, "scenario", None)
+    if scenario:
+        data = _load_scenario_file(scenario)
+        actions = _actions(args.make_bag_parser)
+        from_file = {}
+        for key, value in data.items():
+            action = actions.get(str(key))
+            if action is None:
+                raise InputError(scenario, "unknown key: not a make-bag option (see nrmpc make-bag --help)",
+                                 str(key))
+            from_file[action.dest] = _coerce(action, value, scenario, str(key))
+        if from_file.get("rig") and not Path(from_file["rig"]).is_absolute():
+            from_file["rig"] = str(Path(scenario).parent / from_file["rig"])
+        merged.update(_normalise(from_file, scenario))
+    merged.update(_normalise(flags, "command line"))
+    if not merged["out"]:
+        raise InputError("--out", "required: the output bag directory (a flag or an 'out' key of --scenario)")
+    return merged
+
+
+# -- rig and library options ------------------------------------------------------------------------------------
+
+def rig_from_options(o: dict):
+    """The rig of --rig, or a simulated one from the layout flags (with an IMU at the body centre unless --no-imu)."""
+    if o["rig"]:
+        if o["width"] is not None or o["height"] is not None:
+            raise InputError("--resolution/--width/--height", "only for rigs built from flags; the rig file "
+                                                              "fixes each camera's resolution")
+        rig = load_rig(o["rig"])
+        return replace(rig, imu=None) if o["no_imu"] else rig
+    checks = [("--bar-length", 0 < o["bar_length"] < math.inf), ("--mass", 0 <= o["mass"] < math.inf),
+              ("--EI", o["EI"] > 0), ("--width", o["width"] is None or o["width"] >= 2),
+              ("--height", o["height"] is None or o["height"] >= 2),
+              ("--focal", o["focal"] is None or 0 < o["focal"] < math.inf)]
+    for flag, ok in checks:
+        if not ok:
+            raise InputError(flag, f"out of range, got {o[flag[2:].replace('-', '_')]!r}")
+    width = o["width"] or (VGA_WIDTH if o["height"] is None else round(o["height"] * 4 / 3))
+    height = o["height"] or round(width * 3 / 4)
+    focal = o["focal"] if o["focal"] is not None else VGA_FOCAL * width / VGA_WIDTH
+    try:
+        spec = RigSpec(num_cameras=o["cameras"], layout=o["layout"], bar_length=o["bar_length"], mass=o["mass"],
+                       EI=o["EI"], focal=focal, resolution=(int(width), int(height)))
+        return make_rig(spec, imu=not o["no_imu"])
     except ValueError as exc:
-        raise InputError("make-bag rig flags", str(exc)) from None
+        raise InputError("--cameras" if "camera" in str(exc) else "--layout", str(exc)) from None
+
+
+def bag_options(o: dict):
+    """The library's BagOptions of the merged option values."""
+    motion = MotionOptions(
+        views=o["views"], hold_seconds=o["hold_seconds"], rate=o["rate"], imu_rate=o["imu_rate"],
+        min_tilt=o["min_tilt"], max_tilt=o["max_tilt"], min_step=o["min_step"], max_step=o["max_step"],
+        max_translation=o["max_translation"], speed=o["speed"], min_move_seconds=o["min_move_seconds"],
+        move_seconds=o["move_seconds"], move_profile=o["move_profile"], accel_fraction=o["accel_fraction"],
+        capture=o["capture"],
+    )
+    return BagOptions(motion=motion, seed=o["seed"], encoding=o["encoding"], jpeg_quality=o["jpeg_quality"],
+                      storage=o["storage"], image_noise=o["image_noise"], imu_noise=o["imu_noise"],
+                      gyro_noise=o["gyro_noise"], imu_bias=o["imu_bias"], gyro_bias=o["gyro_bias"],
+                      imu=not o["no_imu"], damping=o["damping"], jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"])
+
+
+def _check_outputs(o: dict, scenario) -> None:
+    """--save-rig must not overwrite an input, and its directory must exist (checked before rendering)."""
+    if not o["save_rig"]:
+        return
+    target = Path(o["save_rig"]).resolve()
+    for name, path in (("--rig", o["rig"]), ("--scenario", scenario)):
+        if path and Path(path).resolve() == target:
+            raise InputError("--save-rig", f"would overwrite the input {name} file {path}")
+    if not target.parent.is_dir():
+        raise InputError("--save-rig", f"no such directory {target.parent}")
 
 
 def run(args) -> int:
-    from ..render.bagmaker import BagOptions, make_bag
+    from ..render.bagmaker import make_bag
 
-    rig = rig_from_args(args)
-    if args.save_rig:
-        save_rig(rig, args.save_rig, header="rig written by nrmpc make-bag")
-    motion = MotionOptions(
-        views=args.views, static_seconds=args.static_seconds, rate=args.rate, imu_rate=args.imu_rate,
-        min_tilt=args.min_tilt, max_tilt=args.max_tilt, min_step=args.min_step, max_step=args.max_step,
-        max_translation=args.max_translation, speed=args.speed, motion=args.motion,
-    )
-    opts = BagOptions(motion=motion, seed=args.seed, encoding=args.encoding, storage=args.storage,
-                      image_noise=args.image_noise, imu_noise=args.imu_noise, gyro_noise=args.gyro_noise,
-                      imu_bias=args.imu_bias, gyro_bias=args.gyro_bias)
-    summary = make_bag(rig, args.out, opts, progress=not args.no_progress)
+    o = resolve_options(args)
+    rig = rig_from_options(o)
+    opts = bag_options(o)
+    opts.validate()
+    _check_outputs(o, getattr(args, "scenario", None))
+    summary = make_bag(rig, o["out"], opts, progress=not o["no_progress"])
+    if o["save_rig"]:
+        save_rig(rig, o["save_rig"], header="rig written by nrmpc make-bag")
     traj = summary["trajectory"]
     tilts = [math.degrees(math.acos(max(-1.0, min(1.0, float(R[2, 2]))))) for R in traj.R]
-    print(f"wrote {args.out}: {summary['views']} static views, {summary['frames']} frame sets x "
-          f"{rig.num_cameras} cameras, {summary['duration_s']:.1f} s, tilts {min(tilts):.0f}-{max(tilts):.0f} deg",
-          file=sys.stderr)
+    print(f"wrote {o['out']}: {summary['views']} holds, {summary['frames']} triggers ({opts.motion.capture}) x "
+          f"{rig.num_cameras} cameras, {summary['dropped']} frames dropped, {summary['duration_s']:.1f} s, "
+          f"tilts {min(tilts):.0f}-{max(tilts):.0f} deg", file=sys.stderr)
+    if opts.damping is not None:
+        settle = max([h["settled"] - h["start"] for h in summary["holds"][1:] if h["settled"] is not None],
+                     default=0.0)
+        hold = summary["holds"][0]["end"] - summary["holds"][0]["start"]
+        freqs = ", ".join(f"{f:.2f}" for f in summary["bar_frequencies_hz"])
+        late = f" (longer than the {hold:g} s holds: the bars still ring when they end)" if settle > hold else ""
+        print(f"  bars ring at {freqs} Hz; ringing below 1e-3 after {settle:.1f} s of each hold{late}",
+              file=sys.stderr)
     for topic, n in sorted(summary["counts"].items()):
         print(f"  {topic}: {n}", file=sys.stderr)
     return 0

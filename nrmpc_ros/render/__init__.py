@@ -1,4 +1,4 @@
-"""Rendering of synthetic camera images for test bags (issue 4): a textured room and a vectorised ray caster."""
+"""Rendering of synthetic camera images for test bags: a textured room and a vectorised ray caster."""
 
 from .raycast import Renderer, cast_rays, shade
 from .scene import Scene, contains, make_scene

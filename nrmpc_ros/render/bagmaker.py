@@ -1,29 +1,39 @@
-"""Rendered synthetic bags of a bending rig (issue 4; topics of SPEC section 11).
+"""Rendered synthetic bags of a bending rig, recorded the way real rigs are (topics of SPEC section 11).
 
-For every camera frame the images are rendered with the BENT extrinsics
-(SPEC section 3) at the load of that instant: gravity in the body frame,
-``g_B = R_world_body^T (0, 0, -|g|)`` while still (minus the body's
-acceleration during moves, quasi-static). The IMU (200 Hz by default)
-reads the specific force ``a = -g`` in its own frame when still (SPEC
-section 4, through the rig's ``imu`` mount) plus white noise and a constant
-bias, and the body angular velocity during moves. Ground truth
+The rig holds still at a sequence of attitudes joined by moves
+(:mod:`.sequence`); the cameras are triggered in one of the capture modes
+``holds``, ``snapshot`` or ``stream``. For every trigger each camera is
+rendered with its bent extrinsics at the load its bar carries at that
+instant (:mod:`.bars`): the quasi-static load g_B - a_B (gravity minus the
+body's acceleration, body frame), or, when the bars ring, its damped
+response. Like software-synchronised USB cameras, each camera's header stamp
+(and bag time) may be off the trigger by a random jitter, and each camera may
+drop frames; the image content and the ground truth stay at the trigger
+time. The IMU (200 Hz by default, throughout) reads the specific force
+(``a = -g`` when still, through the rig's ``imu`` mount) plus white noise
+and a constant bias, and the body angular velocity. Ground truth
 ``/ground_truth/pose`` (body in world, world z up) and
-``/ground_truth/gravity`` (gravity in the body frame) are stamped like the
-images. Deterministic for a seed.
+``/ground_truth/gravity`` (gravity in the body frame) is written at every
+trigger. Deterministic for a seed, with separate random streams for the
+trajectory, the IMU, the image noise, the jitter and the drops.
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 import shutil
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..bag.writer import ENCODINGS, BagWriter
-from ..core.deformation import deformed_extrinsics
+from ..bag.writer import COMPRESSED_FORMATS, DEFAULT_JPEG_QUALITY, ENCODINGS, STORAGES, BagWriter, image_topic_for
+from ..core.deformation import bend_rotation_vectors
+from ..core.dynamics import check_damping
 from ..core.rig import ImuMount, Rig
-from ..core.so3 import normalize
+from ..core.so3 import cross, exp_and_left_jacobian, normalize
 from ..errors import InputError
+from .bars import CameraLoads, bent_extrinsics
 from .raycast import Renderer
 from .scene import contains, make_scene
 from .sequence import MotionOptions, Trajectory, make_trajectory
@@ -32,6 +42,13 @@ POSE_TOPIC = "/ground_truth/pose"
 GRAVITY_TOPIC = "/ground_truth/gravity"
 WORLD_FRAME = "world"
 IMU_FRAME = "imu"
+# A still camera is re-rendered only when its bar's load moved by more than this (m/s^2): for the bars of
+# this project (c_r <= 0.1 rad per m/s^2, f <= 1000 px) that shifts the image by less than 1e-4 px.
+CACHE_LOAD_TOLERANCE = 1e-6
+
+
+def _real(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
 
 
 @dataclass
@@ -40,45 +57,87 @@ class BagOptions:
 
     motion: MotionOptions = field(default_factory=MotionOptions)
     seed: int = 0
-    encoding: str = "mono8"
+    encoding: str = "mono8"  # raw sensor_msgs/Image encodings, or png/jpeg (CompressedImage on <topic>/compressed)
+    jpeg_quality: int = DEFAULT_JPEG_QUALITY
     storage: str = "sqlite3"
     image_noise: float = 1.0  # grey levels, std of Gaussian pixel noise
     imu_noise: float = 0.02  # m/s^2, accelerometer white noise std per sample
     gyro_noise: float = 0.002  # rad/s
     imu_bias: float = 0.05  # m/s^2, norm of the constant accelerometer bias (random direction)
     gyro_bias: float = 0.002  # rad/s, norm of the constant gyro bias
+    imu: bool = True  # write the IMU topic
+    damping: float | None = None  # damping ratio of the bars' ringing; None: quasi-static bending
+    jitter_ms: float = 0.0  # each camera's stamp is off the trigger by U(-jitter, +jitter) ms
+    drop_rate: float = 0.0  # probability that a camera loses a frame
 
     def validate(self) -> None:
+        """One InputError naming the flag of the first bad option."""
+        if not (isinstance(self.seed, numbers.Integral) and self.seed >= 0):
+            raise InputError("--seed", f"must be an integer >= 0, got {self.seed!r}")
+        if self.storage not in STORAGES:
+            raise InputError("--storage", f"unknown storage {self.storage!r} (supported: {', '.join(STORAGES)})")
         if self.encoding not in ENCODINGS:
             raise InputError("--encoding", f"unsupported {self.encoding!r} (supported: {', '.join(ENCODINGS)})")
-        for name in ("image_noise", "imu_noise", "gyro_noise", "imu_bias", "gyro_bias"):
-            if not getattr(self, name) >= 0:
-                raise InputError(f"--{name.replace('_', '-')}", f"must be >= 0, got {getattr(self, name)}")
-        try:
-            self.motion.validate()
-        except ValueError as exc:
-            raise InputError("make-bag options", str(exc)) from None
+        if not (isinstance(self.jpeg_quality, numbers.Integral) and 0 <= self.jpeg_quality <= 100):
+            raise InputError("--jpeg-quality", f"must be an integer in [0, 100], got {self.jpeg_quality!r}")
+        for name in ("image_noise", "imu_noise", "gyro_noise", "imu_bias", "gyro_bias", "jitter_ms"):
+            value = getattr(self, name)
+            if not (_real(value) and value >= 0):
+                raise InputError(f"--{name.replace('_', '-')}", f"must be a finite number >= 0, got {value!r}")
+        if not (_real(self.drop_rate) and 0 <= self.drop_rate < 1):
+            raise InputError("--drop-rate", f"must be in [0, 1), got {self.drop_rate!r}")
+        if self.damping is not None:
+            check_damping(self.damping)
+        self.motion.validate()
+        period_ms = 1e3 / self.motion.rate
+        if 2 * self.jitter_ms >= period_ms:
+            raise InputError("--jitter-ms", f"must be below half the frame period ({period_ms / 2:g} ms at --rate "
+                                            f"{self.motion.rate:g}) so each camera's stamps stay in order, "
+                                            f"got {self.jitter_ms!r}")
 
 
-def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opts: BagOptions):
+def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opts: BagOptions,
+                 loads: CameraLoads | None = None):
     """Accelerometer (N, 3) and gyro (N, 3) in the IMU frame at times t_ns, with noise and constant bias.
 
-    Specific force a = R^T (acc_world - g_world) in the body frame; an IMU at
-    the body centre reads R_body_imu^T a, one inside camera i reads
-    R_cam_imu^T W_i(g)^T a with the camera bent by the load (SPEC section 4).
+    Specific force f = R^T (acc_world - g_world) = -u in the body frame (u the body's load); an IMU at the
+    body centre reads R_body_imu^T f and the body rate. One inside camera i reads R_cam_imu^T W_i^T f_i with
+    the camera bent by its bar's load (SPEC section 4), where f_i adds the lever arm of the bent camera
+    position w_i: alpha x w_i + omega x (omega x w_i). When that bar rings (``loads`` with a damping ratio)
+    the tip's own motion adds too: its acceleration c_d P_i x_i'' = P_i (u - x_i - 2 zeta / w x_i') (the
+    bar's spring and damper force per unit tip mass; P_i removes the axial part, which the bar carries
+    rigidly), the Coriolis term 2 omega x w_i', and, on the gyro, the bending rate J_l(phi_i) phi_i'.
+    Quasi-static bars have no motion of their own.
     """
     imu = rig.imu or ImuMount()
     R, _, omega, acc = traj.state(t_ns)
-    load = traj.load_body(R, acc)  # g - a_world in body = -(specific force)
-    f_body = -load
+    load = traj.load_body(R, acc)  # u = g - a_world in body = -(specific force)
+    f_body, w_body = -load, omega
     if imu.mount == "body":
         mount_R = np.broadcast_to(np.eye(3), (len(R), 3, 3))
     else:
-        _, W = deformed_extrinsics(rig, load)  # (N, M, 3, 3)
-        mount_R = W[:, rig.camera_index(imu.mount)]
+        i = rig.camera_index(imu.mount)
+        u_dir, c_d, _ = (c[i] for c in rig.bar_coefficients)
+        if loads is not None and loads.ringing:
+            x, v, _ = loads.state(t_ns)
+            xi, vi = x[:, i], v[:, i]
+        else:
+            xi, vi = load, np.zeros_like(load)
+        w, _ = bent_extrinsics(rig, np.broadcast_to(xi[:, None], (len(xi), rig.num_cameras, 3)))
+        alpha = traj.angular_acceleration(t_ns)
+        f_body = f_body + cross(alpha, w[:, i]) + cross(omega, cross(omega, w[:, i]))
+        E, J_l = exp_and_left_jacobian(bend_rotation_vectors(rig, xi, cams=[i])[:, 0])
+        mount_R = E @ rig.rotations[i]
+        if loads is not None and loads.ringing:
+            def perp(y):
+                return y - np.outer(y @ u_dir, u_dir)
+
+            f_body = f_body + perp(load - xi - (2.0 * loads.damping / (2.0 * math.pi * loads.frequencies[i])) * vi)
+            f_body = f_body + 2.0 * cross(omega, c_d * perp(vi))
+            w_body = omega + np.einsum("nij,nj->ni", J_l, bend_rotation_vectors(rig, vi, cams=[i])[:, 0])
     to_imu = np.einsum("ji,njk->nik", imu.rotation, np.swapaxes(mount_R, 1, 2))  # body -> IMU
     accel = np.einsum("nij,nj->ni", to_imu, f_body)
-    gyro = np.einsum("nij,nj->ni", to_imu, omega)
+    gyro = np.einsum("nij,nj->ni", to_imu, w_body)
     accel_bias = opts.imu_bias * normalize(rng.normal(size=3))
     gyro_bias = opts.gyro_bias * normalize(rng.normal(size=3))
     accel = accel + accel_bias + rng.normal(scale=opts.imu_noise, size=accel.shape)
@@ -86,70 +145,124 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
     return accel, gyro
 
 
-def _check_inside(rig: Rig, traj: Trajectory, scene) -> None:
+def _check_inside(rig: Rig, traj: Trajectory, scene, loads: CameraLoads) -> None:
     """Every (bent) camera must stay inside the room and outside the boxes."""
     t = np.arange(traj.start_ns, traj.end_ns, traj.period_ns // 2 or 1, dtype=np.int64)
-    R, p, _, acc = traj.state(t)
-    w, _ = deformed_extrinsics(rig, traj.load_body(R, acc))
+    R, p, _, _ = traj.state(t)
+    w, _ = bent_extrinsics(rig, loads.at(t))
     centres = np.einsum("nij,nmj->nmi", R, w) + p[:, None, :]
     if not np.all(contains(scene, centres.reshape(-1, 3))):
         raise InputError(rig.source, "a camera leaves the rendered room (bars too long or too bent); "
                                      "use shorter bars or a smaller --max-translation", "position")
 
 
+def hold_intervals(traj: Trajectory, loads: CameraLoads) -> list:
+    """One dict per hold: ``start``, ``end`` (s, the body is still in between) and ``settled`` (s, when the
+    bars' ringing amplitude has fallen below 1e-3 of its value at the start of the hold; None without
+    ringing; it may lie beyond ``end`` when the hold is too short)."""
+    settled = loads.settle_times_ns()
+    return [{"start": int(a) * 1e-9, "end": int(b) * 1e-9, "settled": None if settled is None else int(s) * 1e-9}
+            for a, b, s in zip(traj.hold_start, traj.hold_end,
+                               settled if settled is not None else traj.hold_start)]
+
+
+class _StillCache:
+    """Images of still cameras, reused while the body stays in one hold and the camera's load is unchanged."""
+
+    def __init__(self, num_cameras: int):
+        self.view = [None] * num_cameras
+        self.load = [None] * num_cameras
+        self.image = [None] * num_cameras
+
+    def get(self, i: int, view: int, load: np.ndarray):
+        if view >= 0 and self.view[i] == view and np.max(np.abs(load - self.load[i])) <= CACHE_LOAD_TOLERANCE:
+            return self.image[i]
+        return None
+
+    def put(self, i: int, view: int, load: np.ndarray, image: np.ndarray) -> None:
+        self.view[i], self.load[i], self.image[i] = (view, load.copy(), image) if view >= 0 else (None, None, None)
+
+
 def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
-    """Render and write a bag; returns a summary (counts, duration, trajectory)."""
+    """Render and write a bag into ``out`` (a new directory; nothing is written elsewhere).
+
+    Returns a summary: ``frames`` (triggers), ``views`` (holds), ``counts`` (messages per topic),
+    ``dropped`` (camera frames lost), ``duration_s``, ``holds`` (see :func:`hold_intervals`),
+    ``bar_frequencies_hz`` (M,) and ``trajectory`` (the :class:`Trajectory`).
+    """
     from tqdm import tqdm
 
     opts.validate()
     ss = np.random.SeedSequence(int(opts.seed))
-    rng_traj, rng_imu, rng_img = (np.random.default_rng(s) for s in ss.spawn(3))
+    rng_traj, rng_imu, rng_img, rng_jitter, rng_drop = (np.random.default_rng(s) for s in ss.spawn(5))
     scene = make_scene(int(opts.seed))
     traj = make_trajectory(rng_traj, opts.motion, rig.gravity_magnitude)
-    _check_inside(rig, traj, scene)
+    loads = CameraLoads(rig, traj, opts.damping)
+    _check_inside(rig, traj, scene, loads)
     renderer = Renderer(rig, scene)
-    frame_t, frame_view = traj.frame_times(opts.motion.motion)
-    imu_period = int(round(1e9 / opts.motion.imu_rate))
-    imu_t = np.arange(traj.start_ns, traj.end_ns, imu_period, dtype=np.int64)
-    accel, gyro = imu_readings(rig, traj, imu_t, rng_imu, opts)
-    R, p, _, acc = traj.state(frame_t)
+    frame_t, frame_view = traj.frame_times(opts.motion.capture)
+    M = rig.num_cameras
+    jitter_ns = np.rint(rng_jitter.uniform(-1.0, 1.0, size=(len(frame_t), M)) * opts.jitter_ms * 1e6).astype(np.int64)
+    dropped = rng_drop.random(size=(len(frame_t), M)) < opts.drop_rate
+    if opts.imu:
+        imu_period = int(round(1e9 / opts.motion.imu_rate))
+        imu_t = np.arange(traj.start_ns, traj.end_ns, imu_period, dtype=np.int64)
+        accel, gyro = imu_readings(rig, traj, imu_t, rng_imu, opts, loads)
+    else:
+        imu_t = np.zeros(0, dtype=np.int64)
+    R, p, _, _ = traj.state(frame_t)
     g_true = traj.gravity_body(R)
-    load = traj.load_body(R, acc)
+    cam_loads = loads.at(frame_t)  # (F, M, 3)
     imu_topic = (rig.imu or ImuMount()).topic
-    cached_view, cached = None, None
+    topics = [(image_topic_for(c.image_topic, opts.encoding), c.info_topic) for c in rig.cameras]
+    quality = {"jpeg_quality": opts.jpeg_quality} if opts.encoding in COMPRESSED_FORMATS else {}
+    max_jitter_ns = int(np.max(np.abs(jitter_ns), initial=0))
+    cache = _StillCache(M)
     j = 0  # next IMU sample
     writer = BagWriter(out, opts.storage)  # refuses an existing path, so removing it on failure is safe
     try:
         with writer as bag:
+            def imu_msg(k):
+                return int(imu_t[k]), imu_topic, bag.imu_msg(int(imu_t[k]), IMU_FRAME, accel[k], gyro[k],
+                                                            opts.imu_noise, opts.gyro_noise)
+
             bar = tqdm(total=len(frame_t), unit="frame", desc="make-bag", disable=not progress, leave=False)
             for n, (t, view) in enumerate(zip(frame_t, frame_view)):
-                while j < len(imu_t) and imu_t[j] <= t:
-                    bag.write(imu_topic, bag.imu_msg(int(imu_t[j]), IMU_FRAME, accel[j], gyro[j], opts.imu_noise,
-                                                     opts.gyro_noise), int(imu_t[j]))
+                t, view = int(t), int(view)
+                # Everything stamped up to this trigger's latest camera stamp, in bag-time order (the next
+                # trigger's earliest stamp is later: the jitter is below half a frame period).
+                pending = []
+                while j < len(imu_t) and imu_t[j] <= t + max_jitter_ns:
+                    pending.append(imu_msg(j))
                     j += 1
-                if view >= 0 and view == cached_view:
-                    images = cached  # still: same view, fresh noise below
-                else:
-                    images = renderer.render_rig(R[n], p[n], load[n])
-                    cached_view, cached = (int(view), images) if view >= 0 else (None, None)
-                t = int(t)
-                for cam, img in zip(rig.cameras, images):
-                    noisy = img + rng_img.normal(scale=opts.image_noise, size=img.shape) if opts.image_noise else img
-                    u8 = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
-                    bag.write(cam.image_topic, bag.image_msg(u8, t, cam.name, opts.encoding), t)
-                    bag.write(cam.info_topic, bag.camera_info_msg(cam, t), t)
-                bag.write(POSE_TOPIC, bag.pose_msg(t, WORLD_FRAME, R[n], p[n]), t)
-                bag.write(GRAVITY_TOPIC, bag.vector_msg(t, rig.body_frame, g_true[n]), t)
+                Rs, cs = renderer.camera_poses(R[n], p[n], cam_loads[n])
+                for i, cam in enumerate(rig.cameras):
+                    img = cache.get(i, view, cam_loads[n, i])
+                    if img is None and not dropped[n, i]:
+                        img = renderer.render_camera(i, Rs[i], cs[i])
+                        cache.put(i, view, cam_loads[n, i], img)
+                    h, w = cam.resolution[1], cam.resolution[0]
+                    noise = rng_img.normal(scale=opts.image_noise, size=(h, w)) if opts.image_noise else 0.0
+                    if dropped[n, i]:
+                        continue  # the noise was drawn anyway, so a drop changes no other image
+                    u8 = np.clip(np.rint(img + noise), 0, 255).astype(np.uint8)
+                    ts = t + int(jitter_ns[n, i])
+                    pending.append((ts, topics[i][0], bag.image_msg(u8, ts, cam.name, opts.encoding, **quality)))
+                    pending.append((ts, topics[i][1], bag.camera_info_msg(cam, ts)))
+                pending.append((t, POSE_TOPIC, bag.pose_msg(t, WORLD_FRAME, R[n], p[n])))
+                pending.append((t, GRAVITY_TOPIC, bag.vector_msg(t, rig.body_frame, g_true[n])))
+                for ts, topic, msg in sorted(pending, key=lambda m: m[0]):  # stable: IMU first at equal times
+                    bag.write(topic, msg, ts)
                 bar.update(1)
             for k in range(j, len(imu_t)):
-                bag.write(imu_topic, bag.imu_msg(int(imu_t[k]), IMU_FRAME, accel[k], gyro[k], opts.imu_noise,
-                                                 opts.gyro_noise), int(imu_t[k]))
+                bag.write(*imu_msg(k)[1:], int(imu_t[k]))
             bar.close()
             counts = dict(bag.counts)
     except BaseException:
         shutil.rmtree(writer.path, ignore_errors=True)  # no half-written bag left behind
         raise
     return {
-        "frames": int(len(frame_t)), "views": int(len(traj.R)), "counts": counts,
-        "duration_s": (traj.end_ns - traj.start_ns) * 1e-9, "trajectory": traj,
+        "frames": int(len(frame_t)), "views": int(len(traj.R)), "counts": counts, "dropped": int(dropped.sum()),
+        "duration_s": (traj.end_ns - traj.start_ns) * 1e-9, "holds": hold_intervals(traj, loads),
+        "bar_frequencies_hz": [float(f) for f in loads.frequencies], "trajectory": traj,
     }

@@ -1,10 +1,11 @@
-"""Vectorised ray caster of the textured room (issue 4; rig geometry per SPEC sections 2, 3, 7).
+"""Vectorised ray caster of the textured room (rig geometry per SPEC sections 2, 3, 7).
 
 A rig camera's pixels become unit bearings through its own camera model
 (:func:`nrmpc_ros.cameras.pixels_to_bearings`, cached per camera); each view
-turns them into world rays with the bent extrinsics (w_i(g), W_i(g)) of the
-gravity of that attitude, intersects them with all boxes at once (slab test)
-and shades the nearest hit by a bilinear texture lookup.
+turns them into world rays with the bent extrinsics (w_i, W_i) of the load
+that camera's bar carries (one load for the whole rig, or one per camera when
+the bars ring), intersects them with all boxes at once (slab test) and
+shades the nearest hit by a bilinear texture lookup.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import numpy as np
 from ..cameras import pixels_to_bearings
 from ..core.deformation import deformed_extrinsics
 from ..core.rig import Rig
+from .bars import bent_extrinsics
 from .scene import Scene, in_plane_axes
 
 _EPS_T = 1e-6
@@ -116,7 +118,9 @@ class Renderer:
         """
         cam = self.rig.cameras[i]
         w, h = cam.resolution
-        d = self.bearings(i) @ np.asarray(R_world_cam, dtype=np.float32).T
+        # einsum, not a BLAS product: a (H*W, 3) x (3, 3) product gains nothing from threads, and waking
+        # BLAS threads on a busy machine costs more than the product itself.
+        d = np.einsum("nj,ij->ni", self.bearings(i), np.asarray(R_world_cam, dtype=np.float32))
         c = np.asarray(c_world, dtype=np.float32)
         t, face = cast_rays(self.scene, c, d)
         pts = c + t[:, None] * d
@@ -124,18 +128,25 @@ class Renderer:
         return (img, pts) if return_points else img
 
     def camera_poses(self, R_world_body, p_world_body, g_body=None):
-        """World orientation (M, 3, 3) and position (M, 3) of every camera, bent for g_body (SPEC section 3).
+        """World orientation (M, 3, 3) and position (M, 3) of every camera, bent for the load g_body (SPEC section 3).
 
-        g_body=None uses the canonical extrinsics.
+        g_body: one body-frame load (3,) for all cameras, one per camera (M, 3), or None for the
+        canonical extrinsics.
         """
         if g_body is None:
             w, W = self.rig.positions, self.rig.rotations
+        elif np.ndim(g_body) == 2:
+            w, W = bent_extrinsics(self.rig, g_body)
         else:
             w, W = deformed_extrinsics(self.rig, g_body)
         R = np.asarray(R_world_body, dtype=float)
         return R @ W, w @ R.T + np.asarray(p_world_body, dtype=float)
 
-    def render_rig(self, R_world_body, p_world_body, g_body=None) -> list:
-        """One float32 image per camera for the body pose in the world and the bending load g_body (body frame)."""
+    def render_rig(self, R_world_body, p_world_body, g_body=None, cameras=None) -> list:
+        """One float32 image per camera for the body pose in the world and the bending load g_body (body frame).
+
+        g_body as in :meth:`camera_poses`; ``cameras`` (indices) renders only those, the others are None.
+        """
         Rs, cs = self.camera_poses(R_world_body, p_world_body, g_body)
-        return [self.render_camera(i, Rs[i], cs[i]) for i in range(self.rig.num_cameras)]
+        wanted = range(self.rig.num_cameras) if cameras is None else set(int(i) for i in cameras)
+        return [self.render_camera(i, Rs[i], cs[i]) if i in wanted else None for i in range(self.rig.num_cameras)]

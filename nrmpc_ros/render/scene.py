@@ -1,4 +1,4 @@
-"""A textured box room for rendered test bags (issue 4, SPEC section 11).
+"""A textured box room for rendered test bags.
 
 The scene is the inside of an axis-aligned room (world frame, z up, metres)
 with a few axis-aligned boxes standing in it. Every face carries its own
