@@ -272,7 +272,8 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None):
 
     Converged when a step decreases the cost by less than ``cost_tolerance`` (or ``relative_tolerance`` of
     it), or by less than ``creep_tolerance`` while the camera step's predicted decrease is below
-    ``cost_tolerance`` (only far points still creep along their rays). A rejected step whose cost only rose by rounding ends the run at the minimum.
+    ``cost_tolerance`` (only far points still creep along their rays). A rejected step whose cost only rose
+    by rounding ends the run at the minimum.
     """
     opts = options or LMOptions()
     lam = opts.initial_damping

@@ -162,8 +162,8 @@ def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, s
     return np.array(R), np.array(t), candidates, methods
 
 
-def _distinct(candidates, separation_rad: float, limit: int):
-    """Greedy: candidates in order of weight, each at least separation_rad from those kept."""
+def distinct_candidates(candidates, separation_rad: float, limit: int) -> list:
+    """Greedy over (gravity, weight) pairs: in order of weight, each at least separation_rad from those kept."""
     kept = []
     for g, _ in sorted(candidates, key=lambda c: -c[1]):
         if all(angle_between(g, k) > separation_rad for k in kept):
@@ -187,7 +187,7 @@ def _observations(tracks: Tracks):
     return obs, np.flatnonzero(keep)
 
 
-def _triangulated(rig: Rig, obs: Observations, state: BundleState) -> tuple[BundleState, SequenceBundleProblem]:
+def triangulated(rig: Rig, obs: Observations, state: BundleState) -> tuple[BundleState, SequenceBundleProblem]:
     """The state with every landmark of obs triangulated, and a problem that evaluates it."""
     prob = SequenceBundleProblem(rig, obs, ParameterLayout(obs.num_views, [], False), 1.0)
     return replace(state, points=prob.triangulate(replace(state, points=np.zeros((obs.num_points, 3))))), prob
@@ -198,8 +198,10 @@ def _errors(prob: SequenceBundleProblem, state: BundleState) -> np.ndarray:
     return np.linalg.norm(prob.residuals(state), axis=1)
 
 
-def _choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: SequenceOptions, rng):
-    """The candidate g_0 whose short joint adjustment has the best MSAC score over all observations.
+def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: SequenceOptions, rng, *, free_views=None,
+                   gravity_information: GravityInformation | None = None):
+    """The candidate g_0 whose short joint adjustment has the best MSAC score over all observations (plus the
+    prior terms); returns (the candidate itself when there is only one, else the winner's BundleState, count).
 
     Every candidate is first scored at the chained poses (landmarks triangulated, no adjustment); the best
     ``refined_candidates`` of them get the short adjustment on a subset of the tracks.
@@ -208,7 +210,7 @@ def _choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequenc
         return candidates[0], 1
     quick = []
     for g0 in candidates:
-        st, prob = _triangulated(rig, obs, BundleState(R, t, g0, np.zeros((obs.num_points, 3))))
+        st, prob = triangulated(rig, obs, BundleState(R, t, g0, np.zeros((obs.num_points, 3))))
         quick.append(msac_score(_errors(prob, st), threshold))
     keep = [candidates[i] for i in np.argsort(quick)[: opts.refined_candidates]]
     pts = np.arange(obs.num_points)
@@ -217,9 +219,10 @@ def _choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequenc
     sub, _ = obs.subset(np.isin(obs.point, pts))
     best, best_score = None, math.inf
     for g0 in keep:
-        res = adjust_bundle(rig, sub, R, t, g0, priors=priors, max_iterations=opts.candidate_iterations,
+        res = adjust_bundle(rig, sub, R, t, g0, priors=priors, gravity_information=gravity_information,
+                            free_views=free_views, max_iterations=opts.candidate_iterations,
                             sigma_rad=threshold / 2.0, tol=1e-3)
-        st, prob = _triangulated(rig, obs, res.state)
+        st, prob = triangulated(rig, obs, res.state)
         score = msac_score(_errors(prob, st), threshold)
         if score < best_score:
             best, best_score = res.state, score
@@ -237,7 +240,7 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
     state = BundleState(np.asarray(R, float), np.asarray(t, float), gravity,
                         np.zeros((obs.num_points, 3)) if points is None else np.asarray(points, float),
                         view_sequence=obs.view_sequence)
-    full, prob = _triangulated(rig, obs, state)
+    full, prob = triangulated(rig, obs, state)
     if points is not None:
         full = replace(full, points=np.asarray(points, float))
     inl = _seen_twice(obs, _errors(prob, full) < start_factor * threshold)
@@ -250,7 +253,7 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
                             gravity_information=gravity_information, free_views=free_views,
                             max_iterations=max_iterations if r == 0 else max(10, max_iterations // 3),
                             huber_k=huber_k)
-        new_full, prob = _triangulated(rig, obs, res.state)
+        new_full, prob = triangulated(rig, obs, res.state)
         new_full.points[used] = res.state.points
         full = new_full
         new = _seen_twice(obs, _errors(prob, full) < threshold)
@@ -307,11 +310,11 @@ def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", see
     if with_gravity:
         if method == "4pt-bending":
             cands += [(R[k] @ measured[k], 0.0) for k in range(K) if np.all(np.isfinite(measured[k]))]
-        distinct = _distinct(cands, math.radians(opts.candidate_separation_deg), opts.max_candidates)
+        distinct = distinct_candidates(cands, math.radians(opts.candidate_separation_deg), opts.max_candidates)
         if not distinct:
             return _failure(method, t0, "no pair gave a gravity estimate")
         rng = np.random.default_rng(seed)
-        chosen, n_cand = _choose_gravity(model_rig, obs, R, t, distinct, priors, threshold, opts, rng)
+        chosen, n_cand = choose_gravity(model_rig, obs, R, t, distinct, priors, threshold, opts, rng)
         if isinstance(chosen, np.ndarray):
             gravity = chosen
         else:
@@ -334,4 +337,5 @@ def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", see
                             pair_methods=pair_methods, candidates=n_cand)
 
 
-__all__ = ["SequenceEstimate", "SequenceOptions", "estimate_sequence", "refine_sequence"]
+__all__ = ["RIGID_REASON", "SequenceEstimate", "SequenceOptions", "choose_gravity", "distinct_candidates",
+           "estimate_sequence", "refine_sequence", "triangulated"]

@@ -1,0 +1,373 @@
+"""The joint estimate, view by view: a sliding window over the newest views of a sequence.
+
+:class:`IncrementalSequence` takes the observations of one static view at a
+time (camera, landmark id, bearing, optionally measured gravity) and returns
+that view's pose in the sequence origin (view 0) and its gravity from the
+joint solution (docs/PIPELINE.md, "Sequence"):
+
+1. The new view is paired with the newest earlier view that shares enough
+   landmarks (seen by two cameras at least) and estimated with the two-view
+   estimator of the method; its pose in the origin follows by chaining.
+2. Gravity: the first pair's gravity candidates (its own and the basins it
+   left open) are compared by the joint cost; while the sequence is young,
+   or when a new pair's gravity contradicts the joint one, the joint
+   gravity competes again with the pair's candidates.
+3. The newest ``window`` views are adjusted jointly (robust bundle adjustment
+   with inlier classification, :func:`.sequence.refine_sequence`); older
+   views keep their poses. Their observations of landmarks the window still
+   sees stay in the problem (with those fixed poses); landmarks the window
+   no longer sees are condensed, poses fixed, into information on the
+   origin's gravity (:func:`.bundle.condense_gravity`) that every later solve
+   uses as a prior. So every observation counts once and the problem stays
+   the size of the window.
+
+:meth:`IncrementalSequence.batch` adjusts all views of the sequence at once
+from the incremental result. A view that shares too few landmarks with the
+views before it starts a new sequence (its gravity is unknown again).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .bundle import BundleState, GravityInformation, GravityPriors, Observations, condense_gravity
+from .estimators import estimate
+from .matches import Matches
+from .rig import Rig
+from .sequence import (
+    RIGID_REASON,
+    SequenceEstimate,
+    SequenceOptions,
+    choose_gravity,
+    distinct_candidates,
+    refine_sequence,
+    triangulated,
+)
+from .so3 import angle_between, normalize
+from .tracks import Tracks
+
+
+@dataclass
+class ViewEstimate:
+    """One view of a sequence: pose in the origin (p_0 = R p + t), gravity in its body frame from the joint
+    solution (m/s^2) with its largest angular std, and how it was obtained."""
+
+    sequence: int  # sequence number (a reset or a break starts the next)
+    view: int  # index in the sequence (0 = origin)
+    reference: int  # the view it was paired with
+    method: str  # two-view method of that pair
+    R: np.ndarray
+    t: np.ndarray
+    gravity: np.ndarray | None
+    gravity_sigma_rad: float
+    cov_gravity: np.ndarray | None  # (3, 3) m^2/s^4, rank 2
+    cov_pose: np.ndarray  # (6, 6) over (dr in the body frame, t in the origin)
+    num_observations: int
+    num_inliers: int
+    window: int  # views adjusted in this solve
+    time_s: float
+
+
+@dataclass
+class _Sequence:
+    """Everything one sequence has seen and estimated."""
+
+    number: int
+    view: list = field(default_factory=list)  # per view: (n,) arrays
+    cam: list = field(default_factory=list)
+    track: list = field(default_factory=list)
+    f: list = field(default_factory=list)
+    measured: list = field(default_factory=list)  # per view (3,) or NaN
+    measured_sigma: list = field(default_factory=list)
+    R: list = field(default_factory=list)
+    t: list = field(default_factory=list)
+    gravity: np.ndarray | None = None  # origin's gravity
+    condensed: GravityInformation | None = None
+    retired: set = field(default_factory=set)  # landmark ids folded into ``condensed``
+    inlier: list = field(default_factory=list)  # per view (n,) bool
+
+    @property
+    def num_views(self) -> int:
+        return len(self.view)
+
+    def arrays(self):
+        return (np.concatenate(self.view), np.concatenate(self.cam), np.concatenate(self.track),
+                np.concatenate(self.f), np.concatenate(self.inlier))
+
+
+class IncrementalSequence:
+    """Views in, joint poses and gravity out; see the module docstring."""
+
+    def __init__(self, rig: Rig, method: str = "6pt-bending", options: SequenceOptions | dict | None = None,
+                 window: int = 10, seed: int = 0, young_views: int = 5, reconsider_deg: float = 3.0):
+        self.rig = rig
+        self.method = method
+        self.options = options if isinstance(options, SequenceOptions) else SequenceOptions.from_dict(options)
+        if int(window) < 2:
+            raise ValueError(f"window must be at least 2 views, got {window}")
+        self.window = int(window)
+        self.seed = int(seed)
+        self.young_views = int(young_views)  # the joint gravity competes with each new pair's candidates until then
+        self.reconsider_rad = math.radians(reconsider_deg)  # ... and whenever a pair disagrees by more than this
+        self.model_rig = rig.as_rigid() if method == "6pt-nonbending" else rig
+        self.with_gravity = method != "6pt-nonbending" and rig.is_flexible
+        focal = float(np.mean([c.focal_px for c in rig.cameras]))
+        self.threshold = self.options.estimator.threshold_px / focal
+        self._pair_options = self.options.pair_estimator()
+        self._noise_rad = self.threshold / 2.0  # angular noise of the latest solve (condenses retired landmarks)
+        self._sequences = 0
+        self.seq = _Sequence(0)
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Start a new sequence: the next view is its origin."""
+        self._sequences += 1
+        self.seq = _Sequence(self._sequences)
+
+    @property
+    def num_views(self) -> int:
+        return self.seq.num_views
+
+    def tracks(self) -> Tracks:
+        """The current sequence's observations as tracks (with the measured gravity)."""
+        s = self.seq
+        view, cam, track, f, _ = s.arrays()
+        g = np.array(s.measured)
+        return Tracks(view, cam, track, f, g if np.isfinite(g).any() else None, num_views=s.num_views,
+                      source=f"sequence {s.number}")
+
+    def relative_pose(self, view: int, reference: int):
+        """(R, t) of ``view`` in ``reference``'s body frame (p_ref = R p + t)."""
+        s = self.seq
+        Rr, tr = s.R[reference], s.t[reference]
+        return Rr.T @ s.R[view], Rr.T @ (s.t[view] - tr)
+
+    # ----------------------------------------------------------------- views
+    def add_view(self, cam, track, f, measured_gravity=None, measured_sigma_rad: float | None = None):
+        """Add the next view's observations; returns its :class:`ViewEstimate`, or a str saying why there is
+        none (the origin of a sequence, or a view that starts a new one)."""
+        t0 = time.perf_counter()
+        cam = np.asarray(cam, dtype=np.int64)
+        track = np.asarray(track, dtype=np.int64)
+        f = normalize(np.asarray(f, dtype=float).reshape(-1, 3))
+        g = np.full(3, np.nan) if measured_gravity is None else np.asarray(measured_gravity, float)
+        sg = self.options.estimator.gravity_prior_sigma if measured_sigma_rad is None else float(measured_sigma_rad)
+        s = self.seq
+        k = s.num_views
+        s.view.append(np.full(len(cam), k, np.int64))
+        s.cam.append(cam)
+        s.track.append(track)
+        s.f.append(f)
+        s.measured.append(g)
+        s.measured_sigma.append(sg)
+        s.inlier.append(np.ones(len(cam), bool))
+        if k == 0:
+            s.R.append(np.eye(3))
+            s.t.append(np.zeros(3))
+            return "the first view of a sequence is its origin"
+        paired = self._pair(k)
+        if isinstance(paired, str):
+            self._restart_from_last()
+            return f"new sequence: {paired}"
+        j, pm, est = paired
+        s.R.append(s.R[j] @ est.R)
+        s.t.append(s.R[j] @ est.t + s.t[j])
+        if self.with_gravity:
+            self._update_gravity(k, j, est)
+        res, first = self._solve_window(k)
+        self._retire(first + 1)
+        return self._estimate(k, j, pm, res, first, time.perf_counter() - t0)
+
+    def _shared(self, j: int, k: int):
+        """Observation indices (in views j and k) of the landmarks both see with the same camera."""
+        s = self.seq
+        a = s.cam[j] * (1 << 40) + s.track[j]
+        b = s.cam[k] * (1 << 40) + s.track[k]
+        _, ia, ib = np.intersect1d(a, b, assume_unique=False, return_indices=True)
+        return ia, ib
+
+    def _pair(self, k: int):
+        """(reference view, method, two-view estimate) of view k, or why none."""
+        s = self.seq
+        why = []
+        for j in range(k - 1, max(-1, k - 1 - self.options.max_pair_gap), -1):
+            ia, ib = self._shared(j, k)
+            cams = len(np.unique(s.cam[j][ia]))
+            if len(ia) < self.options.min_pair_matches or cams < 2:
+                why.append(f"view {j}: {len(ia)} shared landmarks from {cams} camera(s)")
+                continue
+            has_g = np.all(np.isfinite(s.measured[j])) and np.all(np.isfinite(s.measured[k]))
+            pm = self.method if self.method != "4pt-bending" or has_g else "6pt-bending"
+            m = Matches(s.f[j][ia], s.f[k][ib], s.cam[j][ia], s.measured[j] if has_g else None,
+                        s.measured[k] if has_g else None, source=f"views {j}, {k}")
+            est = estimate(self.model_rig, m, method=pm, seed=self.seed + k, options=self._pair_options)
+            if est.success:
+                return j, pm, est
+            why.append(f"view {j}: {est.info.get('reason', 'estimation failed')}")
+        return "; ".join(why) or "no earlier view"
+
+    def _restart_from_last(self) -> None:
+        """The newest view cannot be linked: it becomes the origin of a new sequence."""
+        s = self.seq
+        last = (s.cam[-1], s.track[-1], s.f[-1], s.measured[-1], s.measured_sigma[-1])
+        self.reset()
+        n = self.seq
+        n.view.append(np.zeros(len(last[0]), np.int64))
+        n.cam.append(last[0])
+        n.track.append(last[1])
+        n.f.append(last[2])
+        n.measured.append(last[3])
+        n.measured_sigma.append(last[4])
+        n.inlier.append(np.ones(len(last[0]), bool))
+        n.R.append(np.eye(3))
+        n.t.append(np.zeros(3))
+
+    # --------------------------------------------------------------- gravity
+    def _priors(self, K: int) -> GravityPriors | None:
+        s = self.seq
+        if self.method != "4pt-bending" or not math.isfinite(self.options.estimator.gravity_prior_sigma):
+            return None
+        g = np.array(s.measured[:K])
+        if not np.isfinite(g).any():
+            return None
+        return GravityPriors(g, np.array(s.measured_sigma[:K]), self.options.gravity_bias_sigma)
+
+    def _update_gravity(self, k: int, j: int, est) -> None:
+        """Choose the origin's gravity among the joint one and the new pair's candidates (see the module)."""
+        s = self.seq
+        if est.gravity is None:
+            return
+        Rj = s.R[j]
+        cands = [(Rj @ np.asarray(g, float), float(est.num_inliers))
+                 for g in [est.gravity] + list(est.info.get("gravity_candidates", []))]
+        if self.method == "4pt-bending":
+            cands += [(s.R[i] @ s.measured[i], 0.0) for i in (j, k) if np.all(np.isfinite(s.measured[i]))]
+        if s.gravity is not None:
+            young = k < self.young_views
+            if not young and angle_between(cands[0][0], s.gravity) < self.reconsider_rad:
+                return
+            cands = [(s.gravity, math.inf)] + cands
+        opts = self.options
+        distinct = distinct_candidates(cands, math.radians(opts.candidate_separation_deg), opts.max_candidates)
+        first = max(0, k + 1 - self.window)
+        obs, _, free = self._window_problem(k, first)
+        R, t = np.array(s.R), np.array(s.t)
+        rng = np.random.default_rng(self.seed + k)
+        chosen, _ = choose_gravity(self.model_rig, obs, R, t, distinct, self._priors(k + 1), self.threshold, opts,
+                                   rng, free_views=free, gravity_information=s.condensed)
+        if isinstance(chosen, np.ndarray):
+            s.gravity = chosen
+        else:
+            s.gravity = chosen.gravity
+            for i in free:
+                s.R[i], s.t[i] = chosen.R[i], chosen.t[i]
+
+    # ---------------------------------------------------------------- solves
+    def _window_problem(self, k: int, first: int):
+        """Observations of the window views [first, k] and the older views' observations of landmarks the
+        window sees (minus retired ones), and the free views."""
+        s = self.seq
+        view, cam, track, f, _ = s.arrays()
+        live = np.unique(track[view >= first])
+        keep = np.isin(track, live)
+        if s.retired:
+            keep &= ~np.isin(track, np.fromiter(s.retired, np.int64))
+        obs, _ = Observations.from_arrays(view[keep], cam[keep], track[keep], f[keep], k + 1)
+        free = np.arange(max(first, 1), k + 1)
+        if first > 0 and not np.any(view[keep] < first):
+            free = free[1:]  # nothing older ties the window to the origin: its first view holds the gauge
+        return obs, np.flatnonzero(keep), free
+
+    def _solve_window(self, k: int):
+        s = self.seq
+        first = max(0, k + 1 - self.window)
+        obs, idx, free = self._window_problem(k, first)
+        res, inl = refine_sequence(self.model_rig, obs, np.array(s.R), np.array(s.t), s.gravity, self.threshold,
+                                   priors=self._priors(k + 1), gravity_information=s.condensed, free_views=free,
+                                   max_iterations=self.options.max_iterations, rounds=2,
+                                   huber_k=self.options.estimator.huber_k)
+        st = res.state
+        for i in free:
+            s.R[i], s.t[i] = st.R[i], st.t[i]
+        if self.with_gravity and st.gravity is not None:
+            s.gravity = st.gravity
+        flat = np.concatenate(s.inlier)
+        flat[idx] = inl
+        sizes = np.cumsum([len(x) for x in s.inlier])[:-1]
+        s.inlier = np.split(flat, sizes)
+        return res, first
+
+    def _retire(self, first_next: int) -> None:
+        """Fold landmarks no later window can see into the origin's gravity information (poses fixed)."""
+        s = self.seq
+        if not self.with_gravity or s.gravity is None or first_next <= 0:
+            return
+        view, cam, track, f, inl = s.arrays()
+        still_seen = np.unique(track[view >= first_next])
+        old = ~np.isin(track, still_seen) & inl
+        if s.retired:
+            old &= ~np.isin(track, np.fromiter(s.retired, np.int64))
+        if not old.any():
+            return
+        obs, _ = Observations.from_arrays(view[old], cam[old], track[old], f[old], s.num_views)
+        seen_twice = np.bincount(obs.point, minlength=obs.num_points) >= 2
+        if seen_twice.any():
+            obs, _ = obs.subset(seen_twice[obs.point])
+            state = BundleState(np.array(s.R), np.array(s.t), s.gravity, np.zeros((obs.num_points, 3)))
+            state, _ = triangulated(self.model_rig, obs, state)
+            info = condense_gravity(self.model_rig, obs, state, self._noise_rad, self.options.estimator.huber_k)
+            if info is not None:
+                s.condensed = info.combined(s.condensed)
+        s.retired.update(int(x) for x in np.unique(track[old]))
+
+    def _estimate(self, k, j, pm, res, first, elapsed) -> ViewEstimate:
+        s = self.seq
+        self._noise_rad = res.sigma_rad
+        g = cov = None
+        sigma = math.inf
+        if self.with_gravity and s.gravity is not None:
+            g = s.R[k].T @ s.gravity
+            sigma = res.gravity_sigma_rad(k)
+            cov = res.gravity_covariance(k)
+        n = len(s.cam[k])
+        return ViewEstimate(sequence=s.number, view=k, reference=j, method=pm, R=s.R[k].copy(), t=s.t[k].copy(),
+                            gravity=g, gravity_sigma_rad=sigma, cov_gravity=cov,
+                            cov_pose=res.pose_covariance(k, body=True), num_observations=n,
+                            num_inliers=int(np.count_nonzero(s.inlier[k])), window=k + 1 - first,
+                            time_s=elapsed)
+
+    # ----------------------------------------------------------------- batch
+    def batch(self) -> SequenceEstimate:
+        """All views of the current sequence adjusted at once, from the incremental estimates."""
+        t0 = time.perf_counter()
+        s = self.seq
+        K = s.num_views
+        if K < 2 or len(s.R) < K:
+            return SequenceEstimate(method=self.method, success=False, reason="fewer than two linked views")
+        view, cam, track, f, _ = s.arrays()
+        obs, _ = Observations.from_arrays(view, cam, track, f, K)
+        seen = (np.bincount(obs.point, minlength=obs.num_points) >= 2)[obs.point]
+        obs, _ = obs.subset(seen)
+        res, inl = refine_sequence(self.model_rig, obs, np.array(s.R), np.array(s.t), s.gravity, self.threshold,
+                                   priors=self._priors(K), max_iterations=self.options.max_iterations,
+                                   rounds=self.options.inlier_rounds, huber_k=self.options.estimator.huber_k)
+        st = res.state
+        grav = sig = None
+        reason = ""
+        if self.with_gravity and st.gravity is not None:
+            grav = st.view_gravity
+            sig = np.array([res.gravity_sigma_rad(i) for i in range(K)])
+        elif self.method != "6pt-nonbending":
+            reason = RIGID_REASON
+        inliers = np.zeros(len(view), bool)
+        inliers[np.flatnonzero(seen)[inl]] = True
+        return SequenceEstimate(method=self.method, success=True, R=st.R, t=st.t, gravity=grav,
+                                gravity_sigma_rad=sig, inliers=inliers, time_s=time.perf_counter() - t0,
+                                reason=reason, bundle=res)
+
+
+__all__ = ["IncrementalSequence", "ViewEstimate"]
