@@ -227,5 +227,5 @@ def set_bar_ei(rig: Rig, EI: float) -> Rig:
     return replace(rig, cameras=cams)
 
 
-__all__ = ["Bound", "KINDS", "SequenceBound", "sequence_bound", "angle_samples", "bound_from_information", "fisher_information", "noise_free_bearings",
-           "problem_bound", "set_bar_ei", "summarize_bounds"]
+__all__ = ["Bound", "KINDS", "SequenceBound", "angle_samples", "bound_from_information", "fisher_information",
+           "noise_free_bearings", "problem_bound", "sequence_bound", "set_bar_ei", "summarize_bounds"]
