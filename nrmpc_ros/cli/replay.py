@@ -12,8 +12,8 @@ import yaml
 from ..bag.reader import BagReader
 from ..core import load_rig
 from ..errors import InputError
-from ..frontend.evaluation import CsvWriter, evaluate, format_report, read_reference, row_from_estimate
-from ..frontend.pipeline import GRAVITY_SOURCE_WORDS, PIPELINE_METHODS, Pipeline, PipelineConfig
+from ..frontend.evaluation import CsvWriter, batch_rows, evaluate, format_report, read_reference, row_from_estimate
+from ..frontend.pipeline import PIPELINE_METHODS, Pipeline, PipelineConfig
 from ..frontend.replay import check_camera_info, replay_bag, resolve_imu_topic
 from ..frontend.sync import StampSynchronizer
 from ..frontend.topics import bag_image_topics
@@ -28,8 +28,11 @@ def register(sub):
     p.add_argument("--rig", required=True, help="rig YAML file (SPEC section 7)")
     p.add_argument("--method", default="auto", choices=PIPELINE_METHODS,
                    help="auto: 4pt-bending when IMU gravity is available for both views, else 6pt-bending")
-    p.add_argument("--out", required=True, help="output CSV")
-    p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig: tracking, static, imu, ...)")
+    p.add_argument("--out", required=True, help="output CSV: one row per hold as the node publishes it")
+    p.add_argument("--batch", metavar="BATCH.csv", help="also write the joint solution of all holds at once "
+                   "(each hold relative to the one before it)")
+    p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig: tracking, holds, imu, zupt, "
+                   "sequence, ...)")
     p.add_argument("--imu-topic", help="IMU topic (default: the rig file's imu.topic)")
     p.add_argument("--no-imu", action="store_true", help="ignore the IMU (auto then runs 6pt-bending)")
     p.add_argument("--sync-tolerance", type=float, default=None,
@@ -83,31 +86,42 @@ def run(args) -> int:
                     rows.append(row)
         finally:
             writer.close()
+        batch = []
+        if args.batch:
+            method = rows[-1].method if rows else args.method
+            batch = batch_rows(pipe.batch(), method)
+            bw = CsvWriter(args.batch)
+            try:
+                for row in batch:
+                    bw.write(row)
+            finally:
+                bw.close()
         ref = read_reference(bag, imu_topic)
     elapsed = time.perf_counter() - t_start
     ev = evaluate(rows, ref, rig)
     st = pipe.stats
     print(format_report(ev, per_estimate=not args.quiet))
+    if batch:
+        evb = evaluate(batch, ref, rig)
+        gb = evb.stats("gravity_vs_gt_deg")
+        print(f"batch (all holds at once, {args.batch}): gravity vs ground truth median {gb['median']:.3f} deg "
+              f"(n={gb['n']}); vs IMU median {evb.stats('gravity_vs_imu_deg')['median']:.3f} deg")
+    d = st.as_dict()
+    print(f"frames {st.frames}, holds {st.holds}, estimates {st.estimates} "
+          f"({', '.join(f'{m}: {n}' for m, n in sorted(st.methods.items())) or 'none'}), sequences {st.sequences}")
+    if st.holds:
+        print(f"holds: median settle {d['median_settle_s']:.2f} s after the stop (slowest bar period "
+              f"{pipe.bar_period_s:.3f} s), residual motion {d['median_residual_px']:.3f} px, track noise "
+              f"{d['median_noise_px']:.3f} px per frame -> {d['median_averaged_noise_px']:.3f} px averaged over "
+              f"{np.median(st.settled_frames):.0f} settled frames")
     dropped = dict(st.dropped)
     for k, v in sync.dropped.items():
         dropped[f"sync: {k}"] = v
-    print(f"frames {st.frames}, static views {st.static_views}, pairs {st.pairs}, estimates {st.estimates} "
-          f"({', '.join(f'{m}: {n}' for m, n in sorted(st.methods.items())) or 'none'}), "
-          f"reference changes {st.reference_changes}")
     if dropped:
         print("dropped: " + "; ".join(f"{k}: {v}" for k, v in sorted(dropped.items())))
     print(f"camera sync: {sync.describe()}")
-    if st.gravity_sources:
-        print("published gravity (g columns): " + ", ".join(
-            f"{n} {GRAVITY_SOURCE_WORDS.get(k, k)}" for k, n in sorted(st.gravity_sources.items())))
-    if st.hinted_pairs:
-        print(f"pairs contradicting the fused gravity, re-estimated from it: {st.hinted_pairs} "
-              f"({st.hinted_kept} fitted as well and replaced the pair's own)")
-    if st.static_views > 1:
-        print(f"static views with an estimate (after the first): {st.estimates}/{st.static_views - 1} "
-              f"({100.0 * st.estimates / (st.static_views - 1):.0f}%)")
     times = [r.time_ms for r in rows]
     if times:
-        print(f"pair time (matching + estimation): median {np.median(times):.0f} ms; wall time {elapsed:.1f} s")
+        print(f"hold time (linking + estimation): median {np.median(times):.0f} ms; wall time {elapsed:.1f} s")
     print(f"wrote {len(rows)} estimates to {args.out}")
     return 0

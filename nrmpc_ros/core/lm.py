@@ -162,6 +162,8 @@ class SchurStructure:
             return Hcc_d, system.bc.copy(), None
         dpp = np.diagonal(system.Hpp, axis1=1, axis2=2)
         Hpp_inv = inv3(system.Hpp, lam * dpp + 1e-12)
+        if nc == 0:  # points only (every camera parameter fixed)
+            return Hcc_d, system.bc.copy(), Hpp_inv
         if self.dense:
             if system.Hcp is None:
                 system.Hcp = self._coupling(system.W)
@@ -178,7 +180,9 @@ class SchurStructure:
 
     def back_substitute(self, system: LinearSystem, Hpp_inv: np.ndarray, dc: np.ndarray) -> np.ndarray:
         """Point steps (P, 3) for a camera step dc."""
-        if self.dense:
+        if self.nc == 0:
+            rhs = system.bp
+        elif self.dense:
             rhs = system.bp - np.einsum("pci,c->pi", system.Hcp, dc)
         else:
             dce = np.append(dc, 0.0)[self.cols]  # (N, L), zero for non-existing columns
@@ -228,7 +232,7 @@ class LinearSystem:
         else:
             S, rhs, Hpp_inv = self.structure.reduce(self, lam)
         try:
-            dc = np.linalg.solve(S, rhs)
+            dc = np.linalg.solve(S, rhs) if len(rhs) else rhs.copy()
         except np.linalg.LinAlgError:
             dc = np.linalg.lstsq(S, rhs, rcond=None)[0]
         dp = None if Hpp_inv is None else self.structure.back_substitute(self, Hpp_inv, dc)

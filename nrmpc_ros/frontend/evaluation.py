@@ -1,12 +1,11 @@
-"""Scoring estimates against the IMU and a bag's ground truth; the estimates CSV (SPEC section 11).
+"""Scoring estimates against the IMU and a bag's ground truth; the estimates CSV (docs/CONVENTIONS.md, "Bags").
 
 One implementation for ``nrmpc replay``'s summary and ``nrmpc compare``:
 :func:`read_reference` loads the IMU and ``/ground_truth/*`` of a bag,
 :func:`evaluate` computes per-estimate errors (gravity vs IMU and vs ground
-truth, relative pose vs ground truth) and their statistics, :func:`format_report`
-prints them and :func:`plot_errors` draws them. Raw (per-pair) and fused
-gravity (the pipeline's running estimate, columns gfx, gfy, gfz) are scored
-side by side.
+truth, relative pose vs ground truth), which ground-truth holds got an
+estimate and which estimates lie outside every hold, :func:`format_report`
+prints them and :func:`plot_errors` draws them.
 """
 
 from __future__ import annotations
@@ -27,12 +26,13 @@ from .images import stamp_seconds
 
 CSV_HEADER = ["stamp", "ref_stamp", "method", "qx", "qy", "qz", "qw", "tx", "ty", "tz", "gx", "gy", "gz",
               "num_inliers", "time_ms"]
-FUSED_COLUMNS = ["gfx", "gfy", "gfz"]  # fused gravity, current body frame (m/s^2)
-CSV_EXTRA = ["num_matches", "match_mode", "gravity_sigma_deg", "tilt_deg", *FUSED_COLUMNS, "gravity_fused_sigma_deg",
-             "fused_count", "fused_rejected", "gravity_source"]
+ORIGIN_COLUMNS = ["origin_stamp", "oqx", "oqy", "oqz", "oqw", "otx", "oty", "otz"]  # pose in the sequence origin
+CSV_EXTRA = ["gravity_sigma_deg", "num_observations", *ORIGIN_COLUMNS, "sequence", "hold", "window", "hold_frames",
+             "settled_frames", "settle_s", "residual_px", "noise_px", "averaged_noise_px", "links_klt",
+             "links_descriptor"]
 GT_POSE_TOPIC = "/ground_truth/pose"
 GT_GRAVITY_TOPIC = "/ground_truth/gravity"
-STAMP_TOLERANCE_S = 0.01  # ground truth is matched to an image stamp within this
+STAMP_TOLERANCE_S = 0.02  # ground truth is matched to an estimate's stamp within this (cameras may jitter)
 
 
 # ---------------------------------------------------------------------------
@@ -41,7 +41,7 @@ STAMP_TOLERANCE_S = 0.01  # ground truth is matched to an image stamp within thi
 
 @dataclass
 class EstimateRow:
-    """One CSV row: pose of the current view in the reference view, gravity in the current body frame."""
+    """One CSV row: pose of the current hold in the reference hold, gravity in the current body frame."""
 
     stamp: float
     ref_stamp: float
@@ -52,18 +52,30 @@ class EstimateRow:
     num_inliers: int
     time_ms: float
     extra: dict = field(default_factory=dict)
-    gravity_fused: np.ndarray | None = None  # fused gravity, current body frame
+    origin: tuple | None = None  # (origin stamp, R, t): the hold's pose in the sequence origin
 
 
 def row_from_estimate(e) -> EstimateRow:
-    """A :class:`~nrmpc_ros.frontend.pipeline.PipelineEstimate` as a CSV row."""
-    extra = {"num_matches": e.num_matches, "match_mode": e.match_mode, "gravity_sigma_deg": e.gravity_sigma_deg,
-             "tilt_deg": e.tilt_deg, "gravity_fused_sigma_deg": e.gravity_fused_sigma_deg,
-             "fused_count": e.fused_count, "fused_rejected": e.fused_rejected, "gravity_source": e.gravity_source}
+    """A :class:`~nrmpc_ros.frontend.pipeline.HoldEstimate` as a CSV row."""
+    h = e.hold
+    extra = {"gravity_sigma_deg": e.gravity_sigma_deg, "num_observations": e.num_observations,
+             "sequence": e.sequence, "hold": e.hold_index, "window": e.window, "hold_frames": h.frames,
+             "settled_frames": h.settled_frames, "settle_s": h.settle_s, "residual_px": h.residual_px,
+             "noise_px": h.noise_px, "averaged_noise_px": h.averaged_noise_px,
+             "links_klt": e.links.get("klt", 0), "links_descriptor": e.links.get("descriptor", 0)}
     g = None if e.gravity is None else np.asarray(e.gravity)
-    gf = None if e.gravity_fused is None else np.asarray(e.gravity_fused)
     return EstimateRow(e.stamp, e.ref_stamp, e.method, np.asarray(e.R), np.asarray(e.t), g, int(e.num_inliers),
-                       float(e.time_ms), extra, gf)
+                       float(e.time_ms), extra, (e.origin_stamp, np.asarray(e.R_origin), np.asarray(e.t_origin)))
+
+
+def batch_rows(batch: list, method: str) -> list:
+    """CSV rows of a joint solution of every hold ((stamp, R_origin, t_origin, gravity, sigma_deg) per hold,
+    origin first, see Pipeline.batch): each hold relative to the one before it."""
+    rows = []
+    for (s0, R0, t0, _, _), (s1, R1, t1, g, sig) in zip(batch[:-1], batch[1:]):
+        rows.append(EstimateRow(s1, s0, method, R0.T @ R1, R0.T @ (t1 - t0), g, 0, 0.0,
+                                {"gravity_sigma_deg": sig}, (batch[0][0], R1, t1)))
+    return rows
 
 
 def _fmt(x) -> str:
@@ -77,7 +89,7 @@ def _fmt(x) -> str:
 
 
 class CsvWriter:
-    """Writes estimate rows (header of SPEC section 11, then the extra columns) and flushes each row."""
+    """Writes estimate rows (the header of docs/CONVENTIONS.md, then the extra columns), one flush per row."""
 
     def __init__(self, path):
         self.path = str(path)
@@ -93,8 +105,11 @@ class CsvWriter:
         q = matrix_to_quat_xyzw(row.R)
         g = [None] * 3 if row.gravity is None else list(row.gravity)
         vals = [row.stamp, row.ref_stamp, row.method, *q, *row.t, *g, row.num_inliers, row.time_ms]
-        gf = dict(zip(FUSED_COLUMNS, [None] * 3 if row.gravity_fused is None else row.gravity_fused))
-        vals += [gf[k] if k in gf else row.extra.get(k) for k in CSV_EXTRA]
+        origin = dict.fromkeys(ORIGIN_COLUMNS)
+        if row.origin is not None:
+            s0, R0, t0 = row.origin
+            origin.update(zip(ORIGIN_COLUMNS, [s0, *matrix_to_quat_xyzw(R0), *t0]))
+        vals += [origin[k] if k in origin else row.extra.get(k) for k in CSV_EXTRA]
         self._w.writerow([_fmt(v) for v in vals])
         self._f.flush()
 
@@ -112,32 +127,47 @@ def read_csv(path) -> list:
     rows = []
     with f:
         reader = csv.reader(f)
-        header = next(reader, None)
+        try:
+            header = next(reader, None)
+        except (csv.Error, UnicodeDecodeError) as exc:
+            raise InputError(src, f"not a CSV text file ({exc})", "header") from None
         if header is None or header[: len(CSV_HEADER)] != CSV_HEADER:
             raise InputError(src, f"not an estimates CSV: the header must start with {','.join(CSV_HEADER)}", "header")
-        for line, rec in enumerate(reader, start=2):
-            if not rec:
-                continue
-            d = dict(zip(header, rec))
-            try:
-                num = {k: float(d[k]) for k in CSV_HEADER if k not in ("method", "gx", "gy", "gz")}
-                g = None if d["gx"] == "" else np.array([float(d[k]) for k in ("gx", "gy", "gz")])
-            except (KeyError, ValueError) as exc:
-                raise InputError(src, f"line {line}: bad or missing number ({exc})") from None
-            q = np.array([num["qx"], num["qy"], num["qz"], num["qw"]])
-            if not np.isfinite(q).all() or abs(np.linalg.norm(q) - 1) > 1e-3:
-                raise InputError(src, f"line {line}: quaternion must have unit norm", "qx")
-            gf = None
-            if all(d.get(k, "") != "" for k in FUSED_COLUMNS):
-                try:
-                    gf = np.array([float(d[k]) for k in FUSED_COLUMNS])
-                except ValueError as exc:
-                    raise InputError(src, f"line {line}: bad fused gravity ({exc})", "gfx") from None
-            extra = {k: d[k] for k in header[len(CSV_HEADER):] if k in d and k not in FUSED_COLUMNS}
-            rows.append(EstimateRow(num["stamp"], num["ref_stamp"], d["method"], quat_xyzw_to_matrix(q),
-                                    np.array([num["tx"], num["ty"], num["tz"]]), g, int(num["num_inliers"]),
-                                    num["time_ms"], extra, gf))
+        try:
+            for line, rec in enumerate(reader, start=2):
+                if rec:
+                    rows.append(_row(src, line, dict(zip(header, rec)), header))
+        except (csv.Error, UnicodeDecodeError) as exc:
+            raise InputError(src, f"not a CSV text file ({exc})") from None
     return rows
+
+
+def _row(src: str, line: int, d: dict, header: list) -> EstimateRow:
+    try:
+        num = {k: float(d[k]) for k in CSV_HEADER if k not in ("method", "gx", "gy", "gz")}
+        g = None if d["gx"] == "" else np.array([float(d[k]) for k in ("gx", "gy", "gz")])
+    except (KeyError, ValueError) as exc:
+        raise InputError(src, f"line {line}: bad or missing number ({exc})") from None
+    bad = [k for k, v in num.items() if not math.isfinite(v)] + ([] if g is None or np.isfinite(g).all() else ["gx"])
+    if bad:
+        raise InputError(src, f"line {line}: must be finite", bad[0])
+    q = np.array([num["qx"], num["qy"], num["qz"], num["qw"]])
+    if abs(np.linalg.norm(q) - 1) > 1e-3:
+        raise InputError(src, f"line {line}: quaternion must have unit norm", "qx")
+    origin = None
+    if all(d.get(k, "") != "" for k in ORIGIN_COLUMNS):
+        try:
+            o = [float(d[k]) for k in ORIGIN_COLUMNS]
+        except ValueError as exc:
+            raise InputError(src, f"line {line}: bad origin pose ({exc})", "origin_stamp") from None
+        qo = np.array(o[1:5])
+        if not np.all(np.isfinite(o)) or abs(np.linalg.norm(qo) - 1) > 1e-3:
+            raise InputError(src, f"line {line}: origin pose must be finite with a unit quaternion", "oqx")
+        origin = (o[0], quat_xyzw_to_matrix(qo), np.array(o[5:8]))
+    extra = {k: d[k] for k in header[len(CSV_HEADER):] if k in d and k not in ORIGIN_COLUMNS}
+    return EstimateRow(num["stamp"], num["ref_stamp"], d["method"], quat_xyzw_to_matrix(q),
+                       np.array([num["tx"], num["ty"], num["tz"]]), g, int(num["num_inliers"]), num["time_ms"],
+                       extra, origin)
 
 
 # ---------------------------------------------------------------------------
@@ -240,8 +270,6 @@ def imu_gravity_at(ref: Reference, stamp: float, rig: Rig | None = None, window_
 METRICS = {
     "gravity_vs_gt_deg": "gravity vs ground truth (deg)",
     "gravity_vs_imu_deg": "gravity vs IMU (deg)",
-    "fused_vs_gt_deg": "fused gravity vs ground truth (deg)",
-    "fused_vs_imu_deg": "fused gravity vs IMU (deg)",
     "imu_vs_gt_deg": "IMU gravity vs ground truth (deg)",
     "rotation_deg": "relative rotation vs ground truth (deg)",
     "translation_deg": "translation direction vs ground truth (deg)",
@@ -253,8 +281,9 @@ METRICS = {
 class Evaluation:
     rows: list  # EstimateRow
     errors: dict  # metric -> (N,) array, NaN where not available
-    holds: int = 0  # static attitudes found in the ground truth
+    holds: int = 0  # holds (still intervals) found in the ground truth
     holds_with_estimate: int = 0
+    outside_holds: int = 0  # estimates stamped outside every ground-truth hold
 
     def stats(self, metric: str, method: str | None = None) -> dict:
         """n, median, mean, p90 of one metric (optionally for one method), ignoring NaN."""
@@ -273,7 +302,7 @@ class Evaluation:
 
     @property
     def coverage(self) -> float:
-        """Fraction of the ground-truth static attitudes (after the first) that got an estimate."""
+        """Fraction of the ground-truth holds (after the first) that got an estimate."""
         return self.holds_with_estimate / (self.holds - 1) if self.holds > 1 else math.nan
 
 
@@ -301,11 +330,10 @@ def evaluate(rows: list, ref: Reference, rig: Rig | None = None, imu_window_s: f
         g_imu = imu_gravity_at(ref, r.stamp, rig, imu_window_s) if ref.has_imu else None
         j = _nearest(ref.grav_t, r.stamp)
         g_gt = ref.grav_g[j] if j is not None else None
-        for kind, g in (("gravity", r.gravity), ("fused", r.gravity_fused)):
-            if g is not None and g_imu is not None:
-                err[f"{kind}_vs_imu_deg"][k] = math.degrees(float(angle_between(g, g_imu)))
-            if g is not None and g_gt is not None:
-                err[f"{kind}_vs_gt_deg"][k] = math.degrees(float(angle_between(g, g_gt)))
+        if r.gravity is not None and g_imu is not None:
+            err["gravity_vs_imu_deg"][k] = math.degrees(float(angle_between(r.gravity, g_imu)))
+        if r.gravity is not None and g_gt is not None:
+            err["gravity_vs_gt_deg"][k] = math.degrees(float(angle_between(r.gravity, g_gt)))
         if g_imu is not None and g_gt is not None:
             err["imu_vs_gt_deg"][k] = math.degrees(float(angle_between(g_imu, g_gt)))
         i1, i2 = _nearest(ref.pose_t, r.ref_stamp), _nearest(ref.pose_t, r.stamp)
@@ -321,37 +349,27 @@ def evaluate(rows: list, ref: Reference, rig: Rig | None = None, imu_window_s: f
     holds = static_holds(ref)
     ev.holds = len(holds)
     stamps = np.array([r.stamp for r in rows])
+    inside = np.zeros(len(stamps), bool)
+    for a, b in holds:
+        inside |= (stamps >= a - STAMP_TOLERANCE_S) & (stamps <= b + STAMP_TOLERANCE_S)
     ev.holds_with_estimate = sum(
         1 for a, b in holds[1:] if np.any((stamps >= a - STAMP_TOLERANCE_S) & (stamps <= b + STAMP_TOLERANCE_S)))
+    ev.outside_holds = int(np.count_nonzero(~inside)) if holds else 0
     return ev
 
 
 def format_report(ev: Evaluation, per_estimate: bool = True) -> str:
-    """Text table of the estimates and their errors, a raw-vs-fused gravity table, then statistics per method."""
+    """Text table of the estimates and their errors, then statistics per method and the hold coverage."""
     lines = []
     e = ev.errors
     if per_estimate and ev.rows:
         t0 = min(min(r.stamp, r.ref_stamp) for r in ev.rows)
         lines.append(f"{'stamp':>9} {'ref':>9} {'method':<15}{'inl':>5} {'ms':>6} {'g_vs_gt':>8} {'g_vs_imu':>8} "
-                     f"{'gf_vs_gt':>8} {'gf_vs_imu':>9} {'rot':>7} {'t_dir':>6}   (times from {t0:.3f} s, errors "
-                     "in deg; gf = fused gravity)")
+                     f"{'imu_vs_gt':>9} {'rot':>7} {'t_dir':>6}   (times from {t0:.3f} s, errors in deg)")
         for k, r in enumerate(ev.rows):
             lines.append(f"{r.stamp - t0:9.3f} {r.ref_stamp - t0:9.3f} {r.method:<15}{r.num_inliers:5d} "
                          f"{r.time_ms:6.0f} {e['gravity_vs_gt_deg'][k]:8.3f} {e['gravity_vs_imu_deg'][k]:8.3f} "
-                         f"{e['fused_vs_gt_deg'][k]:8.3f} {e['fused_vs_imu_deg'][k]:9.3f} "
-                         f"{e['rotation_deg'][k]:7.3f} {e['translation_deg'][k]:6.2f}")
-    table = []
-    for method in ev.methods:
-        for kind, label in (("gravity", "raw"), ("fused", "fused")):
-            gt, imu = ev.stats(f"{kind}_vs_gt_deg", method), ev.stats(f"{kind}_vs_imu_deg", method)
-            if gt["n"] or imu["n"]:
-                table.append(f"  {method:<15}{label:<6}{gt['median']:8.3f} {gt['mean']:7.3f} {gt['p90']:7.3f} "
-                             f"{gt['n']:4d} {imu['median']:9.3f} {imu['mean']:7.3f} {imu['p90']:7.3f} {imu['n']:4d}")
-    if table:
-        lines.append("gravity error (deg), per-pair (raw) and fused estimates:")
-        lines.append(f"  {'method':<15}{'':<6}{'vs ground truth: median':>23}{'mean':>8}{'p90':>8}{'n':>5}"
-                     f"{'vs IMU: median':>15}{'mean':>8}{'p90':>8}{'n':>5}")
-        lines += table
+                         f"{e['imu_vs_gt_deg'][k]:9.3f} {e['rotation_deg'][k]:7.3f} {e['translation_deg'][k]:6.2f}")
     for method in ev.methods:
         lines.append(f"{method}: {sum(r.method == method for r in ev.rows)} estimates")
         for key, label in METRICS.items():
@@ -360,15 +378,16 @@ def format_report(ev: Evaluation, per_estimate: bool = True) -> str:
                 lines.append(f"  {label:<45} median {s['median']:.3f}  mean {s['mean']:.3f}  p90 {s['p90']:.3f}"
                              f"  (n={s['n']})")
     if ev.holds:
-        lines.append(f"static attitudes in the ground truth: {ev.holds}; with an estimate (after the first): "
-                     f"{ev.holds_with_estimate}/{max(ev.holds - 1, 0)}")
+        lines.append(f"holds in the ground truth: {ev.holds}; with an estimate (after the first): "
+                     f"{ev.holds_with_estimate}/{max(ev.holds - 1, 0)}; estimates outside every hold: "
+                     f"{ev.outside_holds}")
     if not ev.rows:
         lines.append("no estimates")
     return "\n".join(lines)
 
 
 def plot_errors(ev: Evaluation, path) -> None:
-    """PNG: raw and fused gravity error over time (vs IMU and ground truth) and relative-pose errors."""
+    """PNG: gravity error over time (vs IMU and ground truth, and the IMU's own) and relative-pose errors."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -379,11 +398,9 @@ def plot_errors(ev: Evaluation, path) -> None:
     t = t - t.min() if len(t) else t
     e = ev.errors
     for key, style, color in (("gravity_vs_gt_deg", "o-", "C0"), ("gravity_vs_imu_deg", "s--", "C0"),
-                              ("fused_vs_gt_deg", "o-", "C3"), ("fused_vs_imu_deg", "s--", "C3"),
                               ("imu_vs_gt_deg", ":", "C7")):
         if np.isfinite(e[key]).any():
-            label = "raw " + METRICS[key] if key.startswith("gravity_") else METRICS[key]
-            axes[0].plot(t, e[key], style, color=color, label=label)
+            axes[0].plot(t, e[key], style, color=color, label=METRICS[key])
     axes[0].set_ylabel("gravity error (deg)")
     axes[0].set_title(", ".join(f"{m}: {sum(r.method == m for r in ev.rows)}" for m in ev.methods) or "no estimates")
     for key, style in (("rotation_deg", "o-"), ("translation_deg", "s--")):

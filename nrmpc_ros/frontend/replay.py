@@ -83,13 +83,12 @@ def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline, imu_topic: str | None =
     """Feed a bag's images (synchronised) and IMU samples through ``pipe`` in bag order.
 
     Yields the list of estimates of every frame set handed to the pipeline
-    (usually empty), so ``pipe.last_pair`` can be read after each. Undecodable
-    images and bad frame sets are counted in ``pipe.stats.dropped`` and warned
-    about once per topic. ``image_topics`` (from
-    :func:`~nrmpc_ros.frontend.topics.bag_image_topics`) defaults to the rig's
-    cameras' topics, raw or compressed, as the bag has them. Frame sets missing
-    a camera (a dropped frame) are counted and skipped: the pipeline takes
-    complete sets only.
+    (usually empty), and last those of the hold still open at the end of the
+    bag. Undecodable images and bad frame sets are counted in
+    ``pipe.stats.dropped`` and warned about once per topic. ``image_topics``
+    (from :func:`~nrmpc_ros.frontend.topics.bag_image_topics`) defaults to the
+    rig's cameras' topics, raw or compressed, as the bag has them. A frame set
+    missing a camera (a dropped frame) is counted and used without it.
     """
     if image_topics is None:
         image_topics = bag_image_topics(bag, rig, warn)
@@ -103,8 +102,7 @@ def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline, imu_topic: str | None =
     def frame_sets(groups) -> Iterator[list]:
         for group in groups:
             if not group.complete:
-                pipe.stats.dropped["frame set missing a camera"] += 1
-                continue
+                pipe.stats.dropped["frame set missing a camera (used without it)"] += 1
             try:
                 ests = pipe.add_frames(FrameSet(group.stamp, group.items))
             except InputError as exc:
@@ -137,6 +135,7 @@ def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline, imu_topic: str | None =
                 continue
             yield from frame_sets(sync.add(index[topic], stamp_seconds(msg), img))
         yield from frame_sets(sync.flush())
+        yield pipe.flush()
     finally:
         if bar is not None:
             bar.close()

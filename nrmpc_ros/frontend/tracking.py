@@ -1,21 +1,21 @@
-"""Per-camera correspondences between a reference view and the current view.
+"""Image measurements of one camera: KLT tracks, descriptor features, and their verification.
 
-Two ways, one config (:class:`TrackingConfig`):
+- :class:`KltTracker` follows corners frame to frame through the moves and,
+  inside a hold, from the hold's anchor frame (so a hold's positions can be
+  averaged); ids persist while a corner is followed.
+- Descriptors: ORB (default) or SIFT at the tracks' positions, matched with
+  a ratio test and mutual best match, link holds whose tracks did not survive
+  the move between them (snapshots, fast moves).
+- :func:`verify_correspondences`: an essential-matrix RANSAC on undistorted
+  bearings per camera (valid for pinhole and fisheye models, and exact for
+  each camera even when its bar bends).
 
-- KLT: :class:`KltTracker` follows corners frame to frame through the motion
-  (pyramidal Lucas-Kanade with a forward-backward check). Each track remembers
-  where it was in the reference view and at the start of the current static
-  window, which also measures image motion for static detection.
-- Descriptors: ORB (default) or SIFT features of the two static views, ratio
-  test + mutual best match; for static-only bags where views are 5-30 deg apart.
-
-Both are spread over the image with grid bucketing and verified per camera
-with an essential-matrix RANSAC on undistorted bearings (valid for pinhole and
-fisheye models, and exact for each camera even when its bar bends).
+Grid bucketing spreads corners and features over the image.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import NamedTuple
 
@@ -23,14 +23,12 @@ import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from ..cameras import pixels_to_bearings
 from ..core.rig import Camera
 from ..errors import InputError
 
 MODES = ("auto", "klt", "descriptors")
 DESCRIPTORS = ("orb", "sift")
 CORNER_DETECTORS = ("fast", "gftt")
-ORB_SCORES = ("harris", "fast")
 RANSAC_METHODS = ("usac", "ransac")
 
 
@@ -38,7 +36,8 @@ RANSAC_METHODS = ("usac", "ransac")
 class TrackingConfig:
     """Feature tracking and matching; pixel values refer to the camera's own image."""
 
-    mode: str = "auto"  # auto: KLT tracks when enough survive from the reference view, else descriptors
+    mode: str = "auto"  # holds are linked by KLT identity and, where too few tracks survived, by descriptors;
+    # klt: identity only; descriptors: descriptors only (every hold's tracks matched afresh)
     grid_rows: int = 6
     grid_cols: int = 8
     max_tracks: int = 150  # KLT tracks per camera
@@ -50,34 +49,30 @@ class TrackingConfig:
     klt_window: int = 15
     klt_levels: int = 3
     fb_threshold_px: float = 0.7  # forward-backward round-trip error
-    probe_tracks: int = 24  # after a still frame, follow this many tracks first (0: always track all) ...
-    still_px: float = 0.25  # ... and when they moved at most this (median, px) skip the rest: the image is unchanged
-    seed_from_features: bool = True  # tracks starting afresh (a jump): seed them with the view's ORB keypoints
-    descriptor: str = "orb"  # orb | sift
-    num_features: int = 300  # descriptor features detected per camera image
-    orb_levels: int = 1  # ORB pyramid levels (scale factor 1.2): views differ by rotation, hardly by scale
-    orb_score: str = "harris"  # ORB keypoint ranking: harris | fast
+    lost_fraction: float = 0.25  # fewer tracks than this share survive a frame: they are lost (a jump), start afresh
+    corner_window_px: int = 7  # sub-pixel corner search window at a hold's anchor (cornerSubPix) ...
+    corner_refinement_px: float = 1.5  # ... a track the search moves further than this is dropped (0: no search)
+    descriptor: str = "orb"  # orb | sift: descriptors at the tracks' positions link holds without surviving tracks
     ratio: float = 0.8  # Lowe ratio test
-    subpixel: bool = False  # refine ORB keypoints with cornerSubPix (~1 ms per image; no gain on the bags)
     ransac: str = "usac"  # essential-matrix verification: usac (OpenCV USAC, SPRT + local optimisation) | ransac
     ransac_threshold_px: float = 1.0  # essential-matrix verification (Sampson distance)
     ransac_confidence: float = 0.999
-    min_matches_per_camera: int = 12  # fewer verified matches: the camera contributes nothing
-    max_matches_per_camera: int = 120  # bucketed cap handed to the estimator ...
-    max_matches_total: int = 480  # ... raised to max_matches_total / cameras for rigs with few cameras
-    min_klt_matches: int = 200  # auto: fewer verified KLT matches (or < half the cap) -> also try descriptors
+    min_matches_per_camera: int = 12  # fewer verified links between two holds: the camera links nothing
+    min_klt_links: int = 40  # fewer verified KLT links of a camera to the previous hold: descriptors too
 
     def __post_init__(self):
         for name, allowed in (("mode", MODES), ("corner_detector", CORNER_DETECTORS), ("ransac", RANSAC_METHODS),
-                              ("orb_score", ORB_SCORES), ("descriptor", DESCRIPTORS)):
+                              ("descriptor", DESCRIPTORS)):
             value = getattr(self, name)
             if value not in allowed:
                 raise InputError("tracking config", f"{name} must be one of {', '.join(allowed)}, got {value!r}", name)
-        for name in ("grid_rows", "grid_cols", "max_tracks", "num_features", "max_matches_per_camera", "orb_levels"):
-            if int(getattr(self, name)) < 1:
-                raise InputError("tracking config", "must be >= 1", name)
+        for name in ("grid_rows", "grid_cols", "max_tracks", "klt_window", "min_matches_per_camera"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise InputError("tracking config", f"must be an integer >= 1, got {getattr(self, name)!r}", name)
         if not 0 < self.ratio <= 1:
             raise InputError("tracking config", f"must be in (0, 1], got {self.ratio}", "ratio")
+        if not 0 < self.lost_fraction < 1:
+            raise InputError("tracking config", f"must be in (0, 1), got {self.lost_fraction}", "lost_fraction")
 
     @classmethod
     def from_dict(cls, d: dict | None, source: str = "tracking config") -> TrackingConfig:
@@ -172,213 +167,139 @@ def detect_corners(img: np.ndarray, cfg: TrackingConfig, max_count: int, mask=No
 
 
 def _lk(img0, img1, p0, cfg: TrackingConfig, window: int | None = None, levels: int | None = None,
-        fb_px: float | None = None):
-    """Forward-backward LK: tracked points and a validity mask (window, levels, threshold default to the config's)."""
+        fb_px: float | None = None, guess: np.ndarray | None = None):
+    """Forward-backward LK from img0 (points p0) into img1: tracked points and a validity mask (window, levels,
+    threshold default to the config's; ``guess``: starting positions in img1)."""
     if len(p0) == 0:
-        return p0.copy(), np.zeros(0, bool)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.03)
+        return np.asarray(p0, np.float32).copy(), np.zeros(0, bool)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
     w = int(cfg.klt_window if window is None else window)
     win, levels = (w, w), int(cfg.klt_levels if levels is None else levels)
     p0 = np.ascontiguousarray(p0, np.float32)
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, winSize=win, maxLevel=levels, criteria=crit)
+    flags = 0
+    p1 = None
+    if guess is not None:
+        p1 = np.ascontiguousarray(guess, np.float32).copy()
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, p1, winSize=win, maxLevel=levels, criteria=crit,
+                                          flags=flags)
     h, w = img1.shape
     ok = st1.ravel() == 1
     ok &= (p1[:, 0] >= 0) & (p1[:, 1] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] <= h - 1)
     idx = np.flatnonzero(ok)
     if len(idx):  # backward check only for what the forward pass kept
-        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, np.ascontiguousarray(p1[idx]), None, winSize=win,
-                                               maxLevel=levels, criteria=crit)
+        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, np.ascontiguousarray(p1[idx]), p0[idx].copy(), winSize=win,
+                                               maxLevel=levels, criteria=crit, flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
         fb = cfg.fb_threshold_px if fb_px is None else fb_px
         good = (st2.ravel() == 1) & (np.linalg.norm(p0b - p0[idx], axis=1) < fb)
         ok[idx[~good]] = False
     return p1, ok
 
 
-PATCH_MARGIN_PX = 4  # the still check's patches reach this far beyond the LK window
+class TrackStep(NamedTuple):
+    """What one frame did to a camera's tracks: median motion since the previous frame (px, NaN when unknown),
+    tracks alive, and whether the tracks were lost (a jump: too few survived, all were dropped)."""
 
-
-def _lk_patches(img0, img1, p0: np.ndarray, window: int, criteria):
-    """Single-level LK of a few points ``p0`` (N, 2) float32 on patches around them: (motions (N, 2), status (N,)).
-
-    The patches (the window plus ``PATCH_MARGIN_PX`` on each side, shifted
-    inside the image) of both images are stacked into two narrow mosaics, so
-    LK computes image derivatives on those only, not on the whole images (for
-    24 points a twentieth of a VGA image). Motions within the margin come out
-    as on the full images; larger ones come out wrong, but not small.
-    """
-    half = window // 2 + PATCH_MARGIN_PX
-    size = 2 * half + 1
-    h, w = img0.shape
-    if h < size or w < size:
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, winSize=(window, window), maxLevel=0,
-                                             criteria=criteria)
-        return p1 - p0, st.ravel() == 1
-    o = np.clip(np.floor(p0).astype(np.int64) - half, 0, [w - size, h - size])  # patch corners (x, y)
-    m0 = sliding_window_view(img0, (size, size))[o[:, 1], o[:, 0]].reshape(-1, size)
-    m1 = sliding_window_view(img1, (size, size))[o[:, 1], o[:, 0]].reshape(-1, size)
-    q = p0 - o.astype(np.float32)
-    q[:, 1] += size * np.arange(len(q), dtype=np.float32)  # patch k starts at mosaic row k * size
-    q1, st, _ = cv2.calcOpticalFlowPyrLK(m0, m1, q, None, winSize=(window, window), maxLevel=0, criteria=criteria)
-    return q1 - q, st.ravel() == 1
-
-
-PROBE_SCALE = 4  # the probe's forward-backward check of a frame that moved runs on images up to 4x smaller ...
-PROBE_MIN_WIDTH = 160  # ... and at least this wide
-PROBE_FB_PX = 0.1  # its forward-backward threshold (px of the small image)
-
-
-class Snapshot(NamedTuple):
-    """Tracks of a view's frame: ids, positions (N, 2) and, when they were seeded from them, its features."""
-
-    ids: np.ndarray
-    uv: np.ndarray
-    features: Features | None = None
+    motion_px: float
+    tracks: int
+    lost: bool
 
 
 class KltTracker:
-    """KLT tracks of one camera with persistent ids; a :class:`Snapshot` of a view pairs it with later frames.
+    """KLT tracks of one camera with persistent ids.
 
-    ``uv`` are the track positions in ``prev``, the last frame tracked in
-    full. After a still frame, a new frame first tracks ``probe_tracks``
-    spread tracks: when they moved at most ``still_px`` the image is taken as
-    unchanged and nothing else is done (``prev`` and ``uv`` stay: the frames
-    of a static window cost one small LK); when most of them are lost (a jump
-    between static snapshots) all tracks are dropped without tracking them
-    and new corners are detected; otherwise all tracks are followed.
-
-    Tracks that start afresh (first frame, or lost) are seeded with the
-    frame's descriptor keypoints when ``seed_from_features`` (ORB, mode not
-    ``klt``): the features are kept with the frame while it stays ``prev``
-    and go into the snapshot, so a static view after a jump (the static-only
-    bags) detects corners once for both tracking and matching.
+    Between holds the tracks follow the image frame to frame (pyramidal
+    Lucas-Kanade with a forward-backward check); when fewer than
+    ``lost_fraction`` of them survive (a jump, e.g. between snapshots) all are
+    dropped and new corners are detected, with new ids. Inside a hold
+    (:meth:`start_hold`) every frame is tracked from the hold's anchor frame,
+    the template, starting from the previous positions on a short pyramid:
+    positions of one hold never drift from frame to frame, so averaging them
+    reduces the noise. No corners are added during a hold.
     """
 
     def __init__(self, cfg: TrackingConfig):
         self.cfg = cfg
-        self.prev = None
+        self.prev = None  # last image
         self.uv = np.zeros((0, 2), np.float32)
         self.ids = np.zeros(0, np.int64)
-        self.anchor_uv = np.zeros((0, 2), np.float32)  # NaN: born after the anchor
         self._next_id = 0
-        self._still = False  # the last frame moved at most still_px: probe the next one first
-        self._fresh = False  # corners were detected in prev (since it became prev)
-        self._probe_motion = 0.0  # median motion (px) of the probe of the last frame skipped as unchanged
-        self.features: Features | None = None  # descriptor features of prev when the tracks were seeded from them
-        self._small_prev = None  # (prev, prev reduced PROBE_SCALE times) for the probe's jump check
-        self._probe_uv = None  # (uv, its probe tracks): the probe is spread again when uv changes
-        self.skipped = 0  # frames taken as unchanged (probe only)
-        self.lost = 0  # frames where the probe lost the tracks (all dropped, not tracked)
+        self._anchor = None  # (image, uv, ids) of the hold's first frame
+        self.lost = 0  # frames where the tracks were lost and started afresh
 
-    def _replenish(self, img, force=False):
+    @property
+    def in_hold(self) -> bool:
+        return self._anchor is not None
+
+    def _replenish(self, img) -> None:
         n = len(self.uv)
-        if n >= self.cfg.max_tracks or (not force and n >= self.cfg.replenish_fraction * self.cfg.max_tracks):
+        cfg = self.cfg
+        if n >= cfg.replenish_fraction * cfg.max_tracks:
             return
         mask = None
         if n:
             mask = np.full(img.shape, 255, np.uint8)
-            r = max(1, int(self.cfg.min_distance_px))
+            r = max(1, int(cfg.min_distance_px))
             for u, v in self.uv.astype(int):
                 cv2.circle(mask, (int(u), int(v)), r, 0, -1)
-        cfg = self.cfg
-        if n == 0 and cfg.seed_from_features and cfg.descriptor == "orb" and cfg.mode != "klt":
-            self.features = f = detect_features(img, cfg)
-            new = f.uv[spread_corners(f.uv, f.score, (img.shape[1], img.shape[0]), cfg, cfg.max_tracks)]
-            new = new.astype(np.float32).reshape(-1, 2)
-        else:
-            new = detect_corners(img, cfg, cfg.max_tracks - n, mask)
-        self._fresh = True  # corners of this frame were just detected: a snapshot needs no new search
+        new = detect_corners(img, cfg, cfg.max_tracks - n, mask)
         self.uv = np.concatenate([self.uv, new])
         self.ids = np.concatenate([self.ids, self._next_id + np.arange(len(new))])
         self._next_id += len(new)
-        self.anchor_uv = np.concatenate([self.anchor_uv, np.full((len(new), 2), np.nan, np.float32)])
 
-    def _probe(self, img) -> str:
-        """'still' (image unchanged), 'lost' (tracks cannot follow) or 'moved', from a few spread tracks.
-
-        Still: forward LK at full resolution, single level, on patches around
-        the tracks only (:func:`_lk_patches`, ~0.15 ms) finds them within
-        ``still_px``. Otherwise the same tracks go through a
-        pyramidal forward-backward LK on images ``PROBE_SCALE`` times smaller
-        (it follows motions of 100+ px for a third of the cost at full
-        resolution): when fewer than a quarter survive, the tracks are lost (a
-        jump between static snapshots) and the costly LK of all tracks is
-        skipped.
-        """
-        if self._probe_uv is None or self._probe_uv[0] is not self.uv:  # the tracks changed: spread a new probe
-            sel = bucket(self.uv, (img.shape[1], img.shape[0]), self.cfg.grid_rows, self.cfg.grid_cols,
-                         int(self.cfg.probe_tracks))
-            self._probe_uv = (self.uv, np.ascontiguousarray(self.uv[sel], np.float32))
-        p0 = self._probe_uv[1]
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.01)
-        motion, st = _lk_patches(self.prev, img, p0, int(self.cfg.klt_window), crit)
-        d = np.linalg.norm(motion, axis=1)[st]
-        if len(d) >= 0.75 * len(p0) and float(np.median(d)) <= self.cfg.still_px:
-            self._probe_motion = float(np.median(d))
-            return "still"
-        scale = max(1, min(PROBE_SCALE, img.shape[1] // PROBE_MIN_WIDTH))
-        small = self._small(img, scale)
-        if self._small_prev is None or self._small_prev[0] is not self.prev:
-            self._small_prev = (self.prev, self._small(self.prev, scale))
-        _, ok = _lk(self._small_prev[1], small, p0 / scale, self.cfg, window=9, levels=2, fb_px=PROBE_FB_PX)
-        self._small_prev = (img, small)  # img becomes prev unless it is skipped as still (it is not)
-        return "lost" if ok.sum() < 0.25 * len(p0) else "moved"
-
-    @staticmethod
-    def _small(img, scale: int):
-        """``img`` reduced ``scale`` times by area averaging, by halvings where possible (INTER_AREA's fast case)."""
-        size = (img.shape[1] // scale, img.shape[0] // scale)
-        while scale % 2 == 0:
-            img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
-            scale //= 2
-        return img if scale == 1 else cv2.resize(img, size, interpolation=cv2.INTER_AREA)
-
-    def track(self, img: np.ndarray) -> None:
-        """Follow the tracks into ``img`` (dropping failures) and top them up with new corners."""
-        probe = self.prev is not None and self._still and self.cfg.probe_tracks > 0 and len(self.uv) >= 8
-        state = self._probe(img) if probe else "moved"
-        if state == "still":
-            self.skipped += 1
-            return
-        self._fresh = False
-        self._probe_motion = 0.0
-        self.features = None  # prev changes
-        if self.prev is not None and len(self.uv) and state != "lost":
-            p1, ok = _lk(self.prev, img, self.uv, self.cfg)
-            step = np.linalg.norm(p1[ok] - self.uv[ok], axis=1)
-            self._still = bool(len(step)) and float(np.median(step)) <= self.cfg.still_px
-            self.uv, self.ids, self.anchor_uv = p1[ok], self.ids[ok], self.anchor_uv[ok]
-        else:  # first frame, or the tracks were lost: start afresh, probe the next frame first
-            if state == "lost":
+    def track(self, img: np.ndarray) -> TrackStep:
+        """Follow the tracks into ``img``; outside a hold, top them up with new corners."""
+        lost = False
+        motion = math.nan
+        if self.prev is not None and len(self.uv):
+            if self._anchor is not None:
+                a_img, a_uv, a_ids = self._anchor
+                keep = np.isin(a_ids, self.ids)
+                p1, ok = _lk(a_img, img, a_uv[keep], self.cfg, levels=HOLD_LEVELS, guess=self.uv)
+            else:
+                p1, ok = _lk(self.prev, img, self.uv, self.cfg)
+            if ok.any():
+                motion = float(np.median(np.linalg.norm(p1[ok] - self.uv[ok], axis=1)))
+            if ok.sum() < self.cfg.lost_fraction * len(self.uv):
+                lost = True
                 self.lost += 1
-            self.uv, self.ids, self.anchor_uv = self.uv[:0], self.ids[:0], self.anchor_uv[:0]
-            self._still = True
+                self.uv, self.ids = self.uv[:0], self.ids[:0]
+                self._anchor = None
+            else:
+                self.uv, self.ids = p1[ok], self.ids[ok]
         self.prev = img
-        self._replenish(img)
+        if self._anchor is None:
+            self._replenish(img)
+        return TrackStep(motion, len(self.uv), lost)
 
-    def set_anchor(self) -> None:
-        """Image motion is measured from the current frame on (start of a static window)."""
-        self.anchor_uv = self.uv.copy()
-        self._probe_motion = 0.0
+    def start_hold(self) -> None:
+        """The current frame becomes the anchor (template) of a hold.
 
-    def anchor_motion(self):
-        """(median displacement in px since the anchor, number of tracks alive since the anchor)."""
-        ok = np.isfinite(self.anchor_uv[:, 0])
-        if not ok.any():
-            return np.inf, 0
-        motion = float(np.median(np.linalg.norm(self.uv[ok] - self.anchor_uv[ok], axis=1)))
-        return motion + self._probe_motion, int(ok.sum())
+        Each track moves to the sub-pixel corner under it (cornerSubPix): a track that came through a move
+        carries the small errors of every frame it was followed in, and a new one sits on the detector's
+        integer pixel; the corner itself is where the same point is found again in every hold.
+        """
+        if self.prev is None:
+            return
+        if len(self.uv) and self.cfg.corner_refinement_px > 0:
+            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.001)
+            half = int(self.cfg.corner_window_px) // 2
+            ref = cv2.cornerSubPix(self.prev, self.uv.reshape(-1, 1, 2).copy(), (half, half), (-1, -1), crit)
+            ref = ref.reshape(-1, 2)
+            moved = np.linalg.norm(ref - self.uv, axis=1)
+            ok = moved <= self.cfg.corner_refinement_px  # no corner near it: not a point that can be found again
+            self.uv, self.ids = ref[ok].astype(np.float32), self.ids[ok]
+        self._anchor = (self.prev, self.uv.copy(), self.ids.copy())
 
-    def snapshot(self) -> Snapshot:
-        """Tracks of the current frame, topped up to max_tracks first (for a view that may become a reference)."""
-        if self.prev is not None and not self._fresh:
-            self._replenish(self.prev, force=True)
-        return Snapshot(self.ids.copy(), self.uv.astype(np.float64), self.features)
+    def end_hold(self) -> None:
+        self._anchor = None
 
-    def pairs_since(self, snap: Snapshot):
-        """(uv in the snapshot's frame, uv now) of tracks alive since ``snap``."""
-        ids, uv = snap[0], snap[1]
-        _, i_old, i_now = np.intersect1d(ids, self.ids, assume_unique=True, return_indices=True)
-        return uv[i_old], self.uv[i_now].astype(np.float64)
+    def positions(self) -> tuple:
+        """(ids, uv (N, 2) float64) of the tracks in the last frame."""
+        return self.ids.copy(), self.uv.astype(np.float64)
+
+
+HOLD_LEVELS = 1  # pyramid levels inside a hold: the image moves by ringing only (a few pixels at most)
 
 
 # ---------------------------------------------------------------------------
@@ -394,42 +315,46 @@ class Features:
     score: np.ndarray | None = None
 
 
-def _detector(cfg: TrackingConfig):
-    """The OpenCV feature detector of ``cfg``."""
-    n = int(cfg.num_features)
-    if cfg.descriptor == "sift":
-        return cv2.SIFT_create(nfeatures=2 * n)
-    score = cv2.ORB_HARRIS_SCORE if cfg.orb_score == "harris" else cv2.ORB_FAST_SCORE
-    return cv2.ORB_create(nfeatures=2 * n, nlevels=int(cfg.orb_levels), fastThreshold=10, scoreType=score)
+ORIENTATION_RADIUS = 15  # px: the intensity-centroid patch of a feature's orientation (ORB's 31 px patch)
 
 
-def detect_features(img: np.ndarray, cfg: TrackingConfig) -> Features:
-    """Grid-bucketed ORB or SIFT features (strongest per cell), optionally refined to sub-pixel."""
-    n = int(cfg.num_features)
-    det = _detector(cfg)
-    kps = det.detect(img, None)
-    if not kps:
-        return Features(np.zeros((0, 2)), None)
-    uv = cv2.KeyPoint_convert(kps).reshape(-1, 2)
-    resp = np.fromiter((k.response for k in kps), float, len(kps))
-    keep = bucket(uv, (img.shape[1], img.shape[0]), cfg.grid_rows, cfg.grid_cols, n,
-                  order=np.argsort(-resp, kind="stable"))
-    kps, desc = det.compute(img, list(map(kps.__getitem__, keep.tolist())))
+def _orientations(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Orientation (deg) of the patch around each point by its intensity centroid (as ORB orients keypoints)."""
+    r = ORIENTATION_RADIUS
+    size = 2 * r + 1
+    pad = cv2.copyMakeBorder(img, r, r, r, r, cv2.BORDER_REFLECT_101).astype(np.float32)
+    c = np.clip(np.rint(uv).astype(np.int64), 0, [img.shape[1] - 1, img.shape[0] - 1])
+    patches = sliding_window_view(pad, (size, size))[c[:, 1], c[:, 0]]  # (N, size, size), centred on the points
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    disc = (xx * xx + yy * yy <= r * r).astype(np.float32)
+    m10 = np.einsum("nij,ij->n", patches, disc * xx)
+    m01 = np.einsum("nij,ij->n", patches, disc * yy)
+    return np.degrees(np.arctan2(m01, m10)) % 360.0
+
+
+def describe(img: np.ndarray, uv: np.ndarray, cfg: TrackingConfig) -> tuple:
+    """Descriptors of the patches at ``uv`` (N, 2): (desc (N, D) with rows of zeros where none, valid (N,)).
+
+    ORB (or SIFT) of a patch oriented by its intensity centroid, so features rotated about the optical axis
+    between two holds still match; points too close to the border have none.
+    """
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    if len(uv) == 0:
+        return None, np.zeros(0, bool)
+    ang = _orientations(img, uv)
+    size = 31.0 if cfg.descriptor == "orb" else 16.0
+    kps = [cv2.KeyPoint(float(x), float(y), size, float(a), 0, 0, int(k))
+           for k, ((x, y), a) in enumerate(zip(uv.tolist(), ang.tolist()))]
+    det = cv2.ORB_create(edgeThreshold=31, patchSize=31) if cfg.descriptor == "orb" else cv2.SIFT_create()
+    kps, desc = det.compute(img, kps)
+    valid = np.zeros(len(uv), bool)
     if desc is None or not kps:
-        return Features(np.zeros((0, 2)), None)
-    uv = cv2.KeyPoint_convert(kps).reshape(-1, 2).astype(np.float64)
-    resp = np.fromiter((k.response for k in kps), float, len(kps))
-    if cfg.subpixel and cfg.descriptor == "orb":
-        level0 = np.fromiter((k.octave == 0 for k in kps), bool, len(kps))
-        if level0.any():
-            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
-            p = uv[level0].astype(np.float32).reshape(-1, 1, 2)
-            ref = cv2.cornerSubPix(img, p, (3, 3), (-1, -1), crit).reshape(-1, 2)
-            moved = np.linalg.norm(ref - uv[level0], axis=1) < 1.5
-            sub = uv[level0]
-            sub[moved] = ref[moved]
-            uv[level0] = sub
-    return Features(uv, desc, resp)
+        return None, valid
+    idx = np.fromiter((k.class_id for k in kps), np.int64, len(kps))
+    out = np.zeros((len(uv), desc.shape[1]), desc.dtype)
+    out[idx] = desc
+    valid[idx] = True
+    return out, valid
 
 
 def match_features(a: Features, b: Features, cfg: TrackingConfig):
@@ -452,33 +377,24 @@ def match_features(a: Features, b: Features, cfg: TrackingConfig):
 # Verification
 # ---------------------------------------------------------------------------
 
-def verify_pairs(cam: Camera, uv1: np.ndarray, uv2: np.ndarray, cfg: TrackingConfig, cap: int | None = None):
-    """Bearings (f1, f2) and indices of pairs consistent with one essential matrix (RANSAC), at most ``cap``.
-
-    The kept pairs are spread over the image by grid bucketing; ``cap``
-    defaults to ``cfg.max_matches_per_camera``.
-    """
-    uv1 = np.asarray(uv1, float).reshape(-1, 2)
-    uv2 = np.asarray(uv2, float).reshape(-1, 2)
-    empty = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64))
-    if len(uv1) < max(8, cfg.min_matches_per_camera):
-        return empty
-    f1 = pixels_to_bearings(cam, uv1)
-    f2 = pixels_to_bearings(cam, uv2)
+def verify_correspondences(cam: Camera, f1: np.ndarray, f2: np.ndarray, cfg: TrackingConfig) -> np.ndarray:
+    """Inlier mask of bearing pairs (f1, f2) of one camera consistent with one essential matrix (RANSAC at
+    ``ransac_threshold_px``); all False when there are too few to tell."""
+    f1 = np.asarray(f1, float).reshape(-1, 3)
+    f2 = np.asarray(f2, float).reshape(-1, 3)
+    ok = np.zeros(len(f1), bool)
     front = (f1[:, 2] > 0.1) & (f2[:, 2] > 0.1)  # normalised coordinates need z > 0 (up to ~84 deg off axis)
     idx = np.flatnonzero(front)
     if len(idx) < max(8, cfg.min_matches_per_camera):
-        return empty
+        return ok
     x1 = f1[idx, :2] / f1[idx, 2:]
     x2 = f2[idx, :2] / f2[idx, 2:]
     thr = cfg.ransac_threshold_px / cam.focal_px
     method = cv2.USAC_DEFAULT if cfg.ransac == "usac" else cv2.RANSAC
     E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), method=method, prob=cfg.ransac_confidence, threshold=thr)
     if E is None or mask is None:
-        return empty
-    idx = idx[mask.ravel()[: len(idx)] > 0]
-    if len(idx) < cfg.min_matches_per_camera:
-        return empty
-    cap = int(cfg.max_matches_per_camera if cap is None else cap)
-    idx = idx[bucket(uv2[idx], cam.resolution, cfg.grid_rows, cfg.grid_cols, cap)]
-    return f1[idx], f2[idx], idx
+        return ok
+    ok[idx[mask.ravel()[: len(idx)] > 0]] = True
+    if ok.sum() < cfg.min_matches_per_camera:
+        ok[:] = False
+    return ok

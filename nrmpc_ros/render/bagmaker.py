@@ -69,6 +69,7 @@ class BagOptions:
     damping: float | None = None  # damping ratio of the bars' ringing; None: quasi-static bending
     jitter_ms: float = 0.0  # each camera's stamp is off the trigger by U(-jitter, +jitter) ms
     drop_rate: float = 0.0  # probability that a camera loses a frame
+    supersample: int = 2  # rays per pixel side: a pixel integrates its area (1: point sampling, aliased)
 
     def validate(self) -> None:
         """One InputError naming the flag of the first bad option."""
@@ -199,7 +200,7 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     traj = make_trajectory(rng_traj, opts.motion, rig.gravity_magnitude)
     loads = CameraLoads(rig, traj, opts.damping)
     _check_inside(rig, traj, scene, loads)
-    renderer = Renderer(rig, scene)
+    renderer = Renderer(rig, scene, opts.supersample)
     frame_t, frame_view = traj.frame_times(opts.motion.capture)
     M = rig.num_cameras
     jitter_ns = np.rint(rng_jitter.uniform(-1.0, 1.0, size=(len(frame_t), M)) * opts.jitter_ms * 1e6).astype(np.int64)

@@ -96,25 +96,35 @@ def shade(scene: Scene, points, face) -> np.ndarray:
 class Renderer:
     """Renders the rig's cameras in a scene; bearings of every pixel are computed once per camera."""
 
-    def __init__(self, rig: Rig, scene: Scene):
+    def __init__(self, rig: Rig, scene: Scene, supersample: int = 1):
+        """``supersample``: each pixel integrates supersample x supersample rays spread over its area, as a
+        sensor pixel integrates light (1: one ray through the pixel centre)."""
         self.rig = rig
         self.scene = scene
+        self.supersample = int(supersample)
+        if self.supersample < 1:
+            raise ValueError(f"supersample must be >= 1, got {supersample}")
         self._bearings: dict[int, np.ndarray] = {}
 
     def bearings(self, i: int) -> np.ndarray:
-        """(H*W, 3) float32 unit bearings of camera i's pixel centres, row-major."""
+        """(S*S*H*W, 3) float32 unit bearings of camera i's sub-pixel sample points (S = supersample), grouped
+        sample-major: S*S row-major images of H*W rays, whose mean is the pixel."""
         if i not in self._bearings:
             cam = self.rig.cameras[i]
             w, h = cam.resolution
             vv, uu = np.mgrid[0:h, 0:w]
-            uv = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
+            S = self.supersample
+            off = (np.arange(S) + 0.5) / S - 0.5  # sample offsets inside the pixel, centred on it
+            uv = np.concatenate([np.stack([uu.ravel() + du, vv.ravel() + dv], axis=1)
+                                 for dv in off for du in off]).astype(np.float64)
             self._bearings[i] = pixels_to_bearings(cam, uv).astype(np.float32)
         return self._bearings[i]
 
     def render_camera(self, i: int, R_world_cam, c_world, return_points: bool = False):
         """Image (H, W) float32 of camera i with orientation R_world_cam (camera -> world) at c_world.
 
-        With ``return_points`` also the (H*W, 3) world points the pixels see.
+        With ``return_points`` also the (H*W, 3) world points the pixels see (through the sample nearest each
+        pixel centre: the centre itself for an odd ``supersample``).
         """
         cam = self.rig.cameras[i]
         w, h = cam.resolution
@@ -124,8 +134,9 @@ class Renderer:
         c = np.asarray(c_world, dtype=np.float32)
         t, face = cast_rays(self.scene, c, d)
         pts = c + t[:, None] * d
-        img = shade(self.scene, pts, face).reshape(h, w)
-        return (img, pts) if return_points else img
+        img = shade(self.scene, pts, face).reshape(-1, h, w).mean(axis=0)
+        mid = (self.supersample * self.supersample) // 2
+        return (img, pts[mid * h * w:(mid + 1) * h * w]) if return_points else img
 
     def camera_poses(self, R_world_body, p_world_body, g_body=None):
         """World orientation (M, 3, 3) and position (M, 3) of every camera, bent for the load g_body (SPEC section 3).
