@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.random import default_rng  # imported here, not lazily at the first estimate (~15 ms)
 
+from ..config import check, from_mapping, option
 from ..errors import EstimationError, InputError
 from .bundle import gravity_covariance, refine_two_view, two_view_priors
 from .deformation import deformed_extrinsics, rays
@@ -44,33 +45,41 @@ WEAK_START_MIN_SAMPLES = 5  # ... but on parallel bars the basins are close and 
 class EstimatorOptions:
     """Tuning of the estimators. Thresholds are in pixels, turned into angles with the rig's mean focal length."""
 
-    loose_threshold_px: float = 20.0  # 6-point RANSAC with canonical extrinsics (model error of bending)
-    threshold_px: float = 2.0  # inliers under the bending model (4pt RANSAC, final inliers)
-    confidence: float = 0.999
-    max_iterations_6pt: int = 150  # gen_relpose_6pt costs ~1 ms a call
-    max_iterations_4pt: int = 1000
-    patience_6pt: int = 30  # stop once the best 6pt model has not improved for this many samples
-    start_iterations_6pt: int = 12  # 6pt samples per gravity start in 6pt-bending (lines bent at that start)
-    start_ba_iterations: int = 10  # bundle-adjustment iterations that compare gravity starts (on subset_size points)
-    weak_geometry_starts: int = 6  # gravity starts when all observing cameras sit on parallel bars
-    patience_4pt: int = 200
-    gravity_hypotheses: int = 200  # directions scored cheaply in 6pt-bending before refining
-    gravity_refine_starts: int = 3  # best distinct hypotheses refined by bundle adjustment
-    gravity_prior_sigma: float = 0.005  # rad, 4pt-bending prior on measured gravity; inf drops it
-    huber_k: float = 3.0  # Huber threshold on the 2D residual norm, in robust sigmas
-    max_ba_iterations: int = 30
-    subset_size: int = 300  # correspondences used while comparing gravity starts
-    final_refinement: bool = True  # 6pt-bending: robust refinement on all correspondences after the best start
-    # (off where the estimate only starts a joint adjustment over a sequence, which refines everything anyway)
+    loose_threshold_px: float = option(20.0, "6-point RANSAC with canonical extrinsics (px; bending is a model "
+                                       "error there)", lo=0.0, hi=1e4, lo_open=True)
+    threshold_px: float = option(2.0, "inliers under the bending model: 4-point RANSAC, final inliers (px)",
+                                 lo=0.0, hi=1e4, lo_open=True)
+    confidence: float = option(0.999, "RANSAC confidence", lo=0.5, hi=1.0, lo_open=True)
+    max_iterations_6pt: int = option(150, "6-point RANSAC samples at most", lo=1, hi=1000000)
+    max_iterations_4pt: int = option(1000, "4-point RANSAC samples at most", lo=1, hi=1000000)
+    patience_6pt: int = option(30, "stop once the best 6-point model has not improved for this many samples",
+                               lo=1, hi=1000000)
+    start_iterations_6pt: int = option(12, "6-point samples per gravity start in 6pt-bending", lo=1, hi=1000000)
+    start_ba_iterations: int = option(10, "bundle-adjustment iterations that compare gravity starts", lo=1,
+                                      hi=10000)
+    weak_geometry_starts: int = option(6, "gravity starts when all observing cameras sit on parallel bars", lo=1,
+                                       hi=1000)
+    patience_4pt: int = option(200, "stop once the best 4-point model has not improved for this many samples",
+                               lo=1, hi=1000000)
+    gravity_hypotheses: int = option(200, "gravity directions scored cheaply in 6pt-bending before refining",
+                                     lo=6, hi=100000)
+    gravity_refine_starts: int = option(3, "best distinct gravity hypotheses refined by bundle adjustment", lo=1,
+                                        hi=1000)
+    gravity_prior_sigma: float = option(0.005, "4pt-bending: std of the measured gravity's prior (rad); inf "
+                                        "drops the prior", lo=0.0, lo_open=True)
+    huber_k: float = option(3.0, "Huber threshold on the 2-D residual norm (robust sigmas)", lo=0.0, hi=1e3,
+                            lo_open=True)
+    max_ba_iterations: int = option(30, "bundle-adjustment iterations per refinement", lo=1, hi=10000)
+    subset_size: int = option(300, "correspondences used while comparing gravity starts", lo=8, hi=10000000)
+    final_refinement: bool = option(True, "6pt-bending: robust refinement on all correspondences after the best "
+                                    "start (off where a joint adjustment over a sequence follows)")
+
+    def __post_init__(self):
+        check(self, "estimator options")
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> EstimatorOptions:
-        d = dict(d or {})
-        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise InputError("estimator options", f"unknown option (allowed: {', '.join(cls.__dataclass_fields__)})",
-                             unknown[0])
-        return cls(**{k: float(v) if isinstance(getattr(cls, k, None), float) else v for k, v in d.items()})
+    def from_dict(cls, d: dict | None, source: str = "estimator options") -> EstimatorOptions:
+        return from_mapping(cls, d, source)
 
 
 @dataclass

@@ -30,7 +30,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..errors import EstimationError, InputError
+from ..config import check, from_mapping, option
+from ..errors import EstimationError
 from .bundle import (
     BundleResult,
     BundleState,
@@ -54,36 +55,40 @@ RIGID_REASON = "the rig has no flexible bar (every EI is inf or mass 0), so grav
 class SequenceOptions:
     """Tuning of :func:`estimate_sequence`; the pairwise estimators and thresholds come from ``estimator``."""
 
-    estimator: EstimatorOptions = field(default_factory=EstimatorOptions)
-    # the pairwise estimates only start the joint adjustment: compare gravity starts on fewer correspondences,
-    # and leave their final refinement to the joint adjustment
-    pair_options: dict = field(default_factory=lambda: {"subset_size": 100, "gravity_refine_starts": 2,
-                                                        "max_ba_iterations": 10, "final_refinement": False})
-    max_iterations: int = 50  # joint bundle adjustment, per inlier round
-    inlier_rounds: int = 4  # joint adjustments while the inlier set still changes
-    candidate_iterations: int = 8  # short joint adjustment of each gravity candidate
-    candidate_tracks: int = 300  # tracks (random subset) those short adjustments use
-    candidate_separation_deg: float = 3.0  # candidates closer than this are one
-    max_candidates: int = 8  # distinct candidates scored at the chained poses ...
-    refined_candidates: int = 3  # ... of which the best get a short joint adjustment
-    max_pair_gap: int = 3  # a view is paired with at most this many views back
-    min_pair_matches: int = 12  # correspondences a pair needs
-    gravity_bias_sigma: float | None = None  # rad: 4pt-bending also estimates a constant tilt of the measurements
+    estimator: EstimatorOptions = option(EstimatorOptions(), "the two-view estimators and the thresholds")
+    max_iterations: int = option(50, "joint bundle-adjustment iterations per inlier round", lo=1, hi=10000)
+    inlier_rounds: int = option(4, "joint adjustments while the inlier set still changes", lo=1, hi=100)
+    candidate_iterations: int = option(8, "short joint adjustment of each gravity candidate", lo=1, hi=10000)
+    candidate_tracks: int = option(300, "tracks (random subset) those short adjustments use", lo=8, hi=10000000)
+    candidate_separation_deg: float = option(3.0, "gravity candidates closer than this (deg) are one", lo=0.0,
+                                             hi=180.0)
+    max_candidates: int = option(8, "distinct gravity candidates scored at the chained poses", lo=1, hi=1000)
+    refined_candidates: int = option(3, "of which the best get a short joint adjustment", lo=1, hi=1000)
+    max_pair_gap: int = option(3, "a view is paired with at most this many views back", lo=1, hi=1000)
+    min_pair_matches: int = option(12, "correspondences a pair needs (from two cameras at least)", lo=8,
+                                   hi=10000000)
+    gravity_bias_sigma: float = option(None, "rad: 4pt-bending also estimates a constant tilt of the measured "
+                                       "gravity with this prior std (null: no such tilt)", lo=0.0, lo_open=True,
+                                       nullable=True)
+    # the pairwise estimates only start the joint adjustment: they compare gravity starts on fewer
+    # correspondences and leave the final refinement to the joint adjustment
+    pair_subset_size: int = option(100, "pairwise starts: correspondences that compare gravity starts", lo=8,
+                                   hi=10000000)
+    pair_refine_starts: int = option(2, "pairwise starts: gravity hypotheses refined", lo=1, hi=1000)
+    pair_ba_iterations: int = option(10, "pairwise starts: bundle-adjustment iterations", lo=1, hi=10000)
+
+    def __post_init__(self):
+        check(self, "sequence options")
 
     @classmethod
     def from_dict(cls, d: dict | None, source: str = "sequence options") -> SequenceOptions:
-        d = dict(d or {})
-        est = d.pop("estimator", None)
-        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise InputError(source, f"unknown option (allowed: {', '.join(cls.__dataclass_fields__)})", unknown[0])
-        out = cls(estimator=EstimatorOptions.from_dict(est), **d)
-        EstimatorOptions.from_dict({**vars(out.estimator), **out.pair_options})  # validates
-        return out
+        return from_mapping(cls, d, source)
 
     def pair_estimator(self) -> EstimatorOptions:
         """Options of the pairwise estimates that start the joint adjustment."""
-        return EstimatorOptions(**{**vars(self.estimator), **self.pair_options})
+        return replace(self.estimator, subset_size=self.pair_subset_size,
+                       gravity_refine_starts=self.pair_refine_starts, max_ba_iterations=self.pair_ba_iterations,
+                       final_refinement=False)
 
 
 @dataclass

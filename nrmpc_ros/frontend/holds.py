@@ -26,39 +26,35 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..config import check, option
 from ..core.dynamics import bar_natural_frequencies
 from ..core.rig import Rig
-from ..errors import InputError
 
 
 @dataclass
 class HoldConfig:
     """When frames belong to a hold, and which of them are settled (pixels of each camera's image)."""
 
-    still_step_px: float = 0.3  # median image motion between two frames of a hold at most this (px, sub-pixel)
-    settle_px: float = 0.1  # a frame is settled when its offset from the rest position is below this (px) ...
-    settle_noise: float = 4.0  # ... or this many times the offset's frame-to-frame noise, whichever is larger
-    settle_periods: float = 2.0  # the settled part starts at least this many slowest-bar periods into the hold
-    lone_gap_s: float = 1.0  # a frame with no other frame within this (s) ...
-    lone_periods: float = 3.0  # ... or this many frame periods, whichever is longer, is a snapshot: a hold alone
-    measure_s: float = 2.0  # a hold is measured once its settled part lasts this long (s), or when it ends
-    min_track_share: float = 0.5  # a track is averaged when it is in this share of the settled frames
-    min_tracks: int = 8  # tracks a camera needs in a hold to contribute
+    still_step_px: float = option(0.3, "two frames belong to one hold when the median image motion between them "
+                                  "is at most this (px)", lo=0.0, hi=100.0, lo_open=True)
+    settle_px: float = option(0.1, "a frame is settled when its image offset from the hold's rest position is "
+                              "below this (px) or below settle_noise times the offset's noise", lo=0.0, hi=100.0,
+                              lo_open=True)
+    settle_noise: float = option(4.0, "see settle_px (in units of the offset's frame-to-frame noise)", lo=0.0,
+                                 hi=1000.0, lo_open=True)
+    settle_periods: float = option(2.0, "the settled part starts at least this many periods of the slowest bar "
+                                   "after the hold starts", lo=0.0, hi=1000.0)
+    lone_gap_s: float = option(1.0, "a frame with no other frame within this (s), or lone_periods frame periods, "
+                               "is a snapshot: a hold of its own", lo=0.0, hi=3600.0, lo_open=True)
+    lone_periods: float = option(3.0, "see lone_gap_s", lo=0.0, hi=1000.0)
+    measure_s: float = option(2.0, "a hold is estimated once its settled part lasts this long (s), or when it "
+                              "ends", lo=0.0, hi=3600.0, lo_open=True)
+    min_track_share: float = option(0.5, "a track is averaged when it is in this share of the settled frames",
+                                    lo=0.0, hi=1.0, lo_open=True)
+    min_tracks: int = option(8, "tracks a camera needs in a hold to contribute", lo=1, hi=100000)
 
     def __post_init__(self):
-        for name in ("still_step_px", "settle_px", "settle_noise", "lone_gap_s", "measure_s"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0 or not math.isfinite(v):
-                raise InputError("pipeline config", f"must be a positive number, got {v!r}", f"holds.{name}")
-        for name in ("settle_periods", "lone_periods"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0 or not math.isfinite(v):
-                raise InputError("pipeline config", f"must be a number >= 0, got {v!r}", f"holds.{name}")
-        if not 0 < self.min_track_share <= 1:
-            raise InputError("pipeline config", f"must be in (0, 1], got {self.min_track_share!r}",
-                             "holds.min_track_share")
-        if not isinstance(self.min_tracks, int) or self.min_tracks < 1:
-            raise InputError("pipeline config", f"must be an integer >= 1, got {self.min_tracks!r}", "holds.min_tracks")
+        check(self, "hold config")
 
 
 def slowest_bar_period(rig: Rig) -> float:

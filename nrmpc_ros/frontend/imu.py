@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..config import check, option
 from ..core.deformation import gravity_from_accelerometer
 from ..core.rig import Rig
 from ..errors import InputError
@@ -21,15 +22,19 @@ from ..errors import InputError
 
 @dataclass
 class ImuConfig:
-    """IMU handling: a view uses the IMU only if a sample lies within ``max_age_s`` of its stamp."""
+    """IMU samples: how long they are kept and when a hold's averaged accelerometer is usable."""
 
-    max_age_s: float = 0.1  # newest usable sample at most this far from the view's stamp
-    capacity_s: float = 60.0  # history kept
-    gap_s: float = 0.05  # a jump between samples larger than this is a gap
-    pad_s: float = 0.05  # a window shorter than this uses the samples of [t1 - pad_s, t1] (one-frame window)
-    still_gyro: float = 0.05  # rad/s: max |gyro| of a still rig
-    still_accel: float = 0.3  # m/s^2: max deviation of |accel| samples from their mean on a still rig
-    min_samples: int = 3
+    max_age_s: float = option(0.1, "a hold uses the IMU only when its newest sample in the hold is at most this "
+                              "far from the hold's end (s)", lo=0.0, hi=60.0, lo_open=True)
+    capacity_s: float = option(60.0, "IMU history kept (s)", lo=1.0, hi=3600.0)
+    gap_s: float = option(0.05, "a step between samples larger than this (s) is a gap", lo=0.0, hi=60.0,
+                          lo_open=True)
+    pad_s: float = option(0.05, "a hold of one frame uses the samples of this long a window before it (s)",
+                          lo=0.0, hi=60.0, lo_open=True)
+    min_samples: int = option(3, "samples a hold's averaged accelerometer needs", lo=1, hi=100000)
+
+    def __post_init__(self):
+        check(self, "imu config")
 
 
 @dataclass
@@ -149,16 +154,6 @@ class ImuBuffer:
         """True when a sample lies within max_age_s of ``stamp``."""
         t, _, _ = self.window(stamp - self.config.max_age_s, stamp + self.config.max_age_s)
         return len(t) > 0
-
-    def is_still(self, t0: float, t1: float) -> bool | None:
-        """Gyro and accelerometer say the rig was still over [t0, t1]; None without samples there."""
-        t, a, w = self.window(min(t0, t1 - self.config.pad_s), t1)
-        if len(t) < 2:
-            return None
-        cfg = self.config
-        if np.max(np.linalg.norm(w, axis=1)) > cfg.still_gyro:
-            return False
-        return bool(np.max(np.linalg.norm(a - a.mean(axis=0), axis=1)) <= cfg.still_accel)
 
     def gravity(self, t0: float, t1: float):
         """(ImuGravity, None) from samples in [t0, t1] (at least pad_s long), or (None, reason) without IMU."""

@@ -21,11 +21,12 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..cameras import check_image_size
+from ..config import check, from_mapping, option
 from ..core import METHODS
 from ..core.incremental import IncrementalSequence, ViewEstimate
 from ..core.rig import Rig
@@ -44,50 +45,30 @@ PIPELINE_METHODS = ("auto",) + METHODS
 class PipelineConfig:
     """All front-end settings; nested blocks have their own defaults."""
 
-    tracking: TrackingConfig = field(default_factory=TrackingConfig)
-    holds: HoldConfig = field(default_factory=HoldConfig)
-    imu: ImuConfig = field(default_factory=ImuConfig)
-    zupt: ZuptConfig = field(default_factory=ZuptConfig)
-    sequence: dict = field(default_factory=dict)  # SequenceOptions fields (estimator: EstimatorOptions fields)
-    window: int = 10  # holds adjusted jointly when a new hold arrives (older ones keep their poses)
-    imu_gravity_floor_deg: float = 0.05  # least angular std of a hold's averaged IMU gravity (besides its bias)
-    imu_bias_sigma_deg: float = 0.3  # prior std of the accelerometer's constant tilt (bias), estimated jointly
-    seed: int = 0
+    tracking: TrackingConfig = option(TrackingConfig(), "feature tracking and matching")
+    holds: HoldConfig = option(HoldConfig(), "holds: when frames belong to one, which are settled")
+    imu: ImuConfig = option(ImuConfig(), "IMU samples and a hold's averaged accelerometer")
+    zupt: ZuptConfig = option(ZuptConfig(), "the IMU stillness test")
+    sequence: SequenceOptions = option(SequenceOptions(), "the joint estimate over the sequence of holds")
+    window: int = option(10, "holds adjusted jointly when a new hold arrives (older ones keep their poses)",
+                         lo=2, hi=10000)
+    imu_gravity_floor_deg: float = option(0.05, "least angular std of a hold's averaged IMU gravity (deg), "
+                                          "besides its bias", lo=0.0, hi=90.0, lo_open=True)
+    imu_bias_sigma_deg: float = option(0.3, "prior std of the accelerometer's constant tilt (bias) estimated "
+                                       "jointly (deg); 0: no such tilt", lo=0.0, hi=90.0)
+    seed: int = option(0, "RANSAC seed", lo=0, hi=2**63 - 1)
+
+    def __post_init__(self):
+        check(self, "pipeline config")
 
     @classmethod
     def from_dict(cls, d: dict | None, source: str = "pipeline config") -> PipelineConfig:
         """Build from a nested mapping (e.g. YAML / ROS parameters); unknown keys are errors naming them."""
-        d = dict(d or {})
-        sub = {"tracking": TrackingConfig, "holds": HoldConfig, "imu": ImuConfig, "zupt": ZuptConfig}
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise InputError(source, f"unknown option (allowed: {', '.join(sorted(names))})", unknown[0])
-        kw = {}
-        for k, v in d.items():
-            if k in sub:
-                if v is not None and not isinstance(v, dict):
-                    raise InputError(source, f"expected a mapping, got {type(v).__name__}", k)
-                allowed = {f.name for f in fields(sub[k])}
-                bad = sorted(set(v or {}) - allowed)
-                if bad:
-                    raise InputError(source, f"unknown option (allowed: {', '.join(sorted(allowed))})", f"{k}.{bad[0]}")
-                try:
-                    kw[k] = sub[k](**(v or {}))
-                except InputError as exc:
-                    raise InputError(source, str(exc).split(": ", 1)[-1], exc.field) from None
-            else:
-                kw[k] = v
-        cfg = cls(**kw)
-        cfg.sequence_options(source)  # validates
-        if not isinstance(cfg.window, int) or isinstance(cfg.window, bool) or cfg.window < 2:
-            raise InputError(source, f"must be an integer >= 2, got {cfg.window!r}", "window")
-        return cfg
+        return from_mapping(cls, d, source)
 
-    def sequence_options(self, source: str = "pipeline config") -> SequenceOptions:
-        opts = SequenceOptions.from_dict(self.sequence, source)
-        opts.gravity_bias_sigma = math.radians(self.imu_bias_sigma_deg) if self.imu_bias_sigma_deg > 0 else None
-        return opts
+    def sequence_options(self) -> SequenceOptions:
+        bias = math.radians(self.imu_bias_sigma_deg) if self.imu_bias_sigma_deg > 0 else None
+        return replace(self.sequence, gravity_bias_sigma=bias)
 
 
 @dataclass

@@ -16,15 +16,15 @@ Grid bucketing spreads corners and features over the image.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from ..config import check, option
 from ..core.rig import Camera
-from ..errors import InputError
 
 MODES = ("auto", "klt", "descriptors")
 DESCRIPTORS = ("orb", "sift")
@@ -36,52 +36,44 @@ RANSAC_METHODS = ("usac", "ransac")
 class TrackingConfig:
     """Feature tracking and matching; pixel values refer to the camera's own image."""
 
-    mode: str = "auto"  # holds are linked by KLT identity and, where too few tracks survived, by descriptors;
-    # klt: identity only; descriptors: descriptors only (every hold's tracks matched afresh)
-    grid_rows: int = 6
-    grid_cols: int = 8
-    max_tracks: int = 150  # KLT tracks per camera
-    replenish_fraction: float = 0.7  # detect new corners when fewer tracks than this fraction remain
-    min_distance_px: float = 8.0
-    corner_detector: str = "fast"  # new KLT corners: fast (FAST, strongest per grid cell) | gftt (Shi-Tomasi)
-    fast_threshold: int = 12  # FAST intensity threshold (grey levels)
-    corner_quality: float = 0.003  # goodFeaturesToTrack qualityLevel (corner_detector gftt)
-    klt_window: int = 15
-    klt_levels: int = 3
-    fb_threshold_px: float = 0.7  # forward-backward round-trip error
-    lost_fraction: float = 0.25  # fewer tracks than this share survive a frame: they are lost (a jump), start afresh
-    corner_window_px: int = 7  # sub-pixel corner search window at a hold's anchor (cornerSubPix) ...
-    corner_refinement_px: float = 1.5  # ... a track the search moves further than this is dropped (0: no search)
-    descriptor: str = "orb"  # orb | sift: descriptors at the tracks' positions link holds without surviving tracks
-    ratio: float = 0.8  # Lowe ratio test
-    ransac: str = "usac"  # essential-matrix verification: usac (OpenCV USAC, SPRT + local optimisation) | ransac
-    ransac_threshold_px: float = 1.0  # essential-matrix verification (Sampson distance)
-    ransac_confidence: float = 0.999
-    min_matches_per_camera: int = 12  # fewer verified links between two holds: the camera links nothing
-    min_klt_links: int = 40  # fewer verified KLT links of a camera to the previous hold: descriptors too
+    mode: str = option("auto", "how holds are linked: auto (KLT identity and, where too few tracks survived a "
+                       "move, descriptors), klt (identity only), descriptors (every hold matched afresh)",
+                       choices=MODES)
+    grid_rows: int = option(6, "rows of the bucketing grid that spreads corners over the image", lo=1, hi=100)
+    grid_cols: int = option(8, "columns of the bucketing grid", lo=1, hi=100)
+    max_tracks: int = option(150, "KLT tracks per camera", lo=8, hi=5000)
+    replenish_fraction: float = option(0.7, "outside holds, new corners are detected when fewer tracks than "
+                                       "this share of max_tracks remain", lo=0.0, hi=1.0)
+    min_distance_px: float = option(8.0, "least distance between corners (px)", lo=1.0, hi=200.0)
+    corner_detector: str = option("fast", "new corners: fast (FAST, strongest per cell) or gftt (Shi-Tomasi)",
+                                  choices=CORNER_DETECTORS)
+    fast_threshold: int = option(12, "FAST intensity threshold (grey levels)", lo=1, hi=255)
+    corner_quality: float = option(0.003, "goodFeaturesToTrack qualityLevel (corner_detector gftt)", lo=0.0,
+                                   hi=1.0, lo_open=True)
+    klt_window: int = option(15, "Lucas-Kanade window side (px)", lo=5, hi=101)
+    klt_levels: int = option(3, "Lucas-Kanade pyramid levels between holds", lo=0, hi=8)
+    fb_threshold_px: float = option(0.7, "largest forward-backward round-trip error of a track (px)", lo=0.0,
+                                    hi=10.0, lo_open=True)
+    lost_fraction: float = option(0.25, "fewer tracks than this share survive a frame: they are lost (a jump) "
+                                  "and start afresh", lo=0.0, hi=1.0, lo_open=True)
+    corner_window_px: int = option(7, "sub-pixel corner search window at a hold's anchor (px)", lo=3, hi=31)
+    corner_refinement_px: float = option(1.5, "a track the sub-pixel corner search moves further than this "
+                                         "(px) is dropped; 0 turns the search off", lo=0.0, hi=10.0)
+    descriptor: str = option("orb", "descriptors that link holds without surviving tracks: orb or sift",
+                             choices=DESCRIPTORS)
+    ratio: float = option(0.8, "Lowe's ratio test of descriptor matches", lo=0.0, hi=1.0, lo_open=True)
+    ransac: str = option("usac", "essential-matrix verification: usac (OpenCV USAC) or ransac",
+                         choices=RANSAC_METHODS)
+    ransac_threshold_px: float = option(1.0, "essential-matrix verification threshold (Sampson distance, px)",
+                                        lo=0.0, hi=20.0, lo_open=True)
+    ransac_confidence: float = option(0.999, "essential-matrix RANSAC confidence", lo=0.5, hi=1.0, lo_open=True)
+    min_matches_per_camera: int = option(12, "fewer verified links between two holds: the camera links nothing",
+                                         lo=8, hi=10000)
+    min_klt_links: int = option(40, "fewer verified KLT links of a camera to its previous hold: descriptors too",
+                                lo=0, hi=10000)
 
     def __post_init__(self):
-        for name, allowed in (("mode", MODES), ("corner_detector", CORNER_DETECTORS), ("ransac", RANSAC_METHODS),
-                              ("descriptor", DESCRIPTORS)):
-            value = getattr(self, name)
-            if value not in allowed:
-                raise InputError("tracking config", f"{name} must be one of {', '.join(allowed)}, got {value!r}", name)
-        for name in ("grid_rows", "grid_cols", "max_tracks", "klt_window", "min_matches_per_camera"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise InputError("tracking config", f"must be an integer >= 1, got {getattr(self, name)!r}", name)
-        if not 0 < self.ratio <= 1:
-            raise InputError("tracking config", f"must be in (0, 1], got {self.ratio}", "ratio")
-        if not 0 < self.lost_fraction < 1:
-            raise InputError("tracking config", f"must be in (0, 1), got {self.lost_fraction}", "lost_fraction")
-
-    @classmethod
-    def from_dict(cls, d: dict | None, source: str = "tracking config") -> TrackingConfig:
-        d = dict(d or {})
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise InputError(source, f"unknown option (allowed: {', '.join(sorted(names))})", unknown[0])
-        return cls(**d)
+        check(self, "tracking config")
 
 
 # ---------------------------------------------------------------------------

@@ -65,6 +65,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from ..config import check, option
 from ..errors import InputError
 from .imu import ImuBuffer
 
@@ -73,16 +74,29 @@ from .imu import ImuBuffer
 class ZuptConfig:
     """Settings of the stillness test; times in seconds."""
 
-    window_s: float = 0.1  # sliding window, centred on each sample
-    min_window_samples: int = 8  # the window is widened to hold at least this many samples (slow IMUs)
-    significance: float = 1e-5  # false-alarm probability per window of a still rig (chi-square threshold)
-    gyro_floor_rad_s: float = 1e-4  # the gyro noise used is never below this (noise-free simulated IMUs)
-    accel_floor_m_s2: float = 1e-3  # likewise for the accelerometer
-    min_still_s: float = 0.25  # shortest run of still samples reported as a still interval
-    gap_periods: float = 5.0  # a step longer than this many sample periods is a gap: it breaks windows and runs
-    noise_quantile: float = 0.1  # data noise estimate from this quantile of the windows (the rig is still longer)
-    noise_min_s: float = 1.0  # the data noise estimate needs this much IMU data
-    noise_refresh_s: float = 10.0  # ZuptDetector: re-estimate the noise from its buffer after this much new data
+    window_s: float = option(0.1, "sliding window of the IMU stillness test, centred on each sample (s)", lo=0.0,
+                             hi=10.0, lo_open=True)
+    min_window_samples: int = option(8, "the window is widened to hold at least this many samples (slow IMUs)",
+                                     lo=2, hi=10000)
+    significance: float = option(1e-5, "false-alarm probability per window of a still rig (chi-square threshold)",
+                                 lo=0.0, hi=0.5, lo_open=True)
+    gyro_floor_rad_s: float = option(1e-4, "the gyro noise used is never below this (rad/s)", lo=0.0, hi=1.0,
+                                     lo_open=True)
+    accel_floor_m_s2: float = option(1e-3, "the accelerometer noise used is never below this (m/s^2)", lo=0.0,
+                                     hi=10.0, lo_open=True)
+    min_still_s: float = option(0.25, "shortest run of still samples reported as still (s)", lo=0.0, hi=60.0)
+    gap_periods: float = option(5.0, "a step longer than this many sample periods is a gap: it breaks windows "
+                                "and still runs", lo=1.0, hi=1000.0)
+    noise_quantile: float = option(0.1, "the noise estimated from the data comes from this quantile of the "
+                                   "windows (the rig must be still longer than that)", lo=0.0, hi=1.0,
+                                   lo_open=True)
+    noise_min_s: float = option(1.0, "the noise estimate from the data needs this much IMU data (s)", lo=0.0,
+                                hi=3600.0, lo_open=True)
+    noise_refresh_s: float = option(10.0, "the noise is estimated again after this much new data (s)", lo=0.0,
+                                    hi=3600.0, lo_open=True)
+
+    def __post_init__(self):
+        check(self, "zupt config")
 
 
 @dataclass
