@@ -271,16 +271,24 @@ class InverseDepthChart:
         return np.where(self.front[:, None], P_chart, self.P + dq)
 
 
-def robust_sigma(e: np.ndarray, num_points: int, num_params: int = 0, floor: float = 1e-9) -> float:
-    """MAD-based std (rad) of the angular noise behind residual components e (N, 2).
+def robust_sigma(e: np.ndarray, num_points: int, num_params: int = 0, floor: float = 1e-9,
+                 huber_k: float = 3.0) -> float:
+    """Std (rad) of the angular noise behind residual components e (N, 2), robust to outliers but not blind
+    to heavy tails.
 
-    The landmarks and the camera block absorb 3 P + num_params of the 2 N residual components, so the
-    spread is corrected by sqrt(n_res / (n_res - n_params)).
+    The median absolute residual gives a first scale; the noise is then the RMS of the residual norms
+    with the Huber weights of that scale (outliers beyond huber_k count linearly, so they barely weigh): for
+    Gaussian noise the two agree, for the heavier tails of real correspondences the RMS is the honest one
+    (the MAD alone would make the covariance overconfident). The landmarks and the camera block absorb
+    3 P + num_params of the 2 N residual components: the result is scaled by sqrt(n_res / (n_res - n_params)).
     """
     n_res = e.size
     dof = max(n_res - 3 * num_points - num_params, 1)
-    med = np.median(np.abs(e))
-    return max(1.4826 * float(med) * math.sqrt(n_res / dof), floor)
+    s0 = max(1.4826 * float(np.median(np.abs(e))), floor)
+    r = np.sqrt(np.einsum("ni,ni->n", e, e)) / s0
+    w = np.where(r <= huber_k, 1.0, huber_k / np.maximum(r, 1e-300))
+    s = s0 * math.sqrt(float(np.sum(w * r * r)) / max(float(np.sum(w)), 1e-300) / 2.0)  # per component
+    return max(s * math.sqrt(n_res / dof), floor)
 
 
 @dataclass

@@ -175,5 +175,5 @@ class ImuBuffer:
         except InputError as exc:
             return None, str(exc)
         gaps = [gp for gp in self._gaps if gp[1] > t[0] and gp[0] < t1]
-        return ImuGravity(g, mean, len(t), float(t[0]), float(t1), float(a.std()),
+        return ImuGravity(g, mean, len(t), float(t[0]), float(t1), float(np.sqrt(np.mean(np.var(a, axis=0)))),
                           float(np.max(np.linalg.norm(w, axis=1))), gaps), None

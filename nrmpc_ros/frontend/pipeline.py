@@ -308,8 +308,8 @@ class Pipeline:
         if h is None or h.measured:
             return []
         if h.snapshot and len(h) == 1 and self.rig.imu is not None and len(self.imu):
-            t = h.stamps[0]
-            if self.zupt.is_still(t - self.config.imu.pad_s, t + self.config.imu.pad_s) is False:
+            t = h.stamps[0]  # a snapshot is taken at the end of its hold: the IMU must be still before it
+            if self.zupt.is_still(t - max(self.config.imu.pad_s, self.config.zupt.window_s), t) is False:
                 self.stats.dropped["snapshot while the IMU says the rig moved"] += 1
                 return []
         return self._estimate_hold(h)

@@ -58,7 +58,7 @@ class TrackingConfig:
                                   "and start afresh", lo=0.0, hi=1.0, lo_open=True)
     corner_window_px: int = option(7, "sub-pixel corner search window at a hold's anchor (px)", lo=3, hi=31)
     corner_refinement_px: float = option(1.5, "a track the sub-pixel corner search moves further than this "
-                                         "(px) is dropped; 0 turns the search off", lo=0.0, hi=10.0)
+                                         "(px) keeps its position; 0 turns the search off", lo=0.0, hi=10.0)
     descriptor: str = option("orb", "descriptors that link holds without surviving tracks: orb or sift",
                              choices=DESCRIPTORS)
     ratio: float = option(0.8, "Lowe's ratio test of descriptor matches", lo=0.0, hi=1.0, lo_open=True)
@@ -279,8 +279,8 @@ class KltTracker:
             ref = cv2.cornerSubPix(self.prev, self.uv.reshape(-1, 1, 2).copy(), (half, half), (-1, -1), crit)
             ref = ref.reshape(-1, 2)
             moved = np.linalg.norm(ref - self.uv, axis=1)
-            ok = moved <= self.cfg.corner_refinement_px  # no corner near it: not a point that can be found again
-            self.uv, self.ids = ref[ok].astype(np.float32), self.ids[ok]
+            ok = moved <= self.cfg.corner_refinement_px  # else no corner near it: it keeps its position
+            self.uv = np.where(ok[:, None], ref, self.uv).astype(np.float32)
         self._anchor = (self.prev, self.uv.copy(), self.ids.copy())
 
     def end_hold(self) -> None:
@@ -308,6 +308,7 @@ class Features:
 
 
 ORIENTATION_RADIUS = 15  # px: the intensity-centroid patch of a feature's orientation (ORB's 31 px patch)
+DESCRIPTOR_PAD_PX = 32  # the image is mirrored this far beyond its border before descriptors are computed
 
 
 def _orientations(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -335,10 +336,12 @@ def describe(img: np.ndarray, uv: np.ndarray, cfg: TrackingConfig) -> tuple:
         return None, np.zeros(0, bool)
     ang = _orientations(img, uv)
     size = 31.0 if cfg.descriptor == "orb" else 16.0
-    kps = [cv2.KeyPoint(float(x), float(y), size, float(a), 0, 0, int(k))
+    pad = DESCRIPTOR_PAD_PX  # mirrored border: a point near the edge still has a full patch
+    padded = cv2.copyMakeBorder(img, pad, pad, pad, pad, cv2.BORDER_REFLECT_101)
+    kps = [cv2.KeyPoint(float(x) + pad, float(y) + pad, size, float(a), 0, 0, int(k))
            for k, ((x, y), a) in enumerate(zip(uv.tolist(), ang.tolist()))]
     det = cv2.ORB_create(edgeThreshold=31, patchSize=31) if cfg.descriptor == "orb" else cv2.SIFT_create()
-    kps, desc = det.compute(img, kps)
+    kps, desc = det.compute(padded, kps)
     valid = np.zeros(len(uv), bool)
     if desc is None or not kps:
         return None, valid
