@@ -39,16 +39,16 @@ from nrmpc_ros.render.bagmaker import BagOptions, make_bag
 from nrmpc_ros.render.sequence import MotionOptions
 from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 
-BAR = {"EI": 1.0, "mass": 0.15, "bar_length": 0.3}  # about 4.3 Hz: settles within a few-second hold at 0.03
-RESOLUTION = (320, 240)
-FOCAL = 235.0
+BAR = {"EI": 0.5, "mass": 0.1, "bar_length": 0.4}  # 2.4 Hz, 9 deg of tip rotation under a full transverse load
+RESOLUTION = (640, 480)
+FOCAL = 470.0
 
 
 def _rigs() -> dict:
     line2 = make_rig(RigSpec(num_cameras=2, layout="line", focal=FOCAL, resolution=RESOLUTION, **BAR))
     ring3 = make_rig(RigSpec(num_cameras=3, layout="ring", focal=FOCAL, resolution=RESOLUTION, **BAR))
     c = ring3.cameras[2]
-    fish = Camera(name=c.name, model="equidistant", intrinsics=(150.0, 150.0, 159.5, 119.5),
+    fish = Camera(name=c.name, model="equidistant", intrinsics=(300.0, 300.0, 319.5, 239.5),
                   distortion=(0.02, -0.01, 0.003, -0.001), resolution=RESOLUTION, position=c.position,
                   rotation=c.rotation, mass=c.mass, EI=c.EI, image_topic=c.image_topic, info_topic=c.info_topic)
     fish3 = replace(ring3, cameras=ring3.cameras[:2] + (fish,), source="<3 cameras, one fisheye>")
@@ -64,7 +64,7 @@ def _styles() -> dict:
         "snapshot-noimu": ({**base, "capture": "snapshot"}, {"imu": False}),
         "stream-smooth": ({**base, "hold_seconds": 3.0, "capture": "stream", "rate": 10.0,
                            "move_profile": "min-jerk"}, {}),
-        "stream-ringing": ({**base, "hold_seconds": 3.5, "capture": "stream", "rate": 10.0,
+        "stream-ringing": ({**base, "hold_seconds": 5.0, "capture": "stream", "rate": 10.0,
                             "move_profile": "trapezoid"}, {"damping": 0.03, "jitter_ms": 8.0, "drop_rate": 0.02}),
         "compressed": ({**base, "hold_seconds": 3.0, "capture": "stream", "rate": 10.0}, {"encoding": "jpeg"}),
     }
@@ -129,7 +129,7 @@ def run_bag(path: Path, rig_file: Path, method: str) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", default="/tmp/nrmpc_bench_holds", help="folder of the rendered bags (reused)")
+    p.add_argument("--out", default="/tmp/nrmpc_bench_holds_vga", help="folder of the rendered bags (reused)")
     p.add_argument("--styles", default="all", help="comma-separated styles (default all: " +
                    ",".join(_styles()) + ")")
     p.add_argument("--rigs", default="all", help="comma-separated rigs (default all: line2,fish3,cross4)")

@@ -28,7 +28,7 @@ def test_body_mount_average(cross_rig, rng):
     assert res.num_samples == 121
     assert math.degrees(angle_between(res.gravity, g)) < 0.1
     assert np.linalg.norm(res.gravity) == pytest.approx(9.81)
-    assert buf.is_still(0.2, 0.8) is True
+    assert res.accel_std == pytest.approx(0.05, rel=0.2)  # per-axis spread of the samples: their noise
 
 
 def test_rotated_mount_and_camera_mount(cross_rig, rng):
@@ -84,15 +84,6 @@ def test_max_age(cross_rig, rng):
     res, why = buf.gravity(3.0, 3.5)
     assert res is None and "IMU samples in the window" in why
     assert ImuBuffer(cross_rig).gravity(0.0, 1.0) == (None, "no IMU samples")
-
-
-def test_motion_is_not_still(cross_rig, rng):
-    buf = ImuBuffer(cross_rig)
-    fill(buf, rng, np.array([0, 0, -9.81]), 0.0, 0.5)
-    fill(buf, rng, np.array([0, 0, -9.81]), 0.5, 1.0, gyro=np.array([0.0, 0.3, 0.0]))
-    assert buf.is_still(0.1, 0.4) is True
-    assert buf.is_still(0.6, 0.9) is False
-    assert buf.is_still(5.0, 6.0) is None
 
 
 def test_rig_without_imu_block(cross_rig, rng):

@@ -22,6 +22,7 @@ before it, and taken as settled without an IMU.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,8 @@ class HoldConfig:
     lone_periods: float = option(3.0, "see lone_gap_s", lo=0.0, hi=1000.0)
     measure_s: float = option(2.0, "a hold is estimated once its settled part lasts this long (s), or when it "
                               "ends", lo=0.0, hi=3600.0, lo_open=True)
+    min_settled_frames: int = option(3, "frames in a row a settled part needs (fewer when the hold has fewer)",
+                                     lo=1, hi=100000)
     min_track_share: float = option(0.5, "a track is averaged when it is in this share of the settled frames",
                                     lo=0.0, hi=1.0, lo_open=True)
     min_tracks: int = option(8, "tracks a camera needs in a hold to contribute", lo=1, hi=100000)
@@ -145,6 +148,11 @@ class HoldRecorder:
 
     def measure(self, cfg: HoldConfig, bar_period_s: float, imu_still_since: float | None = None):
         """(Hold, "") of the settled frames, or (None, why not)."""
+        with warnings.catch_warnings():  # frames without a camera, tracks lost: all-NaN medians are expected
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return self._measure(cfg, bar_period_s, imu_still_since)
+
+    def _measure(self, cfg: HoldConfig, bar_period_s: float, imu_still_since: float | None):
         F = len(self.stamps)
         if F == 0:
             return None, "no frames"
@@ -163,22 +171,23 @@ class HoldRecorder:
             settled = np.ones(1, bool)
             residual = 0.0
         else:
-            offsets = np.stack([np.nanmedian(tracks[i][2] - tracks[i][1][None], axis=1) for i in cams], axis=1)
+            shifts = [tracks[i][2] - tracks[i][1][None] for i in cams]  # (F, n, 2) per camera
+            offsets = np.stack([np.nanmedian(d, axis=1) for d in shifts], axis=1)  # (F, cams, 2)
             late = t >= settle_after
             if not late.any():
                 return None, (f"ended {t[-1] - start:.2f} s after the stop, before the bars settle "
                               f"({cfg.settle_periods:g} periods of {bar_period_s:.3f} s)")
             rest = np.nanmedian(offsets[late], axis=0)  # (cams, 2)
-            step = np.linalg.norm(np.diff(offsets[late], axis=0), axis=2)
-            step = step[np.isfinite(step)]
-            noise = 1.4826 * float(np.median(step)) / math.sqrt(2.0) if len(step) else 0.0
-            thr = max(cfg.settle_px, cfg.settle_noise * noise)
+            thr = max(cfg.settle_px, cfg.settle_noise * _offset_noise(shifts, offsets))
             dev = np.nanmax(np.linalg.norm(offsets - rest[None], axis=2), axis=1)
             settled = late & (dev <= thr)
-            if not settled.any():
+            need = min(cfg.min_settled_frames, int(late.sum()))
+            if settled.any():
+                settled = _longest_run(settled)
+            if settled.sum() < need:
                 return None, (f"never settled: image offset from the rest position {np.nanmin(dev[late]):.3f} px "
-                              f"at best, threshold {thr:.3f} px")
-            settled = _longest_run(settled)
+                              f"at best, threshold {thr:.3f} px, {int(settled.sum())} frames in a row within it "
+                              f"(need {need})")
             residual = float(np.sqrt(np.nanmean(dev[settled] ** 2)))
         idx = np.flatnonzero(settled)
         cam_holds = [None] * M
@@ -211,6 +220,20 @@ class HoldRecorder:
             return 0.0
         hold, _ = self.measure(cfg, bar_period_s, imu_still_since)
         return 0.0 if hold is None else hold.settled_end - hold.settled_start
+
+
+def _offset_noise(shifts: list, offsets: np.ndarray) -> float:
+    """Noise (px) of a frame's image offset: the tracks' spread about their frame's median shift (measurement
+    noise, whatever the rig does), over the square root of their number (the offset is their median)."""
+    out = []
+    for i, d in enumerate(shifts):
+        r = np.linalg.norm(d - offsets[:, i, None, :], axis=2)  # (F, n)
+        n = np.count_nonzero(np.isfinite(r), axis=1)
+        ok = n > 0
+        if ok.any():
+            spread = 1.4826 * np.nanmedian(r[ok], axis=1) / math.sqrt(2.0)  # per axis, per frame
+            out.append(float(np.median(1.2533 * spread / np.sqrt(n[ok]))))
+    return max(out) if out else 0.0
 
 
 def _longest_run(mask: np.ndarray) -> np.ndarray:

@@ -97,7 +97,7 @@ class HoldLinker:
         _, ip, ic = np.intersect1d(prev.landmark, lm, assume_unique=False, return_indices=True)
         cand_p, cand_c = [ip], [ic]
         kinds = [np.zeros(len(ip), bool)]  # False: KLT link, True: descriptor link
-        if len(ip) < cfg.min_klt_links and desc is not None and prev.desc is not None:
+        if cfg.mode != "klt" and len(ip) < cfg.min_klt_links and desc is not None and prev.desc is not None:
             free = np.setdiff1d(np.flatnonzero(valid), ic)
             taken = np.zeros(len(prev.landmark), bool)
             taken[ip] = True

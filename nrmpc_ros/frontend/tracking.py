@@ -56,8 +56,8 @@ class TrackingConfig:
                                     hi=10.0, lo_open=True)
     lost_fraction: float = option(0.25, "fewer tracks than this share survive a frame: they are lost (a jump) "
                                   "and start afresh", lo=0.0, hi=1.0, lo_open=True)
-    corner_window_px: int = option(7, "sub-pixel corner search window at a hold's anchor (px)", lo=3, hi=31)
-    corner_refinement_px: float = option(1.5, "a track the sub-pixel corner search moves further than this "
+    corner_window_px: int = option(11, "sub-pixel corner search window at a hold's anchor (px)", lo=3, hi=31)
+    corner_refinement_px: float = option(3.0, "a track the sub-pixel corner search moves further than this "
                                          "(px) keeps its position; 0 turns the search off", lo=0.0, hi=10.0)
     descriptor: str = option("orb", "descriptors that link holds without surviving tracks: orb or sift",
                              choices=DESCRIPTORS)
