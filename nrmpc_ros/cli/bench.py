@@ -38,7 +38,7 @@ def register(sub):
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_scenario_arguments(p)
     g = p.add_argument_group(
-        "sequences of holds", "--sequence: on simulated sequences of 10 holds (0.3 px, 5 %% outliers, measured "
+        "sequences of holds", "--sequence: on simulated sequences of 10 holds (0.3 px, 5 % outliers, measured "
         "gravity 0.3 deg) of each rig, the joint estimate of every hold's gravity (nrmpc solve-sequence) against "
         "the consecutive pairs on their own (nrmpc solve), both beside their Cramér-Rao bounds; prints a "
         "markdown table (the scenario flags above do not apply).")
