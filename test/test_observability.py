@@ -1,4 +1,4 @@
-"""Cramér-Rao bounds (issue 3, ``nrmpc observability``): validated against a seeded Monte Carlo."""
+"""Cramér-Rao bounds (``nrmpc observability``): validated against a seeded Monte Carlo; bounds of sequences."""
 
 import json
 import math
@@ -10,7 +10,14 @@ from nrmpc_ros.cli.main import main
 from nrmpc_ros.core.bundle import refine_two_view
 from nrmpc_ros.core.metrics import pose_errors
 from nrmpc_ros.experiments.crlb import problem_bound, set_bar_ei
-from nrmpc_ros.experiments.observability import ei_limit, observability, sweep_ei
+from nrmpc_ros.experiments.observability import (
+    ei_limit,
+    first_holds,
+    observability,
+    sequence_observability,
+    sweep_ei,
+)
+from nrmpc_ros.sim.sequence import SequenceScenario, make_sequence
 from nrmpc_ros.sim.synthetic import RigSpec, Scenario, make_problem, make_rig
 
 
@@ -77,3 +84,83 @@ def test_cli_sweep(tmp_path, capsys):
     assert "gravity" in capsys.readouterr().out
     assert main(["observability", "--noise", "0"]) == 2
     assert main(["observability", "--sweep-ei", "--ei-range", "5,1,3"]) == 2
+
+
+SEQ = SequenceScenario(num_views=6, tracks_per_camera=40)
+
+
+def test_first_holds_is_the_recording_stopped_early():
+    full = make_sequence(SEQ, seed=4)
+    part = first_holds(full, 3)
+    tr = part.tracks
+    assert tr.num_views == 3 and len(part.R) == 3 and len(part.inlier_mask) == len(tr)
+    assert np.array_equal(part.gravity, full.gravity[:3]) and np.array_equal(part.tracks.g_meas, full.tracks.g_meas[:3])
+    # every landmark kept is seen in two holds at least, and keeps its bearings and inlier flags
+    spans = {k: set(tr.view[tr.track == k]) for k in np.unique(tr.track)}
+    assert all(len(v) >= 2 for v in spans.values())
+    idx = {(v, c, k): i for i, (v, c, k) in enumerate(zip(full.tracks.view, full.tracks.cam, full.tracks.track))}
+    src = np.array([idx[key] for key in zip(tr.view, tr.cam, tr.track)])
+    assert np.allclose(tr.f, full.tracks.f[src], atol=1e-12) and np.array_equal(part.inlier_mask, full.inlier_mask[src])
+    assert len(tr) < np.count_nonzero(full.tracks.view < 3)  # the landmarks first seen in hold 2 are gone
+    with pytest.raises(ValueError):
+        first_holds(full, 1)
+
+
+def test_joint_bound_falls_with_the_holds_and_equals_the_pair_for_two():
+    rig = make_rig(SEQ.rig)
+    rows = sequence_observability(rig, SEQ, samples=3, seed=2, gravity_prior_sigma=math.radians(0.3),
+                                  views=[2, 4, 6])
+    assert [r["views"] for r in rows] == [2, 4, 6]
+    two, four, six = rows
+    for suffix in ("", "_prior"):  # two holds: the joint estimate is the pair's
+        assert two["joint" + suffix] == pytest.approx(two["pairwise" + suffix], rel=1e-3)
+    assert two["joint"] > four["joint"] > six["joint"]
+    assert six["pairwise"] > 2.5 * six["joint"]
+    # the pairs do not get better with more holds; the prior helps every bound
+    assert six["pairwise"] == pytest.approx(two["pairwise"], rel=0.5)
+    for r in rows:
+        assert r["joint_prior"] < r["joint"] and r["pairwise_prior"] < r["pairwise"]
+    no_prior = sequence_observability(rig, SEQ, samples=3, seed=2, views=[6])[0]
+    assert no_prior["joint_prior"] is None and no_prior["joint"] == pytest.approx(six["joint"])
+    with pytest.raises(ValueError):
+        sequence_observability(rig, SEQ, samples=1, views=[7])
+
+
+def test_cli_sequence(capsys):
+    args = ["observability", "--sequence", "--samples", "2", "--tracks-per-camera", "40", "--views", "5,2"]
+    assert main(args + ["--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["views"] == 5 and [r["views"] for r in res["bounds_rad"]] == [2, 5]
+    assert res["gravity_prior_sigma"] == pytest.approx(math.radians(0.3))  # the scenario's gravity noise
+    five = res["bounds_rad"][1]
+    assert 0 < five["joint_prior"] < five["joint"] < five["pairwise"]
+    assert main(args + ["--gravity-prior-sigma", "inf"]) == 0
+    table = capsys.readouterr().out
+    assert "pair/joint" in table and "prior" not in table.split("\n")[1]
+    rows = [line.split() for line in table.splitlines() if line.split() and line.split()[0] in ("2", "5")]
+    assert [float(r[1]) for r in rows] == pytest.approx([math.degrees(r["joint"]) for r in res["bounds_rad"]],
+                                                        rel=5e-3)
+    assert main(["observability", "--sequence", "--samples", "1", "--views", "3", "--EI", "inf", "--json"]) == 0
+    rigid = json.loads(capsys.readouterr().out)
+    assert rigid["bounds_rad"][0]["joint"] == "inf" and "note" in rigid
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["--sequence", "--points", "100"], "--points"),
+    (["--views", "4"], "--views"),
+    (["--sequence", "--sweep-ei"], "--sweep-ei"),
+    (["--sequence", "--noise", "0"], "--noise"),
+    (["--sequence", "--gravity-prior-sigma", "0"], "--gravity-prior-sigma"),
+    (["--sequence", "--samples", "0"], "--samples"),
+    (["--sequence", "--max-step", "200"], "max_step_deg"),
+])
+def test_cli_sequence_bad_flags(argv, flag, capsys):
+    assert main(["observability", *argv]) == 2
+    assert flag in capsys.readouterr().err
+
+
+def test_cli_sequence_bad_views_list(capsys):
+    for text in ("1,3", "a,b", ","):
+        with pytest.raises(SystemExit) as exc:
+            main(["observability", "--sequence", "--views", text])
+        assert exc.value.code == 2 and "--views" in capsys.readouterr().err

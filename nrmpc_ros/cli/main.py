@@ -15,8 +15,8 @@ from ..errors import NrmpcError
 
 # Subcommand modules, in the order `nrmpc --help` lists them.
 COMMANDS = [
-    "solve", "demo", "simulate", "experiment", "observability", "bench", "import_kalibr", "make_bag", "replay",
-    "compare", "play", "calibrate_bars",
+    "solve", "solve_sequence", "demo", "simulate", "experiment", "observability", "bench", "import_kalibr",
+    "make_bag", "replay", "compare", "play", "calibrate_bars",
 ]
 
 

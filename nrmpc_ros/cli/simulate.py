@@ -206,14 +206,19 @@ def _validate(sc, source: str) -> None:
     need(0 <= sc.max_translation < math.inf, "max_translation", "must be finite and >= 0 (m)")
 
 
-def add_sequence_arguments(p) -> None:
-    """Flags of a simulated sequence of static views (``--sequence``)."""
+_SEQUENCE_HELP = "write sequences of static views (tracks .npz) instead of two-view problems (matches .npz)"
+
+
+def add_sequence_arguments(p, sequence_help: str = _SEQUENCE_HELP, views_type=int,
+                           views_help: str = "number of static views K (default 10)") -> None:
+    """Flags of a simulated sequence of static views (``--sequence``, with the command's own help);
+    ``views_type`` parses --views (a command that takes several K passes the largest to
+    :func:`sequence_scenario_from_args`)."""
     g = p.add_argument_group(
         "sequence of static views", "With --sequence, --noise defaults to 0.3 px and --max-translation (half-size of "
         "the cube of body positions) to 0.3 m; the other SequenceScenario fields (tilts, depths) come from --scenario.")
-    g.add_argument("--sequence", action="store_true",
-                   help="write sequences of static views (tracks .npz) instead of two-view problems (matches .npz)")
-    g.add_argument("--views", type=int, help="number of static views K (default 10)")
+    g.add_argument("--sequence", action="store_true", help=sequence_help)
+    g.add_argument("--views", type=views_type, help=views_help)
     g.add_argument("--min-step", type=float, help="least rotation between consecutive views (deg, default 5)")
     g.add_argument("--max-step", type=float, help="largest rotation between consecutive views (deg, default 30)")
     g.add_argument("--tracks-per-camera", type=int, help="landmarks visible per camera per view (default 120)")
