@@ -24,3 +24,9 @@ def noise_free():
 
 def problem(scenario=None, seed=0, **kw):
     return make_problem(scenario or Scenario(**kw), seed=seed)
+
+
+@pytest.fixture(scope="session")
+def recordings_dir(tmp_path_factory):
+    """Where the rendered recordings of test/recordings.py are kept for the session."""
+    return tmp_path_factory.mktemp("recordings")

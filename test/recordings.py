@@ -42,7 +42,7 @@ STYLES = {
     "snapshot-imu": ({**BASE, "capture": "snapshot"}, {}),
     "snapshot-noimu": ({**BASE, "capture": "snapshot"}, {"imu": False}),
     "stream-smooth": ({**BASE, "capture": "stream", "rate": 10.0, "move_profile": "min-jerk"}, {}),
-    "stream-ringing": ({**BASE, "hold_seconds": 3.0, "capture": "stream", "rate": 10.0, "move_profile": "trapezoid"},
+    "stream-ringing": ({**BASE, "hold_seconds": 4.0, "capture": "stream", "rate": 10.0, "move_profile": "trapezoid"},
                        {"damping": 0.03, "jitter_ms": 8.0, "drop_rate": 0.02}),
     "compressed": ({**BASE, "capture": "stream", "rate": 10.0}, {"encoding": "jpeg"}),
 }

@@ -14,11 +14,6 @@ from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig
 from nrmpc_ros.frontend.replay import replay_bag, resolve_imu_topic
 
 
-@pytest.fixture(scope="session")
-def recordings_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("recordings")
-
-
 def replay(path, rig_file, method="auto"):
     rig = load_rig(rig_file)
     with BagReader(path) as bag:
@@ -61,7 +56,8 @@ def test_streamed_holds_are_averaged_and_ringing_is_waited_out(recordings_dir):
         assert np.all(frames >= 3)
         ratio = np.array(st.noise_px) / np.array(st.averaged_noise_px)
         assert np.allclose(ratio, np.sqrt(frames), rtol=0.5)
-    assert np.median(ringing.stats.settle_s) > np.median(calm.stats.settle_s) + 0.2
+    # the holds after a move (the first hold starts the bag: nothing rings there)
+    assert max(ringing.stats.settle_s[1:]) > max(calm.stats.settle_s[1:]) + 0.5
     d = ringing.stats.as_dict()
     assert d["median_residual_px"] < 0.2
 

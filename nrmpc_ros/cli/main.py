@@ -11,6 +11,7 @@ import argparse
 import importlib
 import sys
 
+from .. import threads  # noqa: F401  (first of the package: one BLAS thread, before numpy is imported)
 from ..errors import NrmpcError
 
 # Subcommand modules, in the order `nrmpc --help` lists them.

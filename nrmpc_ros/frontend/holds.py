@@ -36,11 +36,14 @@ from ..core.rig import Rig
 class HoldConfig:
     """When frames belong to a hold, and which of them are settled (pixels of each camera's image)."""
 
-    still_step_px: float = option(0.3, "two frames belong to one hold when the median image motion between them "
-                                  "is at most this (px)", lo=0.0, hi=100.0, lo_open=True)
-    settle_px: float = option(0.1, "a frame is settled when its image offset from the hold's rest position is "
-                              "below this (px) or below settle_noise times the offset's noise", lo=0.0, hi=100.0,
-                              lo_open=True)
+    still_step_px: float = option(0.3, "without an IMU a hold starts when the median image motion between two "
+                                  "frames is at most this (px)", lo=0.0, hi=100.0, lo_open=True)
+    hold_radius_px: float = option(3.0, "without an IMU a hold lasts while the image stays within this of the "
+                                   "hold's first frame (px): ringing bars oscillate inside it, a move leaves it",
+                                   lo=0.0, hi=1000.0, lo_open=True)
+    settle_px: float = option(0.2, "a frame is settled when its image offset from the hold's rest position is "
+                              "below this (px) or below settle_noise times the offset's noise; what remains of "
+                              "the ringing averages out over the settled frames", lo=0.0, hi=100.0, lo_open=True)
     settle_noise: float = option(4.0, "see settle_px (in units of the offset's frame-to-frame noise)", lo=0.0,
                                  hi=1000.0, lo_open=True)
     settle_periods: float = option(2.0, "the settled part starts at least this many periods of the slowest bar "

@@ -158,12 +158,13 @@ class Pipeline:
         self._last_check = -math.inf  # when an open hold's settled part was last measured
 
     # ------------------------------------------------------------------ input
-    def add_imu(self, stamp: float, accel, gyro=None) -> None:
-        """One IMU sample (specific force m/s^2, angular rate rad/s, IMU frame); bad samples are counted."""
+    def add_imu(self, stamp: float, accel, gyro=None, covariance=None) -> None:
+        """One IMU sample (specific force m/s^2, angular rate rad/s, IMU frame) and, optionally, its message's
+        (linear_acceleration_covariance, angular_velocity_covariance); bad samples are counted."""
         if self.rig.imu is None:
             self.stats.dropped["imu sample ignored: rig file has no imu block"] += 1
             return
-        reason = self.imu.add(stamp, accel, gyro)
+        reason = self.zupt.add(stamp, accel, gyro, covariance)
         if reason:
             self.stats.dropped[f"imu sample: {reason}"] += 1
 
@@ -247,7 +248,12 @@ class Pipeline:
 
     # ------------------------------------------------------------------ holds
     def _still(self, t0: float, t1: float, steps: list):
-        """Whether the rig was at rest between two frames, and why not."""
+        """Whether the rig was at rest between two frames, and why not.
+
+        With an IMU sample in between, the IMU decides (the bars may ring while the body is still); the images
+        only say that the tracks were lost. Without one, a hold starts when the image barely moved between
+        two frames and lasts while it stays near the hold's first frame (ringing stays near, a move leaves).
+        """
         imu = self.zupt.is_still(t0, t1) if self.rig.imu is not None and len(self.imu) else None
         if imu is False:
             return False, "the IMU says the rig moved"
@@ -255,10 +261,15 @@ class Pipeline:
         for i, s in enumerate(steps):
             if s is None:
                 continue
+            name = self.rig.cameras[i].name
             if s.lost:
-                return False, f"{self.rig.cameras[i].name}: tracks lost"
-            if math.isfinite(s.motion_px) and s.motion_px > cfg.still_step_px:
-                return False, f"{self.rig.cameras[i].name}: image moved {s.motion_px:.2f} px"
+                return False, f"{name}: tracks lost"
+            if imu is True:
+                continue
+            if self._hold is None and math.isfinite(s.motion_px) and s.motion_px > cfg.still_step_px:
+                return False, f"{name}: image moved {s.motion_px:.2f} px"
+            if self._hold is not None and math.isfinite(s.offset_px) and s.offset_px > cfg.hold_radius_px:
+                return False, f"{name}: image left the hold ({s.offset_px:.1f} px from its first frame)"
         return True, ""
 
     def _open(self, stamp: float, images: list, snapshot: bool) -> None:

@@ -123,7 +123,8 @@ def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline, imu_topic: str | None =
                 bar.update(1)
             if topic == imu_topic:
                 a, w = msg.linear_acceleration, msg.angular_velocity
-                pipe.add_imu(stamp_seconds(msg), (a.x, a.y, a.z), (w.x, w.y, w.z))
+                pipe.add_imu(stamp_seconds(msg), (a.x, a.y, a.z), (w.x, w.y, w.z),
+                             (msg.linear_acceleration_covariance, msg.angular_velocity_covariance))
                 continue
             try:
                 img = decode_image(msg, topic)

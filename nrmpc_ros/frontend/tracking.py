@@ -190,11 +190,13 @@ def _lk(img0, img1, p0, cfg: TrackingConfig, window: int | None = None, levels: 
 
 class TrackStep(NamedTuple):
     """What one frame did to a camera's tracks: median motion since the previous frame (px, NaN when unknown),
-    tracks alive, and whether the tracks were lost (a jump: too few survived, all were dropped)."""
+    tracks alive, whether the tracks were lost (a jump: too few survived, all were dropped) and, inside a
+    hold, the median offset from the hold's anchor frame (px, NaN outside a hold)."""
 
     motion_px: float
     tracks: int
     lost: bool
+    offset_px: float = math.nan
 
 
 class KltTracker:
@@ -242,12 +244,14 @@ class KltTracker:
     def track(self, img: np.ndarray) -> TrackStep:
         """Follow the tracks into ``img``; outside a hold, top them up with new corners."""
         lost = False
-        motion = math.nan
+        motion = offset = math.nan
         if self.prev is not None and len(self.uv):
             if self._anchor is not None:
                 a_img, a_uv, a_ids = self._anchor
                 keep = np.isin(a_ids, self.ids)
                 p1, ok = _lk(a_img, img, a_uv[keep], self.cfg, levels=HOLD_LEVELS, guess=self.uv)
+                if ok.any():
+                    offset = float(np.median(np.linalg.norm(p1[ok] - a_uv[keep][ok], axis=1)))
             else:
                 p1, ok = _lk(self.prev, img, self.uv, self.cfg)
             if ok.any():
@@ -262,7 +266,7 @@ class KltTracker:
         self.prev = img
         if self._anchor is None:
             self._replenish(img)
-        return TrackStep(motion, len(self.uv), lost)
+        return TrackStep(motion, len(self.uv), lost, offset)
 
     def start_hold(self) -> None:
         """The current frame becomes the anchor (template) of a hold.

@@ -331,8 +331,21 @@ class ZuptDetector:
         self._cache_still = np.empty(0, dtype=bool)
         self._cache_noise = None
 
-    def add(self, t: float, accel, gyro) -> str | None:
-        """Store one sample; None, or why it was rejected (NaN, out of order, wrong shape; counted by the buffer)."""
+    def add(self, t: float, accel, gyro, covariance=None) -> str | None:
+        """Store one sample; None, or why it was rejected (NaN, out of order, wrong shape; counted by the buffer).
+
+        ``covariance`` (linear_acceleration_covariance, angular_velocity_covariance) of the message: the first
+        that says something (see :func:`estimate_noise`) fixes the noise from then on.
+        """
+        if covariance is not None and self._covariance is None and not self._fixed:
+            try:
+                ok = all(_sigma_from_covariance(c, self.buffer.source, n) is not None
+                         for c, n in zip(covariance, ("linear_acceleration", "angular_velocity")))
+            except InputError:
+                ok = False
+            if ok:
+                self._covariance = covariance
+                self._noise = None  # estimated again, now from the covariances
         return self.buffer.add(t, accel, gyro)
 
     @property
