@@ -1,11 +1,14 @@
 """Bar self-calibration: each bar's compliance m/EI from views whose gravity is measured (an IMU).
 
 One robust bundle adjustment (:func:`nrmpc_ros.core.bundle.adjust_bundle`)
-over every view pair (each pair an independent sequence with its own
-gravity) estimates the compliance of every bar (or one shared scalar)
-together with the poses, the gravity and the points; the measured gravity of
-every view enters as a prior (docs/CONVENTIONS.md, "Gravity measurements"),
-so the IMU's noise is accounted for. The standard deviations come from the
+estimates the compliance of every bar (or one shared scalar) together with
+the poses, the gravity and the points, over the holds of recorded sequences
+(:func:`calibrate_sequences`, what ``nrmpc calibrate-bars`` does with a
+bag: one gravity per sequence, and the accelerometer's constant tilt) or
+over view pairs from matches files (:func:`calibrate_bars`: each pair its
+own gravity). The measured gravity of every view enters as a prior
+(docs/CONVENTIONS.md, "Gravity measurements"), so the IMU's noise is
+accounted for. The standard deviations come from the
 inverse of the reduced information at the optimum; a compliance that is not
 significantly different from zero is reported as not observable instead of
 as a number. Inliers chosen under a wrong compliance are biased towards it,
@@ -19,9 +22,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .core.bundle import GravityPriors, Observations, adjust_bundle
+from .core.bundle import BundleState, GravityPriors, Observations, adjust_bundle
 from .core.estimators import EstimatorOptions, estimate
 from .core.rig import Rig
+from .core.sequence import triangulated
 from .errors import EstimationError
 
 
@@ -33,8 +37,9 @@ class BarCalibration:
     compliance: np.ndarray  # (G,)
     std: np.ndarray  # (G,)
     observable: np.ndarray  # (G,) bool
-    num_pairs: int
-    num_correspondences: int
+    num_sequences: int  # independent sequences (a view pair is a sequence of two views)
+    num_views: int
+    num_observations: int
     iterations: int
     cost: float
     notes: list = field(default_factory=list)
@@ -122,8 +127,77 @@ def calibrate_bars(rig: Rig, pairs: list, shared: bool = False, gravity_sigma_ra
             cams = [rig.cameras[i].name for i in np.flatnonzero(groups == gi)]
             notes.append(f"compliance of {', '.join(cams)} not observable: {kg[gi]:.3g} +- {std[gi]:.2g} "
                          f"kg/(N m^2) is not significantly different from a rigid mount")
-    return BarCalibration(groups=groups, compliance=kg, std=std, observable=observable, num_pairs=len(parts),
-                          num_correspondences=int(len(obs) // 2), iterations=it, cost=res.cost, notes=notes)
+    return BarCalibration(groups=groups, compliance=kg, std=std, observable=observable, num_sequences=len(parts),
+                          num_views=obs.num_views, num_observations=len(obs), iterations=it, cost=res.cost,
+                          notes=notes)
+
+
+def calibrate_sequences(rig: Rig, sequences: list, shared: bool = False, bias_sigma_rad: float | None = 0.005,
+                        max_iterations: int = 50, significance: float = 3.0, threshold_px: float = 2.0,
+                        rounds: int = 4) -> BarCalibration:
+    """Estimate bar compliance from sequences of holds with measured gravity (``SequenceRecord`` each, see
+    :meth:`nrmpc_ros.core.incremental.IncrementalSequence.sequences`), started from their poses and gravity.
+
+    The inliers (angular error below ``threshold_px``, 4 times that in the first round) are chosen with the
+    current compliance and re-chosen while it changes; each sequence keeps one gravity, every view's
+    measurement is a prior of its own std, and the accelerometer's constant tilt is estimated with prior std
+    ``bias_sigma_rad`` (None: no tilt).
+    """
+    groups = _groups(rig, shared)
+    G = int(groups.max()) + 1
+    if G <= 0:
+        raise EstimationError(f"{rig.source}: no camera sits on a bar (all at the body centre); nothing to calibrate")
+    parts, R, t, g, meas, sig = [], [], [], [], [], []
+    for rec in sequences:
+        tr = rec.tracks
+        if tr.g_meas is None or rec.gravity is None:
+            continue
+        obs, _ = Observations.from_arrays(tr.view, tr.cam, tr.track, tr.f, tr.num_views)
+        seen = (np.bincount(obs.point, minlength=obs.num_points) >= 2)[obs.point]
+        parts.append(obs.subset(seen)[0])
+        R.append(rec.R)
+        t.append(rec.t)
+        g.append(rec.gravity)
+        meas.append(tr.measured_gravity(rig))
+        sig.append(rec.measured_sigma)
+    if not parts:
+        raise EstimationError("no sequence of two holds or more with measured gravity for bar calibration")
+    obs = Observations.concatenate(parts)
+    R, t, g = np.concatenate(R), np.concatenate(t), np.array(g)
+    priors = GravityPriors(np.concatenate(meas), np.concatenate(sig), bias_sigma_rad)
+    L = np.linalg.norm(rig.positions, axis=1)
+    k0 = rig.compliance.copy()
+    k0 = np.where(k0 > 0, k0, 2e-3 / (np.maximum(L, 1e-3) ** 2 * rig.gravity_magnitude))
+    kg = np.array([k0[groups == gi].mean() for gi in range(G)])
+    focal = float(np.mean([c.focal_px for c in rig.cameras]))
+    res, it, bias = None, 0, None
+    for rnd in range(rounds):
+        rig_k = _apply(rig, groups, kg)
+        state, prob = triangulated(rig_k, obs, BundleState(R, t, g, np.zeros((obs.num_points, 3)),
+                                                           view_sequence=obs.view_sequence))
+        err = np.linalg.norm(prob.residuals(state), axis=1)
+        inl = err < (4.0 if rnd == 0 else 1.0) * threshold_px / focal
+        inl &= (np.bincount(obs.point, weights=inl.astype(float), minlength=obs.num_points) >= 2)[obs.point]
+        sub, _ = obs.subset(inl)
+        k_before = kg.copy()
+        res = adjust_bundle(rig, sub, R, t, g, priors=priors, compliance_groups=groups, compliance=kg, bias=bias,
+                            max_iterations=max_iterations)
+        kg, R, t, g, bias = res.state.compliance, res.state.R, res.state.t, res.state.gravity, res.state.bias
+        it += res.iterations
+        if rnd >= 1 and np.all(np.abs(kg - k_before) <= 0.01 * np.maximum(np.abs(kg), 1e-12)):
+            break
+    cov = res.covariance[res.layout.compliance, res.layout.compliance]
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.all(np.isfinite(cov)) else np.full(G, np.inf)
+    observable = (kg > significance * std) & np.isfinite(std)
+    notes = []
+    for gi in range(G):
+        if not observable[gi]:
+            cams = [rig.cameras[i].name for i in np.flatnonzero(groups == gi)]
+            notes.append(f"compliance of {', '.join(cams)} not observable: {kg[gi]:.3g} +- {std[gi]:.2g} "
+                         f"kg/(N m^2) is not significantly different from a rigid mount")
+    return BarCalibration(groups=groups, compliance=kg, std=std, observable=observable, num_sequences=len(parts),
+                          num_views=obs.num_views, num_observations=len(obs), iterations=it, cost=res.cost,
+                          notes=notes)
 
 
 def _apply(rig: Rig, groups, kg) -> Rig:
@@ -135,7 +209,8 @@ def _apply(rig: Rig, groups, kg) -> Rig:
 
 def describe(cal: BarCalibration, rig: Rig) -> str:
     """Human-readable table of the calibration."""
-    lines = [f"bar calibration over {cal.num_pairs} view pairs, {cal.num_correspondences} correspondences, "
+    lines = [f"bar calibration over {cal.num_views} views in {cal.num_sequences} sequences, {cal.num_observations} "
+             "observations, "
              f"{cal.iterations} iterations"]
     for gi in range(len(cal.compliance)):
         cams = [rig.cameras[i] for i in np.flatnonzero(cal.groups == gi)]
@@ -151,4 +226,4 @@ def describe(cal: BarCalibration, rig: Rig) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["BarCalibration", "calibrate_bars", "describe"]
+__all__ = ["BarCalibration", "calibrate_bars", "calibrate_sequences", "describe"]

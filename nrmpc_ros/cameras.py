@@ -1,4 +1,4 @@
-"""Camera models of the rig file: pixels <-> unit bearings (SPEC section 7), through OpenCV.
+"""Camera models of the rig file: pixels <-> unit bearings (docs/CONVENTIONS.md (Files)), through OpenCV.
 
 ``pinhole`` is OpenCV's radial-tangential model (k1 k2 p1 p2 [k3]);
 ``equidistant`` is OpenCV's fisheye model (k1 k2 k3 k4). Bearings follow the

@@ -1,10 +1,10 @@
-"""Rig files from Kalibr calibrations (issue 4; rig format of SPEC section 7).
+"""Rig files from Kalibr calibrations (issue 4; rig format of docs/CONVENTIONS.md (Files)).
 
 A Kalibr camera chain (``camchain.yaml``, or ``camchain-imucam.yaml`` which
 adds ``T_cam_imu``) lists ``cam0, cam1, ...`` with ``camera_model``
 (only ``pinhole`` is supported), ``intrinsics [fu, fv, pu, pv]``,
-``distortion_model`` (``radtan`` -> SPEC ``pinhole`` k1 k2 p1 p2,
-``equidistant`` -> SPEC ``equidistant`` k1..k4, ``none``),
+``distortion_model`` (``radtan`` -> the rig file's ``pinhole`` k1 k2 p1 p2,
+``equidistant`` -> ``equidistant`` k1..k4, ``none``),
 ``distortion_coeffs``, ``resolution``, ``rostopic``, chained extrinsics
 ``T_cn_cnm1`` (p_cn = T p_cn-1) and optionally ``T_cam_imu``
 (p_cam = T p_imu). Files written by OpenCV (first line ``%YAML:1.0``,
@@ -118,7 +118,7 @@ def _numbers(src, fld, value, lengths) -> list:
 
 
 def _camera(src, key, d) -> dict:
-    """Intrinsics of one Kalibr camera as the SPEC section 7 fields (no extrinsics yet)."""
+    """Intrinsics of one Kalibr camera as the docs/CONVENTIONS.md (Files) fields (no extrinsics yet)."""
     if not isinstance(d, dict):
         raise InputError(src, "expected a mapping", key)
     for fld in ("camera_model", "intrinsics", "resolution"):
@@ -150,7 +150,7 @@ def _camera(src, key, d) -> dict:
 
 def rig_from_kalibr(camchain, imu_chain=None, body_frame: str = "cam0", imu_topic: str = "/imu/data",
                     frame_id: str = "base_link") -> tuple[Rig, list]:
-    """Rig (SPEC section 7) from a Kalibr camchain and optional camchain-imucam; returns (rig, notes).
+    """Rig (docs/CONVENTIONS.md (Files)) from a Kalibr camchain and optional camchain-imucam; returns (rig, notes).
 
     ``body_frame`` is ``camN`` or ``imu``. Every bar is rigid (Kalibr has no
     bar model); the notes say what the user still has to fill in.

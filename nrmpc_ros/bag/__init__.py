@@ -1,1 +1,1 @@
-"""rosbag2 reading and writing through the ``rosbags`` library, no ROS install needed (SPEC section 11)."""
+"""rosbag2 reading and writing through the ``rosbags`` library, no ROS install needed (docs/CONVENTIONS.md (Bags))."""

@@ -1,4 +1,4 @@
-"""Writing rosbag2 bags with ``rosbags`` (SPEC section 11): images, CameraInfo, IMU and ground truth.
+"""Writing rosbag2 bags with ``rosbags`` (docs/CONVENTIONS.md (Bags)): images, CameraInfo, IMU and ground truth.
 
 Messages are built from the ROS 2 Jazzy type store (named explicitly, as
 rosbags >= 0.11 requires) and written with CDR serialization; storage is

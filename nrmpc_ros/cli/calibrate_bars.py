@@ -1,4 +1,4 @@
-"""``nrmpc calibrate-bars``: estimate each bar's compliance (m/EI) from many view pairs with known gravity."""
+"""``nrmpc calibrate-bars``: each bar's compliance (m/EI) from a bag's holds (or matches files) with known gravity."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ from ..errors import InputError
 def register(sub):
     p = sub.add_parser(
         "calibrate-bars", help="self-calibrate bar stiffness (compliance m/EI) from a bag with an IMU or matches files",
-        description="Joint estimation of every bar's compliance (or one shared scalar with --shared) over many view "
-                    "pairs whose gravity is known (IMU), with standard deviations; writes the calibrated rig file. "
+        description="Joint estimation of every bar's compliance (or one shared scalar with --shared) over the holds "
+                    "of a bag whose gravity the IMU measures (or over view pairs in matches files), with standard "
+                    "deviations; writes the calibrated rig file. "
                     "Bars whose compliance is not significantly different from rigid are reported as not "
                     "observable and left as they are.")
     p.add_argument("bag", nargs="?", help="rosbag2 directory (or ROS 1 .bag) with camera images and an IMU")
@@ -19,34 +20,42 @@ def register(sub):
     p.add_argument("--out", required=True, help="calibrated rig YAML to write")
     p.add_argument("--matches", nargs="+", metavar="NPZ", help="use matches files with g1/g2 instead of a bag")
     p.add_argument("--shared", action="store_true", help="one compliance for all bars")
-    p.add_argument("--gravity-sigma", type=float, default=0.005, help="std of measured gravity (rad, default 0.005)")
+    p.add_argument("--gravity-sigma", type=float, default=0.005,
+                   help="matches files: std of measured gravity (rad); a bag: prior std of the accelerometer's "
+                        "constant tilt, each hold's own noise coming from its samples (default 0.005)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=run)
 
 
-def _pairs_from_bag(bag, rig):
-    """Every view pair the pipeline estimates with 4pt-bending on the bag (IMU gravity in both views)."""
-    from ..frontend.replay import collect_pairs
+def _sequences_from_bag(bag, rig):
+    """The bag's sequences of holds with the IMU's gravity of every hold."""
+    from ..frontend.replay import collect_sequences
 
     stats = {}
-    pairs = collect_pairs(bag, rig, stats=stats)
-    print(f"{len(pairs)} view pairs with IMU gravity from {bag} ({stats['frames']} frame sets, "
-          f"{stats['static_views']} static views)")
-    return pairs
+    seqs = collect_sequences(bag, rig, stats=stats, progress=True)
+    views = sum(s.tracks.num_views for s in seqs)
+    print(f"{views} holds in {len(seqs)} sequence(s) with IMU gravity from {bag} ({stats['frames']} frame sets)")
+    return seqs
 
 
 def run(args) -> int:
+    from ..calibration import calibrate_sequences
+
     rig = load_rig(args.rig)
+    if not args.gravity_sigma > 0:
+        raise InputError("--gravity-sigma", f"must be > 0 (rad), got {args.gravity_sigma}")
     if args.matches:
         pairs = [load_matches(p, rig) for p in args.matches]
+        cal = calibrate_bars(rig, pairs, shared=args.shared, gravity_sigma_rad=args.gravity_sigma, seed=args.seed)
+        source = f"{len(pairs)} matches files"
     elif args.bag:
-        pairs = _pairs_from_bag(args.bag, rig)
+        seqs = _sequences_from_bag(args.bag, rig)
+        cal = calibrate_sequences(rig, seqs, shared=args.shared, bias_sigma_rad=args.gravity_sigma)
+        source = f"bag {args.bag}"
     else:
         raise InputError("calibrate-bars", "give a BAG or --matches files")
-    cal = calibrate_bars(rig, pairs, shared=args.shared, gravity_sigma_rad=args.gravity_sigma, seed=args.seed)
     print(describe(cal, rig))
-    header = ["bar compliance calibrated by nrmpc calibrate-bars from "
-              + (f"{len(pairs)} matches files" if args.matches else f"bag {args.bag}")]
+    header = [f"bar compliance calibrated by nrmpc calibrate-bars from {source}"]
     for gi in range(len(cal.compliance)):
         names = ", ".join(rig.cameras[i].name for i in range(rig.num_cameras) if cal.groups[i] == gi)
         state = (f"{cal.compliance[gi]:.6g} +- {cal.std[gi]:.2g} kg/(N m^2)" if cal.observable[gi]

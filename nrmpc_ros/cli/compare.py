@@ -16,7 +16,7 @@ def register(sub):
                                    "gfy, gfz), and the IMU's (accelerometer averaged over still samples around "
                                    "each stamp) and /ground_truth/gravity when present; relative pose errors "
                                    "against /ground_truth/pose; median/mean/p90 per method.")
-    p.add_argument("csv", metavar="OUT.csv", help="estimates written by nrmpc replay (SPEC section 11)")
+    p.add_argument("csv", metavar="OUT.csv", help="estimates written by nrmpc replay (docs/CONVENTIONS.md (Bags))")
     p.add_argument("--bag", required=True, help="the bag the estimates came from")
     p.add_argument("--imu-topic", default="/imu/data", help="IMU topic (default /imu/data; ignored if absent)")
     p.add_argument("--rig", help="rig file: its imu mount turns readings into body gravity (default: IMU = body)")

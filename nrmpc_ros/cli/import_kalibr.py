@@ -1,4 +1,4 @@
-"""``nrmpc import-kalibr``: write a rig file (SPEC section 7) from a Kalibr camera chain (issue 4)."""
+"""``nrmpc import-kalibr``: write a rig file (docs/CONVENTIONS.md (Files)) from a Kalibr camera chain (issue 4)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ def register(sub):
         "import-kalibr", help="rig file from a Kalibr camchain (bars left rigid: fill in mass and EI)",
         description="Reads a Kalibr camchain.yaml (pinhole cameras with radtan/equidistant distortion, T_cn_cnm1 "
                     "chained extrinsics; OpenCV %YAML:1.0 files too) and optionally camchain-imucam.yaml "
-                    "(T_cam_imu), and writes a SPEC section 7 rig file. Bars are left rigid.")
+                    "(T_cam_imu), and writes a docs/CONVENTIONS.md (Files) rig file. Bars are left rigid.")
     p.add_argument("camchain", metavar="CAMCHAIN.yaml", help="Kalibr camchain (or camchain-imucam) file")
     p.add_argument("--imu-chain", metavar="IMUCAM.yaml", help="Kalibr camchain-imucam file with T_cam_imu")
     p.add_argument("--out", required=True, metavar="RIG.yaml", help="rig file to write")

@@ -65,7 +65,8 @@ def register(sub):
                    help="options from a YAML mapping (keys = option names, e.g. hold-seconds: 2; a relative rig path "
                         "is relative to the file); flags override it")
     rig = p.add_argument_group("rig (a rig file, or one built from these flags)")
-    rig.add_argument("--rig", help="rig YAML file (SPEC section 7); the layout flags below are then ignored")
+    rig.add_argument("--rig", help="rig YAML file (docs/CONVENTIONS.md, Files); the layout flags below are "
+                     "then ignored")
     rig.add_argument("--cameras", type=int, help=f"number of cameras (default {d['cameras']})")
     rig.add_argument("--layout", choices=LAYOUTS, help=f"camera layout (default {d['layout']})")
     rig.add_argument("--EI", type=float, help=f"bar flexural rigidity N m^2 (default {d['EI']}; inf = rigid)")

@@ -1,4 +1,4 @@
-"""``nrmpc replay``: run the node's pipeline on a bag and write one CSV row per estimate (SPEC section 11)."""
+"""``nrmpc replay``: the node's pipeline on a bag, one CSV row per estimate (docs/CONVENTIONS.md, Bags)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def register(sub):
                                    "bag and writes one CSV row per estimate the node would publish; prints the "
                                    "estimates and their errors against the IMU and /ground_truth/* at the end.")
     p.add_argument("bag", metavar="BAG", help="rosbag2 directory or ROS 1 .bag file")
-    p.add_argument("--rig", required=True, help="rig YAML file (SPEC section 7)")
+    p.add_argument("--rig", required=True, help="rig YAML file (docs/CONVENTIONS.md (Files))")
     p.add_argument("--method", default="auto", choices=PIPELINE_METHODS,
                    help="auto: 4pt-bending when IMU gravity is available for both views, else 6pt-bending")
     p.add_argument("--out", required=True, help="output CSV: one row per hold as the node publishes it")

@@ -1,8 +1,8 @@
 """``nrmpc simulate``: synthetic rig, matches or tracks, and ground truth (paper section 4 set-up).
 
-Writes into --out: ``rig.yaml`` (SPEC section 7), ``<prefix>_NNN.npz`` and
+Writes into --out: ``rig.yaml`` (docs/CONVENTIONS.md (Files)), ``<prefix>_NNN.npz`` and
 ``<prefix>_NNN.truth.json`` for --count problems with seeds seed, seed+1, ...
-Two-view problems (the default) give matches files (SPEC section 7) and truth
+Two-view problems (the default) give matches files (docs/CONVENTIONS.md (Files)) and truth
 with R, t, gravity in both views and the outlier indices; ``--sequence``
 gives sequences of static views instead: tracks files (see
 :mod:`nrmpc_ros.core.tracks`) and truth with R_k, t_k and g_k per view, g_0

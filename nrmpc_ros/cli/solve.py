@@ -1,4 +1,4 @@
-"""``nrmpc solve``: run an estimator on matches files (SPEC section 9)."""
+"""``nrmpc solve``: run an estimator on matches files (docs/CONVENTIONS.md (Command line))."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ from ..core import METHODS, estimate, load_matches, load_rig
 
 def register(sub):
     p = sub.add_parser("solve", help="estimate relative pose (and gravity) from matches .npz files",
-                       description="Prints one SPEC section 7 result object (JSON) per matches file, in order.")
-    p.add_argument("--rig", required=True, help="rig YAML file (SPEC section 7)")
+                       description="Prints one result object (JSON, docs/CONVENTIONS.md: Files) per matches "
+                       "file, in order.")
+    p.add_argument("--rig", required=True, help="rig YAML file (docs/CONVENTIONS.md (Files))")
     p.add_argument("--method", required=True, choices=METHODS)
     p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default 0)")
     p.add_argument("--out", help="write results to this file (one JSON object per line) instead of stdout")

@@ -1,4 +1,4 @@
-"""Static cantilever deformation model and Plücker lines (SPEC sections 3 and 4).
+"""Static cantilever deformation model and Plücker lines (docs/CONVENTIONS.md (Bending, Gravity measurements)).
 
 Everything is vectorised over cameras and, where useful, over a batch of
 gravity vectors, so RANSAC can evaluate many gravity hypotheses at once.
@@ -14,7 +14,7 @@ from .so3 import cross, exp_and_left_jacobian, exp_so3, normalize, skew, tangent
 
 
 def bend_rotation_vectors(rig: Rig, g, cams=None) -> np.ndarray:
-    """phi_i(g) = c_r,i (u_i x g) (SPEC section 3) of all cameras (or of ``cams``): (M, 3), or (K, M, 3)
+    """phi_i(g) = c_r,i (u_i x g) (docs/CONVENTIONS.md (Bending)) of all cameras (or of ``cams``): (M, 3), or (K, M, 3)
     for a batch of gravity vectors (K, 3)."""
     cr_ux = rig.bar_derivatives[1]
     if cams is not None:
@@ -23,7 +23,7 @@ def bend_rotation_vectors(rig: Rig, g, cams=None) -> np.ndarray:
 
 
 def deformed_extrinsics(rig: Rig, g):
-    """Bent extrinsics (w_i(g), W_i(g)) of all cameras (SPEC section 3).
+    """Bent extrinsics (w_i(g), W_i(g)) of all cameras (docs/CONVENTIONS.md (Bending)).
 
     g: gravity in the body frame (m/s^2), shape (3,) or a batch (K, 3); used
     as given (the model is linear in g).
@@ -76,7 +76,7 @@ def rays(rig: Rig, f, cam, g=None):
 
 
 def plucker_lines(rig: Rig, f, cam, g=None) -> np.ndarray:
-    """Plücker lines l = (d, w x d) of bearings f seen by cameras cam (SPEC section 3), (N, 6)."""
+    """Plücker lines l = (d, w x d) of bearings f seen by cameras cam (docs/CONVENTIONS.md (Bending)), (N, 6)."""
     o, d = rays(rig, f, cam, g)
     return np.concatenate([d, cross(o, d)], axis=1)
 
@@ -85,7 +85,7 @@ def gravity_from_camera(rig: Rig, camera_index: int, g_cam) -> np.ndarray:
     """Body-frame gravity from a gravity direction measured in camera i's frame (paper eq. 14).
 
     Minimises |W_i(g)^T g - g_cam|^2 over g with |g| = gravity_magnitude,
-    started from V_i g_cam (SPEC section 4). Only the direction of g_cam is used.
+    started from V_i g_cam (docs/CONVENTIONS.md (Gravity measurements)). Only the direction of g_cam is used.
     """
     g_cam = np.asarray(g_cam, dtype=float)
     if g_cam.shape != (3,) or not np.all(np.isfinite(g_cam)) or np.linalg.norm(g_cam) < 1e-12:
@@ -112,7 +112,8 @@ def gravity_from_camera(rig: Rig, camera_index: int, g_cam) -> np.ndarray:
 
 
 def gravity_from_accelerometer(rig: Rig, accel) -> np.ndarray:
-    """Body-frame gravity (m/s^2) from a static accelerometer reading a = -g (SPEC section 4).
+    """Body-frame gravity (m/s^2) from a static accelerometer reading a = -g (docs/CONVENTIONS.md, Gravity
+    measurements).
 
     Uses the rig's IMU mount: at the body centre, g = -R_body_imu a; inside a
     camera, the camera-frame gravity goes through :func:`gravity_from_camera`.

@@ -73,6 +73,18 @@ class ViewEstimate:
 
 
 @dataclass
+class SequenceRecord:
+    """What a sequence measured and estimated: its tracks (with measured gravity), the views' poses in its
+    origin, the origin's gravity and each view's measured-gravity std (rad)."""
+
+    tracks: Tracks
+    R: np.ndarray
+    t: np.ndarray
+    gravity: np.ndarray | None
+    measured_sigma: np.ndarray
+
+
+@dataclass
 class _Sequence:
     """Everything one sequence has seen and estimated."""
 
@@ -103,7 +115,8 @@ class IncrementalSequence:
     """Views in, joint poses and gravity out; see the module docstring."""
 
     def __init__(self, rig: Rig, method: str = "6pt-bending", options: SequenceOptions | dict | None = None,
-                 window: int = 10, seed: int = 0, young_views: int = 5, reconsider_deg: float = 3.0):
+                 window: int = 10, seed: int = 0, young_views: int = 5, reconsider_deg: float = 3.0,
+                 keep_history: bool = False):
         self.rig = rig
         self.method = method
         self.options = options if isinstance(options, SequenceOptions) else SequenceOptions.from_dict(options)
@@ -121,12 +134,23 @@ class IncrementalSequence:
         self._noise_rad = self.threshold / 2.0  # angular noise of the latest solve (condenses retired landmarks)
         self._sequences = 0
         self.seq = _Sequence(0)
+        self.keep_history = keep_history  # keep finished sequences (the bar calibration wants them all)
+        self.history: list = []
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
-        """Start a new sequence: the next view is its origin."""
+        """Start a new sequence: the next view is its origin (with ``keep_history`` the old one is kept)."""
+        if self.keep_history and self.seq.num_views >= 2:
+            self.history.append(self.seq)
         self._sequences += 1
         self.seq = _Sequence(self._sequences)
+
+    def sequences(self) -> list:
+        """Every sequence of two views or more so far (with ``keep_history``; else the current one): a
+        :class:`SequenceRecord` each."""
+        seqs = self.history + ([self.seq] if self.seq.num_views >= 2 else [])
+        return [SequenceRecord(self._tracks_of(s), np.array(s.R[: s.num_views]), np.array(s.t[: s.num_views]),
+                               s.gravity, np.array(s.measured_sigma)) for s in seqs if len(s.R) >= s.num_views]
 
     @property
     def num_views(self) -> int:
@@ -134,7 +158,10 @@ class IncrementalSequence:
 
     def tracks(self) -> Tracks:
         """The current sequence's observations as tracks (with the measured gravity)."""
-        s = self.seq
+        return self._tracks_of(self.seq)
+
+    @staticmethod
+    def _tracks_of(s: _Sequence) -> Tracks:
         view, cam, track, f, _ = s.arrays()
         g = np.array(s.measured)
         return Tracks(view, cam, track, f, g if np.isfinite(g).any() else None, num_views=s.num_views,
@@ -213,7 +240,9 @@ class IncrementalSequence:
     def _restart_from_last(self) -> None:
         """The newest view cannot be linked: it becomes the origin of a new sequence."""
         s = self.seq
-        last = (s.cam[-1], s.track[-1], s.f[-1], s.measured[-1], s.measured_sigma[-1])
+        last = (s.cam.pop(), s.track.pop(), s.f.pop(), s.measured.pop(), s.measured_sigma.pop())
+        s.view.pop()
+        s.inlier.pop()
         self.reset()
         n = self.seq
         n.view.append(np.zeros(len(last[0]), np.int64))
@@ -370,4 +399,4 @@ class IncrementalSequence:
                                 reason=reason, bundle=res)
 
 
-__all__ = ["IncrementalSequence", "ViewEstimate"]
+__all__ = ["IncrementalSequence", "SequenceRecord", "ViewEstimate"]

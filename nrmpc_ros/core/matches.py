@@ -1,4 +1,4 @@
-"""Two-view correspondences of a rig (SPEC section 7, matches .npz)."""
+"""Two-view correspondences of a rig (docs/CONVENTIONS.md (Files), matches .npz)."""
 
 from __future__ import annotations
 
@@ -60,7 +60,8 @@ class Matches:
             raise InputError(self.source, f"camera index {self.g_cam_index} out of range for the rig", "g_cam_index")
 
     def body_gravity(self, rig: Rig):
-        """Measured gravity (g1, g2) in the body frames, |g| = gravity_magnitude, or None (SPEC section 4)."""
+        """Measured gravity (g1, g2) in the body frames, |g| = gravity_magnitude, or None (docs/CONVENTIONS.md,
+        Gravity measurements)."""
         gm = rig.gravity_magnitude
         if self.g1 is not None:
             return (gm * self.g1 / np.linalg.norm(self.g1), gm * self.g2 / np.linalg.norm(self.g2))
@@ -196,7 +197,7 @@ _KEYS = {"f1", "f2", "cam", "g1", "g2", "g1_cam", "g2_cam", "g_cam_index"}
 
 
 def load_matches(path, rig: Rig | None = None) -> Matches:
-    """Load and validate a matches .npz (SPEC section 7); bearings are normalised.
+    """Load and validate a matches .npz (docs/CONVENTIONS.md (Files)); bearings are normalised.
 
     Read through :func:`nrmpc_ros.safeio.load_npz` (size limits, no pickle,
     only the known keys). With ``rig`` the camera indices are also checked
@@ -218,5 +219,5 @@ def load_matches(path, rig: Rig | None = None) -> Matches:
 
 
 def save_matches(m: Matches, path) -> None:
-    """Write a matches .npz (SPEC section 7)."""
+    """Write a matches .npz (docs/CONVENTIONS.md (Files))."""
     np.savez(Path(path), **m.to_npz_dict())

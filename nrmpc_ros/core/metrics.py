@@ -1,4 +1,4 @@
-"""Error metrics and success test of SPEC section 6 (paper section 4)."""
+"""Error metrics and success test of docs/CONVENTIONS.md (Errors and success) (paper section 4)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Minimal solvers from PoseLib behind our frame conventions.
 
-PoseLib's CameraPose maps rig 1 into rig 2 (x2 = R_pl x1 + t_pl); SPEC
-section 2 uses (R, t) mapping view 2 into view 1, so R = R_pl^T and
+PoseLib's CameraPose maps rig 1 into rig 2 (x2 = R_pl x1 + t_pl); our (R, t)
+maps view 2 into view 1 (docs/CONVENTIONS.md, "Frames"), so R = R_pl^T and
 t = -R_pl^T t_pl. The upright solver assumes rotation about y only.
 """
 

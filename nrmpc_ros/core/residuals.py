@@ -3,7 +3,7 @@
 All functions broadcast over leading dimensions, so one call scores every
 correspondence against a batch of pose (or gravity) hypotheses.
 Rays are given as origins o and unit directions d in each view's body frame;
-(R, t) maps view 2 into view 1 (SPEC section 2).
+(R, t) maps view 2 into view 1 (docs/CONVENTIONS.md (Frames)).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from .so3 import cross
 
 
 def generalized_epipolar_residuals(l1, l2, R, t) -> np.ndarray:
-    """l1^T G l2 with G = [[[t]_x R, R], [R, 0]] (SPEC section 3), for Plücker lines (..., N, 6)."""
+    """l1^T G l2 with G = [[[t]_x R, R], [R, 0]] (docs/CONVENTIONS.md (Bending)), for Plücker lines (..., N, 6)."""
     R = np.asarray(R, dtype=float)
     t = np.asarray(t, dtype=float)
     d1, m1 = l1[..., :3], l1[..., 3:]

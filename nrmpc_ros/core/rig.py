@@ -1,4 +1,4 @@
-"""The rig: cameras, canonical extrinsics and bars (SPEC sections 2 and 7).
+"""The rig: cameras, canonical extrinsics and bars (docs/CONVENTIONS.md (Frames, Files)).
 
 ``load_rig`` validates a rig YAML file and returns an immutable :class:`Rig`
 whose per-camera quantities are also available as stacked numpy arrays, so
@@ -75,7 +75,7 @@ class Camera:
 
 @dataclass(frozen=True)
 class ImuMount:
-    """Where the IMU sits: at the body centre or inside a camera (SPEC section 4)."""
+    """Where the IMU sits: at the body centre or inside a camera (docs/CONVENTIONS.md (Gravity measurements))."""
 
     topic: str = "/imu/data"
     mount: str = "body"
@@ -114,7 +114,7 @@ class Rig:
 
     @cached_property
     def bar_coefficients(self):
-        """u_i (M, 3), c_d = m L^3/(3 EI) and c_r = m L^2/(2 EI) (M,), SPEC section 3.
+        """u_i (M, 3), c_d = m L^3/(3 EI) and c_r = m L^2/(2 EI) (M,), docs/CONVENTIONS.md (Bending).
 
         delta_i = c_d g_perp (m per m/s^2), phi_i = c_r (u_i x g) (rad per m/s^2).
         """
@@ -126,7 +126,8 @@ class Rig:
 
     @cached_property
     def bar_derivatives(self):
-        """Constant parts of the model's derivatives (SPEC section 3), (M, 3, 3) each: D_i = d delta_i / d g =
+        """Constant parts of the model's derivatives (docs/CONVENTIONS.md, Bending), (M, 3, 3) each:
+        D_i = d delta_i / d g =
         c_d (I - u_i u_i^T) and c_r [u_i]_x (see :func:`.deformation.deformation_jacobians`)."""
         u, cd, cr = self.bar_coefficients
         D = cd[:, None, None] * (np.eye(3) - u[:, :, None] * u[:, None, :])
@@ -157,7 +158,7 @@ class Rig:
         return replace(self, cameras=tuple(cams))
 
     def to_dict(self) -> dict:
-        """The rig as the SPEC section 7 mapping (round-trips through load_rig)."""
+        """The rig as the docs/CONVENTIONS.md (Files) mapping (round-trips through load_rig)."""
         out = {"body_frame": self.body_frame, "gravity_magnitude": float(self.gravity_magnitude)}
         if self.imu is not None:
             out["imu"] = {
@@ -198,7 +199,7 @@ def _default_info_topic(image_topic: str) -> str:
 
 
 def save_rig(rig: Rig, path, header: str | None = None) -> None:
-    """Write a rig YAML file (SPEC section 7); ``header`` lines become comments."""
+    """Write a rig YAML file (docs/CONVENTIONS.md (Files)); ``header`` lines become comments."""
     text = yaml.safe_dump(rig.to_dict(), sort_keys=False, default_flow_style=None)
     if header:
         text = "".join(f"# {line}\n" for line in header.splitlines()) + text
@@ -448,7 +449,7 @@ def _parse_imu(src, d, camera_names) -> ImuMount:
 
 
 def rig_from_dict(data, source: str = "<rig>") -> Rig:
-    """Validate a SPEC section 7 mapping and build a :class:`Rig`.
+    """Validate a docs/CONVENTIONS.md (Files) mapping and build a :class:`Rig`.
 
     Types are strict (a YAML boolean is not a number, a name is a string),
     names and topics follow the ROS 2 rules, and values beyond the
@@ -475,7 +476,7 @@ def rig_from_dict(data, source: str = "<rig>") -> Rig:
 
 
 def load_rig(path) -> Rig:
-    """Load and validate a rig YAML file (SPEC section 7).
+    """Load and validate a rig YAML file (docs/CONVENTIONS.md (Files)).
 
     The file is read through :func:`nrmpc_ros.safeio.load_yaml` (UTF-8, at most
     ``YAML_MAX_BYTES``, bounded aliases and nesting) and validated by

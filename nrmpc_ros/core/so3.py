@@ -1,7 +1,7 @@
 """Rotations and unit vectors: small vectorised helpers (no state, no ROS).
 
 All functions accept batches with leading dimensions; angles are in radians,
-quaternions are (x, y, z, w) as in ROS messages (SPEC section 7).
+quaternions are (x, y, z, w) as in ROS messages (docs/CONVENTIONS.md (Files)).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Cramér-Rao lower bounds on rotation, translation direction and gravity (issue 3, ``nrmpc observability``).
 
-The measurement model is the one the refinement uses (SPEC section 5, paper
+The measurement model is the one the refinement uses (docs/CONVENTIONS.md (Estimators), paper
 eq. 15): the tangent-plane (angular) residuals of both bearings of every
 inlier, each component with Gaussian noise of std ``sigma_rad`` = pixel
 noise / focal length, which is exactly how :mod:`nrmpc_ros.sim.synthetic`
@@ -58,7 +58,7 @@ _COV = {"rotation": "cov_rotation", "translation": "cov_translation_dir", "gravi
 
 
 def noise_free_bearings(rig: Rig, P: np.ndarray, cam: np.ndarray, R: np.ndarray, t: np.ndarray, g: np.ndarray):
-    """Exact bearings (f1, f2) of body-frame points P under the bending model (SPEC section 3)."""
+    """Exact bearings (f1, f2) of body-frame points P under the bending model (docs/CONVENTIONS.md (Bending))."""
     w1, W1 = deformed_extrinsics(rig, g)
     w2, W2 = deformed_extrinsics(rig, R.T @ g)
     f1 = normalize(np.einsum("nji,nj->ni", W1[cam], P - w1[cam]))
@@ -71,7 +71,7 @@ def fisher_information(rig: Rig, P, cam, R, t, g, sigma_rad: float, gravity_prio
     """8x8 Fisher information of (dr, t, dg) with the points eliminated (Schur complement).
 
     ``gravity_prior_sigma`` (rad) adds measured gravity in both views as a
-    prior of that angular std (SPEC section 5, 4pt-bending); inf = vision only.
+    prior of that angular std (docs/CONVENTIONS.md (Estimators, Gravity measurements)pt-bending); inf = vision only.
     """
     P = np.asarray(P, dtype=float)
     cam = np.asarray(cam)

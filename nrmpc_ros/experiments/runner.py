@@ -8,7 +8,7 @@ sorts the rows by (cell, run, method). Run ``r`` of every cell uses the same
 problem seed (common random numbers), which makes curves over a grid axis
 smoother than independent draws would.
 
-Errors follow SPEC section 6 (:func:`nrmpc_ros.core.pose_errors`).
+Errors follow docs/CONVENTIONS.md (Errors and success) (:func:`nrmpc_ros.core.pose_errors`).
 """
 
 from __future__ import annotations
@@ -47,7 +47,8 @@ def task_seed(base_seed: int, run: int) -> int:
 
 
 def run_task(task: Task) -> list[dict]:
-    """Solve one problem with every method; one row per method with its SPEC section 6 errors."""
+    """Solve one problem with every method; one row per method with its errors (docs/CONVENTIONS.md, Errors and
+    success)."""
     sc = Scenario.from_dict(task.scenario)
     rig = rig_from_dict(task.rig, "<experiment rig>") if task.rig else None
     problem = make_problem(sc, seed=task.seed, rig=rig)
@@ -137,7 +138,7 @@ def _execute_dask(tasks: list[Task], address: str, bar) -> list[dict]:
 
 
 # ---------------------------------------------------------------------------
-# statistics (SPEC section 6)
+# statistics (docs/CONVENTIONS.md (Errors and success))
 # ---------------------------------------------------------------------------
 
 def _stats(values: np.ndarray) -> tuple[float, float]:

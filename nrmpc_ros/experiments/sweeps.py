@@ -274,7 +274,7 @@ def markdown(exp: Experiment, summary, settings: dict, images: list[Path], keys:
     lines += [f"| {k} | {v} |" for k, v in settings.items()]
     lines += ["", "## Findings", ""] + claims(exp, summary)
     lines += ["", "## Plots", ""] + [f"![{p.stem}]({p.name})" for p in images]
-    lines += ["", "## Summary (errors in mrad; 'ok' = over successful runs, 'all' = over all runs, SPEC section 6)", ""]
+    lines += ["", "## Summary (errors in mrad; 'ok' = over successful runs, 'all' = over all runs)", ""]
     head = list(keys) + ["method", "success %", "rot med ok", "rot mean ok", "trans med ok", "trans mean ok",
                          "grav med ok", "grav mean ok", "rot med all", "trans med all", "grav med all", "time ms"]
     lines += ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]

@@ -248,7 +248,7 @@ def imu_gravity_at(ref: Reference, stamp: float, rig: Rig | None = None, window_
                    still_gyro: float = 0.05):
     """Body-frame gravity from the accelerometer averaged over still samples within +-window_s of ``stamp``.
 
-    With a rig that has an ``imu`` block its mount is used (SPEC section 4);
+    With a rig that has an ``imu`` block its mount is used (docs/CONVENTIONS.md (Gravity measurements));
     otherwise the IMU frame is taken as the body frame (g = -a). None without samples.
     """
     i, j = np.searchsorted(ref.imu_t, [stamp - window_s, stamp + window_s])

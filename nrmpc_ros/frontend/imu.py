@@ -1,4 +1,5 @@
-"""IMU buffer: accelerometer averaged over a static window -> body-frame gravity (SPEC section 4).
+"""IMU buffer: the accelerometer averaged over a hold -> body-frame gravity (docs/CONVENTIONS.md, Gravity
+measurements).
 
 Samples are kept in time order for ``capacity_s`` seconds. NaN/inf samples and
 samples older than the newest one are rejected and counted; gaps longer than

@@ -142,33 +142,32 @@ def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline, imu_topic: str | None =
             bar.close()
 
 
-def collect_pairs(bag, rig: Rig, config: PipelineConfig | None = None, imu_topic: str | None = None,
-                  warn: Callable = _stderr_warn, progress: bool = False, stats: dict | None = None) -> list:
-    """Matches (with IMU gravity g1/g2 in both views) of every view pair the pipeline estimates with 4pt-bending.
+def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_topic: str | None = None,
+                      warn: Callable = _stderr_warn, progress: bool = False, stats: dict | None = None) -> list:
+    """The sequences of holds a bag holds, with the IMU's gravity of every hold (for
+    :func:`nrmpc_ros.calibration.calibrate_sequences`): one ``SequenceRecord`` per sequence.
 
-    ``bag`` is a path or an open :class:`BagReader`. Every pair the pipeline
-    attempts is kept, also when its 4pt-bending estimate fails under the
-    (possibly wrong) rig: the calibration re-estimates each pair itself. Raises
-    :class:`InputError` when the bag or rig has no IMU, or no pair has IMU gravity.
+    ``bag`` is a path or an open :class:`BagReader`. The poses and gravity start the calibration; the rig's bar
+    values may be wrong (what the holds and their tracks are does not depend on them). Raises
+    :class:`InputError` when the bag or rig has no IMU, or no sequence of two holds has IMU gravity.
     """
     if not isinstance(bag, BagReader):
         with BagReader(bag) as reader:
-            return collect_pairs(reader, rig, config, imu_topic, warn, progress, stats)
+            return collect_sequences(reader, rig, config, imu_topic, warn, progress, stats)
     topic = resolve_imu_topic(bag, rig, imu_topic, required=True, warn=warn)
     pipe = Pipeline(rig, config, method="4pt-bending")
-    pairs, last = [], None
+    pipe.sequence.keep_history = True
     for _ in replay_bag(bag, rig, pipe, topic, warn=warn, progress=progress):
-        if pipe.last_pair is not None and pipe.last_pair is not last:
-            last = pipe.last_pair
-            pairs.append(last[2])
+        pass
     if stats is not None:
         stats.update(pipe.stats.as_dict())
-    if not pairs:
+    seqs = [s for s in pipe.sequence.sequences() if s.tracks.g_meas is not None and s.gravity is not None]
+    if not seqs:
         st = pipe.stats
         dropped = "; ".join(f"{k}: {v}" for k, v in sorted(st.dropped.items())) or "nothing dropped"
-        raise InputError(bag.source, f"no view pair with IMU gravity in both views on {topic!r} ({st.frames} frame "
-                         f"sets, {st.static_views} static views, {st.pairs} pairings; dropped: {dropped})", topic)
-    return pairs
+        raise InputError(bag.source, f"no sequence of holds with IMU gravity on {topic!r} ({st.frames} frame "
+                         f"sets, {st.holds} holds, {st.estimates} estimates; dropped: {dropped})", topic)
+    return seqs
 
 
-__all__ = ["check_camera_info", "collect_pairs", "replay_bag", "resolve_imu_topic"]
+__all__ = ["check_camera_info", "collect_sequences", "replay_bag", "resolve_imu_topic"]

@@ -1,4 +1,4 @@
-"""Rendered synthetic bags of a bending rig, recorded the way real rigs are (topics of SPEC section 11).
+"""Rendered synthetic bags of a bending rig, recorded the way real rigs are (topics of docs/CONVENTIONS.md (Bags)).
 
 The rig holds still at a sequence of attitudes joined by moves
 (:mod:`.sequence`); the cameras are triggered in one of the capture modes
@@ -103,7 +103,8 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
 
     Specific force f = R^T (acc_world - g_world) = -u in the body frame (u the body's load); an IMU at the
     body centre reads R_body_imu^T f and the body rate. One inside camera i reads R_cam_imu^T W_i^T f_i with
-    the camera bent by its bar's load (SPEC section 4), where f_i adds the lever arm of the bent camera
+    the camera bent by its bar's load (docs/CONVENTIONS.md, Gravity measurements), where f_i adds the lever arm
+    of the bent camera
     position w_i: alpha x w_i + omega x (omega x w_i). When that bar rings (``loads`` with a damping ratio)
     the tip's own motion adds too: its acceleration c_d P_i x_i'' = P_i (u - x_i - 2 zeta / w x_i') (the
     bar's spring and damper force per unit tip mass; P_i removes the axial part, which the bar carries

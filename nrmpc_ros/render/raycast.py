@@ -1,4 +1,4 @@
-"""Vectorised ray caster of the textured room (rig geometry per SPEC sections 2, 3, 7).
+"""Vectorised ray caster of the textured room (rig geometry per docs/CONVENTIONS.md (Frames, Bending, Files)).
 
 A rig camera's pixels become unit bearings through its own camera model
 (:func:`nrmpc_ros.cameras.pixels_to_bearings`, cached per camera); each view
@@ -139,7 +139,8 @@ class Renderer:
         return (img, pts[mid * h * w:(mid + 1) * h * w]) if return_points else img
 
     def camera_poses(self, R_world_body, p_world_body, g_body=None):
-        """World orientation (M, 3, 3) and position (M, 3) of every camera, bent for the load g_body (SPEC section 3).
+        """World orientation (M, 3, 3) and position (M, 3) of every camera, bent for the load g_body
+        (docs/CONVENTIONS.md, Bending).
 
         g_body: one body-frame load (3,) for all cameras, one per camera (M, 3), or None for the
         canonical extrinsics.
