@@ -20,9 +20,8 @@ def register(sub):
         "experiment", help="Monte Carlo experiments of the paper's section 4 (CSV + PNG + markdown)",
         description="Runs a grid of seeded synthetic problems through the estimators and writes "
                     "<name>-<M>cam_runs.csv (one row per run and method), <name>-<M>cam_summary.csv (success rate, "
-                    "mean/median errors over successful and over all runs (docs/CONVENTIONS.md, Errors and success)), PNG "
-                    "plots and a "
-                    "markdown summary into --out. Deterministic for a --seed (except run times).")
+                    "mean/median errors over successful and over all runs), PNG plots and a markdown summary "
+                    "into --out. Deterministic for a --seed (except run times).")
     p.add_argument("name", choices=sorted(EXPERIMENTS), help="noise-ei (Figs. 4/5/8), outliers (Figs. 6/9), "
                    "gravity-noise (Figs. 7/10)")
     p.add_argument("--out", default="experiments", help="output directory (default: ./experiments)")
