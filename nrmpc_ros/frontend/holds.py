@@ -38,9 +38,10 @@ class HoldConfig:
 
     still_step_px: float = option(0.3, "without an IMU a hold starts when the median image motion between two "
                                   "frames is at most this (px)", lo=0.0, hi=100.0, lo_open=True)
-    hold_radius_px: float = option(3.0, "without an IMU a hold lasts while the image stays within this of the "
-                                   "hold's first frame (px): ringing bars oscillate inside it, a move leaves it",
-                                   lo=0.0, hi=1000.0, lo_open=True)
+    hold_radius_deg: float = option(3.0, "without an IMU a hold lasts while the image stays within this angle of "
+                                    "the hold's first frame (deg, through each camera's focal length): ringing "
+                                    "bars oscillate inside it, the moves between holds leave it", lo=0.0, hi=90.0,
+                                    lo_open=True)
     settle_px: float = option(0.2, "a frame is settled when its image offset from the hold's rest position is "
                               "below this (px) or below settle_noise times the offset's noise; what remains of "
                               "the ringing averages out over the settled frames", lo=0.0, hi=100.0, lo_open=True)

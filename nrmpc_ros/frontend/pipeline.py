@@ -214,15 +214,27 @@ class Pipeline:
         steps = [None if img is None else trk.track(img) for trk, img in zip(self.trackers, images)]
         lone_gap = self._lone_gap()
         out = []
-        if gap > lone_gap:  # a new stream, or a snapshot: what was open ends with the previous frame
+        lost = any(s is not None and s.lost for s in steps)
+        settling = self._hold is not None and stamp - self._hold.start < self._settle_window()
+        if lost and settling and gap <= lone_gap:
+            self._reanchor(stamp, images)  # the bars ring too far for the tracks: anchor again, keep the stop
+            self._periods = (self._periods + [gap])[-20:]
+        elif gap > lone_gap or lost:
+            # a new stream, a snapshot, or a jump the tracks could not follow: what was open ends with the
+            # previous frame, and this one may start a hold (the rig may be at rest here, its bars ringing)
             out += self._close()
             self._open(stamp, images, snapshot=True)
-        else:
             if gap <= lone_gap:
                 self._periods = (self._periods + [gap])[-20:]
+        else:
+            self._periods = (self._periods + [gap])[-20:]
             still, why = self._still(self.last_stamp, stamp, steps)
             if self._hold is not None and still:
                 self._record(stamp)
+            elif self._hold is not None and why.endswith("from its first frame)") and settling:
+                # the image left the hold before the bars could have settled: ringing, not a move (a move this
+                # soon after a stop could not give a settled hold anyway). Anchor again, keep the stop time.
+                self._reanchor(stamp, images)
             elif self._hold is not None:
                 if len(self._hold) == 1 and self._hold.snapshot:
                     self.stats.dropped[f"frame not at rest ({why})"] += 1  # the first frame of a moving stream
@@ -268,7 +280,8 @@ class Pipeline:
                 continue
             if self._hold is None and math.isfinite(s.motion_px) and s.motion_px > cfg.still_step_px:
                 return False, f"{name}: image moved {s.motion_px:.2f} px"
-            if self._hold is not None and math.isfinite(s.offset_px) and s.offset_px > cfg.hold_radius_px:
+            radius = math.radians(cfg.hold_radius_deg) * self.rig.cameras[i].focal_px
+            if self._hold is not None and math.isfinite(s.offset_px) and s.offset_px > radius:
                 return False, f"{name}: image left the hold ({s.offset_px:.1f} px from its first frame)"
         return True, ""
 
@@ -286,6 +299,16 @@ class Pipeline:
         self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot)
         self._record(stamp)
         self._last_check = stamp
+
+    def _settle_window(self) -> float:
+        """How long after a stop the bars may still ring (s)."""
+        return self.config.holds.settle_periods * self.bar_period_s
+
+    def _reanchor(self, stamp: float, images: list) -> None:
+        """The open hold starts again from this frame (new anchor) but keeps the time the rig stopped."""
+        start, snapshot = self._hold.start, self._hold.snapshot
+        self._open(stamp, images, snapshot=snapshot)
+        self._hold.start = start
 
     def _record(self, stamp: float) -> None:
         self._hold.add(stamp, [trk.positions() if trk.in_hold else None for trk in self.trackers])

@@ -207,7 +207,7 @@ class KltTracker:
     ``lost_fraction`` of them survive (a jump, e.g. between snapshots) all are
     dropped and new corners are detected, with new ids. Inside a hold
     (:meth:`start_hold`) every frame is tracked from the hold's anchor frame,
-    the template, starting from the previous positions on a short pyramid:
+    the template, starting from the previous positions:
     positions of one hold never drift from frame to frame, so averaging them
     reduces the noise. No corners are added during a hold.
     """
@@ -249,7 +249,7 @@ class KltTracker:
             if self._anchor is not None:
                 a_img, a_uv, a_ids = self._anchor
                 keep = np.isin(a_ids, self.ids)
-                p1, ok = _lk(a_img, img, a_uv[keep], self.cfg, levels=HOLD_LEVELS, guess=self.uv)
+                p1, ok = _lk(a_img, img, a_uv[keep], self.cfg, guess=self.uv)
                 if ok.any():
                     offset = float(np.median(np.linalg.norm(p1[ok] - a_uv[keep][ok], axis=1)))
             else:
@@ -293,9 +293,6 @@ class KltTracker:
     def positions(self) -> tuple:
         """(ids, uv (N, 2) float64) of the tracks in the last frame."""
         return self.ids.copy(), self.uv.astype(np.float64)
-
-
-HOLD_LEVELS = 1  # pyramid levels inside a hold: the image moves by ringing only (a few pixels at most)
 
 
 # ---------------------------------------------------------------------------
