@@ -725,14 +725,21 @@ class BundleResult:
         if body:
             T = np.eye(6)
             T[:3, :3] = self.state.R[k].T
-            C = T @ C @ T.T
+            C = _propagate(T, C)
         return C
 
 
 def gravity_covariance(g, cov_dg) -> np.ndarray:
     """3x3 covariance of g (m^2/s^4) from the 2x2 tangent covariance of the chart (rad^2)."""
     B = np.linalg.norm(g) * tangent_basis(normalize(g))
-    return B @ cov_dg @ B.T
+    return _propagate(B, cov_dg)
+
+
+def _propagate(J: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """J cov J^T; an unconstrained (non-finite) covariance stays unconstrained (inf) instead of turning NaN."""
+    if not np.all(np.isfinite(cov)):
+        return np.full((J.shape[0], J.shape[0]), np.inf)
+    return J @ cov @ J.T
 
 
 def covariance_from_information(info: np.ndarray) -> np.ndarray:

@@ -364,6 +364,9 @@ class Pipeline:
         t0 = time.perf_counter()
         obs = self.linker.link(hold)
         imu = self._imu_gravity(hold)
+        if imu is None and self.method == "4pt-bending":  # forced: no silent fall back to 6pt-bending
+            st.dropped["hold without IMU gravity (4pt-bending forced)"] += 1
+            return []
         g = sigma = None
         if imu is not None:
             g = imu.gravity
