@@ -68,8 +68,11 @@ def run(args) -> int:
     def warn(msg):
         print(f"nrmpc replay: warning: {msg}", file=sys.stderr)
 
+    def note(msg):
+        print(f"images: {msg}")
+
     with BagReader(args.bag) as bag:
-        image_topics = bag_image_topics(bag, rig, warn)
+        image_topics = bag_image_topics(bag, rig, note)
         imu_topic = resolve_imu_topic(bag, rig, args.imu_topic, use_imu=not args.no_imu, warn=warn)
         check_camera_info(bag, rig, warn)
         pipe = Pipeline(rig, cfg, method=args.method)

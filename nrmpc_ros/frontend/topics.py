@@ -76,7 +76,7 @@ def resolve_image_topics(bag_topics: dict, rig, source: str = "bag") -> list:
             raise InputError(source, f"camera {cam.name!r}: topic {used!r} has type {msgtype}, not {want}", "topic")
         note = ""
         if used == comp:
-            note = f"{topic} (camera {cam.name}) is not in the bag: using {comp} ({msgtype})"
+            note = f"camera {cam.name}: {comp} ({topic} is not in the bag)"
         elif kind == "compressed":
             note = f"{topic} (camera {cam.name}) holds compressed images ({msgtype})"
         out.append(ImageTopic(used, msgtype, kind == "compressed", note))
@@ -85,11 +85,11 @@ def resolve_image_topics(bag_topics: dict, rig, source: str = "bag") -> list:
 
 def bag_image_topics(bag, rig, warn=None) -> list:
     """:func:`resolve_image_topics` for an open :class:`~nrmpc_ros.bag.reader.BagReader`; ``warn(note)`` is
-    called for every fallback taken."""
+    called once with every fallback taken (one line)."""
     out = resolve_image_topics({t: m for t, (m, _) in bag.topics.items()}, rig, bag.source)
-    for t in out:
-        if t.note and warn is not None:
-            warn(t.note)
+    notes = [t.note for t in out if t.note]
+    if notes and warn is not None:
+        warn("; ".join(notes))
     return out
 
 
