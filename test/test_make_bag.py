@@ -121,7 +121,7 @@ def test_images_use_the_bent_extrinsics(clean_bag):
     q, p = pose.pose.orientation, pose.pose.position
     R = quat_xyzw_to_matrix([q.x, q.y, q.z, q.w])
     g = np.array([grav.vector.x, grav.vector.y, grav.vector.z])
-    r = Renderer(rig, make_scene(7))
+    r = Renderer(rig, make_scene(7), BagOptions().supersample)  # as the bag's renderer
     bent = r.render_rig(R, [p.x, p.y, p.z], g)
     rigid = r.render_rig(R, [p.x, p.y, p.z], None)
     for i in range(4):

@@ -1,4 +1,5 @@
-"""``nrmpc compare``: per-pair and fused gravity vs the IMU and ground truth of a bag; relative pose vs ground truth."""
+"""``nrmpc compare``: a replay CSV's gravity against the IMU and ground truth of a bag, its poses against the ground
+truth (relative, and in the sequence origin), and the trajectories as TUM files for evo."""
 
 from __future__ import annotations
 
@@ -8,20 +9,27 @@ from ..bag.reader import BagReader
 from ..core import load_rig
 from ..errors import InputError
 from ..frontend.evaluation import evaluate, format_report, plot_errors, read_csv, read_reference
+from ..frontend.trajectory import describe as describe_trajectories
+from ..frontend.trajectory import sequence_errors, write_trajectories
 
 
 def register(sub):
     p = sub.add_parser("compare", help="score a replay CSV against the bag's IMU and /ground_truth/*",
-                       description="Angle between the estimated gravity, per pair (raw) and fused (columns gfx, "
-                                   "gfy, gfz), and the IMU's (accelerometer averaged over still samples around "
-                                   "each stamp) and /ground_truth/gravity when present; relative pose errors "
-                                   "against /ground_truth/pose; median/mean/p90 per method.")
+                       description="Angle between each hold's estimated gravity and the IMU's (accelerometer "
+                                   "averaged over still samples around each stamp) and /ground_truth/gravity when "
+                                   "present; relative pose errors against /ground_truth/pose, and the absolute "
+                                   "error of the poses in each sequence's origin frame; median/mean/p90 per "
+                                   "method.")
     p.add_argument("csv", metavar="OUT.csv", help="estimates written by nrmpc replay (docs/CONVENTIONS.md (Bags))")
     p.add_argument("--bag", required=True, help="the bag the estimates came from")
     p.add_argument("--imu-topic", default="/imu/data", help="IMU topic (default /imu/data; ignored if absent)")
     p.add_argument("--rig", help="rig file: its imu mount turns readings into body gravity (default: IMU = body)")
     p.add_argument("--imu-window", type=float, default=0.25, help="average still IMU samples within +- this (s)")
-    p.add_argument("--plot", metavar="OUT.png", help="write a PNG of the raw and fused errors over time")
+    p.add_argument("--plot", metavar="OUT.png", help="write a PNG of the errors over time")
+    p.add_argument("--tum", metavar="OUT.txt", help="write the hold poses in each sequence's origin frame (TUM "
+                   "format, for evo; a second sequence goes to OUT_seq1.txt, ...)")
+    p.add_argument("--tum-gt", metavar="GT.txt", help="with --tum: the ground truth at the same holds in the same "
+                   "origin frame")
     p.add_argument("--json", metavar="OUT.json", help="write the statistics as JSON")
     p.add_argument("--quiet", action="store_true", help="statistics only, not every estimate")
     p.set_defaults(func=run)
@@ -39,6 +47,12 @@ def run(args) -> int:
         raise InputError(args.bag, "the bag has neither the IMU topic nor /ground_truth/*: nothing to compare with")
     ev = evaluate(rows, ref, rig, args.imu_window)
     print(format_report(ev, per_estimate=not args.quiet))
+    if args.tum_gt and not (args.tum and ref.has_pose):
+        raise InputError("--tum-gt", "needs --tum and /ground_truth/pose in the bag")
+    if args.tum:
+        print(describe_trajectories(write_trajectories(rows, args.tum, ref, args.tum_gt)))
+    else:
+        print(describe_trajectories(sequence_errors(rows, ref)))
     if args.plot:
         plot_errors(ev, args.plot)
         print(f"wrote {args.plot}")

@@ -37,7 +37,7 @@ DEFAULTS = {
     "seed": _B.seed, "image_noise": _B.image_noise, "imu_noise": _B.imu_noise, "gyro_noise": _B.gyro_noise,
     "imu_bias": _B.imu_bias, "gyro_bias": _B.gyro_bias, "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
-    "out": None, "no_progress": False,
+    "supersample": _B.supersample, "out": None, "no_progress": False,
 }
 _INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
 
@@ -124,6 +124,9 @@ def register(sub):
                     help="raw sensor_msgs/Image encoding, or png/jpeg for CompressedImage on <image_topic>/compressed "
                          "(default mono8)")
     se.add_argument("--jpeg-quality", type=int, help=f"0-100 (default {d['jpeg_quality']})")
+    se.add_argument("--supersample", type=int, metavar="S",
+                    help=f"S x S rays per pixel: each pixel integrates its area as a sensor does; 1 samples its "
+                         f"centre only, which aliases fine texture (default {d['supersample']})")
     se.add_argument("--storage", choices=sorted(STORAGES), help="rosbag2 storage (default sqlite3)")
     se.add_argument("--out", metavar="DIR", help="output bag directory (must not exist; required)")
     se.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -252,7 +255,8 @@ def bag_options(o: dict):
     return BagOptions(motion=motion, seed=o["seed"], encoding=o["encoding"], jpeg_quality=o["jpeg_quality"],
                       storage=o["storage"], image_noise=o["image_noise"], imu_noise=o["imu_noise"],
                       gyro_noise=o["gyro_noise"], imu_bias=o["imu_bias"], gyro_bias=o["gyro_bias"],
-                      imu=not o["no_imu"], damping=o["damping"], jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"])
+                      imu=not o["no_imu"], damping=o["damping"], jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
+                      supersample=o["supersample"])
 
 
 def _check_outputs(o: dict, scenario) -> None:

@@ -17,6 +17,8 @@ from ..frontend.pipeline import PIPELINE_METHODS, Pipeline, PipelineConfig
 from ..frontend.replay import check_camera_info, replay_bag, resolve_imu_topic
 from ..frontend.sync import StampSynchronizer
 from ..frontend.topics import bag_image_topics
+from ..frontend.trajectory import describe as describe_trajectories
+from ..frontend.trajectory import sequence_errors, write_trajectories
 
 
 def register(sub):
@@ -31,6 +33,10 @@ def register(sub):
     p.add_argument("--out", required=True, help="output CSV: one row per hold as the node publishes it")
     p.add_argument("--batch", metavar="BATCH.csv", help="also write the joint solution of all holds at once "
                    "(each hold relative to the one before it)")
+    p.add_argument("--tum", metavar="OUT.txt", help="also write the hold poses in the sequence's origin frame "
+                   "(TUM format, for evo; a second sequence goes to OUT_seq1.txt, ...)")
+    p.add_argument("--tum-gt", metavar="GT.txt", help="with --tum: the bag's /ground_truth/pose at the same holds, "
+                   "in the same origin frame (evo_ape tum GT.txt OUT.txt needs no alignment)")
     p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig: tracking, holds, imu, zupt, "
                    "sequence, ...)")
     p.add_argument("--imu-topic", help="IMU topic (default: the rig file's imu.topic)")
@@ -43,6 +49,16 @@ def register(sub):
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", action="store_true", help="print only the statistics, not every estimate")
     p.set_defaults(func=run)
+
+
+def check_tum_flags(args, bag) -> None:
+    """--tum-gt needs --tum (the holds and origins it is written at) and ground truth in the bag."""
+    from ..frontend.evaluation import GT_POSE_TOPIC
+
+    if args.tum_gt and not args.tum:
+        raise InputError("--tum-gt", "needs --tum: the ground truth is written at the estimated holds")
+    if args.tum_gt and not bag.has_topic(GT_POSE_TOPIC):
+        raise InputError("--tum-gt", f"{bag.source} has no {GT_POSE_TOPIC} topic")
 
 
 def load_config(path, seed: int) -> PipelineConfig:
@@ -72,6 +88,7 @@ def run(args) -> int:
         print(f"images: {msg}")
 
     with BagReader(args.bag) as bag:
+        check_tum_flags(args, bag)
         image_topics = bag_image_topics(bag, rig, note)
         imu_topic = resolve_imu_topic(bag, rig, args.imu_topic, use_imu=not args.no_imu, warn=warn)
         check_camera_info(bag, rig, warn)
@@ -109,6 +126,8 @@ def run(args) -> int:
         gb = evb.stats("gravity_vs_gt_deg")
         print(f"batch (all holds at once, {args.batch}): gravity vs ground truth median {gb['median']:.3f} deg "
               f"(n={gb['n']}); vs IMU median {evb.stats('gravity_vs_imu_deg')['median']:.3f} deg")
+    seqs = write_trajectories(rows, args.tum, ref, args.tum_gt) if args.tum else sequence_errors(rows, ref)
+    print(describe_trajectories(seqs))
     d = st.as_dict()
     print(f"frames {st.frames}, holds {st.holds}, estimates {st.estimates} "
           f"({', '.join(f'{m}: {n}' for m, n in sorted(st.methods.items())) or 'none'}), sequences {st.sequences}")

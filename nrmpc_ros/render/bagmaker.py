@@ -81,6 +81,8 @@ class BagOptions:
             raise InputError("--encoding", f"unsupported {self.encoding!r} (supported: {', '.join(ENCODINGS)})")
         if not (isinstance(self.jpeg_quality, numbers.Integral) and 0 <= self.jpeg_quality <= 100):
             raise InputError("--jpeg-quality", f"must be an integer in [0, 100], got {self.jpeg_quality!r}")
+        if not (isinstance(self.supersample, numbers.Integral) and 1 <= self.supersample <= 8):
+            raise InputError("--supersample", f"must be an integer in [1, 8], got {self.supersample!r}")
         for name in ("image_noise", "imu_noise", "gyro_noise", "imu_bias", "gyro_bias", "jitter_ms"):
             value = getattr(self, name)
             if not (_real(value) and value >= 0):
