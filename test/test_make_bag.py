@@ -415,7 +415,7 @@ def test_ringing_bars_render_their_own_load(tmp_path):
     a, b = (m.data.reshape(120, 160).astype(int) for _, m in second[:2])
     assert np.abs(a - b).mean() > 1.0, "the bars still ring: frames of one hold differ"
     loads = CameraLoads(rig, traj, damping=0.05)
-    renderer = Renderer(rig, make_scene(4))
+    renderer = Renderer(rig, make_scene(4), opts.supersample)
     for t, m in second[:2]:
         R, p, _, _ = traj.state([t])
         expected = renderer.render_rig(R[0], p[0], loads.at([t])[0])[0]
