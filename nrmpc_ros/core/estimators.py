@@ -61,7 +61,7 @@ class EstimatorOptions:
     patience_6pt: int = option(30, "stop once the best 6-point model has not improved for this many samples",
                                lo=1, hi=1000000)
     start_iterations_6pt: int = option(12, "6-point samples per gravity start in 6pt-bending", lo=1, hi=1000000)
-    start_ba_iterations: int = option(10, "bundle-adjustment iterations that compare gravity starts", lo=1,
+    start_ba_iterations: int = option(6, "bundle-adjustment iterations that compare gravity starts", lo=1,
                                       hi=10000)
     weak_geometry_starts: int = option(6, "gravity starts when all observing cameras sit on parallel bars", lo=1,
                                        hi=1000)
@@ -76,7 +76,7 @@ class EstimatorOptions:
     huber_k: float = option(3.0, "Huber threshold on the 2-D residual norm (robust sigmas)", lo=0.0, hi=1e3,
                             lo_open=True)
     max_ba_iterations: int = option(30, "bundle-adjustment iterations per refinement", lo=1, hi=10000)
-    subset_size: int = option(300, "correspondences used while comparing gravity starts", lo=8, hi=10000000)
+    subset_size: int = option(150, "correspondences used while comparing gravity starts", lo=8, hi=10000000)
     final_refinement: bool = option(True, "6pt-bending: robust refinement on all correspondences after the best "
                                     "start (off where a joint adjustment over a sequence follows)")
 
@@ -444,6 +444,12 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         info["msac_score_rad2"] = best_score
         info.update(_pose_info(best, True))
         return best.R, best.t, best.g, best_inliers, info
+    if axis is not None:
+        # on parallel bars the adjustment creeps along the weakly observed gravity direction: the winner is
+        # first settled on its subset, at its own noise scale, where iterations are cheap
+        best = refine_two_view(rig, m.f1[best_idx], m.f2[best_idx], m.cam[best_idx], best.R, best.t, best.g,
+                               max_iter=int(opts.max_ba_iterations), huber_k=opts.huber_k)
+        best_inliers = _start_score(rig, m, best, tight)[1]
     R, t, g, inliers, res, info["msac_score_rad2"] = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts,
                                                                    inliers=best_inliers)
     info.update(_pose_info(res, True))
