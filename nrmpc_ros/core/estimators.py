@@ -367,10 +367,10 @@ def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts):
 
 
 def _explains(rig: Rig, opts: EstimatorOptions, inliers, accepted) -> bool:
-    """Whether a start's inliers (bending model, tight threshold) hold every correspondence the cameras' own
-    epipolar geometry accepts but the few outliers that this test lets through: a distance to an epipolar line
-    below CAMERA_THRESHOLD_FACTOR * threshold_px accepts about the share of the image that band covers of the
-    outliers it sees (the correspondences it rejects)."""
+    """Whether a start's inliers (bending model, tight threshold) hold every correspondence that the cameras'
+    own epipolar geometry accepts, but for the outliers that test lets through: an outlier falls within
+    CAMERA_THRESHOLD_FACTOR * threshold_px of its epipolar line with about the chance of that band's share of
+    the image, so a start may miss two plus that share of the correspondences the test rejects."""
     band = 2.0 * CAMERA_THRESHOLD_FACTOR * opts.threshold_px / min(min(c.resolution) for c in rig.cameras)
     missed = np.count_nonzero(accepted & ~inliers)
     return missed <= 2 + band * np.count_nonzero(~accepted)
