@@ -1,4 +1,4 @@
-"""``nrmpc bench`` (issues 2 and 3): PoseLib conventions, input validation and the report (no timing asserts)."""
+"""``nrmpc bench``: PoseLib conventions, input validation and the report (no timing asserts)."""
 
 import json
 import math
@@ -62,3 +62,18 @@ def test_cli_json_and_errors(capsys):
     assert main(["bench", "--methods", "9pt"]) == 2
     assert main(["bench", "--runs", "0"]) == 2
     assert main(["bench", "--gravity-frame", "none"]) == 2
+
+
+@pytest.mark.parametrize("cameras, parallel", [(2, True), (3, False), (4, False)])
+def test_cli_cameras_picks_the_rig(capsys, cameras, parallel):
+    """--cameras 2 is two cameras on one straight bar (parallel bars, the weak case), 3 a ring, 4 the cross;
+    6pt-bending and PoseLib run on the same problems and the time ratio is reported."""
+    assert main(["bench", "--cameras", str(cameras), "--runs", "1", "--points", "200", "--methods", "6pt-bending",
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    rig = make_rig(Scenario.from_dict(res["scenario"]).rig)
+    u = rig.positions / np.linalg.norm(rig.positions, axis=1, keepdims=True)
+    assert rig.num_cameras == cameras and bool(np.all(np.abs(u @ u[0]) > 1 - 1e-9)) == parallel
+    m = res["methods"]
+    assert set(m) == {"6pt-bending", POSELIB} and m["6pt-bending"]["success_rate"] == 1.0
+    assert m["6pt-bending"]["time_ratio_poselib"] > 0

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from nrmpc_ros.core import METHODS, estimate, pose_errors
-from nrmpc_ros.core.so3 import exp_so3
+from nrmpc_ros.core.so3 import angle_between, exp_so3
 from nrmpc_ros.errors import EstimationError, InputError
 from nrmpc_ros.sim.synthetic import RigSpec, Scenario, make_problem
 
@@ -141,3 +141,38 @@ def test_gravity_hint_on_the_rigid_fit_route(monkeypatch):
     hinted = estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=exp_so3([0.02, 0.0, 0.0]) @ pb.gravity)
     assert plain.info["gravity_starts"] > 1 and hinted.info["gravity_starts"] == 1 and hinted.info["gravity_hint"]
     assert pose_errors(hinted.R, hinted.t, pb.R, pb.t, hinted.gravity, pb.gravity)["gravity"] < 1e-3
+
+
+def test_parallel_bars_report_both_basins_among_the_candidates():
+    """On one bar the search refines at least two grid starts plus the mirrored and reversed ones, and its
+    gravity candidates (best first) hold the truth's basin and the second basin that a start from the bending
+    reversed ends in, which fits this pair about as well (seed 11): the basins a sequence estimator compares."""
+    pb = make_problem(AMBIGUOUS_LINE, seed=11)
+    own = estimate(pb.rig, pb.matches, method="6pt-bending")
+    far = estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=_reversed_bending(pb.rig, pb.gravity))
+    cands = own.info["gravity_candidates"]
+    assert own.info["gravity_starts"] >= 2 and len(cands) == own.info["gravity_starts"] + 2
+    assert angle_between(cands[0], pb.gravity) < math.radians(3)
+    assert min(angle_between(c, far.gravity) for c in cands) < math.radians(2)
+    assert angle_between(far.gravity, pb.gravity) > math.radians(60)
+
+
+@pytest.mark.parametrize("outliers", [0.05, 0.4])
+def test_one_start_explains_a_cross_rig(outliers):
+    """Four cameras observe gravity well: the first start, posed from the camera rotations without a RANSAC,
+    explains every correspondence the cameras' epipolar geometry accepts (up to the outliers that the
+    epipolar test lets through), so the search stops there."""
+    sc = Scenario(outlier_fraction=outliers, pixel_noise=0.1)
+    for seed in range(4):
+        pb, est, e = _run("6pt-bending", sc, seed)
+        assert est.info["gravity_starts"] == 1 and est.info["ransac_iterations"] == 0, (seed, est.info)
+        assert len(est.info["gravity_candidates"]) == 1
+        assert e["gravity"] < 2e-3 and e["rotation"] < 1e-3, (seed, e)
+
+
+def test_noise_free_parallel_bars_exact():
+    """Two cameras on one bar (the weak case) without noise: exact pose and gravity."""
+    sc = Scenario(rig=RigSpec(num_cameras=2, layout="line"), **NOISE_FREE)
+    for seed in range(3):
+        _, est, e = _run("6pt-bending", sc, seed)
+        assert e["rotation"] < 1e-9 and e["translation"] < 1e-9 and e["gravity"] < 1e-9, (seed, e)

@@ -21,7 +21,7 @@ from .gravity_init import (
     camera_rotations,
     gravity_rotation_hypotheses,
     hinted_hypothesis,
-    translation_given_rotation,
+    start_translation,
 )
 from .matches import Matches
 from .minimal import UprightFrames, solve_6pt
@@ -34,11 +34,17 @@ METHODS = ("6pt-nonbending", "6pt-bending", "4pt-bending")
 INLIER_CHANGE_SHARE = 0.01  # the refinement is repeated while the inlier set changes by more than this share
 SCORE_POINTS = 50  # correspondences scoring the full pose of each gravity hypothesis (parallel bars)
 START_TOL = 1e-3  # relative cost decrease that ends a start's bundle adjustment (starts are only compared)
-# A start's 6-point RANSAC may stop after this many samples once the inlier ratio says it can: it only has to
-# give the start's translation and inliers (at the loose threshold nearly all correspondences are inliers;
-# each gen_relpose_6pt call costs ~0.8 ms)
+# A start takes its pose from the camera rotations (rotation) and least squares (translation) when that pose
+# explains this share of the correspondences at the loose threshold; otherwise a 6-point RANSAC on the bent
+# Plucker lines gives it (each gen_relpose_6pt call costs ~1 ms), which may stop after START_MIN_SAMPLES samples
+# once the inlier ratio says it can: it only has to give the start's translation and inliers
+START_FIT_SHARE = 0.5
 START_MIN_SAMPLES = 2
 WEAK_START_MIN_SAMPLES = 5  # ... but on parallel bars the basins are close and the starts' models decide them
+# On parallel bars a start in a wrong basin can explain as many correspondences as the right one: the search
+# stops at a start that explains the data only once this many starts have been refined
+WEAK_MIN_STARTS = 2
+CAMERA_THRESHOLD_FACTOR = 3.0  # the cameras' own epipolar geometry accepts errors up to this times threshold_px
 
 
 @dataclass
@@ -55,7 +61,7 @@ class EstimatorOptions:
     patience_6pt: int = option(30, "stop once the best 6-point model has not improved for this many samples",
                                lo=1, hi=1000000)
     start_iterations_6pt: int = option(12, "6-point samples per gravity start in 6pt-bending", lo=1, hi=1000000)
-    start_ba_iterations: int = option(10, "bundle-adjustment iterations that compare gravity starts", lo=1,
+    start_ba_iterations: int = option(6, "bundle-adjustment iterations that compare gravity starts", lo=1,
                                       hi=10000)
     weak_geometry_starts: int = option(6, "gravity starts when all observing cameras sit on parallel bars", lo=1,
                                        hi=1000)
@@ -70,7 +76,7 @@ class EstimatorOptions:
     huber_k: float = option(3.0, "Huber threshold on the 2-D residual norm (robust sigmas)", lo=0.0, hi=1e3,
                             lo_open=True)
     max_ba_iterations: int = option(30, "bundle-adjustment iterations per refinement", lo=1, hi=10000)
-    subset_size: int = option(300, "correspondences used while comparing gravity starts", lo=8, hi=10000000)
+    subset_size: int = option(150, "correspondences used while comparing gravity starts", lo=8, hi=10000000)
     final_refinement: bool = option(True, "6pt-bending: robust refinement on all correspondences after the best "
                                     "start (off where a joint adjustment over a sequence follows)")
 
@@ -294,19 +300,25 @@ def _starts_from_rigid_fit(rig, m, opts, rng, loose, gravity_hint=None):
 
 def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, weak_geometry=False,
                                   gravity_hint=None):
-    """Starts (R, t, g, idx) from per-camera rotations (see :mod:`.gravity_init`).
+    """Starts (R, t, g, idx) from per-camera rotations (see :mod:`.gravity_init`), and the mask of the
+    correspondences the cameras' own epipolar geometry accepts.
 
-    Each gravity hypothesis bends the Plücker lines of both views; a 6-point
-    RANSAC on those lines then gives (R, t) and inliers jointly over all
-    cameras (single-camera rotations suffer from the bas-relief ambiguity of
-    narrow fields of view, the whole rig does not). With weak_geometry
-    (parallel bars) the gravity grid is ranked by full-pose scores. With a
-    gravity_hint (view 1), the only start is the hint and its rotation.
+    Each gravity hypothesis comes with the body rotation the cameras agree on
+    when the bars bend under it (a weighted mean over the cameras, so the
+    bas-relief ambiguity of one narrow camera averages out); the translation
+    is then linear (least squares on the bent Plücker lines of the accepted
+    correspondences, its sign checked). Only where that pose explains fewer
+    than START_FIT_SHARE of them at the loose threshold does a 6-point RANSAC
+    on the bent lines give (R, t) and inliers jointly over all cameras. With
+    weak_geometry (parallel bars) the gravity grid is ranked by full-pose
+    scores. With a gravity_hint (view 1), the only start is the hint and its
+    rotation.
     """
-    cams, Rc, counts, cam_inl = camera_rotations(m, rig.num_cameras, 3.0 * tight, seed=int(rng.integers(1 << 30)))
+    cams, Rc, counts, cam_inl = camera_rotations(m, rig.num_cameras, CAMERA_THRESHOLD_FACTOR * tight,
+                                                 seed=int(rng.integers(1 << 30)))
     info = {"cameras_with_rotation": int(len(cams)), "camera_inliers": int(cam_inl.sum()), "ransac_iterations": 0}
     if len(cams) < 2:
-        return [], info
+        return [], info, cam_inl
     if gravity_hint is not None:
         hypotheses = hinted_hypothesis(rig, cams, Rc, counts, gravity_hint)
     else:
@@ -316,18 +328,24 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, w
         hypotheses = gravity_rotation_hypotheses(rig, cams, Rc, counts, int(opts.gravity_hypotheses), num_starts,
                                                  scoring=scoring)
 
+    accepted = np.flatnonzero(cam_inl)
+
     def starts():  # lazily: the caller may stop once a start explains the data
         for g0, R0, _ in hypotheses:
+            idx = _subset(rng, accepted, int(opts.subset_size))
+            t0, err = start_translation(rig, m, idx, R0, g0, loose)
+            if np.mean(err < loose) >= START_FIT_SHARE:  # the rotations' pose is good enough: no RANSAC
+                yield R0, t0, g0, idx
+                continue
             rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt,
                              min_iterations=WEAK_START_MIN_SAMPLES if weak_geometry else START_MIN_SAMPLES)
             info["ransac_iterations"] += 0 if rr is None else rr.iterations
             if rr is not None and rr.num_inliers >= 12:
                 yield (*rr.model, g0, _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size)))
             else:
-                idx = _subset(rng, np.flatnonzero(cam_inl), int(opts.subset_size))
-                yield R0, translation_given_rotation(rig, m, idx, R0, g0), g0, idx
+                yield R0, t0, g0, idx
 
-    return starts(), info
+    return starts(), info, cam_inl
 
 
 def _start_score(rig, m: Matches, res, threshold) -> tuple:
@@ -346,6 +364,16 @@ def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts):
     res = refine_two_view(rig, m.f1[idx], m.f2[idx], m.cam[idx], R, t, g, max_iter=int(opts.start_ba_iterations),
                           huber_k=opts.huber_k, sigma_rad=tight / 2.0, tol=START_TOL)
     return (res, *_start_score(rig, m, res, tight))
+
+
+def _explains(rig: Rig, opts: EstimatorOptions, inliers, accepted) -> bool:
+    """Whether a start's inliers (bending model, tight threshold) hold every correspondence that the cameras'
+    own epipolar geometry accepts, but for the outliers that test lets through: an outlier falls within
+    CAMERA_THRESHOLD_FACTOR * threshold_px of its epipolar line with about the chance of that band's share of
+    the image, so a start may miss two plus that share of the correspondences the test rejects."""
+    band = 2.0 * CAMERA_THRESHOLD_FACTOR * opts.threshold_px / min(min(c.resolution) for c in rig.cameras)
+    missed = np.count_nonzero(accepted & ~inliers)
+    return missed <= 2 + band * np.count_nonzero(~accepted)
 
 
 def _common_bar_axis(rig, m: Matches, min_share: float = 0.9):
@@ -373,8 +401,9 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
     # parallel bars observe gravity weakly (paper, section 3.3): search wider there
     num_starts = int(opts.gravity_refine_starts if axis is None else max(opts.gravity_refine_starts,
                                                                           opts.weak_geometry_starts))
-    starts, info = _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts,
-                                                 weak_geometry=axis is not None, gravity_hint=gravity_hint)
+    starts, info, camera_inl = _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts,
+                                                             weak_geometry=axis is not None,
+                                                             gravity_hint=gravity_hint)
     if gravity_hint is not None:
         info["gravity_hint"] = True
         axis = None  # stay in the hint's basin: no mirrored or reversed starts
@@ -385,14 +414,17 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
     best = best_score = None
     info["gravity_starts"] = 0
     candidates = []  # (MSAC score, refined gravity of a start): the basins this pair leaves open
+    accepted = camera_inl if info["cameras_with_rotation"] >= 2 else None
+    min_starts = 1 if axis is None else WEAK_MIN_STARTS
     for R0, t0, g0, idx in starts:
         res, score, inliers = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
         info["gravity_starts"] += 1
         candidates.append((score, res.g))
         if best is None or score < best_score:
             best, best_score, best_idx, best_inliers = res, score, idx, inliers
-        if axis is None and np.count_nonzero(inliers) >= info.get("camera_inliers", len(m) + 1):
-            break  # explains every correspondence the cameras' own epipolar geometry accepts: the right basin
+        if accepted is not None and info["gravity_starts"] >= min_starts and _explains(rig, opts, best_inliers,
+                                                                                        accepted):
+            break  # explains the correspondences the cameras' own epipolar geometry accepts: the right basin
     if best is None:
         return None
     if axis is not None:
@@ -412,6 +444,12 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         info["msac_score_rad2"] = best_score
         info.update(_pose_info(best, True))
         return best.R, best.t, best.g, best_inliers, info
+    if axis is not None:
+        # on parallel bars the adjustment creeps along the weakly observed gravity direction: the winner is
+        # first settled on its subset, at its own noise scale, where iterations are cheap
+        best = refine_two_view(rig, m.f1[best_idx], m.f2[best_idx], m.cam[best_idx], best.R, best.t, best.g,
+                               max_iter=int(opts.max_ba_iterations), huber_k=opts.huber_k)
+        best_inliers = _start_score(rig, m, best, tight)[1]
     R, t, g, inliers, res, info["msac_score_rad2"] = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts,
                                                                    inliers=best_inliers)
     info.update(_pose_info(res, True))

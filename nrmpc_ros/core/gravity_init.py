@@ -215,16 +215,17 @@ def _translations(o1, d1, o2, d2, R, rounds=3):
     l1^T G l2 = t . (R d2 x d1) + d1 . (R m2) + m1 . (R d2) = 0 (SPEC section 3);
     re-weighting rounds damp the influence of residual outliers.
     """
-    Rd2 = np.einsum("...ij,...nj->...ni", R, d2)
-    Rm2 = np.einsum("...ij,...nj->...ni", R, cross(o2, d2))
+    RT = np.swapaxes(R, -1, -2)
+    Rd2 = d2 @ RT
+    Rm2 = cross(o2, d2) @ RT
     A = cross(Rd2, d1)
     b = -(np.sum(d1 * Rm2, axis=-1) + np.sum(cross(o1, d1) * Rd2, axis=-1))
     w = np.ones(b.shape)
     for _ in range(rounds):
         Aw = A * w[..., None]
-        H = np.einsum("...ni,...nj->...ij", Aw, Aw) + 1e-12 * np.eye(3)
-        t = np.linalg.solve(H, np.einsum("...ni,...n->...i", Aw, b * w)[..., None])[..., 0]
-        r = np.abs(np.einsum("...ni,...i->...n", A, t) - b)
+        H = np.swapaxes(Aw, -1, -2) @ Aw + 1e-12 * np.eye(3)
+        t = np.linalg.solve(H, np.swapaxes(Aw, -1, -2) @ (b * w)[..., None])[..., 0]
+        r = np.abs((A @ t[..., None])[..., 0] - b)
         s = 1.4826 * np.median(r, axis=-1, keepdims=True) + 1e-15
         w = np.minimum(1.0, 2.0 * s / np.maximum(r, 1e-300))
     return t
@@ -235,3 +236,20 @@ def translation_given_rotation(rig: Rig, m: Matches, idx, R, g):
     o1, d1 = rays(rig, m.f1[idx], m.cam[idx], g)
     o2, d2 = rays(rig, m.f2[idx], m.cam[idx], None if g is None else R.T @ g)
     return _translations(o1, d1, o2, d2, R)
+
+
+def start_translation(rig: Rig, m: Matches, idx, R, g, threshold):
+    """Translation of a start (R, g) on correspondences idx, and the angular errors (rad) of idx at that pose.
+
+    The least-squares t of :func:`_translations`, with its sign checked: the part of the constraint that fixes
+    the sign (the moments, i.e. the cameras' offsets from the body centre) is weak when the cameras hardly see
+    across the rig (parallel bars), and there noise or a wrong gravity can flip it. Of t and -t the one with
+    the smaller MSAC score at ``threshold`` (rad) is kept; the angular errors punish points behind a camera.
+    """
+    o1, d1 = rays(rig, m.f1[idx], m.cam[idx], g)
+    o2, d2 = rays(rig, m.f2[idx], m.cam[idx], R.T @ g)
+    t = _translations(o1, d1, o2, d2, R)
+    both = np.stack([t, -t])
+    err = two_view_angular_errors(o1, d1, o2, d2, R, both)  # (2, n)
+    k = int(np.argmin(np.minimum(err * err, threshold**2).sum(axis=1)))
+    return both[k], err[k]

@@ -1,4 +1,4 @@
-"""Benchmark of the three estimators against PoseLib's rigid generalized relative pose (issues 2 and 3).
+"""Benchmark of the three estimators against PoseLib's rigid generalized relative pose.
 
 All methods run one after the other in this process on the same seeded
 problems (the paper's nominal case by default), so their times are
