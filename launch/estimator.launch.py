@@ -61,24 +61,16 @@ def parse_remaps(text: str, argument: str = "image_remaps") -> list[tuple[str, s
 
 def find_file(path: str, share: Path | None, argument: str) -> Path:
     """``path`` as the node resolves it: absolute, or relative to the working directory, then to ``share``."""
-    from nrmpc_ros.errors import InputError
+    from nrmpc_ros.frontend.service import find_file as find
 
-    p = Path(path).expanduser()
-    candidates = [p] if p.is_absolute() else [Path.cwd() / p]
-    if share is not None and not p.is_absolute():
-        candidates += [share / p, share / "config" / p.name]
-    for candidate in candidates:
-        if candidate.is_file():
-            return candidate
-    where = ", ".join(str(c) for c in candidates)
-    raise InputError(f"launch argument {argument}", f"no such file: {path} (looked for {where})")
+    return find(path, f"launch argument {argument}", [share] if share is not None else [])
 
 
 def expand_topic(name: str, namespace: str) -> str:
     """Fully qualified topic name: a relative ``name`` lies in ``namespace`` (absolute, '/' for the root)."""
-    if name.startswith("/"):
-        return name
-    return namespace.rstrip("/") + "/" + name
+    from nrmpc_ros.frontend.topics import expand_topic as expand
+
+    return expand(name, namespace)
 
 
 def check_image_remaps(remaps: list[tuple[str, str]], image_topics: list[str], namespace: str, rig_source: str):
@@ -93,7 +85,8 @@ def check_image_remaps(remaps: list[tuple[str, str]], image_topics: list[str], n
     unknown = [src for src, _ in remaps if expand_topic(src, namespace) not in known]
     if unknown:
         raise InputError("launch argument image_remaps", f"{', '.join(unknown)} is no camera topic of the rig file "
-                                                         f"{rig_source} (its topics: {', '.join(image_topics)})")
+                                                         f"{rig_source} (its topics here: "
+                                                         f"{', '.join(expand_topic(t, namespace) for t in image_topics)})")
 
 
 def _launch_setup(context, *args, **kwargs):
