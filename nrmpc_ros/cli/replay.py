@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from pathlib import Path
@@ -13,6 +14,7 @@ from ..bag.reader import BagReader
 from ..config import from_mapping
 from ..core import load_rig
 from ..errors import InputError
+from ..frontend.droplog import DropLog
 from ..frontend.evaluation import CsvWriter, batch_rows, evaluate, format_report, read_reference, row_from_estimate
 from ..frontend.feeder import FeederConfig
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
@@ -89,7 +91,7 @@ def run(args) -> int:
         image_topics = bag_image_topics(bag, rig, warn)
         imu_topic = resolve_imu_topic(bag, rig, args.imu_topic, use_imu=not args.no_imu, warn=warn)
         check_camera_info(bag, rig, warn)
-        runner = PipelineRunner(rig, cfg, method=args.method)
+        runner = PipelineRunner(rig, cfg, method=args.method, drops=DropLog(math.inf))  # counts, first ones warned
         replay = BagReplay(bag, rig, runner, imu_topic, input_config(args), warn, image_topics)
         writer = CsvWriter(args.out)
         rows = []

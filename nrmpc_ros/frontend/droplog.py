@@ -5,12 +5,14 @@ a short reason that names the kind ("stamp in the future", "NaN or inf", ...)
 and a message with the numbers of this occurrence. The first drop of each
 (source, reason) is logged with its message; later ones are counted and
 logged as one line per ``every_s`` seconds ("12 more ... in the last 10 s"),
-also when the burst has ended (:meth:`DropLog.due`, from a timer). Thread
+also when the burst has ended (:meth:`DropLog.due`, from a timer); with
+``every_s`` infinite (offline) they are only counted. Thread
 safe: the node's callbacks and its worker both report here.
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import Counter
@@ -43,8 +45,9 @@ class DropLog:
             k.message = message
             if k.total == count:
                 k.last_log = now
-                return f"{message} (dropped; later drops of this kind are counted and logged every " \
-                       f"{self.every_s:g} s)"
+                later = "counted" if math.isinf(self.every_s) else \
+                    f"counted and logged every {self.every_s:g} s"
+                return f"{message} (dropped; later drops of this kind are {later})"
             k.unreported += count
             return self._line(source, reason, k, now) if now - k.last_log >= self.every_s else None
 

@@ -16,9 +16,14 @@ are the replay's whenever the same messages arrive. Per message:
 4. frame sets and IMU samples leave merged by stamp: a frame set stamped t
    leaves after every IMU sample up to t + ``imu_lead_s`` and before any later
    one, so the stillness test around t sees the same samples whatever order
-   the topics arrived in. A set leaves without waiting longer once frames
-   ``imu_wait_s`` newer arrived (the IMU is late or stopped), at once when
-   there is no IMU, and at :meth:`Feeder.end`.
+   the topics arrived in (within ``imu_wait_s`` of each other). A set waits
+   for the IMU sample after t + ``imu_lead_s``, but no longer than until
+   frames ``imu_wait_s`` newer arrived (the IMU is late or stopped); it
+   leaves at once when there is no IMU, and at :meth:`Feeder.end`. An IMU
+   sample stamped s waits until no frame set older than s - ``imu_lead_s``
+   can come any more: every camera that published in the last ``imu_wait_s``
+   (of IMU time) has sent a frame that new, and the frame grouping holds none
+   older.
 
 Work items go to ``sink`` as :class:`Work` (kind "imu", "frames", "flush",
 "restart", "reset"). Every drop goes to the :class:`~nrmpc_ros.frontend.droplog.DropLog`.
@@ -108,7 +113,7 @@ class Feeder:
         self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
         self._imu: deque = deque()  # (stamp, accel, gyro)
         self._imu_newest = -math.inf
-        self._frame_newest = -math.inf
+        self._cam_newest = [-math.inf] * self.rig.num_cameras  # newest frame accepted per camera
 
     # ------------------------------------------------------------------ input
     def image(self, index: int, msg, now: float | None = None) -> None:
@@ -215,6 +220,7 @@ class Feeder:
             self._imu_newest = stamp
             self._imu.append((stamp, payload[0], payload[1]))
         else:
+            self._cam_newest[stream] = max(self._cam_newest[stream], stamp)
             self._emit_sets(self.sync.add(stream, stamp, payload))
         self._release()
 
@@ -227,23 +233,37 @@ class Feeder:
         for s in sets:
             self.events["frame sets"] += 1
             self._frames.append((FrameSet(s.stamp, list(s.items)), arrival))
-            self._frame_newest = max(self._frame_newest, s.stamp)
+
+    def _frontier(self) -> float:
+        """No frame set to come is older than this (s): the sets waiting, the frames grouped, the cameras that
+        published in the last imu_wait_s; and IMU samples leave at least imu_wait_s behind the newest."""
+        wait = self.config.imu_wait_s
+        live = [t for t in self._cam_newest if t >= self._imu_newest - wait]
+        waiting = self._frames[0][0].stamp if self._frames else math.inf
+        return min(waiting, self.sync.oldest, min(live, default=math.inf), self._imu_newest - wait)
 
     def _release(self, final: bool = False) -> None:
         """Frame sets and IMU samples out, merged by stamp (module docstring, step 4)."""
         lead, wait = self.config.imu_lead_s, self.config.imu_wait_s
         frames, imu = self._frames, self._imu
         while frames or imu:
-            if imu and (not frames or imu[0][0] <= frames[0][0].stamp + lead):
-                s, a, w = imu.popleft()
-                self.sink(Work("imu", s, (a, w)))
+            if frames:
+                fs, arrival = frames[0]
+                if (final or self.imu_topic is None or self._imu_newest > fs.stamp + lead
+                        or max(self._cam_newest) > fs.stamp + wait):
+                    while imu and imu[0][0] <= fs.stamp + lead:
+                        self._emit_imu()
+                    frames.popleft()
+                    self.sink(Work("frames", fs.stamp, (fs, arrival)))
+                    continue
+            if imu and (final or imu[0][0] <= self._frontier() + lead):
+                self._emit_imu()
                 continue
-            fs, arrival = frames[0]
-            if not (final or self.imu_topic is None or self._imu_newest > fs.stamp + lead
-                    or self._frame_newest > fs.stamp + wait):
-                break
-            frames.popleft()
-            self.sink(Work("frames", fs.stamp, (fs, arrival)))
+            break
+
+    def _emit_imu(self) -> None:
+        s, a, w = self._imu.popleft()
+        self.sink(Work("imu", s, (a, w)))
 
     def _drop(self, source: str, reason: str, message: str) -> None:
         line = self.drops.drop(source, reason, message)

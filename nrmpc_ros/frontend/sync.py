@@ -173,6 +173,11 @@ class StampSynchronizer:
         return [len(s) for s in self._stamps]
 
     @property
+    def oldest(self) -> float:
+        """Stamp of the oldest queued message (inf when the queues are empty): no later set is older."""
+        return min((q[0] for q in self._stamps if q), default=math.inf)
+
+    @property
     def periods(self) -> list:
         """Estimated frame period of each stream (s; nan until 3 frames were seen)."""
         return list(self._period)
