@@ -365,8 +365,9 @@ class EstimatorService:
         if not self.queue.put(work):
             what = "frame set" if work.kind == "frames" else f"{work.kind} item"
             line = self.drops.drop("worker", f"{what} dropped while the estimator is busy",
-                                   f"{what} at {work.stamp:.3f} s dropped: {self.queue.frames()} frame sets wait for "
-                                   f"the estimator (work_queue_size {self.config.work_queue_size})")
+                                   f"{what} at {work.stamp:.3f} s dropped while the estimator is busy: "
+                                   f"{self.queue.frames()} frame sets wait (work_queue_size "
+                                   f"{self.config.work_queue_size})")
             if line:
                 self.log("warn", line)
 

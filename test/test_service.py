@@ -1,0 +1,238 @@
+"""EstimatorService and the node's settings without ROS: parameters from the configs, files, the work queue,
+drops while busy, liveness, resets, restarts, diagnostics and the summary."""
+
+from __future__ import annotations
+
+import math
+import os
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import yaml
+from test_feeder import TOPICS, image, imu
+
+from nrmpc_ros.core import load_rig
+from nrmpc_ros.errors import InputError
+from nrmpc_ros.frontend.feeder import FeederConfig, Work
+from nrmpc_ros.frontend.pipeline import FrameSet, PipelineConfig
+from nrmpc_ros.frontend.runner import PipelineRunner
+from nrmpc_ros.frontend.service import (
+    OK,
+    WARN,
+    EstimatorService,
+    NodeConfig,
+    WorkQueue,
+    command_line,
+    configs_from_parameters,
+    describe_parameter,
+    find_file,
+    imu_topic,
+    parameter_fields,
+    parameter_range,
+    unknown_parameters,
+)
+from nrmpc_ros.frontend.sync import StampSynchronizer
+
+
+@pytest.fixture
+def rig(tmp_path):
+    from test_feeder import ROOT
+
+    d = yaml.safe_load((ROOT / "config" / "sample_cross4.yaml").read_text())
+    for c in d["cameras"]:
+        c["resolution"], c["intrinsics"] = [64, 48], [47.0, 47.0, 31.5, 23.5]
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return load_rig(path)
+
+
+class Clock:
+    t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def service(rig, clock=None, imu_topic="/imu/data", **cfg):
+    cfg.setdefault("rig_file", rig.source)
+    out, logs = [], []
+    s = EstimatorService(rig, NodeConfig(**cfg), PipelineConfig(), TOPICS, imu_topic, out.append,
+                         lambda level, line: logs.append((level, line)), clock or Clock())
+    return s, out, logs
+
+
+# --------------------------------------------------------------------------- settings
+def test_parameters_come_from_the_configs_with_their_ranges():
+    fields = {f.name: f for f in parameter_fields()}
+    for name in ("rig_file", "method", "image_transport", "camera_timeout_s", "input.max_future_s",
+                 "input.sync_tolerance_s", "pipeline.holds.measure_s", "pipeline.sequence.estimator.threshold_px"):
+        assert name in fields and fields[name].doc, name
+    assert "pipeline.sequence.gravity_bias_sigma" not in fields, "no default value: not a parameter"
+    assert parameter_range(fields["pipeline.holds.measure_s"]) == ("float", 0.0, 3600.0)
+    assert parameter_range(fields["input.max_future_s"]) == ("float", 0.0, math.inf)
+    assert parameter_range(fields["pipeline.seed"]) == ("int", 0, 2**63 - 1)
+    assert parameter_range(fields["method"]) is None and "one of: auto," in describe_parameter(fields["method"])
+    assert describe_parameter(fields["input.max_future_s"]).endswith("(>= 0)")
+
+
+def test_unknown_parameters_are_the_typos():
+    assert unknown_parameters(["rig_file", "use_sim_time", "qos_overrides./diagnostics.publisher.depth",
+                               "pipeline.holds.measure", "pipline.seed"]) == ["pipeline.holds.measure", "pipline.seed"]
+
+
+def test_configs_from_flat_parameters_and_errors_naming_the_parameter():
+    node, pipe = configs_from_parameters({"rig_file": "r.yaml", "method": "6pt-bending", "input.jump_back_s": 2.0,
+                                          "pipeline.holds.measure_s": 3.0, "pipeline.seed": 7})
+    assert node.method == "6pt-bending" and node.input.jump_back_s == 2.0
+    assert pipe.holds.measure_s == 3.0 and pipe.seed == 7
+    with pytest.raises(InputError, match="parameter rig_file: required"):
+        configs_from_parameters({})
+    with pytest.raises(InputError, match=r"field 'pipeline.holds.measure_s': must be > 0"):
+        configs_from_parameters({"rig_file": "r.yaml", "pipeline.holds.measure_s": 0.0})
+    with pytest.raises(InputError, match=r"field 'image_transport': must be one of auto, raw, compressed"):
+        configs_from_parameters({"rig_file": "r.yaml", "image_transport": "theora"})
+
+
+def test_files_are_found_in_the_working_directory_then_in_share_with_every_place_named(tmp_path, monkeypatch):
+    share, cwd = tmp_path / "share", tmp_path / "cwd"
+    (share / "config").mkdir(parents=True)
+    cwd.mkdir()
+    (share / "config" / "rig.yaml").write_text("x")
+    monkeypatch.chdir(cwd)
+    assert find_file("config/rig.yaml", "parameter rig_file", [share]) == share / "config" / "rig.yaml"
+    (cwd / "rig.yaml").write_text("x")
+    assert find_file("rig.yaml", "parameter rig_file", [share]) == cwd / "rig.yaml"
+    with pytest.raises(InputError) as err:
+        find_file("other.yaml", "parameter rig_file", [share])
+    text = str(err.value)
+    assert text.startswith("parameter rig_file: no such file: other.yaml (looked for ")
+    assert str(cwd / "other.yaml") in text and str(share / "config" / "other.yaml") in text
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)  # a pip install: no ament index, no OSError
+    with pytest.raises(InputError, match="no such file"):
+        find_file("missing.yaml", "parameter rig_file")
+    assert os.environ.get("AMENT_PREFIX_PATH") is None
+
+
+def test_the_imu_follows_the_rig_file_and_use_imu(rig):
+    assert imu_topic(rig, NodeConfig()) == ("imu/data", None)
+    assert imu_topic(rig, NodeConfig(imu_topic="/other/imu")) == ("/other/imu", None)
+    assert imu_topic(rig, NodeConfig(use_imu=False)) == (None, None)
+    no_imu = SimpleNamespace(imu=None, source="rig.yaml")
+    topic, warning = imu_topic(no_imu, NodeConfig(imu_topic="/imu"))
+    assert topic is None and "has no imu block" in warning
+
+
+def test_command_line_help_and_bad_arguments(capsys):
+    assert command_line(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: estimator") and "  pipeline.holds.measure_s [default 2.0]" in out
+    assert "~/relative_pose_reference" in out
+    assert command_line(["--bogus"]) == 2 and "unknown arguments --bogus" in capsys.readouterr().err
+    assert command_line(["--ros-args", "-p", "a:=1", "--"]) is None
+    assert command_line([], ros_error="rclpy is not importable") == 2
+
+
+# --------------------------------------------------------------------------- the work queue and the service
+def test_the_work_queue_refuses_frame_sets_when_full_but_not_imu_samples():
+    q = WorkQueue(max_frames=2)
+    assert [q.put(Work("frames", k)) for k in range(3)] == [True, True, False]
+    assert q.put(Work("imu", 1.0)) and q.put(Work("flush")) and q.frames() == 2
+    assert q.get(0.01).stamp == 0 and q.frames() == 1
+
+
+def feed_sets(s, stamps, now=None):
+    for t in stamps:
+        for i in range(4):
+            s.on_image(i, image(t, value=int(t * 10) % 200), now)
+
+
+def test_sets_arriving_while_the_estimator_is_busy_are_dropped_counted_and_logged(rig):
+    s, _, logs = service(rig, imu_topic=None, work_queue_size=2)
+    feed_sets(s, [100.0 + 0.1 * k for k in range(8)])  # no IMU: sets go to the queue at once
+    busy = s.drops.counts()[("worker", "frame set dropped while the estimator is busy")]
+    assert busy >= 4 and s.queue.frames() == 2
+    assert sum("dropped while the estimator is busy" in line for _, line in logs) == 1, "logged once"
+    while s.queue.frames():
+        s.work_once()
+    assert s.counts["processed frame sets"] == 2
+    est = s.diagnostics()[2]
+    assert est.name == "estimation" and est.level == WARN and "dropped" in est.message
+    assert s.diagnostics()[2].level == OK, "the warning is about the last period"
+    assert "worker: frame set dropped while the estimator is busy" in s.summary()
+
+
+def test_the_end_of_the_input_flushes_and_the_diagnostics_say_so(rig):
+    clock = Clock()
+    s, _, logs = service(rig, clock=clock, camera_timeout_s=1.0)
+    feed_sets(s, [100.0, 100.1])
+    clock.t = 5.0
+    s.tick()
+    assert any("the input ended" in line for _, line in logs)
+    kinds = []
+    while (w := s.queue.get(0.0)) is not None:
+        kinds.append(w.kind)
+    assert kinds[-1] == "flush" and kinds.count("frames") == 2
+    cams = s.diagnostics()[0]
+    assert cams.level == OK and "the input ended" in cams.message
+    assert cams.values["/cam0/image_raw: state"] == "input ended"
+
+
+def test_a_silent_camera_and_bad_imu_samples_are_warnings_in_the_diagnostics(rig):
+    clock = Clock()
+    s, _, logs = service(rig, clock=clock, camera_timeout_s=1.0)
+    for k in range(40):
+        clock.t = 0.1 * k
+        for i in range(4 if k < 10 else 3):
+            s.on_image(i, image(100.0 + 0.1 * k), None)
+        s.tick()
+    s.on_imu(imu(103.0, accel=(math.nan, 0, 9.81)), None)
+    cams, imu_status, _ = s.diagnostics()
+    assert cams.level == WARN and "/cam3/image_raw" in cams.message
+    assert imu_status.level == WARN and imu_status.values["dropped: /imu/data: IMU sample with NaN or inf"] == 1
+    assert sum("camera /cam3/image_raw stopped publishing" in line for _, line in logs) == 1
+    s.on_image(3, image(104.0), None)
+    assert any("/cam3/image_raw is publishing again" in line for _, line in logs)
+
+
+def test_reset_and_method_changes_reach_the_pipeline_in_order(rig):
+    s, _, _ = service(rig)
+    assert "a new sequence" in s.reset("test")
+    s.set_method("6pt-nonbending")
+    with pytest.raises(InputError, match="parameter method"):
+        s.set_method("8pt")
+    first = s.runner.pipeline
+    for _ in range(3):  # reset, flush, method
+        s.work_once()
+    assert s.queue.get(0.0) is None
+    assert s.runner.method == "6pt-nonbending" and s.runner.restarts == 1 and s.runner.pipeline is not first
+    assert s.diagnostics()[2].values["resets"] == 1
+
+
+def test_the_runner_keeps_statistics_and_sequence_numbers_over_restarts(rig):
+    runner = PipelineRunner(rig, PipelineConfig())
+    rng = np.random.default_rng(0)
+    for k in range(3):
+        imgs = [rng.integers(0, 255, (48, 64), dtype=np.uint8) for _ in range(4)]
+        runner.run(Work("frames", 1.0 + k, (FrameSet(1.0 + k, imgs), 0.0)))
+    first = runner.pipeline
+    runner.run(Work("restart", data="time jumped back"))
+    assert runner.pipeline is not first and runner.restarts == 1
+    runner.run(Work("frames", 0.5, (FrameSet(0.5, imgs), 0.0)))  # an older stamp: fine in the new pipeline
+    assert runner.stats.frames == 4
+    runner.run(Work("frames", 0.6, (FrameSet(0.6, imgs[:2]), 0.0)))  # the pipeline refuses it: counted
+    assert runner.drops.by_reason()["bad frame set"] == 1
+
+
+def test_frame_grouping_reports_which_messages_it_dropped():
+    sync = StampSynchronizer(2)
+    for k in range(10):
+        sync.add(0, k * 0.1, None)
+        sync.add(1, k * 0.1, None)
+    sync.take_dropped()
+    sync.add(1, 0.85, None)
+    assert sync.take_dropped() == [(1, 0.85, "late")] and sync.take_dropped() == []
+    assert sync.oldest == math.inf  # every set went out
+    sync.add(0, 1.0, None)
+    assert sync.oldest == pytest.approx(1.0)
+    assert FeederConfig().imu_wait_s > FeederConfig().imu_lead_s
