@@ -7,35 +7,31 @@ pipeline; this module turns its outputs into messages. ``estimator --help`` list
 
 from __future__ import annotations
 
+import importlib.util
 import signal
 import sys
 
 from .core.rig import load_rig
 from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
 from .frontend import service as svc
-from .frontend.outputs import fill_message, message_fields
+from .frontend.outputs import OUTPUTS, fill_message, message_fields
+from .ros_play import message_class
 
 try:  # rclpy is optional for the package; --help works without it
-    import geometry_msgs.msg as geo
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
     from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, qos_profile_sensor_data
     from rclpy.signals import SignalHandlerOptions
     from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu
-    from std_msgs.msg import Header
     from std_srvs.srv import Trigger
 
     _RCLPY_ERROR = None
 except ImportError as _exc:  # pragma: no cover - exercised only without ROS
     rclpy, Node, _RCLPY_ERROR = None, object, _exc
-try:
-    from tf2_msgs.msg import TFMessage
-except ImportError:
-    TFMessage = None
 
 NODE_NAME = "estimator"
 
@@ -69,19 +65,17 @@ class EstimatorNode(Node):
         if imu:
             self.create_subscription(Imu, imu, lambda m: self.service.on_imu(m, self._now()),
                                      _sensor_qos(cfg.imu_queue_size))
-        outputs = {"ref": (Header, "~/relative_pose_reference"), "rel": (geo.PoseStamped, "~/relative_pose"),
-                   "pose": (geo.PoseWithCovarianceStamped, "~/pose"), "g": (geo.Vector3Stamped, "~/gravity"),
-                   "gcov": (geo.AccelWithCovarianceStamped, "~/gravity_covariance"), "att": (Imu, "~/attitude"),
-                   "cams": (geo.PoseArray, "~/camera_poses"), "diag": (DiagnosticArray, "/diagnostics")}
-        if cfg.publish_tf and TFMessage is not None:
-            outputs["tf"] = (TFMessage, "/tf")
-        self.pubs = {key: self.create_publisher(cls, topic, 100) for key, (cls, topic) in outputs.items()}
+        outputs = {**OUTPUTS, "diag": ("diagnostic_msgs/msg/DiagnosticArray", "/diagnostics")}
+        if not cfg.publish_tf or importlib.util.find_spec("tf2_msgs") is None:  # not always installed
+            del outputs["tf"]
+        self.pubs = {k: self.create_publisher(message_class(t, topic), topic, 100) for k, (t, topic) in outputs.items()}
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_timer(cfg.diagnostics_period_s, self._on_timer)
         outputs = ", ".join(p.topic_name for p in self.pubs.values())
-        self._log("info", f"rig {self.rig.source}: cameras on {', '.join(self._sub_names())}; IMU: {imu or 'none'}; "
-                          f"method {cfg.method}; publishing {outputs}")
+        cams = ", ".join(f"{t} ({'compressed' if c else 'raw'})" for t, c in self._transport)
+        self._log("info", f"rig {self.rig.source}: cameras on {cams}; IMU: {imu or 'none'}; method {cfg.method}; "
+                          f"publishing {outputs}")
         if start_worker:
             self.service.start()
 
@@ -96,12 +90,7 @@ class EstimatorNode(Node):
         for f in svc.parameter_fields():
             if f.name in given:
                 self.undeclare_parameter(f.name)
-            d = ParameterDescriptor(description=svc.describe_parameter(f), read_only=f.name != "method")
-            kind, lo, hi = svc.parameter_range(f) or (None, None, None)
-            if kind == "float":
-                d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
-            elif kind == "int":
-                d.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=1)]
+            d = fill_message(ParameterDescriptor(), svc.parameter_descriptor(f))
             value, lenient = given.get(f.name), isinstance(f.default, float) and type(given.get(f.name)) is int
             try:  # an integer for a float parameter is taken as that float
                 values[f.name] = self.declare_parameter(f.name, float(value) if lenient else f.default, d,
@@ -125,13 +114,9 @@ class EstimatorNode(Node):
                                                  lambda m, i=i: self.service.on_image(i, m, self._now()),
                                                  _sensor_qos(self.cfg.image_queue_size))
 
-    def _sub_names(self) -> list:
-        return [f"{t} ({'compressed' if c else 'raw'})" for t, c in self._transport]
-
     def _on_info(self, i: int, msg) -> None:
-        if i in self.service.camera_info:
-            return
-        self.service.on_camera_info(i, msg, self.resolve_topic_name(self.rig.cameras[i].info_topic))
+        if i not in self.service.camera_info:  # the first one only
+            self.service.on_camera_info(i, msg, self.resolve_topic_name(self.rig.cameras[i].info_topic))
 
     def _now(self) -> float | None:
         ns = self.get_clock().now().nanoseconds
@@ -145,11 +130,7 @@ class EstimatorNode(Node):
             for i, topic in enumerate(self.camera_topics):
                 if not self.service.received[topic]:
                     self._subscribe_camera(i)
-        array = DiagnosticArray(status=[
-            DiagnosticStatus(level=bytes([s.level]), name=f"{self.get_fully_qualified_name()}: {s.name}",
-                             message=s.message, hardware_id=self.rig.body_frame,
-                             values=[KeyValue(key=k, value=str(v)) for k, v in s.values.items()])
-            for s in self.service.diagnostics()])
+        array = fill_message(DiagnosticArray(), self.service.diagnostic_fields(self.get_fully_qualified_name()))
         array.header.stamp = self.get_clock().now().to_msg()
         self.pubs["diag"].publish(array)
 
@@ -158,17 +139,17 @@ class EstimatorNode(Node):
         return response
 
     def _on_set_parameters(self, params):
-        for p in params:
-            if p.name == "method":
-                try:
-                    self.service.set_method(p.value)
-                except InputError as exc:
-                    return SetParametersResult(successful=False, reason=str(exc))
-        return SetParametersResult(successful=True)
+        bad = [self.service.set_method(p.value) for p in params if p.name == "method"]
+        return SetParametersResult(successful=not any(bad), reason="; ".join(filter(None, bad)))
 
     def _log(self, level: str, line: str) -> None:
-        logger = self.get_logger()
-        {"info": logger.info, "warn": logger.warning, "error": logger.error}.get(level, logger.warning)(line)
+        logger = self.get_logger()  # one call site per severity: rclpy ties a severity to its call site
+        if level == "info":
+            logger.info(line)
+        elif level == "error":
+            logger.error(line)
+        else:
+            logger.warning(line)
 
     def _publish(self, out) -> None:  # the worker thread
         for key, fields in message_fields(out, self.service.frames, self.service.feeder.ros_stamp).items():

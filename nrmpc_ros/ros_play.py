@@ -22,7 +22,7 @@ from pathlib import Path
 from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
 
 
-def _message_class(msgtype: str, topic: str):
+def message_class(msgtype: str, topic: str):
     """The rclpy message class of a ``pkg/msg/Name`` type."""
     parts = msgtype.split("/")
     if len(parts) == 2:
@@ -81,7 +81,7 @@ def play(args) -> int:
             raise InputError(args.bag, f"topic(s) {', '.join(missing)} not in the bag (it has: "
                                        f"{', '.join(sorted(available))})")
         connections = [c for c in reader.connections if c.topic in wanted]
-        classes = {t: _message_class(available[t], t) for t in wanted}
+        classes = {t: message_class(available[t], t) for t in wanted}
         convert = not getattr(reader, "is2", True)  # ROS 1 bag: raw is not CDR
 
         nodes = []
@@ -232,4 +232,5 @@ class BackgroundNode:
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
         self.rclpy.try_shutdown(context=self.ctx)
-        self._thread.join(2.0)
+        if self._thread.is_alive():
+            self._thread.join(2.0)

@@ -24,6 +24,7 @@
 from __future__ import annotations
 
 import importlib
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,14 @@ from ..core.rig import Rig
 from ..core.so3 import matrix_to_quat_xyzw
 from .pipeline import HoldEstimate
 
+# What the node publishes, by the keys of message_fields: message type and topic.
+OUTPUTS = {"ref": ("std_msgs/msg/Header", "~/relative_pose_reference"),
+           "rel": ("geometry_msgs/msg/PoseStamped", "~/relative_pose"),
+           "pose": ("geometry_msgs/msg/PoseWithCovarianceStamped", "~/pose"),
+           "g": ("geometry_msgs/msg/Vector3Stamped", "~/gravity"),
+           "gcov": ("geometry_msgs/msg/AccelWithCovarianceStamped", "~/gravity_covariance"),
+           "att": ("sensor_msgs/msg/Imu", "~/attitude"), "cams": ("geometry_msgs/msg/PoseArray", "~/camera_poses"),
+           "tf": ("tf2_msgs/msg/TFMessage", "/tf")}
 YAW_VARIANCE = 1e6  # rad^2: gravity says nothing about the heading
 UNKNOWN_VARIANCE = 1e6  # diagonal of a covariance the estimate does not give (m^2 or rad^2)
 
@@ -181,7 +190,7 @@ def fill_message(msg, fields: dict):
         if isinstance(value, dict):
             fill_message(getattr(msg, key), value)
         elif isinstance(value, list) and value and isinstance(value[0], dict):
-            pkg, name = msg.get_fields_and_field_types()[key][len("sequence<"):-1].split("/")
+            pkg, name = re.search(r"(\w+)/(\w+)", msg.get_fields_and_field_types()[key]).groups()  # sequence<p/T, N>
             cls = getattr(importlib.import_module(f"{pkg}.msg"), name)
             setattr(msg, key, [fill_message(cls(), v) for v in value])
         else:
@@ -189,5 +198,5 @@ def fill_message(msg, fields: dict):
     return msg
 
 
-__all__ = ["FrameNames", "HoldOutput", "UNKNOWN_VARIANCE", "YAW_VARIANCE", "attitude", "fill_message", "hold_frame",
-           "hold_output", "message_fields", "origin_pose", "ros_pose_covariance"]
+__all__ = ["OUTPUTS", "FrameNames", "HoldOutput", "UNKNOWN_VARIANCE", "YAW_VARIANCE", "attitude", "fill_message",
+           "hold_frame", "hold_output", "message_fields", "origin_pose", "ros_pose_covariance"]

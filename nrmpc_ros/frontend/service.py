@@ -136,6 +136,18 @@ def parameter_range(f: FieldInfo):
     return "int", int(-2**63 if f.lo is None else f.lo), int(2**63 - 1 if f.hi is None else f.hi)
 
 
+def parameter_descriptor(f: FieldInfo) -> dict:
+    """The fields of the field's rcl_interfaces/ParameterDescriptor: description, read-only (all but
+    ``method``), numeric range."""
+    d = {"description": describe_parameter(f), "read_only": f.name != "method"}
+    kind, lo, hi = parameter_range(f) or (None, None, None)
+    if kind == "float":
+        d["floating_point_range"] = [{"from_value": lo, "to_value": hi, "step": 0.0}]
+    elif kind == "int":
+        d["integer_range"] = [{"from_value": lo, "to_value": hi, "step": 1}]
+    return d
+
+
 def parameters_help() -> list:
     """Lines of ``estimator --help`` for the parameters."""
     lines = []
@@ -323,11 +335,22 @@ class EstimatorService:
         for level, line in self.watch.seen(index, self.clock()):
             self.log(level, line)
         self.received[self.camera_topics[index]] += 1
-        self.feeder.image(index, msg, now)
+        self._guarded(self.camera_topics[index], self.feeder.image, index, msg, now)
 
     def on_imu(self, msg, now: float | None) -> None:
         self.received[self.imu_topic] += 1
-        self.feeder.imu_msg(msg, now)
+        self._guarded(self.imu_topic, self.feeder.imu_msg, msg, now)
+
+    def _guarded(self, source: str, fn, *args) -> None:
+        """Run an input step; a failure (a bug, not bad input: that is dropped on its own) is counted and logged,
+        and the node goes on."""
+        try:
+            fn(*args)
+        except Exception as exc:  # noqa: BLE001 - the node must outlive it
+            line = self.drops.drop(source, "input failed", f"{source}: handling a message failed: "
+                                                           f"{type(exc).__name__}: {exc}")
+            if line:
+                self.log("error", line)
 
     def on_camera_info(self, index: int, msg, topic: str) -> None:
         """The first CameraInfo of a camera: reported once when it disagrees with the rig file."""
@@ -342,13 +365,15 @@ class EstimatorService:
         self.counts["resets"] += 1
         return f"a new sequence starts with the next hold ({why})"
 
-    def set_method(self, method: str) -> None:
-        """A new method from the next hold on (the open hold is estimated first; a new sequence starts)."""
+    def set_method(self, method: str) -> str | None:
+        """A new method from the next hold on (the open hold is estimated first; a new sequence starts); returns
+        why not when ``method`` is not one."""
         if method not in PIPELINE_METHODS:
-            raise InputError("parameter method", f"must be one of {', '.join(PIPELINE_METHODS)}, got {method!r}")
+            return f"parameter method: must be one of {', '.join(PIPELINE_METHODS)}, got {method!r}"
         self.feeder.end()
         self._put(Work("method", data=method))
         self.log("info", f"method {method} from the next hold on (a new sequence)")
+        return None
 
     def tick(self) -> None:
         """Timer: camera liveness (the end of the input flushes the open hold) and the drop counts due."""
@@ -437,6 +462,14 @@ class EstimatorService:
         """One :class:`Status` per part: cameras, IMU, estimation (called by the node's timer)."""
         now = self.clock()
         return [self._camera_status(now), self._imu_status(now), self._estimation_status()]
+
+    def diagnostic_fields(self, node_name: str) -> dict:
+        """:meth:`diagnostics` as the fields of a diagnostic_msgs/DiagnosticArray (one status per part, named
+        ``<node name>: <part>``, hardware_id the body frame)."""
+        return {"status": [{"level": bytes([s.level]), "name": f"{node_name}: {s.name}", "message": s.message,
+                            "hardware_id": self.rig.body_frame,
+                            "values": [{"key": k, "value": str(v)} for k, v in s.values.items()]}
+                           for s in self.diagnostics()]}
 
     def _camera_status(self, now: float) -> Status:
         values = {}
@@ -528,5 +561,5 @@ class EstimatorService:
 
 __all__ = ["ERROR", "EstimatorService", "NodeConfig", "OK", "Status", "TRANSPORTS", "WARN", "WorkQueue",
            "command_line", "configs_from_parameters", "describe_parameter", "find_file", "imu_topic",
-           "parameter_fields", "parameter_range", "parameters_help", "share_directories", "transport",
-           "unknown_parameters", "usage", "user_arguments"]
+           "parameter_descriptor", "parameter_fields", "parameter_range", "parameters_help", "share_directories",
+           "transport", "unknown_parameters", "usage", "user_arguments"]
