@@ -105,7 +105,7 @@ class Listener(BackgroundNode):
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             cams, est = self.last("cameras"), self.last("estimation")
-            if "the input ended" in cams[1] and est[2].get("frame sets waiting") == "0":
+            if "the input ended" in cams[1] and est[2].get("work waiting") == "0":
                 return
             time.sleep(0.2)
         raise AssertionError(f"the node did not finish: {self.diagnostics[-1:]}")

@@ -281,6 +281,10 @@ class WorkQueue:
         with self._cv:
             return self._frames
 
+    def __len__(self) -> int:
+        with self._cv:
+            return len(self._items)
+
 
 @dataclass
 class Status:
@@ -326,6 +330,7 @@ class EstimatorService:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._running = False  # the worker is on a work item
         self._reported: dict = {}  # part -> drop count at the last diagnostics
         self._rates: dict = {}  # topic -> (count, clock) at the last diagnostics
 
@@ -415,15 +420,19 @@ class EstimatorService:
         work = self.queue.get(timeout)
         if work is None:
             return []
-        if work.kind == "method":
-            self.runner.restart(f"method {work.data}", work.data)
-            return []
-        t0 = time.perf_counter()
-        estimates = self.runner.run(work)
-        elapsed_ms = 1e3 * (time.perf_counter() - t0)
-        outputs = [self._output(est) for est in estimates]
-        for out in outputs:
-            self.publish(out)
+        self._running = True
+        try:
+            if work.kind == "method":
+                self.runner.restart(f"method {work.data}", work.data)
+                return []
+            t0 = time.perf_counter()
+            estimates = self.runner.run(work)
+            elapsed_ms = 1e3 * (time.perf_counter() - t0)
+            outputs = [self._output(est) for est in estimates]
+            for out in outputs:
+                self.publish(out)
+        finally:
+            self._running = False
         with self._lock:
             if work.kind == "frames":
                 self.counts["processed frame sets"] += 1
@@ -519,7 +528,8 @@ class EstimatorService:
             latency, process = list(self.latency_ms), list(self.process_ms)
         st = self.runner.stats
         values = {"method": self.config.method, "frame sets processed": counts.get("processed frame sets", 0),
-                  "frame sets waiting": self.queue.frames(), "holds": st.holds,
+                  "frame sets waiting": self.queue.frames(), "work waiting": len(self.queue) + self._running,
+                  "holds": st.holds,
                   "estimates": counts.get("estimates", 0), "time jumps back": self.feeder.events["time jumps back"],
                   "resets": counts.get("resets", 0), "latency median (ms)": _median(latency),
                   "processing median (ms)": _median(process)}
