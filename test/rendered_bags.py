@@ -24,11 +24,13 @@ IMU = "/imu/data"
 _made: dict = {}
 
 
-def rig_file(directory: Path) -> Path:
-    """The test rig (320x240, relative topics) written into ``directory``."""
+def rig_file(directory: Path, width: int = 320) -> Path:
+    """The sample rig with cameras ``width`` pixels wide (4:3, focal scaled; relative topics) in ``directory``."""
     d = yaml.safe_load((ROOT / "config" / "sample_cross4.yaml").read_text())
+    s = width / 640
     for c in d["cameras"]:
-        c["resolution"], c["intrinsics"] = [320, 240], [235.0, 235.0, 159.5, 119.5]
+        c["resolution"] = [width, width * 3 // 4]
+        c["intrinsics"] = [470.0 * s, 470.0 * s, (width - 1) / 2, (width * 3 // 4 - 1) / 2]
     path = Path(directory) / "rig.yaml"
     path.write_text(yaml.safe_dump(d, sort_keys=False))
     return path

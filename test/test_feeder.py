@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import yaml
+from rendered_bags import rig_file
 
 from nrmpc_ros.core import load_rig
 from nrmpc_ros.frontend.droplog import DropLog
@@ -21,12 +21,7 @@ TOPICS = [f"/cam{i}/image_raw" for i in range(4)]
 @pytest.fixture
 def rig(tmp_path):
     """The sample rig with 64x48 cameras (cheap images)."""
-    d = yaml.safe_load((ROOT / "config" / "sample_cross4.yaml").read_text())
-    for c in d["cameras"]:
-        c["resolution"], c["intrinsics"] = [64, 48], [47.0, 47.0, 31.5, 23.5]
-    path = tmp_path / "rig.yaml"
-    path.write_text(yaml.safe_dump(d))
-    return load_rig(path)
+    return load_rig(rig_file(tmp_path, 64))
 
 
 def stamp_of(t: float):

@@ -149,6 +149,33 @@ def play(path: Path, *args) -> list:
             "--wait-for-subscribers", "30", *args]
 
 
+class Session:
+    """A node started with ``args`` and a listener, in a domain of their own; ``start`` adds players."""
+
+    def __init__(self, tmp: Path, rig: Path, *args, ns: str = ""):
+        self.tmp, self.domain = tmp, random.randint(1, 100)
+        self.env = env_for(self.domain, tmp)
+        self.listener = Listener(self.domain, ns)
+        self.procs = [start(estimator(rig, *args), self.env, tmp / "node.log")]
+        self.node = self.procs[0]
+
+    def __enter__(self) -> Session:
+        assert self.listener.wait_for_node(), self.log()
+        return self
+
+    def start(self, cmd: list, name: str = "play") -> subprocess.Popen:
+        self.procs.append(start(cmd, self.env, self.tmp / f"{name}.log"))
+        return self.procs[-1]
+
+    def log(self) -> str:
+        return (self.tmp / "node.log").read_text()
+
+    def __exit__(self, *exc) -> None:
+        for proc in reversed(self.procs):
+            stop(proc)
+        self.listener.close()
+
+
 def check_against_replay(listener: Listener, replayed: dict, stamps=None) -> int:
     """The node's gravity equals the replay's at the same stamps; returns how many were compared."""
     got = listener.gravity_by_stamp()
@@ -164,23 +191,13 @@ def check_against_replay(listener: Listener, replayed: dict, stamps=None) -> int
 # --------------------------------------------------------------------------- tests
 def test_the_node_publishes_the_replays_estimates_in_their_frames(bag, replayed, tmp_path):
     path, rig_path, _ = bag
-    domain = random.randint(1, 100)
-    env = env_for(domain, tmp_path)
-    listener = Listener(domain)
-    node = player = None
-    try:
-        node = start(estimator(rig_path, "-p", "work_queue_size:=1000"), env, tmp_path / "node.log")
-        assert listener.wait_for_node(), (tmp_path / "node.log").read_text()
-        player = start(play(path, "--rate", "2"), env, tmp_path / "play.log")
+    with Session(tmp_path, rig_path, "-p", "work_queue_size:=1000") as run:
+        player = run.start(play(path, "--rate", "2"))
         assert player.wait(120) == 0, (tmp_path / "play.log").read_text()
-        listener.wait_until_done()
+        run.listener.wait_until_done()
         time.sleep(0.5)
-    finally:
-        stop(player)
-        stop(node)
-        listener.close()
-    log = (tmp_path / "node.log").read_text()
-    assert node.returncode == 0, log
+    listener, log = run.listener, run.log()
+    assert run.node.returncode == 0, log
     # the same estimates as nrmpc replay: same stamps, gravity to 1e-9
     assert check_against_replay(listener, replayed) == len(replayed)
     rig = load_rig(rig_path)
@@ -205,17 +222,11 @@ def test_the_node_publishes_the_replays_estimates_in_their_frames(bag, replayed,
 
 def test_a_namespaced_remapped_node_runs_the_bag_and_names_its_topics_after_remapping(bag, tmp_path):
     path, rig_path, _ = bag
-    domain = random.randint(1, 100)
-    env = env_for(domain, tmp_path)
-    listener = Listener(domain, ns="/rig1")
     remaps = [a for i in range(4) for name in ("image_raw", "camera_info")
               for a in ("-r", f"cam{i}/{name}:=/cam{i}/{name}")]
-    node = player = None
-    try:
-        node = start(estimator(rig_path, "-r", "__ns:=/rig1", "-r", "imu/data:=/imu/data", *remaps), env,
-                     tmp_path / "node.log")
-        assert listener.wait_for_node(), (tmp_path / "node.log").read_text()
-        player = start(play(path), env, tmp_path / "play.log")
+    with Session(tmp_path, rig_path, "-r", "__ns:=/rig1", "-r", "imu/data:=/imu/data", *remaps, ns="/rig1") as run:
+        listener = run.listener
+        player = run.start(play(path))
         deadline = time.monotonic() + 60
         while not listener.got["rel"] and time.monotonic() < deadline:
             time.sleep(0.02)
@@ -227,11 +238,7 @@ def test_a_namespaced_remapped_node_runs_the_bag_and_names_its_topics_after_rema
         assert future.done() and future.result().success
         assert player.wait(120) == 0, (tmp_path / "play.log").read_text()
         listener.wait_until_done()
-    finally:
-        stop(player)
-        stop(node)
-        listener.close()
-    log = (tmp_path / "node.log").read_text()
+    log = run.log()
     cams, imu, est = listener.last("cameras"), listener.last("IMU"), listener.last("estimation")
     assert "/cam0/image_raw: images" in cams[2] and not any(k.startswith("/rig1/cam") for k in cams[2])
     assert imu[2]["topic"] == "/imu/data" and int(imu[2]["samples"]) > 1000
@@ -253,23 +260,14 @@ def test_a_typo_in_a_parameter_stops_the_start_with_its_name(tmp_path):
 
 
 def test_play_loop_gives_estimates_on_every_pass(bag, replayed, tmp_path):
-    path, rig_path, summary = bag
-    domain = random.randint(1, 100)
-    env = env_for(domain, tmp_path)
-    listener = Listener(domain)
-    node = player = None
-    try:
-        node = start(estimator(rig_path, "-p", "work_queue_size:=1000"), env, tmp_path / "node.log")
-        assert listener.wait_for_node(), (tmp_path / "node.log").read_text()
-        player = start(play(path, "--rate", "2", "--loop"), env, tmp_path / "play.log")
+    path, rig_path, _ = bag
+    with Session(tmp_path, rig_path, "-p", "work_queue_size:=1000") as run:
+        listener = run.listener
+        run.start(play(path, "--rate", "2", "--loop"))
         deadline = time.monotonic() + 120
         while len(listener.got["gravity"]) < 2 * len(replayed) + 1 and time.monotonic() < deadline:
             time.sleep(0.1)
-    finally:
-        stop(player)
-        stop(node)
-        listener.close()
-    log = (tmp_path / "node.log").read_text()
+    log = run.log()
     stamps = [stamp_key(msg_stamp(m.header)) for m in listener.got["gravity"]]
     assert len(stamps) > 2 * len(replayed), f"estimates on the first passes: {len(stamps)}\n{log[-3000:]}"
     n = len(replayed)
@@ -333,13 +331,7 @@ def test_faults_are_dropped_counted_reported_and_estimates_resume(bag, replayed,
     """A frame set and an IMU sample in 2038, a NaN IMU burst, a camera silent for 5 s, a burst of 500 frame
     sets, then the bag again from its start (a jump back): the second pass gives the replay's estimates."""
     path, rig_path, _ = bag
-    domain = random.randint(1, 100)
-    env = env_for(domain, tmp_path)
-    listener = Listener(domain)
-    inject = Injector(domain, path)
-    node = None
     done = set()
-
     def faults(t_ns):
         s, last = (t_ns - inject.messages[0][0]) * 1e-9, inject.last
         if "future" not in done and s > 1.0:
@@ -361,20 +353,18 @@ def test_faults_are_dropped_counted_reported_and_estimates_resume(bag, replayed,
     def silent(t, topic):  # camera 3 says nothing for 5 s of the bag (2.5 s at rate 2; the timeout is 1 s)
         return topic == CAMERAS[3] and 2.0e9 <= t < 7.0e9
 
-    try:
-        node = start(estimator(rig_path, "-p", "work_queue_size:=100"), env, tmp_path / "node.log")
-        assert listener.wait_for_node(), (tmp_path / "node.log").read_text()
-        inject.wait_for_subscribers()
-        inject.play(rate=2.0, faults=faults, skip=silent)  # the first pass, with the faults
-        first_estimates = len(listener.got["gravity"])
-        time.sleep(1.0)
-        inject.play(rate=2.0)  # the bag again: its stamps jump back
-        listener.wait_until_done()
-    finally:
-        inject.close()
-        stop(node)
-        listener.close()
-    log = (tmp_path / "node.log").read_text()
+    with Session(tmp_path, rig_path, "-p", "work_queue_size:=100") as run:
+        listener, inject = run.listener, Injector(run.domain, path)
+        try:
+            inject.wait_for_subscribers()
+            inject.play(rate=2.0, faults=faults, skip=silent)  # the first pass, with the faults
+            first_estimates = len(listener.got["gravity"])
+            time.sleep(1.0)
+            inject.play(rate=2.0)  # the bag again: its stamps jump back
+            listener.wait_until_done()
+        finally:
+            inject.close()
+    log = run.log()
     print(log[-6000:])
     cams, imu, est = listener.last("cameras"), listener.last("IMU"), listener.last("estimation")
     assert all(int(cams[2].get(f"dropped: {t}: stamp in the future", 0)) == 1 for t in CAMERAS)

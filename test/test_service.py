@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import yaml
+from rendered_bags import rig_file
 from test_feeder import TOPICS, image, imu
 
 from nrmpc_ros.core import load_rig
@@ -37,14 +37,7 @@ from nrmpc_ros.frontend.sync import StampSynchronizer
 
 @pytest.fixture
 def rig(tmp_path):
-    from test_feeder import ROOT
-
-    d = yaml.safe_load((ROOT / "config" / "sample_cross4.yaml").read_text())
-    for c in d["cameras"]:
-        c["resolution"], c["intrinsics"] = [64, 48], [47.0, 47.0, 31.5, 23.5]
-    path = tmp_path / "rig.yaml"
-    path.write_text(yaml.safe_dump(d))
-    return load_rig(path)
+    return load_rig(rig_file(tmp_path, 64))
 
 
 class Clock:
