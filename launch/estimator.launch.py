@@ -27,12 +27,13 @@ BOOLEANS = ["true", "false", "True", "False"]
 ARGUMENTS = (
     ("rig_file", None, "rig YAML file (cameras, bars, IMU mount); default: the installed sample_cross4.yaml", None),
     ("params_file", None, "node parameter file (--params-file); default: the installed estimator.yaml", None),
-    ("method", "auto", "estimator: auto runs 4pt-bending while the IMU is fresh, 6pt-bending otherwise", METHODS),
+    ("method", "auto", "estimator: auto runs 4pt-bending for holds with IMU gravity, 6pt-bending for the others",
+     METHODS),
     ("namespace", "", "namespace of the node and of its relative topics (empty: the root namespace)", None),
     ("imu_topic", "", "sensor_msgs/Imu topic the node subscribes to (remap target of its IMU input); "
                       "empty: the params file's imu_topic, else the rig file's imu.topic", None),
     ("image_remaps", "", "camera topic remaps FROM:=TO separated by spaces or ';', FROM being a rig file "
-                         "image_topic (or image_topic/compressed with image_transport compressed)", None),
+                         "image_topic (its /compressed topic follows it) or image_topic/compressed", None),
     ("use_sim_time", "false", "take time from /clock (e.g. with nrmpc play or ros2 bag play --clock)", BOOLEANS),
     ("log_level", "info", "log level of the node", LOG_LEVELS),
 )

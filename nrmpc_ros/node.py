@@ -103,7 +103,8 @@ class EstimatorNode(Node):
         return values
 
     def _subscribe_camera(self, i: int) -> None:
-        choice = svc.transport(self.camera_topics[i], self.cfg.image_transport, dict(self.get_topic_names_and_types()))
+        choice = svc.transport(self.rig.cameras[i].image_topic, self.cfg.image_transport,
+                               dict(self.get_topic_names_and_types()), self.resolve_topic_name)
         if choice == self._transport[i]:
             return
         if self._subs[i] is not None:

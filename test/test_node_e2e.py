@@ -25,6 +25,7 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: install th
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Vector3Stamped  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, Imu  # noqa: E402
@@ -82,6 +83,8 @@ class Listener(BackgroundNode):
                                 ("cams", PoseArray, "camera_poses")):
             self.node.create_subscription(cls, f"{base}/{topic}", self.got[key].append, RELIABLE)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, RELIABLE)
+        self.rosout = []
+        self.node.create_subscription(Log, "/rosout", lambda m: self.rosout.append(m.msg), RELIABLE)
         self.reset = self.node.create_client(Trigger, f"{base}/reset")
         self.start()
 
@@ -217,6 +220,7 @@ def test_the_node_publishes_the_replays_estimates_in_their_frames(bag, replayed,
     assert cams[2]["/cam0/image_raw: camera_info"] == "agrees with the rig file"
     assert int(cams[2]["/cam0/image_raw: images"]) == 104 and imu[0] == b"\x00" and est[0] == b"\x00"
     assert "shutting down: 416 images" in log and "dropped: nothing dropped" in log
+    assert any(line.startswith("shutting down: 416 images") for line in listener.rosout), "SIGINT: still on /rosout"
     assert "no image yet" not in log and "stopped publishing" not in log, "no false alarms at start-up or at the end"
 
 

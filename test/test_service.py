@@ -30,9 +30,11 @@ from nrmpc_ros.frontend.service import (
     imu_topic,
     parameter_fields,
     parameter_range,
+    transport,
     unknown_parameters,
 )
 from nrmpc_ros.frontend.sync import StampSynchronizer
+from nrmpc_ros.frontend.topics import expand_topic
 
 
 @pytest.fixture
@@ -114,6 +116,23 @@ def test_the_imu_follows_the_rig_file_and_use_imu(rig):
     no_imu = SimpleNamespace(imu=None, source="rig.yaml")
     topic, warning = imu_topic(no_imu, NodeConfig(imu_topic="/imu"))
     assert topic is None and "has no imu block" in warning
+
+
+def test_the_compressed_topic_follows_the_image_topic_unless_remapped_itself():
+    remaps = {"/rig1/cam0/image_raw": "/front/image_raw", "/rig1/cam1/image_raw/compressed": "/left/jpeg"}
+
+    def resolve(name, only_expand=False):
+        full = expand_topic(name, "/rig1")
+        return full if only_expand else remaps.get(full, full)
+
+    raw, comp = "sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"
+    assert transport("cam0/image_raw", "compressed", {}, resolve) == ("/front/image_raw/compressed", True)
+    assert transport("cam1/image_raw", "compressed", {}, resolve) == ("/left/jpeg", True)
+    assert transport("cam1/image_raw", "raw", {}, resolve) == ("/rig1/cam1/image_raw", False)
+    assert transport("cam0/image_raw", "auto", {"/front/image_raw/compressed": [comp]}, resolve) == (
+        "/front/image_raw/compressed", True)
+    assert transport("cam0/image_raw", "auto", {"/front/image_raw": [raw]}, resolve) == ("/front/image_raw", False)
+    assert transport("cam0/image_raw", "auto", {}, resolve) == ("/front/image_raw", False)
 
 
 def test_command_line_help_and_bad_arguments(capsys):

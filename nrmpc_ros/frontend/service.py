@@ -208,11 +208,17 @@ def imu_topic(rig: Rig, config: NodeConfig) -> tuple:
     return (config.imu_topic or rig.imu.topic) if config.use_imu else None, None
 
 
-def transport(topic: str, how: str, graph: dict) -> tuple:
-    """(topic to subscribe, compressed?) for ``image_transport`` ``how`` and the graph's topics and types."""
+def transport(topic: str, how: str, graph: dict, resolve) -> tuple:
+    """(topic to subscribe, compressed?) for a rig file's image ``topic`` with ``image_transport`` ``how``, the
+    graph's topics and types, and the node's ``resolve(name, only_expand=False)`` (expansion and remapping).
+
+    The compressed topic follows the image topic (a remap of ``cam0/image_raw`` moves both, as image_transport
+    does) unless ``<topic>/compressed`` is remapped itself."""
+    base, comp = resolve(topic), compressed_topic(topic)
+    compressed = resolve(comp) if resolve(comp) != resolve(comp, only_expand=True) else compressed_topic(base)
     if how == "auto":
-        return choose_transport(topic, graph)
-    return (compressed_topic(topic), True) if how == "compressed" else (topic, False)
+        return choose_transport(base, graph, compressed)
+    return (compressed, True) if how == "compressed" else (base, False)
 
 
 def share_directories() -> list:

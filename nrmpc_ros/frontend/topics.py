@@ -115,16 +115,16 @@ def bag_image_topics(bag, rig, warn=None) -> list:
     return out
 
 
-def choose_transport(topic: str, available: dict) -> tuple:
+def choose_transport(topic: str, available: dict, compressed: str | None = None) -> tuple:
     """(topic to subscribe, compressed?) for ``image_transport: auto``.
 
     ``available`` maps topic names to the type names published on them (as
     rclpy's ``get_topic_names_and_types`` lists them). Raw images on ``topic``
-    win; else CompressedImage on ``topic + '/compressed'``; else CompressedImage
-    on ``topic`` itself; with nothing there yet, the raw topic.
+    win; else CompressedImage on ``compressed`` (default ``topic + '/compressed'``);
+    else CompressedImage on ``topic`` itself; with nothing there yet, the raw topic.
     """
     kinds = {t: {_kind(m) for m in types} for t, types in available.items()}
-    comp = compressed_topic(topic)
+    comp = compressed or compressed_topic(topic)
     if "raw" in kinds.get(topic, ()):
         return topic, False
     if "compressed" in kinds.get(comp, ()):
