@@ -85,9 +85,9 @@ def check_image_remaps(remaps: list[tuple[str, str]], image_topics: list[str], n
             known[expand_topic(name, namespace)] = name
     unknown = [src for src, _ in remaps if expand_topic(src, namespace) not in known]
     if unknown:
+        here = ", ".join(expand_topic(t, namespace) for t in image_topics)
         raise InputError("launch argument image_remaps", f"{', '.join(unknown)} is no camera topic of the rig file "
-                                                         f"{rig_source} (its topics here: "
-                                                         f"{', '.join(expand_topic(t, namespace) for t in image_topics)})")
+                                                         f"{rig_source} (its topics here: {here})")
 
 
 def _launch_setup(context, *args, **kwargs):
