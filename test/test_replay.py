@@ -120,7 +120,7 @@ def test_missing_topic_and_wrong_size(tmp_path, capsys):
     assert main(["replay", str(BAG), "--rig", str(bad), "--out", str(tmp_path / "y.csv"), "--no-progress"]) == 0
     captured = capsys.readouterr()
     assert "/cam1/image_raw" in captured.err and "640x480" in captured.err
-    assert "bad frame set: 18" in captured.out
+    assert "/cam1/image_raw: wrong image size 18" in captured.out  # dropped at the input, counted by topic
     assert read_csv(tmp_path / "y.csv") == []
 
 

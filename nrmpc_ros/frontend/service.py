@@ -323,6 +323,7 @@ class EstimatorService:
         self.queue = WorkQueue(config.work_queue_size)
         self.feeder = Feeder(rig, config.input, self._put, self.drops, self.camera_topics, imu_topic, log, clock)
         self.runner = PipelineRunner(rig, pipeline_config, config.method, self.drops, catch=True, log=log)
+        self.stats = self.runner.stats  # a copy the worker renews after each work item (the timer reads it)
         self.watch = CameraWatch(self.camera_topics, config.camera_timeout_s)
         self.frames = FrameNames(rig.body_frame, config.origin_frame or f"{rig.body_frame}_origin",
                                  tuple(c.name + config.camera_frame_suffix for c in rig.cameras))
@@ -439,7 +440,9 @@ class EstimatorService:
                 self.publish(out)
         finally:
             self._running = False
+        stats = self.runner.stats
         with self._lock:
+            self.stats = stats
             if work.kind == "frames":
                 self.counts["processed frame sets"] += 1
                 self.process_ms.append(elapsed_ms)
@@ -530,9 +533,8 @@ class EstimatorService:
 
     def _estimation_status(self) -> Status:
         with self._lock:
-            counts, last = dict(self.counts), self.last
+            counts, last, st = dict(self.counts), self.last, self.stats
             latency, process = list(self.latency_ms), list(self.process_ms)
-        st = self.runner.stats
         values = {"method": self.config.method, "frame sets processed": counts.get("processed frame sets", 0),
                   "frame sets waiting": self.queue.frames(), "work waiting": len(self.queue) + self._running,
                   "holds": st.holds,
@@ -565,10 +567,9 @@ class EstimatorService:
     def summary(self) -> str:
         """The shutdown summary: what came in, what was estimated, every drop by reason."""
         with self._lock:
-            counts, latency = dict(self.counts), list(self.latency_ms)
+            counts, latency, st = dict(self.counts), list(self.latency_ms), self.stats
         images = sum(self.received[t] for t in self.camera_topics)
         imu = self.received[self.imu_topic] if self.imu_topic else 0
-        st = self.runner.stats
         return (f"{images} images, {imu} IMU samples; {self.feeder.events['frame sets']} frame sets, "
                 f"{counts.get('processed frame sets', 0)} processed; {st.holds} holds, "
                 f"{counts.get('estimates', 0)} estimates; {self.feeder.events['time jumps back']} time jumps back; "
