@@ -62,7 +62,7 @@ def parse_remaps(text: str, argument: str = "image_remaps") -> list[tuple[str, s
 
 def find_file(path: str, share: Path | None, argument: str) -> Path:
     """``path`` as the node resolves it: absolute, or relative to the working directory, then to ``share``."""
-    from nrmpc_ros.frontend.service import find_file as find
+    from nrmpc_ros.frontend.node_config import find_file as find
 
     return find(path, f"launch argument {argument}", [share] if share is not None else [])
 

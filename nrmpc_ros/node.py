@@ -1,6 +1,6 @@
-"""The ROS 2 node ``estimator``, the only module of nrmpc_ros that imports rclpy (README, "The ROS 2 node").
+"""The ROS 2 node ``estimator``; with ``ros_play`` the only rclpy user in nrmpc_ros (README, "The ROS 2 node").
 
-Parameters are declared from :class:`~nrmpc_ros.frontend.service.NodeConfig` and ``pipeline.*``; callbacks
+Parameters are declared from :class:`~nrmpc_ros.frontend.node_config.NodeConfig` and ``pipeline.*``; callbacks
 hand messages to :class:`~nrmpc_ros.frontend.service.EstimatorService`, whose worker thread runs the
 pipeline; this module turns its outputs into messages. ``estimator --help`` lists topics and parameters.
 """
@@ -13,8 +13,9 @@ import sys
 
 from .core.rig import load_rig
 from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
-from .frontend import service as svc
+from .frontend import node_config as cfgs
 from .frontend.outputs import OUTPUTS, fill_message, message_fields
+from .frontend.service import EstimatorService
 from .ros_play import message_class
 
 try:  # rclpy is optional for the package; --help works without it
@@ -48,14 +49,14 @@ class EstimatorNode(Node):
         if rclpy is None:
             raise NrmpcError(f"rclpy is not importable ({_RCLPY_ERROR}); {ROS_EXTRA_HINT}")
         super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True, **node_kwargs)
-        cfg, pipe_cfg = svc.configs_from_parameters(self._declare_parameters())
-        self.cfg, self.rig = cfg, load_rig(svc.find_file(cfg.rig_file, "parameter rig_file"))
-        imu, warning = svc.imu_topic(self.rig, cfg)
+        cfg, pipe_cfg = cfgs.configs_from_parameters(self._declare_parameters())
+        self.cfg, self.rig = cfg, load_rig(cfgs.find_file(cfg.rig_file, "parameter rig_file"))
+        imu, warning = cfgs.imu_topic(self.rig, cfg)
         if warning:
             self._log("warn", warning)
         imu = imu and self.resolve_topic_name(imu)
         self.camera_topics = [self.resolve_topic_name(c.image_topic) for c in self.rig.cameras]
-        self.service = svc.EstimatorService(self.rig, cfg, pipe_cfg, self.camera_topics, imu, self._publish, self._log)
+        self.service = EstimatorService(self.rig, cfg, pipe_cfg, self.camera_topics, imu, self._publish, self._log)
         self._subs, self._transport = [None] * self.rig.num_cameras, [None] * self.rig.num_cameras
         for i in range(self.rig.num_cameras):
             self._subscribe_camera(i)
@@ -82,15 +83,15 @@ class EstimatorNode(Node):
     # ------------------------------------------------------------------ parameters and inputs
     def _declare_parameters(self) -> dict:
         given = {n: self.get_parameter(n).value for n in self.list_parameters([], 0).names}
-        unknown = svc.unknown_parameters(given)
+        unknown = cfgs.unknown_parameters(given)
         if unknown:
             raise InputError(f"parameter {unknown[0]}", f"unknown parameter(s) {', '.join(unknown)} (a typo? "
                                                         "`estimator --help` lists the parameters)")
         values = {}
-        for f in svc.parameter_fields():
+        for f in cfgs.parameter_fields():
             if f.name in given:
                 self.undeclare_parameter(f.name)
-            d = fill_message(ParameterDescriptor(), svc.parameter_descriptor(f))
+            d = fill_message(ParameterDescriptor(), cfgs.parameter_descriptor(f))
             value, lenient = given.get(f.name), isinstance(f.default, float) and type(given.get(f.name)) is int
             try:  # an integer for a float parameter is taken as that float
                 values[f.name] = self.declare_parameter(f.name, float(value) if lenient else f.default, d,
@@ -103,7 +104,7 @@ class EstimatorNode(Node):
         return values
 
     def _subscribe_camera(self, i: int) -> None:
-        choice = svc.transport(self.rig.cameras[i].image_topic, self.cfg.image_transport,
+        choice = cfgs.transport(self.rig.cameras[i].image_topic, self.cfg.image_transport,
                                dict(self.get_topic_names_and_types()), self.resolve_topic_name)
         if choice == self._transport[i]:
             return
@@ -166,7 +167,7 @@ class EstimatorNode(Node):
 def main(argv: list | None = None) -> int:
     """Entry point of ``estimator`` and ``ros2 run nrmpc_ros estimator``."""
     argv = list(sys.argv if argv is None else argv)
-    code = svc.command_line(argv[1:], rclpy is None and f"rclpy is not importable ({_RCLPY_ERROR}); {ROS_EXTRA_HINT}")
+    code = cfgs.command_line(argv[1:], rclpy is None and f"rclpy is not importable ({_RCLPY_ERROR}); {ROS_EXTRA_HINT}")
     if code is not None:
         return code
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: the summary still reaches /rosout
