@@ -97,13 +97,13 @@ class Listener(BackgroundNode):
     def last(self, part: str):
         return self.diagnostics[-1][part] if self.diagnostics else (None, "", {})
 
-    def wait_for_node(self, timeout: float = 60.0) -> bool:
+    def wait_for_node(self, timeout: float = 90.0) -> bool:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline and not self.diagnostics:
             time.sleep(0.1)
         return bool(self.diagnostics)
 
-    def wait_until_done(self, timeout: float = 60.0) -> None:
+    def wait_until_done(self, timeout: float = 120.0) -> None:
         """Until the node says the input ended and nothing waits for the estimator."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
