@@ -27,12 +27,13 @@ BOOLEANS = ["true", "false", "True", "False"]
 ARGUMENTS = (
     ("rig_file", None, "rig YAML file (cameras, bars, IMU mount); default: the installed sample_cross4.yaml", None),
     ("params_file", None, "node parameter file (--params-file); default: the installed estimator.yaml", None),
-    ("method", "auto", "estimator: auto runs 4pt-bending while the IMU is fresh, 6pt-bending otherwise", METHODS),
+    ("method", "auto", "estimator: auto runs 4pt-bending for holds with IMU gravity, 6pt-bending for the others",
+     METHODS),
     ("namespace", "", "namespace of the node and of its relative topics (empty: the root namespace)", None),
     ("imu_topic", "", "sensor_msgs/Imu topic the node subscribes to (remap target of its IMU input); "
                       "empty: the params file's imu_topic, else the rig file's imu.topic", None),
     ("image_remaps", "", "camera topic remaps FROM:=TO separated by spaces or ';', FROM being a rig file "
-                         "image_topic (or image_topic/compressed with image_transport compressed)", None),
+                         "image_topic (its /compressed topic follows it) or image_topic/compressed", None),
     ("use_sim_time", "false", "take time from /clock (e.g. with nrmpc play or ros2 bag play --clock)", BOOLEANS),
     ("log_level", "info", "log level of the node", LOG_LEVELS),
 )
@@ -61,24 +62,16 @@ def parse_remaps(text: str, argument: str = "image_remaps") -> list[tuple[str, s
 
 def find_file(path: str, share: Path | None, argument: str) -> Path:
     """``path`` as the node resolves it: absolute, or relative to the working directory, then to ``share``."""
-    from nrmpc_ros.errors import InputError
+    from nrmpc_ros.frontend.node_config import find_file as find
 
-    p = Path(path).expanduser()
-    candidates = [p] if p.is_absolute() else [Path.cwd() / p]
-    if share is not None and not p.is_absolute():
-        candidates += [share / p, share / "config" / p.name]
-    for candidate in candidates:
-        if candidate.is_file():
-            return candidate
-    where = ", ".join(str(c) for c in candidates)
-    raise InputError(f"launch argument {argument}", f"no such file: {path} (looked for {where})")
+    return find(path, f"launch argument {argument}", [share] if share is not None else [])
 
 
 def expand_topic(name: str, namespace: str) -> str:
     """Fully qualified topic name: a relative ``name`` lies in ``namespace`` (absolute, '/' for the root)."""
-    if name.startswith("/"):
-        return name
-    return namespace.rstrip("/") + "/" + name
+    from nrmpc_ros.frontend.topics import expand_topic as expand
+
+    return expand(name, namespace)
 
 
 def check_image_remaps(remaps: list[tuple[str, str]], image_topics: list[str], namespace: str, rig_source: str):
@@ -92,8 +85,9 @@ def check_image_remaps(remaps: list[tuple[str, str]], image_topics: list[str], n
             known[expand_topic(name, namespace)] = name
     unknown = [src for src, _ in remaps if expand_topic(src, namespace) not in known]
     if unknown:
+        here = ", ".join(expand_topic(t, namespace) for t in image_topics)
         raise InputError("launch argument image_remaps", f"{', '.join(unknown)} is no camera topic of the rig file "
-                                                         f"{rig_source} (its topics: {', '.join(image_topics)})")
+                                                         f"{rig_source} (its topics here: {here})")
 
 
 def _launch_setup(context, *args, **kwargs):

@@ -13,6 +13,7 @@ instant. rclpy is imported inside :func:`play` only, so the CLI loads without RO
 from __future__ import annotations
 
 import importlib
+import math
 import sys
 import threading
 import time
@@ -21,7 +22,7 @@ from pathlib import Path
 from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
 
 
-def _message_class(msgtype: str, topic: str):
+def message_class(msgtype: str, topic: str):
     """The rclpy message class of a ``pkg/msg/Name`` type."""
     parts = msgtype.split("/")
     if len(parts) == 2:
@@ -40,24 +41,36 @@ def _open_reader(bag: str):
     path = Path(bag)
     if not path.exists():
         raise InputError(bag, "no such bag")
-    reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        raise InputError(bag, "not a rosbag2 directory: it has no metadata.yaml (a ROS 1 bag is one .bag file)")
     try:
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
         reader.open()
     except Exception as exc:  # rosbags raises several unrelated types for unreadable bags
-        raise InputError(bag, f"cannot open bag: {exc}") from exc
+        raise InputError(bag, f"cannot open bag: {exc}") from None
+    if not reader.connections:
+        reader.close()
+        raise InputError(bag, "the bag has no topics: nothing to play")
     return reader
+
+
+def check_args(args) -> None:
+    """One clear error for a bad --rate, --delay or --wait-for-subscribers."""
+    for flag, value, positive in (("--rate", args.rate, True), ("--delay", args.delay, False),
+                                  ("--wait-for-subscribers", args.wait_for_subscribers, False)):
+        if not math.isfinite(value) or value < 0 or (positive and value == 0):
+            raise InputError(flag, f"must be a finite number {'> 0' if positive else '>= 0'}, got {value!r}")
 
 
 def play(args) -> int:
     """Play ``args.bag`` (see ``nrmpc play --help`` for the fields of args); returns the exit code."""
+    check_args(args)
     try:
         import rclpy
         from rclpy.context import Context
         from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
     except ImportError as exc:
         raise NrmpcError(f"rclpy is not importable ({exc}); {ROS_EXTRA_HINT}") from exc
-    if args.rate <= 0:
-        raise InputError("--rate", "must be > 0")
 
     reader = _open_reader(args.bag)
     try:
@@ -68,7 +81,7 @@ def play(args) -> int:
             raise InputError(args.bag, f"topic(s) {', '.join(missing)} not in the bag (it has: "
                                        f"{', '.join(sorted(available))})")
         connections = [c for c in reader.connections if c.topic in wanted]
-        classes = {t: _message_class(available[t], t) for t in wanted}
+        classes = {t: message_class(available[t], t) for t in wanted}
         convert = not getattr(reader, "is2", True)  # ROS 1 bag: raw is not CDR
 
         nodes = []
@@ -152,7 +165,7 @@ def _play_once(reader, connections, pubs, clock_pub, rate: float, convert: bool,
         from rosgraph_msgs.msg import Clock
 
         clock_msg = Clock()
-    for conn, stamp_ns, raw in reader.messages(connections=connections):
+    for conn, stamp_ns, raw in _messages(reader, connections):
         if not context.ok():
             break
         if t0_bag is None:
@@ -169,6 +182,18 @@ def _play_once(reader, connections, pubs, clock_pub, rate: float, convert: bool,
         pubs[conn.topic].publish(bytes(raw))
         count += 1
     return count
+
+
+def _messages(reader, connections):
+    """The bag's messages; a read error (a corrupt or truncated bag) is one InputError naming the bag."""
+    it = reader.messages(connections=connections)
+    while True:
+        try:
+            yield next(it)
+        except StopIteration:
+            return
+        except Exception as exc:  # sqlite3, mcap and rosbags raise their own types
+            raise InputError(str(reader.paths[0]), f"cannot read messages (corrupt or truncated bag?): {exc}") from None
 
 
 class BackgroundNode:
@@ -207,4 +232,5 @@ class BackgroundNode:
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
         self.rclpy.try_shutdown(context=self.ctx)
-        self._thread.join(2.0)
+        if self._thread.is_alive():
+            self._thread.join(2.0)

@@ -233,7 +233,8 @@ def test_installed_estimator_help_from_another_directory(workspace, tmp_path):
     proc = subprocess.run([str(exe), "--help"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.startswith("usage: estimator")
-    for name in ("rig_file", "method", "sync_tolerance_s", "imu_topic", "imu_max_age_s", "image_transport"):
+    for name in ("rig_file", "method", "input.sync_tolerance_s", "imu_topic", "pipeline.imu.max_age_s",
+                 "image_transport"):
         assert name in proc.stdout
     # the executable runs the workspace's copy of the package (the source tree does not shadow it)
     where = subprocess.run([sys.executable, "-c", "import nrmpc_ros.node as n; print(n.__file__)"], cwd=tmp_path,

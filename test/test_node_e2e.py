@@ -1,17 +1,17 @@
-"""End to end over DDS: the estimator node and ``nrmpc play`` as separate processes, a listener in this one.
+"""End to end over DDS: the estimator node and ``nrmpc play`` as processes, listeners and publishers in this one.
 
-Each test uses its own random ROS_DOMAIN_ID; every process started here is
-killed with its process group in ``finally``.
+The bag is rendered at test time (:mod:`rendered_bags`: 320x240, 4 holds, relative rig topics). Each test uses
+its own random ROS_DOMAIN_ID; every process started here is killed with its process group in ``finally``.
 """
 
 from __future__ import annotations
 
+import copy
 import csv
 import math
 import os
 import random
 import signal
-import statistics
 import subprocess
 import sys
 import time
@@ -19,260 +19,368 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
-BAG = REPO / "bags" / "sample"
-RIG = REPO / "config" / "sample_cross4.yaml"
-PARAMS = REPO / "config" / "estimator.yaml"
-BIN = Path(sys.executable).parent
-CAMERAS = [f"/cam{i}/image_raw" for i in range(4)]
-IMU = "/imu/data"
+from rendered_bags import CAMERAS, IMU, stream_bag
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: install the ros extra (pip install -e .[ros])")
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from geometry_msgs.msg import PoseStamped, Vector3Stamped  # noqa: E402
+from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Vector3Stamped  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.serialization import deserialize_message  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image, Imu  # noqa: E402
+from std_msgs.msg import Header  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
 
-from nrmpc_ros.core.so3 import angle_between, quat_xyzw_to_matrix, rotation_angle  # noqa: E402
+from nrmpc_ros.core import load_rig  # noqa: E402
+from nrmpc_ros.core.deformation import deformed_extrinsics  # noqa: E402
+from nrmpc_ros.core.so3 import quat_xyzw_to_matrix  # noqa: E402
 from nrmpc_ros.ros_play import BackgroundNode  # noqa: E402
 
-pytestmark = pytest.mark.skipif(not BAG.exists(), reason="the sample bag bags/sample is not in this checkout")
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory):
+    return stream_bag(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def replayed(bag, tmp_path_factory):
+    """``nrmpc replay`` of the bag: stamp -> CSV row."""
+    path, rig, _ = bag
+    out = tmp_path_factory.mktemp("replay") / "replay.csv"
+    proc = subprocess.run([str(BIN / "nrmpc"), "replay", str(path), "--rig", str(rig), "--out", str(out),
+                           "--no-progress", "--quiet"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    with open(out) as fh:
+        rows = {stamp_key(float(r["stamp"])): r for r in csv.DictReader(fh)}
+    assert len(rows) >= 3
+    return rows
 
 
 # --------------------------------------------------------------------------- helpers
-def _stamp(msg_stamp) -> float:
-    return msg_stamp.sec + 1e-9 * msg_stamp.nanosec
+def stamp_key(t: float) -> int:
+    return int(round(t * 1e6))
+
+
+def msg_stamp(header) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
 class Listener(BackgroundNode):
-    """Collects ~/relative_pose, ~/gravity and /diagnostics in this process (own context and domain)."""
+    """Everything one estimator node publishes, in this process (own context and domain)."""
 
-    def __init__(self, domain: int):
+    def __init__(self, domain: int, ns: str = ""):
         super().__init__("e2e_listener", domain)
-        self.poses, self.gravity, self.diagnostics = [], [], []
-        self.arrival = {}
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        self.node.create_subscription(PoseStamped, "/estimator/relative_pose", self._on_pose, qos)
-        self.node.create_subscription(Vector3Stamped, "/estimator/gravity", self.gravity.append, qos)
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, qos)
+        self.got = {k: [] for k in ("gravity", "rel", "ref", "pose", "cams")}
+        self.diagnostics = []
+        base = f"{ns}/estimator"
+        for key, cls, topic in (("gravity", Vector3Stamped, "gravity"), ("rel", PoseStamped, "relative_pose"),
+                                ("ref", Header, "relative_pose_reference"), ("pose", PoseWithCovarianceStamped, "pose"),
+                                ("cams", PoseArray, "camera_poses")):
+            self.node.create_subscription(cls, f"{base}/{topic}", self.got[key].append, RELIABLE)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, RELIABLE)
+        self.rosout = []
+        self.node.create_subscription(Log, "/rosout", lambda m: self.rosout.append(m.msg), RELIABLE)
+        self.reset = self.node.create_client(Trigger, f"{base}/reset")
         self.start()
 
-    def _on_pose(self, msg):
-        self.arrival[_stamp(msg.header.stamp)] = time.monotonic()
-        self.poses.append(msg)
-
     def _on_diag(self, msg):
-        for status in msg.status:
-            if status.name.startswith("nrmpc_ros"):
-                self.diagnostics.append({kv.key: kv.value for kv in status.values})
+        parts = {s.name.split(": ", 1)[-1]: (s.level, s.message, {kv.key: kv.value for kv in s.values})
+                 for s in msg.status if "estimator" in s.name}
+        if parts:
+            self.diagnostics.append(parts)
 
-    def last_diag(self) -> dict:
-        return self.diagnostics[-1] if self.diagnostics else {}
+    def last(self, part: str):
+        return self.diagnostics[-1][part] if self.diagnostics else (None, "", {})
 
-    def wait_for_node(self, timeout: float) -> bool:
+    def wait_for_node(self, timeout: float = 90.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not self.diagnostics:
+            time.sleep(0.1)
+        return bool(self.diagnostics)
+
+    def wait_until_done(self, timeout: float = 120.0) -> None:
+        """Until the node says the input ended and nothing waits for the estimator."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            if self.node.count_publishers("/estimator/relative_pose") and self.diagnostics:
-                return True
-            time.sleep(0.1)
-        return False
+            cams, est = self.last("cameras"), self.last("estimation")
+            if "the input ended" in cams[1] and est[2].get("work waiting") == "0":
+                return
+            time.sleep(0.2)
+        raise AssertionError(f"the node did not finish: {self.diagnostics[-1:]}")
+
+    def gravity_by_stamp(self) -> dict:
+        return {stamp_key(msg_stamp(m.header)): np.array([m.vector.x, m.vector.y, m.vector.z])
+                for m in self.got["gravity"]}
 
 
-
-def _env(domain: int, tmp: Path) -> dict:
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(domain)
-    env["ROS_LOG_DIR"] = str(tmp / "ros_log")
-    env["PYTHONUNBUFFERED"] = "1"
-    env["RCUTILS_COLORIZED_OUTPUT"] = "0"
-    return env
+def env_for(domain: int, tmp: Path) -> dict:
+    return {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_LOG_DIR": str(tmp / "ros_log"), "PYTHONUNBUFFERED": "1",
+            "RCUTILS_COLORIZED_OUTPUT": "0"}
 
 
-def _start(cmd: list, env: dict, log: Path) -> subprocess.Popen:
-    out = open(log, "w")
-    try:
+def start(cmd: list, env: dict, log: Path) -> subprocess.Popen:
+    with open(log, "w") as out:
         return subprocess.Popen(cmd, cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
-    finally:
-        out.close()
 
 
-def _kill(proc: subprocess.Popen | None, grace: float = 10.0) -> None:
+def stop(proc: subprocess.Popen | None, grace: float = 10.0) -> None:
     if proc is None or proc.poll() is not None:
         return
     for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
         try:
             os.killpg(proc.pid, sig)
-        except ProcessLookupError:
-            return
-        try:
             proc.wait(wait)
+            return
+        except ProcessLookupError:
             return
         except subprocess.TimeoutExpired:
             continue
 
 
-def _read_bag(bag: Path) -> dict:
-    """Ground truth of the bag: stamp -> (R_world_body, p_world_body), stamp -> gravity in body."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    poses, gravity = {}, {}
-    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-        conns = [c for c in reader.connections if c.topic in ("/ground_truth/pose", "/ground_truth/gravity")]
-        for conn, _, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
-            s = round(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, 6)
-            if conn.topic == "/ground_truth/pose":
-                q, p = msg.pose.orientation, msg.pose.position
-                poses[s] = (quat_xyzw_to_matrix([q.x, q.y, q.z, q.w]), np.array([p.x, p.y, p.z]))
-            else:
-                gravity[s] = np.array([msg.vector.x, msg.vector.y, msg.vector.z])
-    return {"pose": poses, "gravity": gravity}
+def estimator(rig: Path, *args) -> list:
+    return [str(BIN / "estimator"), "--ros-args", "-p", f"rig_file:={rig}", "-p", "camera_timeout_s:=1.0", *args]
 
 
-def _replay(bag: Path, tmp: Path) -> dict:
-    """``nrmpc replay`` on the same bag: stamp -> row."""
-    out = tmp / "replay.csv"
-    proc = subprocess.run([str(BIN / "nrmpc"), "replay", str(bag), "--rig", str(RIG), "--method", "auto",
-                           "--out", str(out)], cwd=REPO, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, f"nrmpc replay failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-    with open(out) as fh:
-        return {round(float(r["stamp"]), 6): r for r in csv.DictReader(fh)}
+def play(path: Path, *args) -> list:
+    return [str(BIN / "nrmpc"), "play", str(path), "--topics", *CAMERAS, *[c.replace("image_raw", "camera_info")
+                                                                          for c in CAMERAS], IMU,
+            "--wait-for-subscribers", "30", *args]
 
 
-def _run(tmp: Path, bag: Path, extra_params: list) -> dict:
-    """Start the node, play ``bag`` into it, collect what it publishes; return everything for the asserts."""
-    domain = random.randint(1, 100)
-    env = _env(domain, tmp)
-    listener = Listener(domain)
-    node = player = None
-    try:
-        node = _start([str(BIN / "estimator"), "--ros-args", "--params-file", str(PARAMS), *extra_params], env,
-                      tmp / "node.log")
-        assert listener.wait_for_node(90), f"node did not come up:\n{(tmp / 'node.log').read_text()}"
-        player = _start([str(BIN / "nrmpc"), "play", str(bag), "--topics", *CAMERAS, IMU,
-                         "--wait-for-subscribers", "60"], env, tmp / "play.log")
-        player.wait(300)
-        assert player.returncode == 0, (tmp / "play.log").read_text()
-        deadline = time.monotonic() + 120  # let the worker finish the sets it has
-        settled = 0
-        while time.monotonic() < deadline and settled < 2:
-            time.sleep(1.0)
-            d = listener.last_diag()
-            done = d and int(d["processed_sets"]) + int(d["dropped_sets_busy"]) == int(d["synchronized_sets"])
-            settled = settled + 1 if done else 0
-        time.sleep(1.0)
-        assert node.poll() is None, f"the node died:\n{(tmp / 'node.log').read_text()}"
-    finally:
-        _kill(player)
-        _kill(node)
-        listener.close()
-    log = (tmp / "node.log").read_text()
-    print(log[-3000:])
-    return {"poses": listener.poses, "gravity": listener.gravity, "diag": listener.last_diag(), "log": log,
-            "diags": listener.diagnostics}
+class Session:
+    """A node started with ``args`` and a listener, in a domain of their own; ``start`` adds players."""
+
+    def __init__(self, tmp: Path, rig: Path, *args, ns: str = ""):
+        self.tmp, self.domain = tmp, random.randint(1, 100)
+        self.env = env_for(self.domain, tmp)
+        self.listener = Listener(self.domain, ns)
+        self.procs = [start(estimator(rig, *args), self.env, tmp / "node.log")]
+        self.node = self.procs[0]
+
+    def __enter__(self) -> Session:
+        assert self.listener.wait_for_node(), self.log()
+        return self
+
+    def start(self, cmd: list, name: str = "play") -> subprocess.Popen:
+        self.procs.append(start(cmd, self.env, self.tmp / f"{name}.log"))
+        return self.procs[-1]
+
+    def log(self) -> str:
+        return (self.tmp / "node.log").read_text()
+
+    def __exit__(self, *exc) -> None:
+        for proc in reversed(self.procs):
+            stop(proc)
+        self.listener.close()
 
 
-def _errors(result: dict, truth: dict, replay: dict):
-    """Per estimate: gravity error (deg), rotation error (deg) against ground truth, and against the replay."""
-    grav = {round(_stamp(m.header.stamp), 6): np.array([m.vector.x, m.vector.y, m.vector.z])
-            for m in result["gravity"]}
-    rows = []
-    for m in result["poses"]:
-        s = round(_stamp(m.header.stamp), 6)
-        q = m.pose.orientation
-        R = quat_xyzw_to_matrix([q.x, q.y, q.z, q.w])
-        g = grav.get(s)
-        rep = replay.get(s)
-        assert rep is not None, f"the node published an estimate at {s} that nrmpc replay does not have"
-        ref = round(float(rep["ref_stamp"]), 6)
-        R_ref, _ = truth["pose"][ref]
-        R_cur, _ = truth["pose"][s]
-        R_gt = R_ref.T @ R_cur
-        R_rep = quat_xyzw_to_matrix([float(rep[k]) for k in ("qx", "qy", "qz", "qw")])
-        g_rep = np.array([float(rep[k]) for k in ("gx", "gy", "gz")]) if rep["gx"] else None
-        rows.append({
-            "stamp": s,
-            "frame_id": m.header.frame_id,
-            "rot_err": math.degrees(float(rotation_angle(R_gt.T @ R))),
-            "grav_err": math.degrees(float(angle_between(g, truth["gravity"][s]))) if g is not None else None,
-            "rot_vs_replay": math.degrees(float(rotation_angle(R_rep.T @ R))),
-            "grav_vs_replay": (math.degrees(float(angle_between(g, g_rep)))
-                               if g is not None and g_rep is not None else None),
-            "norm": float(np.linalg.norm(g)) if g is not None else None,
-        })
-    return rows
-
-
-def _node_and_replay(bag: Path, tmp: Path, label: str):
-    """Replay ``bag`` offline, play it to the node over DDS; (replay, node result, per-estimate rows) against the
-    sample bag's ground truth."""
-    replay = _replay(bag, tmp)
-    result = _run(tmp, bag, ["-p", "work_queue_size:=2"])
-    rows = _errors(result, _read_bag(BAG), replay)
-    print(f"{label}node: {len(rows)} estimates, replay: {len(replay)}; diagnostics: {result['diag']}")
-    for r in rows:
-        print(r)
-    return replay, result, rows
+def check_against_replay(listener: Listener, replayed: dict, stamps=None) -> int:
+    """The node's gravity equals the replay's at the same stamps; returns how many were compared."""
+    got = listener.gravity_by_stamp()
+    stamps = sorted(got) if stamps is None else stamps
+    for s in stamps:
+        assert s in replayed, f"the node published an estimate at {s * 1e-6:.6f} s that nrmpc replay does not have"
+        row = replayed[s]
+        g = np.array([float(row[k]) for k in ("gx", "gy", "gz")])
+        assert np.allclose(got[s], g, atol=1e-9, rtol=0), (got[s], g)
+    return len(stamps)
 
 
 # --------------------------------------------------------------------------- tests
-def test_node_over_dds_matches_ground_truth_and_replay(tmp_path):
-    replay, result, rows = _node_and_replay(BAG, tmp_path, "")
-    assert len(replay) >= 5
-    diag = result["diag"]
-
-    dropped = int(diag.get("dropped_sets_busy", 0))
-    assert int(diag["synchronized_sets"]) == 18, "every image set of the bag reaches the node over DDS"
-    assert len(result["gravity"]) == len(result["poses"])
-    assert len(rows) >= len(replay) - dropped and len(rows) >= 5
-    assert all(r["frame_id"] == "base_link" for r in rows)
-    assert all(abs(r["norm"] - 9.81) < 1e-6 for r in rows)
-    # every estimate is 4pt-bending (IMU present all along)
-    assert diag["active_method"] == "4pt-bending"
-    assert "pipeline_methods 6pt-bending" not in diag
-    assert statistics.median(r["grav_err"] for r in rows) <= 1.0
-    assert statistics.median(r["rot_err"] for r in rows) <= 0.5
-    # the same pipeline as the replay: the same estimates up to the IMU samples available in time
-    assert max(r["rot_vs_replay"] for r in rows) <= 0.2
-    assert max(r["grav_vs_replay"] for r in rows) <= 0.5
-    # latency from the last image of a set to the published estimate, as the node measures it
-    print(f"latency median {diag['latency_ms_median']} ms, processing median {diag['processing_ms_median']} ms, "
-          f"dropped while busy {dropped}")
-
-
-def _cut_imu(src: Path, dst: Path, keep_s: float) -> float:
-    """A copy of ``src`` whose IMU messages stop ``keep_s`` seconds after the start; returns the cut time (s)."""
-    from rosbags.rosbag2 import Reader, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    store = get_typestore(Stores.ROS2_JAZZY)
-    with Reader(src) as reader, Writer(dst, version=9) as writer:
-        cut_ns = reader.start_time + int(keep_s * 1e9)
-        out = {}
-        for conn in reader.connections:
-            out[conn.id] = writer.add_connection(conn.topic, conn.msgtype, typestore=store)
-        for conn, stamp, raw in reader.messages():
-            if conn.topic == IMU and stamp > cut_ns:
-                continue
-            writer.write(out[conn.id], stamp, raw)
-    return cut_ns * 1e-9
+def test_the_node_publishes_the_replays_estimates_in_their_frames(bag, replayed, tmp_path):
+    path, rig_path, _ = bag
+    with Session(tmp_path, rig_path, "-p", "work_queue_size:=1000") as run:
+        player = run.start(play(path, "--rate", "2"))
+        assert player.wait(120) == 0, (tmp_path / "play.log").read_text()
+        run.listener.wait_until_done()
+        time.sleep(0.5)
+    listener, log = run.listener, run.log()
+    assert run.node.returncode == 0, log
+    # the same estimates as nrmpc replay: same stamps, gravity to 1e-9
+    assert check_against_replay(listener, replayed) == len(replayed)
+    rig = load_rig(rig_path)
+    for cams, g in zip(listener.got["cams"], listener.got["gravity"]):
+        assert cams.header.frame_id == g.header.frame_id == "base_link" and cams.header.stamp == g.header.stamp
+        w, W = deformed_extrinsics(rig, np.array([g.vector.x, g.vector.y, g.vector.z]))
+        for i, p in enumerate(cams.poses):
+            assert np.allclose([p.position.x, p.position.y, p.position.z], w[i], atol=1e-9, rtol=0)
+            q = p.orientation
+            assert np.allclose(quat_xyzw_to_matrix([q.x, q.y, q.z, q.w]), W[i], atol=1e-9, rtol=0)
+    # frames: the relative pose in the reference hold's frame, whose stamp comes just before it
+    for rel, ref in zip(listener.got["rel"], listener.got["ref"]):
+        assert rel.header.frame_id == ref.frame_id and rel.header.frame_id.startswith("base_link_s0_h")
+        assert stamp_key(msg_stamp(ref)) == stamp_key(float(replayed[stamp_key(msg_stamp(rel.header))]["ref_stamp"]))
+    assert all(p.header.frame_id == "base_link_origin" for p in listener.got["pose"])
+    cams, imu, est = listener.last("cameras"), listener.last("IMU"), listener.last("estimation")
+    assert cams[2]["/cam0/image_raw: camera_info"] == "agrees with the rig file"
+    assert int(cams[2]["/cam0/image_raw: images"]) == 104 and imu[0] == b"\x00" and est[0] == b"\x00"
+    assert "shutting down: 416 images" in log and "dropped: nothing dropped" in log
+    assert any(line.startswith("shutting down: 416 images") for line in listener.rosout), "SIGINT: still on /rosout"
+    assert "no image yet" not in log and "stopped publishing" not in log, "no false alarms at start-up or at the end"
 
 
-def test_imu_cut_off_half_way_falls_back_to_6pt_bending(tmp_path):
-    bag = tmp_path / "imu_cut"
-    cut = _cut_imu(BAG, bag, keep_s=8.0)
-    _, result, rows = _node_and_replay(bag, tmp_path, f"IMU cut at {cut:.3f}; ")
-    diag = result["diag"]
+def test_a_namespaced_remapped_node_runs_the_bag_and_names_its_topics_after_remapping(bag, tmp_path):
+    path, rig_path, _ = bag
+    remaps = [a for i in range(4) for name in ("image_raw", "camera_info")
+              for a in ("-r", f"cam{i}/{name}:=/cam{i}/{name}")]
+    with Session(tmp_path, rig_path, "-r", "__ns:=/rig1", "-r", "imu/data:=/imu/data", *remaps, ns="/rig1") as run:
+        listener = run.listener
+        player = run.start(play(path))
+        deadline = time.monotonic() + 60
+        while not listener.got["rel"] and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert listener.reset.wait_for_service(timeout_sec=10)
+        future = listener.reset.call_async(Trigger.Request())
+        deadline = time.monotonic() + 10
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert future.done() and future.result().success
+        assert player.wait(120) == 0, (tmp_path / "play.log").read_text()
+        listener.wait_until_done()
+    log = run.log()
+    cams, imu, est = listener.last("cameras"), listener.last("IMU"), listener.last("estimation")
+    assert "/cam0/image_raw: images" in cams[2] and not any(k.startswith("/rig1/cam") for k in cams[2])
+    assert imu[2]["topic"] == "/imu/data" and int(imu[2]["samples"]) > 1000
+    assert "cameras on /cam0/image_raw (raw)" in log and "/rig1/estimator/pose" in log
+    frames = [m.header.frame_id for m in listener.got["rel"]]
+    assert frames[0].startswith("base_link_s0_") and any(f.startswith("base_link_s1_") for f in frames), frames
+    assert est[2]["resets"] == "1"
 
-    log = result["log"]
-    assert log.count("falling back to 6pt-bending") == 1, "the switch is logged once"
-    assert diag["active_method"] == "6pt-bending"
-    before = [r for r in rows if r["stamp"] <= cut]
-    after = [r for r in rows if r["stamp"] > cut + 0.5]
-    assert len(before) >= 2 and len(after) >= 2, "it keeps publishing after the IMU stops"
-    assert int(diag.get("pipeline_methods 6pt-bending", 0)) >= len(after) - int(diag.get("dropped_sets_busy", 0))
-    assert statistics.median(r["grav_err"] for r in after) <= 2.0
-    assert statistics.median(r["rot_err"] for r in rows) <= 0.5
-    assert max(r["grav_vs_replay"] for r in rows) <= 0.5
+
+def test_a_typo_in_a_parameter_stops_the_start_with_its_name(tmp_path):
+    params = tmp_path / "params.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    rig_file: config/sample_cross4.yaml\n"
+                      "    pipeline.holds.mesure_s: 2.0\n")
+    proc = subprocess.run([str(BIN / "estimator"), "--ros-args", "--params-file", str(params)], cwd=REPO,
+                          env=env_for(random.randint(1, 100), tmp_path), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "parameter pipeline.holds.mesure_s: unknown parameter(s) pipeline.holds.mesure_s" in proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+
+
+def test_play_loop_gives_estimates_on_every_pass(bag, replayed, tmp_path):
+    path, rig_path, _ = bag
+    with Session(tmp_path, rig_path, "-p", "work_queue_size:=1000") as run:
+        listener = run.listener
+        run.start(play(path, "--rate", "2", "--loop"))
+        deadline = time.monotonic() + 120
+        while len(listener.got["gravity"]) < 2 * len(replayed) + 1 and time.monotonic() < deadline:
+            time.sleep(0.1)
+    log = run.log()
+    stamps = [stamp_key(msg_stamp(m.header)) for m in listener.got["gravity"]]
+    assert len(stamps) > 2 * len(replayed), f"estimates on the first passes: {len(stamps)}\n{log[-3000:]}"
+    n = len(replayed)
+    assert stamps[:n] == stamps[n:2 * n] == sorted(replayed), "every pass: the replay's estimates"
+    sequences = [m.frame_id.split("_")[-2] for m in listener.got["ref"]]
+    assert sequences[0] != sequences[n] != sequences[2 * n], "each pass is a sequence of its own"
+    assert log.count("detected jump back in time") >= 2
+
+
+class Injector:
+    """Publishes a bag's messages from this process, one DDS participant per topic (and copies with other
+    stamps or values: the faults)."""
+
+    TYPES = {"sensor_msgs/msg/Image": Image, "sensor_msgs/msg/Imu": Imu, "sensor_msgs/msg/CameraInfo": CameraInfo}
+
+    def __init__(self, domain: int, path: Path):
+        from rosbags.rosbag2 import Reader
+
+        self.messages = []
+        with Reader(path) as reader:
+            types = {c.topic: c.msgtype for c in reader.connections}
+            conns = [c for c in reader.connections if c.topic in CAMERAS + [IMU]]
+            for conn, t_ns, raw in reader.messages(connections=conns):
+                self.messages.append((t_ns, conn.topic, deserialize_message(raw, self.TYPES[types[conn.topic]])))
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.nodes = {t: BackgroundNode(f"inject_{k}", domain) for k, t in enumerate(CAMERAS + [IMU])}
+        self.pubs = {t: n.node.create_publisher(Image if t in CAMERAS else Imu, t, qos) for t, n in self.nodes.items()}
+        self.last = {t: next(m for _, topic, m in self.messages if topic == t) for t in self.pubs}
+
+    def wait_for_subscribers(self, timeout: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in self.pubs.values()):
+            time.sleep(0.05)
+        time.sleep(0.5)
+
+    def play(self, rate: float = 2.0, faults=None, skip=None) -> None:
+        """The bag at ``rate``: ``faults(t_ns)`` runs before each message, ``skip(t - t0, topic)`` leaves some out;
+        ``last`` holds the newest message of each topic."""
+        t0, wall0 = self.messages[0][0], time.monotonic()
+        for t_ns, topic, msg in self.messages:
+            delay = wall0 + (t_ns - t0) * 1e-9 / rate - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            if faults is not None:
+                faults(t_ns)
+            self.last[topic] = msg
+            if skip is None or not skip(t_ns - t0, topic):
+                self.pubs[topic].publish(msg)
+
+    def publish(self, topic: str, msg, stamp_ns: int) -> None:
+        out = copy.deepcopy(msg)
+        out.header.stamp.sec, out.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        self.pubs[topic].publish(out)
+
+    def close(self) -> None:
+        for n in self.nodes.values():
+            n.close()
+
+
+def test_faults_are_dropped_counted_reported_and_estimates_resume(bag, replayed, tmp_path):
+    """A frame set and an IMU sample in 2038, a NaN IMU burst, a camera silent for 5 s, a burst of 500 frame
+    sets, then the bag again from its start (a jump back): the second pass gives the replay's estimates."""
+    path, rig_path, _ = bag
+    done = set()
+    def faults(t_ns):
+        s, last = (t_ns - inject.messages[0][0]) * 1e-9, inject.last
+        if "future" not in done and s > 1.0:
+            done.add("future")
+            for topic in CAMERAS + [IMU]:
+                inject.publish(topic, last[topic], 2145916800 * 10**9)
+        if "nan" not in done and s > 1.5:
+            done.add("nan")
+            for k in range(50):
+                bad = copy.deepcopy(last[IMU])
+                bad.linear_acceleration.x = math.nan
+                inject.publish(IMU, bad, t_ns + 10_000 * (k + 1))
+        if "burst" not in done and s > 8.0:
+            done.add("burst")
+            for k in range(500):  # within 1 ms: the sets leave for the estimator together, with the next IMU sample
+                for topic in CAMERAS:
+                    inject.publish(topic, last[topic], t_ns + 2_000 * (k + 1))
+
+    def silent(t, topic):  # camera 3 says nothing for 5 s of the bag (2.5 s at rate 2; the timeout is 1 s)
+        return topic == CAMERAS[3] and 2.0e9 <= t < 7.0e9
+
+    with Session(tmp_path, rig_path, "-p", "work_queue_size:=30", "-p", "image_queue_size:=500") as run:
+        listener, inject = run.listener, Injector(run.domain, path)
+        try:
+            inject.wait_for_subscribers()
+            inject.play(rate=2.0, faults=faults, skip=silent)  # the first pass, with the faults
+            first_estimates = len(listener.got["gravity"])
+            time.sleep(1.0)
+            inject.play(rate=2.0)  # the bag again: its stamps jump back
+            listener.wait_until_done()
+        finally:
+            inject.close()
+    log = run.log()
+    print(log[-6000:])
+    cams, imu, est = listener.last("cameras"), listener.last("IMU"), listener.last("estimation")
+    assert all(int(cams[2].get(f"dropped: {t}: stamp in the future", 0)) == 1 for t in CAMERAS)
+    assert int(imu[2]["dropped: /imu/data: stamp in the future"]) == 1
+    assert int(imu[2]["dropped: /imu/data: IMU sample with NaN or inf"]) >= 40
+    assert int(est[2]["dropped: worker: frame set dropped while the estimator is busy"]) > 0
+    assert log.count("camera /cam3/image_raw stopped publishing") == 1
+    assert log.count("camera /cam3/image_raw is publishing again") == 1
+    assert log.count("detected jump back in time") == 1 and est[2]["time jumps back"] == "1"
+    # estimates resume: the second pass, clean, gives the replay's estimates
+    second = listener.got["gravity"][first_estimates:]
+    stamps = [stamp_key(msg_stamp(m.header)) for m in second]
+    assert stamps[-len(replayed):] == sorted(replayed), (first_estimates, stamps)
+    check_against_replay(listener, replayed, stamps[-len(replayed):])
+    assert "shutting down:" in log and "stamp in the future" in log.split("shutting down:")[-1]

@@ -103,7 +103,7 @@ def test_missing_topic_and_wrong_size(bag, tmp_path, capsys):
     assert main(["replay", str(path), "--rig", str(bad), "--out", str(tmp_path / "y.csv"), "--no-progress"]) == 0
     captured = capsys.readouterr()
     assert "/cam1/image_raw" in captured.err and "320x240" in captured.err
-    assert "bad frame set" in captured.out
+    assert "/cam1/image_raw: wrong image size" in captured.out  # dropped at the input, counted by topic
 
 
 def test_replay_creates_the_output_folder(tmp_path):

@@ -4,6 +4,7 @@ import csv
 from pathlib import Path
 
 import pytest
+from rendered_bags import stream_bag
 
 from nrmpc_ros.bag.reader import BagReader
 from nrmpc_ros.bag.writer import BagWriter
@@ -11,7 +12,15 @@ from nrmpc_ros.cli.main import main
 from nrmpc_ros.core import load_rig
 from nrmpc_ros.errors import InputError
 from nrmpc_ros.frontend.images import decode_image
-from nrmpc_ros.frontend.topics import COMPRESSED_TYPE, RAW_TYPE, choose_transport, resolve_image_topics
+from nrmpc_ros.frontend.replay import resolve_imu_topic
+from nrmpc_ros.frontend.topics import (
+    COMPRESSED_TYPE,
+    RAW_TYPE,
+    bag_topic,
+    choose_transport,
+    expand_topic,
+    resolve_image_topics,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / "bags" / "sample"
@@ -94,13 +103,12 @@ def test_choose_transport():
 
 
 def transcode(src, dst, images):
-    """Copy a bag, writing the images of the compressed topics in ``images`` as raw mono8 on the topic they
-    are compressed from (the decoded pixels, so the replay sees the same images)."""
+    """Copy a bag, writing the images of the topics in ``images`` as PNG on their /compressed topic."""
     with BagReader(src) as bag, BagWriter(dst) as out:
         for topic, stamp, msg in bag.messages(list(bag.topics)):
             if topic in images:
-                out.write(topic.removesuffix("/compressed"),
-                          out.image_msg(decode_image(msg, topic), stamp, msg.header.frame_id, "mono8"), stamp)
+                out.write(topic + "/compressed", out.image_msg(decode_image(msg, topic), stamp,
+                                                               msg.header.frame_id, "png"), stamp)
             else:
                 out.write(topic, msg, stamp)
 
@@ -110,16 +118,47 @@ def rows(path):
         return [{k: v for k, v in r.items() if k != "time_ms"} for r in csv.DictReader(f)]
 
 
-@pytest.mark.skipif(not (BAG / "metadata.yaml").exists() or not RIG.exists(), reason="sample bag not present")
-def test_replay_of_a_partly_raw_bag_matches_the_compressed_one(tmp_path, capsys):
-    rig = load_rig(RIG)
-    mixed = tmp_path / "mixed"
-    transcode(BAG, mixed, {c.image_topic + "/compressed" for c in rig.cameras[:1]})  # cam0 raw, the rest JPEG
-    assert main(["replay", str(BAG), "--rig", str(RIG), "--out", str(tmp_path / "c.csv"), "--no-progress"]) == 0
+def test_replay_of_a_compressed_bag_matches_the_raw_one(tmp_path, tmp_path_factory, capsys):
+    bag, rig_path, _ = stream_bag(tmp_path_factory)
+    rig = load_rig(rig_path)
+    comp_bag = tmp_path / "compressed"
+    transcode(bag, comp_bag, {bag_topic(c.image_topic) for c in rig.cameras[1:]})  # cam0 stays raw
+    assert main(["replay", str(bag), "--rig", str(rig_path), "--out", str(tmp_path / "raw.csv"), "--no-progress"]) == 0
     capsys.readouterr()
-    assert main(["replay", str(mixed), "--rig", str(RIG), "--out", str(tmp_path / "m.csv"), "--no-progress"]) == 0
+    assert main(["replay", str(comp_bag), "--rig", str(rig_path), "--out", str(tmp_path / "c.csv"),
+                 "--no-progress"]) == 0
     out = capsys.readouterr().out
-    assert all(f"camera {c.name}: {c.image_topic}/compressed ({c.image_topic} is not in the bag)" in out
-               for c in rig.cameras[1:])
-    assert f"camera {rig.cameras[0].name}:" not in out
-    assert rows(tmp_path / "m.csv") == rows(tmp_path / "c.csv") != []
+    assert all(f"camera {c.name}: {bag_topic(c.image_topic)}/compressed ({bag_topic(c.image_topic)} is not in "
+               f"the bag)" in out for c in rig.cameras[1:])
+    assert f"camera {rig.cameras[0].name}:" not in out  # raw where the rig says
+    assert rows(tmp_path / "c.csv") == rows(tmp_path / "raw.csv") != []
+
+
+def test_names_expand_like_ros_before_remapping():
+    assert expand_topic("/cam0/image_raw", "/rig1") == "/cam0/image_raw"
+    assert expand_topic("cam0/image_raw") == "/cam0/image_raw"
+    assert expand_topic("cam0/image_raw", "/rig1") == expand_topic("cam0/image_raw", "rig1/") == "/rig1/cam0/image_raw"
+    assert expand_topic("~/pose", "/rig1") == "/rig1/estimator/pose" and expand_topic("~", "/") == "/estimator"
+    assert bag_topic("imu/data") == "/imu/data"
+
+
+def test_a_relative_rig_topic_matches_the_bags_root_topic():
+    """The sample rig's topics are relative (cam0/image_raw), so -r __ns:=/rig1 moves the node's inputs; offline
+    they are the bag's /cam0/image_raw."""
+    rig = load_rig(RIG)
+    assert rig.cameras[0].image_topic == "cam0/image_raw" and rig.imu.topic == "imu/data"
+    res = resolve_image_topics(topics_of_names([f"/cam{i}/image_raw" for i in range(4)]), rig)
+    assert [r.topic for r in res] == [f"/cam{i}/image_raw" for i in range(4)] and not any(r.note for r in res)
+    with pytest.raises(InputError, match="image topic '/cam0/image_raw' not in the bag"):
+        resolve_image_topics(topics_of_names([f"/rig1/cam{i}/image_raw" for i in range(4)]), rig)
+
+
+@pytest.mark.skipif(not (BAG / "metadata.yaml").exists(), reason="sample bag not present")
+def test_the_imu_topic_of_a_relative_rig_is_found_in_the_bag():
+    with BagReader(BAG) as bag:
+        assert resolve_imu_topic(bag, load_rig(RIG)) == "/imu/data"
+        assert resolve_imu_topic(bag, load_rig(RIG), requested="imu/data") == "/imu/data"
+
+
+def topics_of_names(names):
+    return {**{n: RAW_TYPE for n in names}, "/imu/data": IMU}

@@ -9,6 +9,7 @@ from ..bag.reader import BagReader
 from ..core import load_rig
 from ..errors import InputError
 from ..frontend.evaluation import evaluate, format_report, plot_errors, read_csv, read_reference
+from ..frontend.topics import bag_topic
 from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
 
@@ -22,7 +23,8 @@ def register(sub):
                                    "method.")
     p.add_argument("csv", metavar="OUT.csv", help="estimates written by nrmpc replay (docs/CONVENTIONS.md (Bags))")
     p.add_argument("--bag", required=True, help="the bag the estimates came from")
-    p.add_argument("--imu-topic", default="/imu/data", help="IMU topic (default /imu/data; ignored if absent)")
+    p.add_argument("--imu-topic", help="IMU topic (default: the rig file's imu.topic, else /imu/data; a relative "
+                   "name lies in the root namespace; ignored if absent)")
     p.add_argument("--rig", help="rig file: its imu mount turns readings into body gravity (default: IMU = body)")
     p.add_argument("--imu-window", type=float, default=0.25, help="average still IMU samples within +- this (s)")
     p.add_argument("--plot", metavar="OUT.png", help="write a PNG of the errors over time")
@@ -39,9 +41,10 @@ def run(args) -> int:
     rows = read_csv(args.csv)
     rig = load_rig(args.rig) if args.rig else None
     with BagReader(args.bag) as bag:
-        imu_topic = args.imu_topic if args.imu_topic and bag.has_topic(args.imu_topic) else None
-        if args.imu_topic and imu_topic is None:
-            print(f"nrmpc compare: note: IMU topic {args.imu_topic!r} not in the bag; comparing with ground truth only")
+        wanted = bag_topic(args.imu_topic or (rig.imu.topic if rig is not None and rig.imu else "/imu/data"))
+        imu_topic = wanted if bag.has_topic(wanted) else None
+        if imu_topic is None:
+            print(f"nrmpc compare: note: IMU topic {wanted!r} not in the bag; comparing with ground truth only")
         ref = read_reference(bag, imu_topic)
     if not ref.has_imu and not ref.has_gravity and not ref.has_pose:
         raise InputError(args.bag, "the bag has neither the IMU topic nor /ground_truth/*: nothing to compare with")

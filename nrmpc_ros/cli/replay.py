@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from pathlib import Path
@@ -10,12 +11,15 @@ import numpy as np
 import yaml
 
 from ..bag.reader import BagReader
+from ..config import from_mapping
 from ..core import load_rig
 from ..errors import InputError
+from ..frontend.droplog import DropLog
 from ..frontend.evaluation import CsvWriter, batch_rows, evaluate, format_report, read_reference, row_from_estimate
-from ..frontend.pipeline import PIPELINE_METHODS, Pipeline, PipelineConfig
-from ..frontend.replay import check_camera_info, replay_bag, resolve_imu_topic
-from ..frontend.sync import StampSynchronizer
+from ..frontend.feeder import FeederConfig
+from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
+from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
+from ..frontend.runner import PipelineRunner
 from ..frontend.topics import bag_image_topics
 from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
@@ -44,7 +48,8 @@ def register(sub):
     p.add_argument("--sync-tolerance", type=float, default=None,
                    help="camera stamps of one set lie within +- this (s) of the set's median stamp (default: 0.45 "
                         "of the smallest camera frame period, estimated from the stamps)")
-    p.add_argument("--queue-size", type=int, default=10, help="synchronizer queue depth per camera")
+    p.add_argument("--queue-size", type=int, default=None,
+                   help=f"synchronizer queue depth per camera (default {FeederConfig().queue_size})")
     p.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", action="store_true", help="print only the statistics, not every estimate")
@@ -76,6 +81,20 @@ def load_config(path, seed: int) -> PipelineConfig:
     return PipelineConfig.from_dict(d, source=str(path or "pipeline config"))
 
 
+def input_config(args) -> FeederConfig:
+    """The input settings: the node's defaults, the synchronizer's from the flags when given."""
+    d = {}
+    if args.sync_tolerance is not None:
+        d["sync_tolerance_s"] = args.sync_tolerance
+    if args.queue_size is not None:
+        d["queue_size"] = args.queue_size
+    flags = {"sync_tolerance_s": "--sync-tolerance", "queue_size": "--queue-size"}
+    try:
+        return from_mapping(FeederConfig, d, "flags")
+    except InputError as exc:
+        raise InputError(flags.get(exc.field, "flags"), str(exc).split(": ", 2)[-1]) from None
+
+
 def run(args) -> int:
     rig = load_rig(args.rig)
     cfg = load_config(args.config, args.seed)
@@ -92,14 +111,12 @@ def run(args) -> int:
         image_topics = bag_image_topics(bag, rig, note)
         imu_topic = resolve_imu_topic(bag, rig, args.imu_topic, use_imu=not args.no_imu, warn=warn)
         check_camera_info(bag, rig, warn)
-        pipe = Pipeline(rig, cfg, method=args.method)
-        sync = StampSynchronizer(rig.num_cameras, args.sync_tolerance, args.queue_size,
-                                 names=[c.name for c in rig.cameras])
+        runner = PipelineRunner(rig, cfg, method=args.method, drops=DropLog(math.inf))  # counts, first ones warned
+        replay = BagReplay(bag, rig, runner, imu_topic, input_config(args), warn, image_topics)
         writer = CsvWriter(args.out)
         rows = []
         try:
-            for estimates in replay_bag(bag, rig, pipe, imu_topic, sync, warn, progress=not args.no_progress,
-                                        image_topics=image_topics):
+            for estimates in replay.run(progress=not args.no_progress):
                 for est in estimates:
                     row = row_from_estimate(est)
                     writer.write(row)
@@ -109,7 +126,7 @@ def run(args) -> int:
         batch = []
         if args.batch:
             method = rows[-1].method if rows else args.method
-            batch = batch_rows(pipe.batch(), method)
+            batch = batch_rows(runner.pipeline.batch(), method)
             bw = CsvWriter(args.batch)
             try:
                 for row in batch:
@@ -119,7 +136,7 @@ def run(args) -> int:
         ref = read_reference(bag, imu_topic)
     elapsed = time.perf_counter() - t_start
     ev = evaluate(rows, ref, rig)
-    st = pipe.stats
+    st = runner.stats
     print(format_report(ev, per_estimate=not args.quiet))
     if batch:
         evb = evaluate(batch, ref, rig)
@@ -133,15 +150,16 @@ def run(args) -> int:
           f"({', '.join(f'{m}: {n}' for m, n in sorted(st.methods.items())) or 'none'}), sequences {st.sequences}")
     if st.holds:
         print(f"holds: median settle {d['median_settle_s']:.2f} s after the stop (slowest bar period "
-              f"{pipe.bar_period_s:.3f} s), residual motion {d['median_residual_px']:.3f} px, track noise "
+              f"{runner.pipeline.bar_period_s:.3f} s), residual motion {d['median_residual_px']:.3f} px, track noise "
               f"{d['median_noise_px']:.3f} px per frame -> {d['median_averaged_noise_px']:.3f} px averaged over "
               f"{np.median(st.settled_frames):.0f} settled frames")
-    dropped = dict(st.dropped)
-    for k, v in sync.dropped.items():
-        dropped[f"sync: {k}"] = v
-    if dropped:
-        print("dropped: " + "; ".join(f"{k}: {v}" for k, v in sorted(dropped.items())))
-    print(f"camera sync: {sync.describe()}")
+    if st.dropped:
+        print("not estimated: " + "; ".join(f"{k}: {v}" for k, v in sorted(st.dropped.items())))
+    print(f"inputs dropped: {replay.drops.summary()}")
+    jumps = replay.feeder.events["time jumps back"]
+    if jumps:
+        print(f"time jumps back: {jumps} (each started a new sequence)")
+    print(f"camera sync: {replay.feeder.sync.describe()}")
     times = [r.time_ms for r in rows]
     if times:
         print(f"hold time (linking + estimation): median {np.median(times):.0f} ms; wall time {elapsed:.1f} s")

@@ -230,7 +230,7 @@ class Pipeline:
             self._periods = (self._periods + [gap])[-20:]
             still, why = self._still(self.last_stamp, stamp, steps)
             if self._hold is not None and still:
-                self._record(stamp)
+                self._record(stamp, images)
             elif self._hold is not None and why.endswith("from its first frame)") and settling:
                 # the image left the hold before the bars could have settled: ringing, not a move (a move this
                 # soon after a stop could not give a settled hold anyway). Anchor again, keep the stop time.
@@ -297,7 +297,7 @@ class Pipeline:
             anchors.append(trk.positions())
             anchor_images.append(img)
         self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot)
-        self._record(stamp)
+        self._record(stamp, images)
         self._last_check = stamp
 
     def _settle_window(self) -> float:
@@ -310,8 +310,13 @@ class Pipeline:
         self._open(stamp, images, snapshot=snapshot)
         self._hold.start = start
 
-    def _record(self, stamp: float) -> None:
-        self._hold.add(stamp, [trk.positions() if trk.in_hold else None for trk in self.trackers])
+    def _record(self, stamp: float, images: list) -> None:
+        h = self._hold
+        for i, (trk, img) in enumerate(zip(self.trackers, images)):
+            if img is not None and h.anchors[i] is None:  # the camera's frame was missing when the hold began
+                trk.start_hold()
+                h.anchors[i], h.anchor_images[i] = trk.positions(), img
+        h.add(stamp, [trk.positions() if trk.in_hold else None for trk in self.trackers])
 
     def _discard(self) -> None:
         self._hold = None

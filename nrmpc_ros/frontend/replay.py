@@ -13,18 +13,19 @@ every estimated pair's matches with the IMU gravity of both views (for
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Callable, Iterator
-
-import numpy as np
 
 from ..bag.reader import BagReader
 from ..core.rig import Rig
 from ..errors import InputError
-from .images import decode_image, stamp_seconds
-from .pipeline import FrameSet, Pipeline, PipelineConfig
-from .sync import StampSynchronizer
-from .topics import bag_image_topics
+from .camera_info import camera_info_mismatch
+from .droplog import DropLog
+from .feeder import Feeder, FeederConfig
+from .pipeline import Pipeline, PipelineConfig
+from .runner import PipelineRunner
+from .topics import bag_image_topics, bag_topic
 
 
 def _stderr_warn(msg: str) -> None:
@@ -46,7 +47,7 @@ def resolve_imu_topic(bag: BagReader, rig: Rig, requested: str | None = None, us
                    else "but an IMU is needed here (gravity of every view)")
             raise InputError(rig.source, f"the rig file has no imu block (the IMU's topic and mount), {why}", "imu")
         return None
-    topic = requested or rig.imu.topic
+    topic = bag_topic(requested or rig.imu.topic)
     if not bag.has_topic(topic):
         if required:
             raise InputError(bag.source, f"IMU topic {topic!r} (rig file {rig.source}) not in the bag, but an IMU "
@@ -56,90 +57,89 @@ def resolve_imu_topic(bag: BagReader, rig: Rig, requested: str | None = None, us
     return topic
 
 
-def check_camera_info(bag: BagReader, rig: Rig, warn: Callable = _stderr_warn) -> None:
-    """Report CameraInfo messages that disagree with the rig file (the rig file wins)."""
-    topics = [c.info_topic for c in rig.cameras if c.info_topic and bag.has_topic(c.info_topic)]
-    seen = set()
-    for topic, _, msg in bag.messages(topics):
+def check_camera_info(bag: BagReader, rig: Rig, warn: Callable = _stderr_warn) -> list:
+    """Warn about each camera whose first CameraInfo in the bag disagrees with the rig file (the rig file wins);
+    returns the warnings."""
+    topics = {bag_topic(c.info_topic): c for c in rig.cameras if c.info_topic}
+    topics = {t: c for t, c in topics.items() if bag.has_topic(t)}
+    seen, out = set(), []
+    for topic, _, msg in bag.messages(list(topics)):
         if topic in seen:
             continue
         seen.add(topic)
-        cam = next(c for c in rig.cameras if c.info_topic == topic)
-        K = np.asarray(msg.k, dtype=float).reshape(3, 3)
-        fx, fy, cx, cy = cam.intrinsics
-        if (int(msg.width), int(msg.height)) != tuple(cam.resolution):
-            warn(f"{topic}: CameraInfo says {msg.width}x{msg.height}, the rig file {cam.resolution[0]}x"
-                 f"{cam.resolution[1]} (using the rig file)")
-        elif not np.allclose([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], [fx, fy, cx, cy], atol=0.5):
-            warn(f"{topic}: CameraInfo intrinsics {K[0, 0]:.1f} {K[1, 1]:.1f} {K[0, 2]:.1f} {K[1, 2]:.1f} differ "
-                 f"from the rig file's {fx:.1f} {fy:.1f} {cx:.1f} {cy:.1f} (using the rig file)")
+        problem = camera_info_mismatch(topics[topic], msg, rig.source)
+        if problem:
+            out.append(f"{topic}: {problem}")
+            warn(out[-1])
         if len(seen) == len(topics):
             break
+    return out
 
 
-def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline, imu_topic: str | None = None,
-               sync: StampSynchronizer | None = None, warn: Callable = _stderr_warn,
-               progress: bool = False, image_topics: list | None = None) -> Iterator[list]:
-    """Feed a bag's images (synchronised) and IMU samples through ``pipe`` in bag order.
+class BagReplay:
+    """A bag's images and IMU samples through a pipeline in bag order, as the node runs what it receives.
 
-    Yields the list of estimates of every frame set handed to the pipeline
-    (usually empty), and last those of the hold still open at the end of the
-    bag. Undecodable images and bad frame sets are counted in
-    ``pipe.stats.dropped`` and warned about once per topic. ``image_topics``
-    (from :func:`~nrmpc_ros.frontend.topics.bag_image_topics`) defaults to the
-    rig's cameras' topics, raw or compressed, as the bag has them. A frame set
-    missing a camera (a dropped frame) is counted and used without it.
+    The messages go through a :class:`~nrmpc_ros.frontend.feeder.Feeder` (the node's input policy: checks,
+    stamps against the recording time, frame grouping, IMU order; ``inputs`` its settings) and the work it
+    makes through a :class:`~nrmpc_ros.frontend.runner.PipelineRunner` (``pipe``, or one around it: after a
+    jump back in time it runs a fresh pipeline). Dropped inputs are counted in ``drops`` and warned about
+    once per kind. ``image_topics`` (from :func:`~nrmpc_ros.frontend.topics.bag_image_topics`) defaults to
+    the rig's cameras' topics, raw or compressed, as the bag has them.
     """
-    if image_topics is None:
-        image_topics = bag_image_topics(bag, rig, warn)
-    cam_topics = [t.topic for t in image_topics]
-    sync = sync or StampSynchronizer(rig.num_cameras, names=[c.name for c in rig.cameras])
-    topics = cam_topics + ([imu_topic] if imu_topic else [])
-    index = {t: i for i, t in enumerate(cam_topics)}
-    warned = set()
-    bar = None
 
-    def frame_sets(groups) -> Iterator[list]:
-        for group in groups:
-            if not group.complete:
-                pipe.stats.dropped["frame set missing a camera (used without it)"] += 1
-            try:
-                ests = pipe.add_frames(FrameSet(group.stamp, group.items))
-            except InputError as exc:
-                pipe.stats.dropped["bad frame set"] += 1
-                if exc.source not in warned:
-                    warned.add(exc.source)
-                    warn(str(exc))
-                continue
-            yield ests
+    def __init__(self, bag: BagReader, rig: Rig, pipe: Pipeline | PipelineRunner, imu_topic: str | None = None,
+                 inputs: FeederConfig | None = None, warn: Callable = _stderr_warn, image_topics: list | None = None,
+                 drops: DropLog | None = None):
+        if image_topics is None:
+            image_topics = bag_image_topics(bag, rig, warn)
+        self.bag = bag
+        self.runner = pipe if isinstance(pipe, PipelineRunner) else PipelineRunner.around(
+            pipe, drops=drops if drops is not None else DropLog(math.inf))
+        self.drops = self.runner.drops
+        self.topics = [t.topic for t in image_topics]
+        self.imu_topic = imu_topic
+        self._work: list = []
+        self.feeder = Feeder(rig, inputs, self._work.append, self.drops, self.topics, imu_topic,
+                             log=lambda level, line: warn(line))
 
-    if progress:
-        from tqdm import tqdm
+    def run(self, progress: bool = False) -> Iterator[list]:
+        """Yields the estimates of every frame set handed to the pipeline (usually an empty list) and of every
+        flush (the end of the bag, a jump back in time)."""
+        topics = self.topics + ([self.imu_topic] if self.imu_topic else [])
+        index = {t: i for i, t in enumerate(self.topics)}
+        bar = None
+        if progress:
+            from tqdm import tqdm
 
-        bar = tqdm(total=bag.count(topics), unit="msg", desc="replay", file=sys.stderr, leave=False)
-    try:
-        for topic, _, msg in bag.messages(topics):
+            bar = tqdm(total=self.bag.count(topics), unit="msg", desc="replay", file=sys.stderr, leave=False)
+        try:
+            for topic, t_ns, msg in self.bag.messages(topics):
+                if bar is not None:
+                    bar.update(1)
+                if topic == self.imu_topic:
+                    self.feeder.imu_msg(msg, now=t_ns * 1e-9)
+                else:
+                    self.feeder.image(index[topic], msg, now=t_ns * 1e-9)
+                yield from self._run_work()
+            self.feeder.end()
+            yield from self._run_work()
+        finally:
             if bar is not None:
-                bar.update(1)
-            if topic == imu_topic:
-                a, w = msg.linear_acceleration, msg.angular_velocity
-                pipe.add_imu(stamp_seconds(msg), (a.x, a.y, a.z), (w.x, w.y, w.z),
-                             (msg.linear_acceleration_covariance, msg.angular_velocity_covariance))
-                continue
-            try:
-                img = decode_image(msg, topic)
-            except InputError as exc:
-                pipe.stats.dropped[f"image not decoded ({topic})"] += 1
-                if topic not in warned:
-                    warned.add(topic)
-                    warn(str(exc))
-                continue
-            yield from frame_sets(sync.add(index[topic], stamp_seconds(msg), img))
-        yield from frame_sets(sync.flush())
-        yield pipe.flush()
-    finally:
-        if bar is not None:
-            bar.close()
+                bar.close()
+
+    def _run_work(self) -> Iterator[list]:
+        for item in self._work:
+            estimates = self.runner.run(item)
+            if item.kind in ("frames", "flush"):
+                yield estimates
+        self._work.clear()
+
+
+def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline | PipelineRunner, imu_topic: str | None = None,
+               inputs: FeederConfig | None = None, warn: Callable = _stderr_warn, progress: bool = False,
+               image_topics: list | None = None) -> Iterator[list]:
+    """:meth:`BagReplay.run` of a :class:`BagReplay` made from the same arguments."""
+    yield from BagReplay(bag, rig, pipe, imu_topic, inputs, warn, image_topics).run(progress)
 
 
 def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_topic: str | None = None,
@@ -157,17 +157,18 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
     topic = resolve_imu_topic(bag, rig, imu_topic, required=True, warn=warn)
     pipe = Pipeline(rig, config, method="4pt-bending")
     pipe.sequence.keep_history = True
-    for _ in replay_bag(bag, rig, pipe, topic, warn=warn, progress=progress):
+    runner = PipelineRunner.around(pipe, drops=DropLog(math.inf))
+    for _ in replay_bag(bag, rig, runner, topic, warn=warn, progress=progress):
         pass
+    st = runner.stats
     if stats is not None:
-        stats.update(pipe.stats.as_dict())
-    seqs = [s for s in pipe.sequence.sequences() if s.tracks.g_meas is not None and s.gravity is not None]
+        stats.update(st.as_dict())
+    seqs = [s for s in runner.sequences() if s.tracks.g_meas is not None and s.gravity is not None]
     if not seqs:
-        st = pipe.stats
         dropped = "; ".join(f"{k}: {v}" for k, v in sorted(st.dropped.items())) or "nothing dropped"
         raise InputError(bag.source, f"no sequence of holds with IMU gravity on {topic!r} ({st.frames} frame "
                          f"sets, {st.holds} holds, {st.estimates} estimates; dropped: {dropped})", topic)
     return seqs
 
 
-__all__ = ["check_camera_info", "collect_sequences", "replay_bag", "resolve_imu_topic"]
+__all__ = ["BagReplay", "check_camera_info", "collect_sequences", "replay_bag", "resolve_imu_topic"]

@@ -104,9 +104,13 @@ class _Pending:
 class StampSynchronizer:
     """Groups messages of ``num_streams`` streams by stamp (see the module docstring for the policy).
 
+    ``dropped`` counts dropped messages by reason; :meth:`take_dropped` says which they were.
+
     ``tolerance_s`` None (default): derived from the estimated frame periods;
     a number: fixed (seconds). ``names`` label the streams in :meth:`describe`.
     """
+
+    RECENT = 1000  # dropped messages remembered for take_dropped
 
     def __init__(self, num_streams: int, tolerance_s: float | None = None, queue_size: int = 10, *,
                  max_tolerance_s: float | None = None, period_fraction: float = 0.45,
@@ -148,6 +152,7 @@ class StampSynchronizer:
         self._intervals = [deque(maxlen=self.period_window) for _ in range(self.num_streams)]
         self._period = [math.nan] * self.num_streams
         self.dropped = Counter()  # reason -> messages
+        self._recent = []  # (stream, stamp, reason) of the latest drops
         self.events = Counter()  # "time jump back" / "time jump ahead" -> count
         self.partial = Counter()  # stream index -> partial sets emitted without it
         self.emitted = 0  # sets emitted
@@ -166,6 +171,11 @@ class StampSynchronizer:
     @property
     def queued(self) -> list:
         return [len(s) for s in self._stamps]
+
+    @property
+    def oldest(self) -> float:
+        """Stamp of the oldest queued message (inf when the queues are empty): no later set is older."""
+        return min((q[0] for q in self._stamps if q), default=math.inf)
 
     @property
     def periods(self) -> list:
@@ -200,7 +210,7 @@ class StampSynchronizer:
             raise ValueError(f"stream index {stream} out of range (0..{self.num_streams - 1})")
         stamp = float(stamp)
         if not math.isfinite(stamp):
-            self.dropped["stamp not finite"] += 1
+            self._drop("stamp not finite", stream, stamp)
             return []
         kind, threshold = self._classify(stream, stamp)
         pend = self._pending
@@ -236,7 +246,19 @@ class StampSynchronizer:
         return None, 0.0
 
     def _count_pending(self, msg) -> None:
-        self.dropped["stamp far in the past" if self._pending.kind == "back" else "stamp far in the future"] += 1
+        reason = "stamp far in the past" if self._pending.kind == "back" else "stamp far in the future"
+        self._drop(reason, msg[0], msg[1])
+
+    def _drop(self, reason: str, stream: int, stamp: float) -> None:
+        """Count one dropped message and remember which (see :meth:`take_dropped`)."""
+        self.dropped[reason] += 1
+        self._recent.append((stream, stamp, reason))
+        del self._recent[:-self.RECENT]
+
+    def take_dropped(self) -> list:
+        """(stream, stamp, reason) of the messages dropped since the last call (at most ``RECENT``), oldest first."""
+        out, self._recent = self._recent, []
+        return out
 
     def _drop_pending(self) -> None:
         for m in self._pending.messages:
@@ -259,12 +281,12 @@ class StampSynchronizer:
 
     def _accept(self, i: int, stamp: float, item, jumped: bool = False) -> list:
         if stamp <= self._last[i]:
-            self.dropped["late"] += 1
+            self._drop("late", i, stamp)
             return []
         st, it = self._stamps[i], self._items[i]
         k = bisect.bisect_left(st, stamp)
         if k < len(st) and st[k] == stamp:
-            self.dropped["duplicate"] += 1
+            self._drop("duplicate", i, stamp)
             return []
         if stamp > self._newest[i]:
             if self._newest[i] > -math.inf and not jumped:
@@ -275,7 +297,7 @@ class StampSynchronizer:
         if len(st) > self.queue_size:
             self._last[i] = st.pop(0)
             it.pop(0)
-            self.dropped["queue overflow"] += 1
+            self._drop("queue overflow", i, self._last[i])
         return self._match(final=False)
 
     def _add_interval(self, i: int, dt: float) -> None:
@@ -348,13 +370,14 @@ class StampSynchronizer:
         picked = {}
         for i, k in members.items():
             st, it = self._stamps[i], self._items[i]
-            if k:
-                self.dropped["unmatched"] += k
+            for t in st[:k]:
+                self._drop("unmatched", i, t)
             picked[i] = (st[k], it[k])
             self._last[i] = st[k]
             del st[:k + 1], it[:k + 1]
         if len(picked) < self.min_streams:
-            self.dropped["unmatched"] += len(picked)
+            for i, (t, _) in picked.items():
+                self._drop("unmatched", i, t)
             return []
         stamps = [picked[i][0] if i in picked else None for i in range(self.num_streams)]
         items = [picked[i][1] if i in picked else None for i in range(self.num_streams)]

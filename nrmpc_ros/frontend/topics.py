@@ -13,6 +13,12 @@ topics the bag has. The topic used having another type is an error too. Decoding
 For the node's ``image_transport: auto``, :func:`choose_transport` makes the
 same choice from the topic names and types it sees on the graph; with neither
 published yet it takes the raw topic (and waits for it).
+
+Names: a rig file's topics may be relative (``cam0/image_raw``), so that
+``-r __ns:=/rig1`` moves a node's inputs with its outputs. Offline there is
+no namespace: a relative name resolves in the root namespace, as a node
+started without one resolves it (:func:`expand_topic`), and matches the bag's
+``/cam0/image_raw``. See docs/CONVENTIONS.md, "Bags".
 """
 
 from __future__ import annotations
@@ -34,6 +40,22 @@ class ImageTopic:
     msgtype: str
     compressed: bool
     note: str = ""  # why this topic, when it is not the rig file's image_topic as is
+
+
+def expand_topic(name: str, namespace: str = "/", node_name: str = "estimator") -> str:
+    """The fully qualified name ROS 2 gives ``name`` before remapping: absolute names stay, relative ones lie
+    in ``namespace`` ('/' is the root), ``~`` is the node's own namespace (``namespace/node_name``)."""
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    if name.startswith("/"):
+        return name
+    if name == "~" or name.startswith("~/"):
+        return f"{ns}/{node_name}{name[1:]}"
+    return f"{ns}/{name}"
+
+
+def bag_topic(name: str) -> str:
+    """The topic a bag records for a rig file's topic ``name`` (a relative name lies in the root namespace)."""
+    return expand_topic(name)
 
 
 def _kind(msgtype: str) -> str | None:
@@ -60,9 +82,9 @@ def resolve_image_topics(bag_topics: dict, rig, source: str = "bag") -> list:
     """
     out = []
     for cam in rig.cameras:
-        topic = cam.image_topic
-        if not topic:
+        if not cam.image_topic:
             raise InputError(rig.source, f"camera {cam.name!r} has no image_topic", f"cameras[{cam.name}].image_topic")
+        topic = bag_topic(cam.image_topic)
         comp = compressed_topic(topic)
         used = topic if topic in bag_topics else comp if comp in bag_topics else None
         if used is None:
@@ -93,16 +115,16 @@ def bag_image_topics(bag, rig, warn=None) -> list:
     return out
 
 
-def choose_transport(topic: str, available: dict) -> tuple:
+def choose_transport(topic: str, available: dict, compressed: str | None = None) -> tuple:
     """(topic to subscribe, compressed?) for ``image_transport: auto``.
 
     ``available`` maps topic names to the type names published on them (as
     rclpy's ``get_topic_names_and_types`` lists them). Raw images on ``topic``
-    win; else CompressedImage on ``topic + '/compressed'``; else CompressedImage
-    on ``topic`` itself; with nothing there yet, the raw topic.
+    win; else CompressedImage on ``compressed`` (default ``topic + '/compressed'``);
+    else CompressedImage on ``topic`` itself; with nothing there yet, the raw topic.
     """
     kinds = {t: {_kind(m) for m in types} for t, types in available.items()}
-    comp = compressed_topic(topic)
+    comp = compressed or compressed_topic(topic)
     if "raw" in kinds.get(topic, ()):
         return topic, False
     if "compressed" in kinds.get(comp, ()):
@@ -112,5 +134,5 @@ def choose_transport(topic: str, available: dict) -> tuple:
     return topic, False
 
 
-__all__ = ["COMPRESSED_TYPE", "RAW_TYPE", "ImageTopic", "bag_image_topics", "choose_transport", "compressed_topic",
-           "resolve_image_topics"]
+__all__ = ["COMPRESSED_TYPE", "RAW_TYPE", "ImageTopic", "bag_image_topics", "bag_topic", "choose_transport",
+           "compressed_topic", "expand_topic", "resolve_image_topics"]

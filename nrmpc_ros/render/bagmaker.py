@@ -33,6 +33,7 @@ from ..core.dynamics import check_damping
 from ..core.rig import ImuMount, Rig
 from ..core.so3 import cross, exp_and_left_jacobian, normalize
 from ..errors import InputError
+from ..frontend.topics import bag_topic
 from .bars import CameraLoads, bent_extrinsics
 from .raycast import Renderer
 from .scene import contains, make_scene
@@ -217,8 +218,8 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     R, p, _, _ = traj.state(frame_t)
     g_true = traj.gravity_body(R)
     cam_loads = loads.at(frame_t)  # (F, M, 3)
-    imu_topic = (rig.imu or ImuMount()).topic
-    topics = [(image_topic_for(c.image_topic, opts.encoding), c.info_topic) for c in rig.cameras]
+    imu_topic = bag_topic((rig.imu or ImuMount()).topic)  # a relative rig topic is recorded in the root namespace
+    topics = [(image_topic_for(bag_topic(c.image_topic), opts.encoding), bag_topic(c.info_topic)) for c in rig.cameras]
     quality = {"jpeg_quality": opts.jpeg_quality} if opts.encoding in COMPRESSED_FORMATS else {}
     max_jitter_ns = int(np.max(np.abs(jitter_ns), initial=0))
     cache = _StillCache(M)

@@ -1,0 +1,280 @@
+"""Camera and IMU messages -> the ordered work of one pipeline; the input policy shared by the node and the replay.
+
+``nrmpc replay`` feeds a bag's messages here in bag order, the node feeds
+what its subscriptions receive; both run the work that comes out through
+:class:`~nrmpc_ros.frontend.runner.PipelineRunner`, so the node's estimates
+are the replay's whenever the same messages arrive. Per message:
+
+1. decode and check (images: decodable, the rig file's size; IMU samples:
+   finite, non-zero acceleration) -- a bad message is dropped and counted;
+2. the stamp policy of :class:`~nrmpc_ros.frontend.stamps.StampGuard`
+   (stamps in the future dropped; a confirmed jump back in time ends the
+   sequence: the open hold is estimated, then the pipeline starts afresh);
+3. frames are grouped into frame sets by
+   :class:`~nrmpc_ros.frontend.sync.StampSynchronizer` (its drops are counted
+   with their topic);
+4. frame sets and IMU samples leave merged by stamp: a frame set stamped t
+   leaves after every IMU sample stamped before t + ``imu_lead_s`` and before
+   the others (a sample at the frame's own stamp may be the first of a move),
+   so the stillness test around t sees the same samples whatever order the
+   topics arrived in (within ``imu_wait_s`` of each other). A set waits
+   for an IMU sample at or after t + ``imu_lead_s``, but no longer than until
+   frames ``imu_wait_s`` newer arrived (the IMU is late or stopped); it
+   leaves at once when there is no IMU, and at :meth:`Feeder.end`. An IMU
+   sample stamped s waits until no frame set older than s - ``imu_lead_s``
+   can come any more: every camera that published in the last ``imu_wait_s``
+   (of IMU time) has sent a frame that new, and the frame grouping holds none
+   older.
+
+Work items go to ``sink`` as :class:`Work` (kind "imu", "frames", "flush",
+"restart", "reset"). Every drop goes to the :class:`~nrmpc_ros.frontend.droplog.DropLog`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter, OrderedDict, deque
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from ..config import check, option
+from ..core.rig import Rig
+from ..errors import InputError
+from .droplog import DropLog
+from .images import decode_image
+from .pipeline import FrameSet
+from .stamps import StampGuard
+from .sync import StampSynchronizer
+
+IMU = "imu"  # stream id of the IMU in the stamp guard (cameras are 0..M-1)
+
+
+@dataclass
+class FeederConfig:
+    """Stamps, frame grouping and IMU order (docs/CONVENTIONS.md, "Sequences")."""
+
+    sync_tolerance_s: float = option(0.0, "half-width of the stamp window of one frame set (s); 0: 0.45 of the "
+                                     "smallest camera frame period, estimated from the stamps", lo=0.0, hi=10.0)
+    queue_size: int = option(10, "frames per camera the synchronizer holds (keep it above 5: a silent camera "
+                             "must not make the others overflow)", lo=1, hi=10000)
+    max_future_s: float = option(10.0, "a stamp more than this ahead of the clock (the node's clock; the "
+                                 "recording time in nrmpc replay) is dropped (s); .inf: no test", lo=0.0,
+                                 lo_open=True)
+    jump_back_s: float = option(1.0, "a stamp this far behind the newest of its input is a jump back in time "
+                                "once a second input or jump_confirm of its messages show it (s)", lo=0.0,
+                                hi=3600.0, lo_open=True)
+    jump_confirm: int = option(3, "messages of one input that confirm a jump back in time when no other input "
+                               "talks", lo=1, hi=1000)
+    imu_lead_s: float = option(0.0, "a frame set goes to the pipeline after the IMU samples stamped before this "
+                               "long after its stamp (s); 0: before its stamp, so a frame taken just before the rig "
+                               "moves (a snapshot at the end of its hold) is judged by the samples before it",
+                               lo=0.0, hi=10.0)
+    imu_wait_s: float = option(0.5, "... or, without them, once frames this much newer arrived (s): the IMU is "
+                               "late or stopped", lo=0.0, hi=60.0)
+
+    def __post_init__(self):
+        check(self, "input config")
+
+
+class Work(NamedTuple):
+    """One step for the pipeline: ``kind`` "imu" (data = (accel, gyro, covariances or None)), "frames"
+    (data = (FrameSet, arrival time on the feeder's clock)), "flush" (the input ended), "restart" (data = why: time jumped back) or
+    "reset" (data = why: a new sequence on request)."""
+
+    kind: str
+    stamp: float = math.nan
+    data: object = None
+
+
+class Feeder:
+    """See the module docstring. ``topics`` names the cameras' inputs (rig order) in logs and counts,
+    ``imu_topic`` the IMU's (None: no IMU). ``log(level, line)`` gets "info" / "warn" lines."""
+
+    def __init__(self, rig: Rig, config: FeederConfig | None, sink, drops: DropLog, topics: list,
+                 imu_topic: str | None = None, log=None, clock=time.monotonic):
+        self.rig = rig
+        self.config = config or FeederConfig()
+        self.sink = sink
+        self.drops = drops
+        self.topics = list(topics)
+        self.imu_topic = imu_topic
+        self.log = log or (lambda level, line: None)
+        self.clock = clock
+        c = self.config
+        self.guard = StampGuard(c.max_future_s, c.jump_back_s, c.jump_confirm, max_held=4 * c.queue_size)
+        self.events = Counter()  # "time jumps back", "frame sets", "imu samples", "images"
+        self._stamps: OrderedDict = OrderedDict()  # frame stamp (s) -> (sec, nanosec) as received
+        self._new_epoch()
+
+    def _new_epoch(self) -> None:
+        c = self.config
+        self.sync = StampSynchronizer(self.rig.num_cameras, c.sync_tolerance_s or None, c.queue_size,
+                                      names=[cam.name for cam in self.rig.cameras])
+        self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
+        self._imu: deque = deque()  # (stamp, accel, gyro, covariances or None)
+        self._imu_newest = -math.inf
+        self._cam_newest = [-math.inf] * self.rig.num_cameras  # newest frame accepted per camera
+
+    # ------------------------------------------------------------------ input
+    def image(self, index: int, msg, now: float | None = None) -> None:
+        """One sensor_msgs/Image or CompressedImage of camera ``index``; ``now``: the present (s) or None."""
+        topic = self.topics[index]
+        self.events["images"] += 1
+        try:
+            img = decode_image(msg, topic)
+        except InputError as exc:
+            self._drop(topic, "image not decoded", str(exc))
+            return
+        except Exception as exc:  # a broken message must not stop the input
+            self._drop(topic, "image not decoded", f"{topic}: cannot decode the image ({type(exc).__name__}: {exc})")
+            return
+        cam = self.rig.cameras[index]
+        w, h = cam.resolution
+        if img.shape != (h, w):
+            self._drop(topic, "wrong image size", f"{topic}: image is {img.shape[1]}x{img.shape[0]}, the rig file "
+                                                  f"{self.rig.source} says {w}x{h} for camera {cam.name!r}")
+            return
+        st = msg.header.stamp
+        sec, nsec = int(st.sec), int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
+        stamp = sec + 1e-9 * nsec
+        self._stamps[stamp] = (sec, nsec)
+        while len(self._stamps) > 4096:
+            self._stamps.popitem(last=False)
+        self._checked(index, stamp, img, now)
+
+    def imu_msg(self, msg, now: float | None = None) -> None:
+        """One sensor_msgs/Imu."""
+        a, w, st = msg.linear_acceleration, msg.angular_velocity, msg.header.stamp
+        stamp = int(st.sec) + 1e-9 * int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
+        cov = (getattr(msg, "linear_acceleration_covariance", None), getattr(msg, "angular_velocity_covariance", None))
+        self.imu(stamp, (a.x, a.y, a.z), (w.x, w.y, w.z), now, covariance=cov)
+
+    def imu(self, stamp: float, accel, gyro, now: float | None = None, covariance=None) -> None:
+        """One IMU sample: specific force (m/s^2) and angular rate (rad/s) in the IMU frame, stamp in s; optionally
+        the message's (linear_acceleration_covariance, angular_velocity_covariance), which set the stillness
+        test's noise (:meth:`~nrmpc_ros.frontend.pipeline.Pipeline.add_imu`)."""
+        topic = self.imu_topic or IMU
+        self.events["imu samples"] += 1
+        a = np.asarray(accel, dtype=float).reshape(-1)
+        w = np.asarray(gyro, dtype=float).reshape(-1)
+        if a.shape != (3,) or w.shape != (3,):
+            self._drop(topic, "IMU sample of the wrong shape", f"{topic}: IMU sample with {a.size} acceleration and "
+                                                               f"{w.size} rate values (3 each expected)")
+        elif not (np.all(np.isfinite(a)) and np.all(np.isfinite(w))):
+            self._drop(topic, "IMU sample with NaN or inf", f"{topic}: IMU sample at {stamp:.3f} s has NaN or inf "
+                                                            f"values (acceleration {a.tolist()}, rate {w.tolist()})")
+        elif not np.any(a):
+            self._drop(topic, "IMU sample with zero acceleration", f"{topic}: IMU sample at {stamp:.3f} s reads "
+                                                                   "zero acceleration (no accelerometer?)")
+        else:
+            self._checked(IMU, float(stamp), (a, w, covariance), now)
+
+    def end(self) -> None:
+        """The input ended (a bag's end, every camera silent): every frame set left goes out, then a flush."""
+        self._emit_sets(self.sync.flush())
+        self._release(final=True)
+        self.sink(Work("flush"))
+
+    def reset(self, why: str) -> None:
+        """A new sequence on request: the frame sets before it go out first."""
+        self._release(final=True)
+        self.sink(Work("reset", data=why))
+
+    def ros_stamp(self, stamp: float) -> tuple:
+        """(sec, nanosec) of a frame stamp as it was received (computed for stamps not seen)."""
+        known = self._stamps.get(stamp)  # one lookup: the input thread may trim the table meanwhile
+        if known is not None:
+            return known
+        sec = math.floor(stamp)
+        ns = int(round((stamp - sec) * 1e9))
+        return (int(sec) + ns // 1_000_000_000, ns % 1_000_000_000)
+
+    # ------------------------------------------------------------------ stamps
+    def _name(self, stream) -> str:
+        return (self.imu_topic or IMU) if stream == IMU else self.topics[stream]
+
+    def _checked(self, stream, stamp: float, payload, now: float | None) -> None:
+        verdict = self.guard.check(stream, stamp, payload, now)
+        for reason, message in verdict.drops:
+            self._drop(self._name(stream), reason, f"{self._name(stream)}: {message}")
+        if verdict.jump is not None:
+            self._jump_back(verdict.jump)
+        elif verdict.accept:
+            self._accept(stream, stamp, payload)
+
+    def _jump_back(self, jump) -> None:
+        why = jump.describe(self._name(jump.stream))
+        self.events["time jumps back"] += 1
+        self.log("warn", f"{why}: the frame grouping, the IMU samples and the holds start afresh (a new sequence)")
+        self._emit_sets(self.sync.flush())
+        self._release(final=True)
+        self.sink(Work("flush"))
+        self.sink(Work("restart", data=why))
+        self._new_epoch()
+        for stream, stamp, payload in jump.held:
+            self._accept(stream, stamp, payload)
+
+    def _accept(self, stream, stamp: float, payload) -> None:
+        if stream == IMU:
+            if stamp <= self._imu_newest:
+                self._drop(self._name(IMU), "IMU sample out of order", f"{self._name(IMU)}: IMU sample at "
+                           f"{stamp:.6f} s is not newer than the last one ({self._imu_newest:.6f} s)")
+                return
+            self._imu_newest = stamp
+            self._imu.append((stamp, *payload))
+        else:
+            self._cam_newest[stream] = max(self._cam_newest[stream], stamp)
+            self._emit_sets(self.sync.add(stream, stamp, payload))
+        self._release()
+
+    def _emit_sets(self, sets: list) -> None:
+        for stream, stamp, reason in self.sync.take_dropped():
+            topic = self.topics[stream]
+            self._drop(topic, f"frame {reason}", f"{topic}: frame at {stamp:.6f} s dropped by the frame grouping "
+                                                 f"({reason}; {self.sync.describe()})")
+        arrival = self.clock()
+        for s in sets:
+            self.events["frame sets"] += 1
+            self._frames.append((FrameSet(s.stamp, list(s.items)), arrival))
+
+    def _frontier(self) -> float:
+        """No frame set to come is older than this (s): the sets waiting, the frames grouped, the cameras that
+        published in the last imu_wait_s; and IMU samples leave at least imu_wait_s behind the newest."""
+        wait = self.config.imu_wait_s
+        live = [t for t in self._cam_newest if t >= self._imu_newest - wait]
+        waiting = self._frames[0][0].stamp if self._frames else math.inf
+        return min(waiting, self.sync.oldest, min(live, default=math.inf), self._imu_newest - wait)
+
+    def _release(self, final: bool = False) -> None:
+        """Frame sets and IMU samples out, merged by stamp (module docstring, step 4)."""
+        lead, wait = self.config.imu_lead_s, self.config.imu_wait_s
+        frames, imu = self._frames, self._imu
+        while frames or imu:
+            if frames:
+                fs, arrival = frames[0]
+                if (final or self.imu_topic is None or self._imu_newest >= fs.stamp + lead
+                        or max(self._cam_newest) > fs.stamp + wait):
+                    while imu and imu[0][0] < fs.stamp + lead:
+                        self._emit_imu()
+                    frames.popleft()
+                    self.sink(Work("frames", fs.stamp, (fs, arrival)))
+                    continue
+            if imu and (final or imu[0][0] < self._frontier() + lead):
+                self._emit_imu()
+                continue
+            break
+
+    def _emit_imu(self) -> None:
+        s, *data = self._imu.popleft()
+        self.sink(Work("imu", s, tuple(data)))
+
+    def _drop(self, source: str, reason: str, message: str) -> None:
+        line = self.drops.drop(source, reason, message)
+        if line:
+            self.log("warn", line)
+
+
+__all__ = ["Feeder", "FeederConfig", "IMU", "Work"]

@@ -1,0 +1,90 @@
+"""Which cameras publish: "stopped publishing" and "publishing again", and the end of the input.
+
+Times are arrival times on one monotonic clock (never message stamps, never
+ROS time). With ``timeout_s``:
+
+- a camera is **stopped** when it has been silent for ``timeout_s`` while
+  another camera went on publishing for ``timeout_s`` after its last image
+  (a camera that fails while the others run);
+- a camera that never sent an image is **missing** once another camera has
+  been publishing for ``timeout_s`` (wrong topic or transport?); until then
+  the first images may simply still be on their way;
+- when every camera has been silent for ``timeout_s`` the **input ended**
+  (a bag ended, a driver stopped): not a fault, and nothing is "stopped";
+- a stopped or missing camera that sends an image again is **publishing
+  again**; so is the input after it ended.
+
+:meth:`CameraWatch.seen` and :meth:`CameraWatch.check` return the events as
+(level, message) pairs to log; each change of state is reported once.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+class CameraWatch:
+    """State of every camera's input (see the module docstring)."""
+
+    def __init__(self, names: list, timeout_s: float):
+        self.names = list(names)
+        self.timeout_s = float(timeout_s)
+        self.last = [None] * len(self.names)  # arrival of the newest image
+        self.first_any: float | None = None  # arrival of the first image of any camera
+        self.state = ["waiting"] * len(self.names)  # waiting | live | stopped | missing
+        self.ended: float | None = None  # when the input ended (arrival of its last image)
+        self.ends = 0
+
+    def seen(self, i: int, now: float) -> list:
+        """Camera ``i`` sent an image at ``now``."""
+        events = []
+        if self.ended is not None:
+            events.append(("info", f"the input resumed after {now - self.ended:.1f} s of silence: "
+                                   f"{self.names[i]} is publishing again"))
+            self.ended = None
+        elif self.state[i] == "stopped":
+            events.append(("info", f"camera {self.names[i]} is publishing again (silent for "
+                                   f"{now - self.last[i]:.1f} s)"))
+        elif self.state[i] == "missing":
+            events.append(("info", f"camera {self.names[i]} is publishing (its first image, "
+                                   f"{now - self.first_any:.1f} s after the other cameras' first)"))
+        self.state[i] = "live"
+        self.last[i] = now
+        if self.first_any is None:
+            self.first_any = now
+        return events
+
+    def check(self, now: float) -> list:
+        """Events of the states that changed by ``now``; ("ended", ...) when the input ended."""
+        if self.first_any is None or self.ended is not None:
+            return []
+        newest = max(t for t in self.last if t is not None)
+        if now - newest > self.timeout_s:
+            self.ended = newest
+            self.ends += 1
+            return [("ended", f"no images for {now - newest:.1f} s on any camera: the input ended (the open hold "
+                              "is estimated now)")]
+        events = []
+        for i, name in enumerate(self.names):
+            t = self.last[i]
+            if t is None:
+                if self.state[i] != "missing" and newest - self.first_any > self.timeout_s:
+                    self.state[i] = "missing"
+                    events.append(("warn", f"camera {name}: no image yet while the other cameras publish for "
+                                           f"{newest - self.first_any:.1f} s (wrong topic or transport?)"))
+            elif self.state[i] == "live" and now - t > self.timeout_s and newest - t > self.timeout_s:
+                self.state[i] = "stopped"
+                events.append(("warn", f"camera {name} stopped publishing (nothing for {now - t:.1f} s while the "
+                                       "other cameras publish)"))
+        return events
+
+    def silent(self) -> list:
+        """Names of the cameras stopped or missing now."""
+        return [n for n, s in zip(self.names, self.state) if s in ("stopped", "missing")]
+
+    def age(self, i: int, now: float) -> float:
+        """Seconds since camera i's newest image (inf before the first)."""
+        return math.inf if self.last[i] is None else now - self.last[i]
+
+
+__all__ = ["CameraWatch"]

@@ -1,0 +1,165 @@
+"""Feeder: the input policy of the node and the replay (checks, stamps, frame grouping, IMU merged by stamp)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from rendered_bags import rig_file
+
+from nrmpc_ros.core import load_rig
+from nrmpc_ros.frontend.droplog import DropLog
+from nrmpc_ros.frontend.feeder import Feeder, FeederConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+TOPICS = [f"/cam{i}/image_raw" for i in range(4)]
+
+
+@pytest.fixture
+def rig(tmp_path):
+    """The sample rig with 64x48 cameras (cheap images)."""
+    return load_rig(rig_file(tmp_path, 64))
+
+
+def stamp_of(t: float):
+    sec = math.floor(t)
+    return SimpleNamespace(sec=int(sec), nanosec=int(round((t - sec) * 1e9)))
+
+
+def image(t: float, w=64, h=48, encoding="mono8", value=0):
+    return SimpleNamespace(header=SimpleNamespace(stamp=stamp_of(t)), height=h, width=w, encoding=encoding, step=w,
+                           is_bigendian=0, data=bytes([value]) * (w * h))
+
+
+def imu(t: float, accel=(0.0, 0.0, 9.81)):
+    v3 = SimpleNamespace
+    return SimpleNamespace(header=SimpleNamespace(stamp=stamp_of(t)), linear_acceleration=v3(x=accel[0], y=accel[1],
+                           z=accel[2]), angular_velocity=v3(x=0.0, y=0.0, z=0.0))
+
+
+def feeder(rig, imu_topic="/imu/data", **cfg):
+    work, logs = [], []
+    f = Feeder(rig, FeederConfig(**cfg), work.append, DropLog(), TOPICS, imu_topic,
+               log=lambda level, line: logs.append((level, line)), clock=lambda: 0.0)
+    return f, work, logs
+
+
+def messages(t0=100.0, seconds=2.0, frame_hz=10.0, imu_hz=200.0, imu_delay=0.0):
+    """(arrival, kind, index, stamp) of 4 cameras and an IMU; the IMU arrives ``imu_delay`` s late."""
+    out = []
+    for k in range(int(seconds * frame_hz)):
+        t = t0 + k / frame_hz
+        out += [(t + 0.001 * i, "image", i, t) for i in range(4)]
+    for k in range(int(seconds * imu_hz)):
+        t = t0 + k / imu_hz
+        out.append((t + imu_delay, "imu", None, t))
+    return sorted(out, key=lambda m: m[0])
+
+
+def feed(f, msgs, now=None):
+    for _, kind, i, t in msgs:
+        if kind == "image":
+            f.image(i, image(t), now)
+        else:
+            f.imu_msg(imu(t), now)
+
+
+def trace(work):
+    return [(w.kind, round(w.stamp, 6) if math.isfinite(w.stamp) else None) for w in work]
+
+
+def test_work_leaves_merged_by_stamp_whatever_order_the_topics_arrive_in(rig):
+    runs = []
+    for delay in (0.0, 0.02, 0.3, -0.3):  # the IMU in step, a little late, far late, early
+        f, work, _ = feeder(rig)
+        feed(f, messages(imu_delay=delay))
+        f.end()
+        runs.append(trace(work))
+    assert all(r == runs[0] for r in runs[1:])
+    frames = [(i, t) for i, (k, t) in enumerate(runs[0]) if k == "frames"]
+    assert len(frames) == 20 and runs[0][-1][0] == "flush"
+    lead = FeederConfig().imu_lead_s
+    for i, t in frames:  # every IMU sample stamped before t + lead goes before the set, none later
+        before = [s for k, s in runs[0][:i] if k == "imu"]
+        after = [s for k, s in runs[0][i:] if k == "imu"]
+        assert max(before, default=-math.inf) < t + lead and (not after or min(after) >= t + lead)
+    assert len([s for k, s in runs[0][:frames[1][0]] if k == "imu"]) > 0
+
+
+def test_without_imu_sets_leave_at_once_and_with_a_stopped_imu_after_the_wait(rig):
+    f, work, _ = feeder(rig, imu_topic=None)
+    feed(f, [m for m in messages(seconds=0.5) if m[1] == "image"])
+    assert [k for k, _ in trace(work)].count("frames") >= 4  # the last set waits for its partial window only
+    f, work, _ = feeder(rig, imu_wait_s=0.5)
+    feed(f, [m for m in messages(seconds=1.0) if m[1] == "image" or m[3] < 100.2])  # the IMU stops at 100.2 s
+    sets = [t for k, t in trace(work) if k == "frames"]
+    assert sets[0] == pytest.approx(100.0) and sets[-1] <= 100.9 - 0.5 + 1e-6, "released once 0.5 s newer came"
+
+
+def test_bad_inputs_are_dropped_counted_and_logged_once(rig):
+    f, work, logs = feeder(rig)
+    f.image(0, image(100.0, encoding="yuv422"))
+    f.image(0, image(100.1, encoding="yuv422"))
+    f.image(1, image(100.0, w=32, h=24))
+    f.imu_msg(imu(100.0, accel=(math.nan, 0.0, 9.81)))
+    f.imu_msg(imu(100.005, accel=(0.0, 0.0, 0.0)))
+    f.imu_msg(imu(100.01))
+    f.imu_msg(imu(100.01))  # not newer than the last
+    counts = f.drops.counts()
+    assert counts[(TOPICS[0], "image not decoded")] == 2
+    assert counts[(TOPICS[1], "wrong image size")] == 1
+    assert counts[("/imu/data", "IMU sample with NaN or inf")] == 1
+    assert counts[("/imu/data", "IMU sample with zero acceleration")] == 1
+    assert counts[("/imu/data", "IMU sample out of order")] == 1
+    warned = [line for level, line in logs if level == "warn"]
+    assert len(warned) == 5 and any("yuv422" in w for w in warned) and any("32x24" in w for w in warned)
+    f.end()
+    assert [k for k, _ in trace(work)] == ["imu", "flush"]  # the good sample went on
+
+
+def test_stamps_in_the_future_are_dropped_and_the_present_stays(rig):
+    f, work, _ = feeder(rig)
+    feed(f, messages(seconds=0.5), now=100.5)
+    for i in range(4):
+        f.image(i, image(2145916800.0), now=100.5)
+    f.imu_msg(imu(2145916800.0), now=100.5)
+    feed(f, messages(t0=100.5, seconds=0.5), now=101.0)
+    f.end()
+    assert f.drops.by_reason()["stamp in the future"] == 5
+    assert max(t for _, t in trace(work) if t is not None) < 101.0
+    assert sum(k == "frames" for k, _ in trace(work)) == 10
+
+
+def test_a_jump_back_flushes_and_restarts_then_carries_on(rig):
+    f, work, logs = feeder(rig)
+    feed(f, messages(seconds=2.0))
+    n = len(work)
+    feed(f, messages(seconds=2.0))  # played again: the same stamps
+    kinds = [k for k, _ in trace(work)]
+    i = kinds.index("restart")
+    assert kinds[i - 1] == "flush" and i >= n, "the old time's work, a flush, then the restart"
+    assert kinds[i + 1:].count("frames") >= 18, "the second pass goes through"
+    assert f.events["time jumps back"] == 1
+    assert sum("detected jump back in time" in line for _, line in logs) == 1
+    assert "detected jump back in time" in work[i].data
+
+
+def test_frames_dropped_by_the_grouping_are_counted_with_their_topic(rig):
+    f, _, _ = feeder(rig, imu_topic=None)
+    feed(f, [m for m in messages(seconds=1.0) if m[1] == "image"])
+    f.image(2, image(100.65))  # after its stream moved on: late
+    assert f.drops.counts()[(TOPICS[2], "frame late")] == 1
+
+
+def test_ros_stamps_come_back_as_received(rig):
+    f, _, _ = feeder(rig, imu_topic=None)
+    t = 1700000000.123456789
+    msg = image(t)
+    msg.header.stamp = SimpleNamespace(sec=1700000000, nanosec=123456789)
+    f.image(0, msg)
+    assert f.ros_stamp(1700000000 + 1e-9 * 123456789) == (1700000000, 123456789)
+    assert f.ros_stamp(5.25) == (5, 250000000)
+    assert np.isfinite(t)
