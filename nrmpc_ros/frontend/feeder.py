@@ -81,8 +81,8 @@ class FeederConfig:
 
 class Work(NamedTuple):
     """One step for the pipeline: ``kind`` "imu" (data = (accel, gyro, covariances or None)), "frames"
-    (data = (FrameSet, arrival time on the feeder's clock)), "flush" (the input ended), "restart" (data = why: time jumped back) or
-    "reset" (data = why: a new sequence on request)."""
+    (data = (FrameSet, arrival time on the feeder's clock)), "flush" (the input ended), "restart" (data = why:
+    time jumped back) or "reset" (data = why: a new sequence on request)."""
 
     kind: str
     stamp: float = math.nan
