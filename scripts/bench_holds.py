@@ -123,7 +123,7 @@ def run_bag(path: Path, rig_file: Path, method: str) -> dict:
             "imu_gravity_deg": ev.stats("imu_vs_gt_deg")["median"],
             "rotation_deg": ev.stats("rotation_deg")["median"], "settle_s": st["median_settle_s"],
             "noise_px": st["median_noise_px"], "averaged_noise_px": st["median_averaged_noise_px"],
-            "methods": st["methods"], "dropped": st["dropped"], "wall_s": wall,
+            "methods": st["methods"], "dropped": st["dropped"], "wall_s": wall, "ringing_holds": st["ringing_holds"],
             "hold_ms": float(np.median([r.time_ms for r in rows])) if rows else math.nan}
 
 

@@ -67,6 +67,27 @@ def test_ringing_is_waited_out():
     assert hold.settled_end == pytest.approx(t[-1])
 
 
+def test_ringing_that_outlasts_the_hold_is_averaged_over_whole_periods():
+    """Lightly damped bars still ring when the hold ends: the last frames spanning whole bar periods average the
+    oscillation out, far better than any single frame."""
+    f_bar, zeta, amp = 2.5, 0.01, 2.0
+    t = np.arange(50) / RATE
+    env = amp * np.exp(-zeta * 2 * math.pi * f_bar * t)
+    offsets = np.stack([env * np.cos(2 * math.pi * f_bar * t + 0.4), 0.6 * env * np.sin(2 * math.pi * f_bar * t)], 1)
+    rec, base = record(offsets, noise=0.01)
+    hold, why = rec.measure(HoldConfig(), bar_period_s=1.0 / f_bar)
+    assert hold is not None and hold.ringing, why
+    span = hold.settled_frames / RATE
+    assert span == pytest.approx(round(span * f_bar) / f_bar, abs=1e-9) and span * f_bar >= 4  # whole periods
+    assert hold.settled_end == pytest.approx(t[-1])
+    err = max(np.abs(ch.uv - base).max() for ch in hold.cameras)
+    assert err < 0.05 * np.linalg.norm(offsets[-1])  # the ringing at the end is ~1.5 px
+    cfg = HoldConfig()
+    assert rec.settled_duration(cfg, 1.0 / f_bar) == 0.0  # measured when the hold ends, not early
+    short, why = record(offsets[:11], noise=0.01)[0].measure(cfg, bar_period_s=1.0 / f_bar)
+    assert short is None and "bar period" in why  # less than one period after the settle time: no hold
+
+
 def test_settle_waits_for_two_bar_periods():
     rec, _ = record(np.zeros((30, 2)))
     hold, _ = rec.measure(HoldConfig(settle_periods=2.0), bar_period_s=0.7)

@@ -152,7 +152,9 @@ def run(args) -> int:
         print(f"holds: median settle {d['median_settle_s']:.2f} s after the stop (slowest bar period "
               f"{runner.pipeline.bar_period_s:.3f} s), residual motion {d['median_residual_px']:.3f} px, track noise "
               f"{d['median_noise_px']:.3f} px per frame -> {d['median_averaged_noise_px']:.3f} px averaged over "
-              f"{np.median(st.settled_frames):.0f} settled frames")
+              f"{np.median(st.settled_frames):.0f} settled frames"
+              + (f"; {st.ringing_holds} of {st.holds} still ringing at their end (averaged over whole bar periods)"
+                 if st.ringing_holds else ""))
     if st.dropped:
         print("not estimated: " + "; ".join(f"{k}: {v}" for k, v in sorted(st.dropped.items())))
     print(f"inputs dropped: {replay.drops.summary()}")

@@ -11,7 +11,12 @@ then keeps only the settled part:
 - every camera's image offset from the hold's rest position (the median over
   the later frames of the median track displacement from the anchor) is at
   most ``max(settle_px, settle_noise x its frame-to-frame noise)``; the
-  longest run of such frames is the settled part.
+  longest run of such frames is the settled part;
+- bars that still ring when the hold ends (lightly damped bars, short holds)
+  give no such frames: then the settled part is the last frames spanning a
+  whole number of periods of the slowest bar, over which the ringing averages
+  out (``Hold.ringing``; such a hold is measured when it ends, as the ringing
+  decays).
 
 Each track's positions over the settled frames are averaged: the hold's
 measurement noise falls with the number of frames. A hold with one frame (a
@@ -97,6 +102,7 @@ class Hold:
     cameras: list  # CameraHold or None, rig camera order
     snapshot: bool = False  # a single frame
     anchor_images: list = field(default_factory=list)  # per camera: the anchor frame (descriptors)
+    ringing: bool = False  # the bars still rang at the end: averaged over whole periods of the slowest bar
 
     @property
     def settle_s(self) -> float:
@@ -168,6 +174,7 @@ class HoldRecorder:
         start = self.start if imu_still_since is None else min(self.start, imu_still_since)
         settle_after = start + cfg.settle_periods * bar_period_s
         tracks = {i: self._camera_tracks(i) for i in cams}
+        ringing = False
         if F == 1:
             if imu_still_since is not None and t[0] < settle_after:
                 return None, (f"snapshot {t[0] - start:.2f} s after the stop, before the bars settle "
@@ -189,9 +196,12 @@ class HoldRecorder:
             if settled.any():
                 settled = _longest_run(settled)
             if settled.sum() < need:
-                return None, (f"never settled: image offset from the rest position {np.nanmin(dev[late]):.3f} px "
-                              f"at best, threshold {thr:.3f} px, {int(settled.sum())} frames in a row within it "
-                              f"(need {need})")
+                settled = _whole_periods(t, late, bar_period_s, need)
+                if settled is None:
+                    return None, (f"never settled: image offset from the rest position {np.nanmin(dev[late]):.3f} "
+                                  f"px at best, threshold {thr:.3f} px, and less than one bar period "
+                                  f"({bar_period_s:.3f} s) of {need} frames or more to average the ringing over")
+                ringing = True
             residual = float(np.sqrt(np.nanmean(dev[settled] ** 2)))
         idx = np.flatnonzero(settled)
         cam_holds = [None] * M
@@ -216,14 +226,16 @@ class HoldRecorder:
         mid = idx[len(idx) // 2]
         return Hold(start=start, end=float(t[-1]), settled_start=float(t[idx[0]]), settled_end=float(t[idx[-1]]),
                     stamp=float(t[mid]), frames=F, settled_frames=len(idx), residual_px=residual,
-                    cameras=cam_holds, snapshot=F == 1, anchor_images=self.anchor_images), ""
+                    cameras=cam_holds, snapshot=F == 1, anchor_images=self.anchor_images, ringing=ringing), ""
 
     def settled_duration(self, cfg: HoldConfig, bar_period_s: float, imu_still_since: float | None = None) -> float:
         """How long the settled part lasts so far (s); 0 when nothing is settled yet."""
         if len(self.stamps) < 2:
             return 0.0
         hold, _ = self.measure(cfg, bar_period_s, imu_still_since)
-        return 0.0 if hold is None else hold.settled_end - hold.settled_start
+        if hold is None or hold.ringing:  # ringing decays: such a hold is measured when it ends
+            return 0.0
+        return hold.settled_end - hold.settled_start
 
 
 def _offset_noise(shifts: list, offsets: np.ndarray) -> float:
@@ -238,6 +250,25 @@ def _offset_noise(shifts: list, offsets: np.ndarray) -> float:
             spread = 1.4826 * np.nanmedian(r[ok], axis=1) / math.sqrt(2.0)  # per axis, per frame
             out.append(float(np.median(1.2533 * spread / np.sqrt(n[ok]))))
     return max(out) if out else 0.0
+
+
+def _whole_periods(t: np.ndarray, late: np.ndarray, period_s: float, need: int) -> np.ndarray | None:
+    """The last frames of a hold that span a whole number of periods of the slowest bar (as a mask of the
+    frames), or None when the late frames span less than one period or hold fewer than ``need``.
+
+    Bars that still ring when the hold ends oscillate about their rest position; the mean over whole periods
+    of the oscillation is that rest position (up to the decay within the window and the sampling), so the
+    averaged tracks measure the settled hold.
+    """
+    if not period_s > 0:
+        return None
+    tl = t[late]
+    dt = float(np.median(np.diff(tl))) if len(tl) > 1 else 0.0
+    periods = math.floor((tl[-1] - tl[0] + dt) / period_s + 1e-9)
+    if periods < 1:
+        return None
+    window = late & (t > tl[-1] + dt - periods * period_s - 1e-9 * max(dt, 1.0))
+    return window if window.sum() >= need else None
 
 
 def _longest_run(mask: np.ndarray) -> np.ndarray:

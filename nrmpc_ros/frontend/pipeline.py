@@ -111,6 +111,7 @@ class HoldEstimate:
 class PipelineStats:
     frames: int = 0
     holds: int = 0  # holds measured
+    ringing_holds: int = 0  # of which the bars still rang at the end (averaged over whole bar periods)
     estimates: int = 0
     sequences: int = 0
     methods: Counter = field(default_factory=Counter)
@@ -126,7 +127,8 @@ class PipelineStats:
             v = [x for x in v if math.isfinite(x)]
             return float(np.median(v)) if v else math.nan
 
-        return {"frames": self.frames, "holds": self.holds, "estimates": self.estimates,
+        return {"frames": self.frames, "holds": self.holds, "ringing_holds": self.ringing_holds,
+                "estimates": self.estimates,
                 "sequences": self.sequences, "methods": dict(self.methods), "dropped": dict(self.dropped),
                 "median_settle_s": med(self.settle_s), "median_residual_px": med(self.residual_px),
                 "median_noise_px": med(self.noise_px), "median_averaged_noise_px": med(self.averaged_noise_px)}
@@ -361,6 +363,7 @@ class Pipeline:
             return []
         st = self.stats
         st.holds += 1
+        st.ringing_holds += hold.ringing
         st.settle_s.append(hold.settle_s)
         st.residual_px.append(hold.residual_px)
         st.noise_px.append(hold.noise_px)
