@@ -24,7 +24,7 @@ from ..errors import InputError
 from .images import decode_image, stamp_seconds
 from .pipeline import FrameSet, Pipeline, PipelineConfig
 from .sync import StampSynchronizer
-from .topics import bag_image_topics
+from .topics import CAMERA_INFO_TYPE, IMU_TYPE, bag_image_topics, check_topic_type
 
 
 def _stderr_warn(msg: str) -> None:
@@ -53,12 +53,18 @@ def resolve_imu_topic(bag: BagReader, rig: Rig, requested: str | None = None, us
                              f"is needed here (topics: {bag.describe_topics()})", topic)
         warn(f"IMU topic {topic!r} not in the bag (topics: {bag.describe_topics()}); running without IMU")
         return None
+    source, field = ("--imu-topic", None) if requested else (rig.source, "imu.topic")
+    check_topic_type(bag, topic, IMU_TYPE, source, "the IMU", field)
     return topic
 
 
 def check_camera_info(bag: BagReader, rig: Rig, warn: Callable = _stderr_warn) -> None:
     """Report CameraInfo messages that disagree with the rig file (the rig file wins)."""
     topics = [c.info_topic for c in rig.cameras if c.info_topic and bag.has_topic(c.info_topic)]
+    for i, cam in enumerate(rig.cameras):
+        if cam.info_topic in topics:
+            check_topic_type(bag, cam.info_topic, CAMERA_INFO_TYPE, rig.source, f"camera {cam.name}'s CameraInfo",
+                             f"cameras[{i}].info_topic")
     seen = set()
     for topic, _, msg in bag.messages(topics):
         if topic in seen:
