@@ -192,7 +192,7 @@ def read_text(path, *, what: str, max_bytes: int) -> str:
 # YAML
 # ---------------------------------------------------------------------------
 
-class _BoundedSafeLoader(yaml.SafeLoader):
+class BoundedSafeLoader(yaml.SafeLoader):
     """A SafeLoader that refuses alias bombs and deep nesting while composing, before anything is built.
 
     Each composed node is weighed: its size and height *after* alias
@@ -259,7 +259,7 @@ class _BoundedSafeLoader(yaml.SafeLoader):
 
 # YAML 1.2 reads 1e-3 as a float; PyYAML's YAML 1.1 rules read it as the string '1e-3' (a float there needs a
 # dot: 1.0e-3). Plain scalars in exponent form are resolved as floats here; quoted ones stay strings.
-_BoundedSafeLoader.add_implicit_resolver(
+BoundedSafeLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789"))
 
 
@@ -273,20 +273,23 @@ def _yaml_error_text(exc: yaml.YAMLError) -> str:
 
 
 def yaml_from_text(text: str, source: str, *, max_chars: int = YAML_MAX_BYTES, max_aliases: int = YAML_MAX_ALIASES,
-                   max_depth: int = YAML_MAX_DEPTH, max_nodes: int = YAML_MAX_NODES):
+                   max_depth: int = YAML_MAX_DEPTH, max_nodes: int = YAML_MAX_NODES, loader=None):
     """Parse one YAML document from a string with the bounds of :func:`load_yaml`; ``source`` names it in errors.
 
     Returns plain Python data (dict, list, str, int, float, bool, None,
     datetime, bytes): SafeLoader tags only. An empty document gives None.
+    ``loader`` is a subclass of :class:`BoundedSafeLoader` with extra
+    constructors (OpenCV's matrices in Kalibr files); it keeps the bounds.
     """
+    loader_cls = loader or BoundedSafeLoader
     if not isinstance(text, str):
         raise InputError(source, f"expected YAML text, got {type(text).__name__}")
     if len(text) > max_chars:
         raise InputError(source, f"YAML text of {len(text)} characters, more than the {max_chars} allowed")
     loader = None
     try:
-        loader = _BoundedSafeLoader(text, source=source, max_aliases=max_aliases, max_depth=max_depth,
-                                    max_nodes=max_nodes)  # the reader already refuses control characters
+        loader = loader_cls(text, source=source, max_aliases=max_aliases, max_depth=max_depth,
+                            max_nodes=max_nodes)  # the reader already refuses control characters
         return loader.get_single_data()
     except InputError:
         raise
