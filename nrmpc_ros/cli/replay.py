@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-import yaml
 
-from ..bag.reader import BagReader
+from ..bag.reader import BagReader, bag_root
+from ..config import from_mapping, load_mapping
 from ..core import load_rig
-from ..errors import InputError
 from ..frontend.evaluation import CsvWriter, batch_rows, evaluate, format_report, read_reference, row_from_estimate
 from ..frontend.pipeline import PIPELINE_METHODS, Pipeline, PipelineConfig
 from ..frontend.replay import check_camera_info, replay_bag, resolve_imu_topic
 from ..frontend.sync import StampSynchronizer
 from ..frontend.topics import bag_image_topics
+from ..safeio import check_outputs
+from .argtypes import nonnegative_seconds, positive_int, seed
 
 
 def register(sub):
@@ -35,32 +35,26 @@ def register(sub):
                    "sequence, ...)")
     p.add_argument("--imu-topic", help="IMU topic (default: the rig file's imu.topic)")
     p.add_argument("--no-imu", action="store_true", help="ignore the IMU (auto then runs 6pt-bending)")
-    p.add_argument("--sync-tolerance", type=float, default=None,
+    p.add_argument("--sync-tolerance", type=nonnegative_seconds, default=None,
                    help="camera stamps of one set lie within +- this (s) of the set's median stamp (default: 0.45 "
                         "of the smallest camera frame period, estimated from the stamps)")
-    p.add_argument("--queue-size", type=int, default=10, help="synchronizer queue depth per camera")
-    p.add_argument("--seed", type=int, default=0, help="RANSAC seed")
+    p.add_argument("--queue-size", type=positive_int, default=10, help="synchronizer queue depth per camera")
+    p.add_argument("--seed", type=seed, default=0, help="RANSAC seed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", action="store_true", help="print only the statistics, not every estimate")
     p.set_defaults(func=run)
 
 
 def load_config(path, seed: int) -> PipelineConfig:
-    d = {}
-    if path:
-        try:
-            d = yaml.safe_load(Path(path).read_text()) or {}
-        except OSError as exc:
-            raise InputError(str(path), f"cannot read ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise InputError(str(path), f"not valid YAML ({exc})") from None
-        if not isinstance(d, dict):
-            raise InputError(str(path), "expected a mapping of pipeline settings")
+    """The pipeline settings of the --config file (errors name the file and the key); its seed wins over --seed."""
+    d = dict(load_mapping(path, "pipeline settings file")) if path else {}
     d.setdefault("seed", seed)
-    return PipelineConfig.from_dict(d, source=str(path or "pipeline config"))
+    return from_mapping(PipelineConfig, d, str(path or "--seed"))
 
 
 def run(args) -> int:
+    check_outputs({"--out": args.out, "--batch": args.batch},
+                  {"BAG": bag_root(args.bag), "--rig": args.rig, "--config": args.config})
     rig = load_rig(args.rig)
     cfg = load_config(args.config, args.seed)
     t_start = time.perf_counter()
@@ -78,28 +72,22 @@ def run(args) -> int:
         pipe = Pipeline(rig, cfg, method=args.method)
         sync = StampSynchronizer(rig.num_cameras, args.sync_tolerance, args.queue_size,
                                  names=[c.name for c in rig.cameras])
-        writer = CsvWriter(args.out)
         rows = []
-        try:
+        with CsvWriter(args.out, "--out") as writer:  # becomes --out only when the whole run succeeds
             for estimates in replay_bag(bag, rig, pipe, imu_topic, sync, warn, progress=not args.no_progress,
                                         image_topics=image_topics):
                 for est in estimates:
                     row = row_from_estimate(est)
                     writer.write(row)
                     rows.append(row)
-        finally:
-            writer.close()
-        batch = []
-        if args.batch:
-            method = rows[-1].method if rows else args.method
-            batch = batch_rows(pipe.batch(), method)
-            bw = CsvWriter(args.batch)
-            try:
-                for row in batch:
-                    bw.write(row)
-            finally:
-                bw.close()
-        ref = read_reference(bag, imu_topic)
+            ref = read_reference(bag, imu_topic, warn)
+            batch = []
+            if args.batch:
+                method = rows[-1].method if rows else args.method
+                batch = batch_rows(pipe.batch(), method)
+                with CsvWriter(args.batch, "--batch") as bw:
+                    for row in batch:
+                        bw.write(row)
     elapsed = time.perf_counter() - t_start
     ev = evaluate(rows, ref, rig)
     st = pipe.stats
