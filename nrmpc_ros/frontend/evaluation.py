@@ -15,7 +15,6 @@ import io
 import math
 import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -24,7 +23,7 @@ from ..core.metrics import pose_errors
 from ..core.rig import Rig
 from ..core.so3 import angle_between, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from ..errors import InputError
-from ..safeio import AtomicFile, MiB, read_text
+from ..safeio import AtomicFile, MiB, atomic_write, read_text
 from .images import stamp_seconds
 from .topics import IMU_TYPE, POSE_TYPE, VECTOR_TYPE, check_topic_type, same_type
 
@@ -439,8 +438,10 @@ def format_report(ev: Evaluation, per_estimate: bool = True) -> str:
     return "\n".join(lines)
 
 
-def plot_errors(ev: Evaluation, path) -> None:
-    """PNG: gravity error over time (vs IMU and ground truth, and the IMU's own) and relative-pose errors."""
+def plot_errors(ev: Evaluation, path, flag: str | None = None) -> None:
+    """PNG: gravity error over time (vs IMU and ground truth, and the IMU's own) and relative-pose errors.
+
+    Written atomically (:func:`~nrmpc_ros.safeio.atomic_write`); ``flag`` names the option in errors."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -467,9 +468,7 @@ def plot_errors(ev: Evaluation, path) -> None:
             ax.legend(fontsize=8)
     fig.tight_layout()
     try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=100)
-    except OSError as exc:
-        raise InputError(str(path), f"cannot write plot ({exc.strerror})") from None
+        with atomic_write(path, "wb", flag=flag) as fh:
+            fig.savefig(fh, format="png", dpi=100)
     finally:
         plt.close(fig)
