@@ -17,7 +17,8 @@ def small_rig(ei):
 
 
 def render(tmp, name, ei, seed):
-    """A bag of 8 holds (2 s each, 6 frames: the bars settle within two periods) of the rig with the given EI; returns (bag, rig file)."""
+    """A bag of 8 holds (2 s each, 6 frames: the bars settle within two periods) of the rig with the given EI;
+    returns (bag, rig file)."""
     rig_file = tmp / f"{name}_truth.yaml"
     save_rig(small_rig(ei), rig_file)
     bag = tmp / name

@@ -96,7 +96,8 @@ def _bad_files(d, seq):
     save_tracks(Tracks(tr.view, tr.cam, tr.track, tr.f), d / "nog.npz")
     (d / "text.npz").write_text("not an archive")
     return {
-        "missing key": (d / "nof.npz", "'f'"), "missing file": (d / "absent.npz", "cannot read tracks file: no such file"),
+        "missing key": (d / "nof.npz", "'f'"),
+        "missing file": (d / "absent.npz", "cannot read tracks file: no such file"),
         "not npz": (d / "text.npz", "text.npz"), "rig mismatch": (d / "cam.npz", "'cam'"),
     }, d / "nog.npz"
 
