@@ -145,6 +145,7 @@ def _indices(src, key, value, n) -> np.ndarray:
             first = int(np.argmax(bad))
             raise InputError(src, f"expected integers, got dtype {a.dtype} with {int(bad.sum())} non-integer "
                              f"values (first: entry {first} = {a[first].item()!r})", key)
+        a = a.astype(np.float64)  # float16 cannot hold the bound below: compare in float64
     if n and a.min() < 0:
         first = int(np.argmax(a < 0))
         raise InputError(src, f"negative index at entry {first} ({a[first].item()!r})", key)
