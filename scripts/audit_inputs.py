@@ -222,6 +222,22 @@ def rig_cases(f: dict) -> list:
     assert base["cameras"][0]["bar"]
     cases = [Case("rig", name, ["solve", "--rig", p, "--method", "6pt-bending", f["matches"]], (str(p), frag),
                   inputs=(p,)) for name, (p, frag) in variants.items()]
+    chain = {"cam0": {"camera_model": "pinhole", "intrinsics": [400.0, 400.0, 320.0, 240.0],
+                      "distortion_model": "radtan", "distortion_coeffs": [0.0, 0.0, 0.0, 0.0],
+                      "resolution": [640, 480], "rostopic": "/cam0/image_raw"}}
+    kalibr = {
+        "Kalibr: binary": (write(d / "kalibr-bin.yaml", bytes(range(256))), "binary"),
+        "Kalibr: alias bomb": (write(d / "kalibr-bomb.yaml", bomb), "alias"),
+        "Kalibr: bad opencv-matrix": (write(d / "kalibr-cv.yaml", "%YAML:1.0\ncam0:\n  T_cn_cnm1: !!opencv-matrix\n"
+                                            "    rows: four\n    cols: 4\n    data: [1]\n"), "opencv-matrix"),
+        "Kalibr: string intrinsics": (write(d / "kalibr-str.yaml", yaml.safe_dump(
+            {"cam0": {**chain["cam0"], "intrinsics": ["a", 1, 2, 3]}})), "intrinsics"),
+        "Kalibr: no cameras": (write(d / "kalibr-none.yaml", "cam7: {}\n"), "cam"),
+    }
+    out = f["w"] / "out" / "kalibr"
+    for name, (p, frag) in kalibr.items():
+        cases.append(Case("rig", name, ["import-kalibr", p, "--out", out / f"{p.stem}.yaml"], (str(p), frag),
+                          inputs=(p,), absent=(out / f"{p.stem}.yaml",)))
     bom = write(d / "bom.yaml", b"\xef\xbb\xbf" + text.encode())
     cases.append(Case("rig", "UTF-8 with byte-order mark", ["solve", "--rig", bom, "--method", "6pt-bending",
                                                            f["matches"]], inputs=(bom,), stdout='"success": true'))
@@ -588,7 +604,7 @@ def report(cases: list, verbose: bool) -> int:
         counts["tried"] += 1
         counts[c.result["kind"]] += 1
         counts["data modified"] += bool(c.result["modified"])
-    width = max(len(a) for a in by_area)
+    width = max(len("area"), *(len(a) for a in by_area))
     heads = ("variants tried",) + COLUMNS
     print(f"{'area':<{width}} | " + " | ".join(heads))
     print("-" * (width + 1) + "|" + "|".join("-" * (len(h) + 2) for h in heads))
