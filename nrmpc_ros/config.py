@@ -5,8 +5,10 @@ field made with :func:`option`: default, one line of documentation (units
 included), and the values it may take (numeric range, choices). From that one
 declaration come the validation (:func:`check`: one InputError naming the
 field), the builder from nested mappings such as YAML files or ROS
-parameters (:func:`from_mapping`: unknown keys are errors naming them), and
-the ROS parameter descriptors of the node (:func:`describe_fields`).
+parameters (:func:`from_mapping`: unknown keys are errors naming them), the
+reader of settings files (:func:`from_file`: read through
+:func:`nrmpc_ros.safeio.load_yaml`, every error naming the file and the
+key), and the ROS parameter descriptors of the node (:func:`describe_fields`).
 """
 
 from __future__ import annotations
@@ -40,6 +42,27 @@ def _kind(default):
     return type(default)
 
 
+def _field_kind(f: dataclasses.Field, default, value):
+    """The type a field's values have: its default's, else its annotation's (a field whose default is None)."""
+    if default is not None:
+        return _kind(default)
+    annotation = str(f.type)
+    for name, kind in (("bool", bool), ("int", int), ("float", float), ("str", str)):
+        if name in annotation.replace("None", "").split("|")[0]:
+            return kind
+    return type(value)
+
+
+def _shown(value) -> str:
+    """A value as the error message shows it: huge integers shortened (no screenful of digits)."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:12]}...({len(text)} characters)"
+
+
+def _bound(x) -> str:
+    return str(x) if isinstance(x, int) else f"{x:g}"
+
+
 def check_value(value, f: dataclasses.Field, source: str, name: str):
     """The value converted to the field's kind (an int for a float field becomes a float), or InputError."""
     m = f.metadata
@@ -49,26 +72,31 @@ def check_value(value, f: dataclasses.Field, source: str, name: str):
         if m.get("nullable"):
             return None
         raise InputError(source, "must be given (null is not allowed here)", name)
-    kind = _kind(default) if default is not None else type(value)
+    kind = _field_kind(f, default, value)
     if kind is bool:
         if not isinstance(value, bool):
-            raise InputError(source, f"must be true or false, got {value!r}", name)
+            raise InputError(source, f"must be true or false, got {_shown(value)}", name)
         return value
     if kind in (int, float):
+        given = value
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(source, f"must be a number, got {value!r}", name)
-        if kind is int and (isinstance(value, float) and not value.is_integer()):
-            raise InputError(source, f"must be an integer, got {value!r}", name)
-        value = int(value) if kind is int else float(value)
-        if math.isnan(value) or (math.isinf(value) and m.get("hi") is not None and value > 0):
-            raise InputError(source, f"must be a finite number, got {value!r}", name)
+            raise InputError(source, f"must be a number, got {_shown(value)}", name)
+        if kind is int and isinstance(value, float) and not value.is_integer():
+            raise InputError(source, f"must be an integer, got {_shown(value)}", name)
+        try:
+            value = int(value) if kind is int else float(value)
+        except OverflowError:  # an integer beyond the float range, as a float field's value
+            raise InputError(source, f"must be a finite number, got {_shown(given)}", name) from None
+        if kind is float and (math.isnan(value) or (math.isinf(value) and m.get("hi") is not None and value > 0)):
+            raise InputError(source, f"must be a finite number, got {_shown(given)}", name)
         lo, hi = m.get("lo"), m.get("hi")
         if lo is not None and (value <= lo if m.get("lo_open") else value < lo):
-            raise InputError(source, f"must be {'>' if m.get('lo_open') else '>='} {lo:g}, got {value!r}", name)
+            raise InputError(source, f"must be {'>' if m.get('lo_open') else '>='} {_bound(lo)}, got {_shown(given)}",
+                             name)
         if hi is not None and value > hi:
-            raise InputError(source, f"must be <= {hi:g}, got {value!r}", name)
-        if math.isinf(value) and m.get("lo") is not None and value < 0:
-            raise InputError(source, f"must be a finite number, got {value!r}", name)
+            raise InputError(source, f"must be <= {_bound(hi)}, got {_shown(given)}", name)
+        if kind is float and math.isinf(value) and lo is not None and value < 0:
+            raise InputError(source, f"must be a finite number, got {_shown(given)}", name)
         return value
     if kind is str:
         if not isinstance(value, str):
@@ -112,9 +140,30 @@ def from_mapping(cls, d, source: str = "config", prefix: str = ""):
     try:
         out = cls(**kw)
     except InputError as exc:  # a __post_init__ check across fields
-        raise InputError(source, str(exc).split(": ", 2)[-1], exc.field and f"{prefix}{exc.field}") from None
+        raise InputError(source, exc.message, exc.field and f"{prefix}{exc.field}") from None
     check(out, source, prefix)
     return out
+
+
+def load_mapping(path, what: str) -> dict:
+    """The top-level mapping of a YAML settings file, read through :func:`nrmpc_ros.safeio.load_yaml` (size,
+    encoding, aliases and nesting bounded); an empty file is an empty mapping."""
+    from .safeio import load_yaml
+
+    data = load_yaml(path, what=what)
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise InputError(str(path), f"a {what} must be a mapping of settings (key: value), got "
+                                    f"{type(data).__name__}")
+    return data
+
+
+def from_file(cls, path, what: str, defaults: dict | None = None):
+    """An instance of dataclass ``cls`` from a YAML file of its fields (:func:`load_mapping`, then
+    :func:`from_mapping`); ``defaults`` fill keys the file does not set. Every error names the file and key."""
+    data = load_mapping(path, what)
+    return from_mapping(cls, {**(defaults or {}), **data}, str(path))
 
 
 def to_mapping(cfg) -> dict:
@@ -152,4 +201,5 @@ def describe_fields(cls_or_cfg, prefix: str = "") -> list:
     return out
 
 
-__all__ = ["FieldInfo", "check", "check_value", "describe_fields", "from_mapping", "option", "to_mapping"]
+__all__ = ["FieldInfo", "check", "check_value", "describe_fields", "from_file", "from_mapping", "load_mapping",
+           "option", "to_mapping"]

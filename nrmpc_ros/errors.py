@@ -15,6 +15,7 @@ class InputError(NrmpcError, ValueError):
     def __init__(self, source: str, message: str, field: str | None = None):
         self.source = str(source)
         self.field = field
+        self.message = message
         where = f"{self.source}: field '{field}'" if field else self.source
         super().__init__(f"{where}: {message}")
 

@@ -18,7 +18,6 @@ per camera before using the bending estimators.
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 import yaml
@@ -26,6 +25,7 @@ import yaml
 from .core.rig import Rig, rig_from_dict
 from .core.so3 import matrix_to_quat_xyzw
 from .errors import InputError
+from .safeio import YAML_MAX_BYTES, BoundedSafeLoader, read_text, yaml_from_text
 
 SUPPORTED_CAMERA_MODELS = ("pinhole",)
 _DISTORTIONS = {"radtan": ("pinhole", (4, 5)), "equidistant": ("equidistant", (4,)), "none": ("pinhole", (0,))}
@@ -35,14 +35,19 @@ _KNOWN_UNSUPPORTED = {
 }
 
 
-class _KalibrLoader(yaml.SafeLoader):
-    """SafeLoader that also understands OpenCV's ``!!opencv-matrix`` mappings."""
+class _KalibrLoader(BoundedSafeLoader):
+    """The bounded SafeLoader of :mod:`nrmpc_ros.safeio` that also understands OpenCV's ``!!opencv-matrix``."""
 
 
 def _opencv_matrix(loader, node):
     d = loader.construct_mapping(node, deep=True)
-    rows, cols = int(d["rows"]), int(d["cols"])
-    data = [float(x) for x in d["data"]]
+    try:
+        rows, cols = int(d["rows"]), int(d["cols"])
+        data = [float(x) for x in d["data"]]
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
+        raise yaml.constructor.ConstructorError(None, None, f"opencv-matrix needs integer rows and cols and a list "
+                                                f"of numbers as data ({type(exc).__name__}: {exc})",
+                                                node.start_mark) from None
     if len(data) != rows * cols:
         raise yaml.constructor.ConstructorError(None, None, f"opencv-matrix has {len(data)} values, "
                                                 f"expected {rows}x{cols}", node.start_mark)
@@ -56,15 +61,9 @@ _KalibrLoader.add_constructor("!opencv-matrix", _opencv_matrix)
 def load_kalibr_yaml(path) -> dict:
     """Parse a Kalibr YAML file (plain YAML or OpenCV FileStorage ``%YAML:1.0``)."""
     src = str(path)
-    try:
-        text = Path(path).read_text()
-    except OSError as exc:
-        raise InputError(src, f"cannot read file ({exc.strerror})") from None
+    text = read_text(path, what="Kalibr file", max_bytes=YAML_MAX_BYTES)
     text = re.sub(r"\A\s*%YAML[:\s]\s*1\.\d+[^\n]*\n", "", text)  # OpenCV's directive is not valid YAML 1.1
-    try:
-        data = yaml.load(text, Loader=_KalibrLoader)  # noqa: S506 - SafeLoader subclass
-    except yaml.YAMLError as exc:
-        raise InputError(src, f"not valid YAML ({exc})") from None
+    data = yaml_from_text(text, src, loader=_KalibrLoader)
     if not isinstance(data, dict):
         raise InputError(src, "expected a mapping with cam0, cam1, ... at the top level")
     return data

@@ -1,4 +1,5 @@
-"""Property-based fuzzing of the rig and matches loaders (hypothesis, derandomised).
+"""Property-based fuzzing of the loaders of rigs, matches, tracks, pipeline settings and estimate CSVs
+(hypothesis, derandomised).
 
 Whatever the input, the only outcomes allowed are a valid result that
 satisfies the loader's invariants, or an InputError naming the source. Any
@@ -20,6 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from nrmpc_ros.cli.replay import load_config
+from nrmpc_ros.config import to_mapping
 from nrmpc_ros.core import deformed_extrinsics, load_matches, load_rig, rig_from_dict
 from nrmpc_ros.core.matches import Matches
 from nrmpc_ros.core.rig import (
@@ -33,7 +36,10 @@ from nrmpc_ros.core.rig import (
     MAX_TIP_ROTATION_DEG,
     MIN_FOCAL_PX,
 )
+from nrmpc_ros.core.tracks import load_tracks
 from nrmpc_ros.errors import InputError
+from nrmpc_ros.frontend.evaluation import CsvWriter, EstimateRow, read_csv
+from nrmpc_ros.frontend.pipeline import PipelineConfig
 from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 
 # Deterministic (same examples on every run, no example database written), bounded, no per-example deadline.
@@ -328,3 +334,225 @@ def test_matches_constructor_random_arrays(data):
         assert str(exc).startswith("<matches>")
         return
     _check_matches(m, None)
+
+
+# --- tracks --------------------------------------------------------------------
+
+TRACK_KEYS = ["view", "cam", "track", "f", "g_meas"]
+
+
+def _good_tracks(rng, n_views=3, n_tracks=6):
+    """Every track seen by camera (track % 4) in every view, with measured gravity in all but the last view."""
+    view, track = (a.ravel() for a in np.meshgrid(np.arange(n_views), np.arange(n_tracks), indexing="ij"))
+    cam = track % 4
+    g = rng.normal(size=(n_views, 3))
+    g[-1] = np.nan
+    return {"view": view, "cam": cam, "track": track, "f": rng.normal(size=(len(view), 3)), "g_meas": g}
+
+
+def _check_tracks(t):
+    n = len(t)
+    assert n >= 1 and t.f.shape == (n, 3) and t.f.dtype == np.float64 and np.all(np.isfinite(t.f))
+    assert np.allclose(np.linalg.norm(t.f, axis=1), 1, atol=1e-12)
+    for a in (t.view, t.cam, t.track):
+        assert a.shape == (n,) and a.dtype == np.int64 and np.all(a >= 0)
+    K = t.num_views
+    assert isinstance(K, int) and K == int(t.view.max()) + 1 and np.all(np.bincount(t.view, minlength=K) > 0)
+    assert len({(v, c, k) for v, c, k in zip(t.view, t.cam, t.track)}) == n
+    if t.g_meas is not None:
+        g = t.g_meas
+        assert g.shape == (K, 3) and g.dtype == np.float64
+        nan = np.isnan(g).all(axis=1)
+        assert np.all(np.isfinite(g[~nan])) and np.all(np.linalg.norm(g[~nan], axis=1) > 0)
+        assert not np.any(np.isnan(g[~nan]))
+
+
+def test_base_tracks_settings_and_csv_are_valid(fuzz_dir):
+    """The starting points of the fuzzing below load, so mutations are tried on both sides of validity."""
+    path = fuzz_dir / "base.npz"
+    _write_npz(path, _good_tracks(np.random.default_rng(3)))
+    _check_tracks(load_tracks(path))
+    _check_config(PipelineConfig.from_dict(copy.deepcopy(BASE_CONFIG), "<base>"))
+    _good_csv(path.with_suffix(".csv"), np.random.default_rng(3))
+    rows = read_csv(path.with_suffix(".csv"))
+    assert len(rows) == 3 and rows[1].gravity is None
+    _check_rows(rows)
+
+
+@FUZZ
+@given(st.data())
+def test_load_tracks_random_arrays(fuzz_dir, data):
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    arrays = _good_tracks(rng, data.draw(st.integers(1, 4)), data.draw(st.integers(1, 8)))
+    n = len(arrays["view"])
+    for _ in range(data.draw(st.integers(0, 3))):
+        action = data.draw(st.sampled_from(["array", "row", "drop", "add", "cast", "index"]))
+        key = data.draw(st.sampled_from(sorted(arrays))) if arrays else None
+        if action == "array" and key:
+            arrays[key] = data.draw(ARRAYS)
+        elif action == "row" and key == "f" and np.shape(arrays["f"]) == (n, 3) and arrays["f"].dtype == np.float64:
+            arrays["f"][data.draw(st.integers(0, n - 1))] = data.draw(ODD_ROWS)
+        elif action == "index" and key in ("view", "cam", "track") and np.shape(arrays[key]) == (n,):
+            arrays[key] = np.asarray(arrays[key]).copy()
+            arrays[key][data.draw(st.integers(0, n - 1))] = data.draw(st.sampled_from(
+                [-1, 0, 1, 7, 999, 2**62, 2**63 - 1]))
+        elif action == "drop" and key:
+            del arrays[key]
+        elif action == "add":
+            name = data.draw(st.one_of(st.sampled_from(TRACK_KEYS + ["num_views", "allow_pickle"]),
+                                       st.text(string.ascii_letters + "_", min_size=1, max_size=6)))
+            arrays[name] = data.draw(ARRAYS)
+        elif action == "cast" and key and np.asarray(arrays[key]).dtype.kind in "biufc":
+            with warnings.catch_warnings(), np.errstate(all="ignore"):
+                warnings.simplefilter("ignore")
+                arrays[key] = np.asarray(arrays[key]).astype(data.draw(NUMERIC_DTYPES))
+    path = fuzz_dir / "t.npz"
+    _write_npz(path, arrays)
+    try:
+        t = load_tracks(path)
+    except InputError as exc:
+        assert str(exc).startswith(str(path))
+        return
+    _check_tracks(t)
+
+
+@FUZZ
+@given(st.data())
+def test_load_tracks_corrupted_bytes(fuzz_dir, data):
+    buf = io.BytesIO()
+    arrays = _good_tracks(np.random.default_rng(7))
+    (np.savez_compressed if data.draw(st.booleans()) else np.savez)(buf, **arrays)
+    raw = bytearray(buf.getvalue())
+    for _ in range(data.draw(st.integers(1, 4))):
+        raw[data.draw(st.integers(0, len(raw) - 1))] = data.draw(st.integers(0, 255))
+    if data.draw(st.booleans()):
+        raw = raw[:data.draw(st.integers(0, len(raw)))]
+    if data.draw(st.integers(0, 4)) == 0:
+        raw = bytearray(data.draw(st.binary(max_size=200)))
+    path = fuzz_dir / "tc.npz"
+    path.write_bytes(bytes(raw))
+    try:
+        t = load_tracks(path)
+    except InputError as exc:
+        assert str(exc).startswith(str(path))
+        return
+    _check_tracks(t)
+
+
+# --- pipeline settings ---------------------------------------------------------
+
+BASE_CONFIG = to_mapping(PipelineConfig())
+
+
+def _check_config(cfg):
+    """A config that loads holds values of its defaults' types and loads again from its own mapping."""
+    def same_kinds(value, default, path):
+        if isinstance(default, dict):
+            for k in default:
+                same_kinds(value[k], default[k], f"{path}{k}.")
+        elif default is not None:
+            assert type(value) is type(default), (path, value)
+            assert not isinstance(value, float) or not math.isnan(value), path
+    mapping = to_mapping(cfg)
+    same_kinds(mapping, BASE_CONFIG, "")
+    assert to_mapping(PipelineConfig.from_dict(mapping, "<again>")) == mapping
+
+
+@FUZZ
+@given(st.data())
+def test_pipeline_config_from_dict_mutations(data):
+    d = copy.deepcopy(BASE_CONFIG)
+    _mutate(d, data.draw)
+    try:
+        cfg = PipelineConfig.from_dict(d, "<fuzz config>")
+    except InputError as exc:
+        assert str(exc).startswith("<fuzz config>")
+        return
+    _check_config(cfg)
+
+
+@FUZZ
+@given(st.data())
+def test_replay_config_file_mutated_text(fuzz_dir, data):
+    """The --config file of nrmpc replay: a valid settings file mutated as a mapping, then as text."""
+    d = copy.deepcopy(BASE_CONFIG)
+    if data.draw(st.booleans()):
+        _mutate(d, data.draw)
+    text = yaml.safe_dump(d, sort_keys=False, default_flow_style=data.draw(st.sampled_from([None, True, False])))
+    for _ in range(data.draw(st.integers(0, 3))):
+        i = data.draw(st.integers(0, len(text)))
+        j = data.draw(st.integers(i, min(len(text), i + 8)))
+        text = text[:i] + data.draw(st.text(alphabet="[]{}:,-&*!|>'\"#%@` \n\t.~/_0189aeinfxyz", max_size=6)) + text[j:]
+    path = fuzz_dir / "settings.yaml"
+    path.write_bytes(text.encode() if data.draw(st.integers(0, 5)) else data.draw(st.binary(max_size=200)))
+    try:
+        cfg = load_config(path, seed=data.draw(st.integers(0, 2**63 - 1)))
+    except InputError as exc:
+        assert str(exc).startswith(str(path))
+        return
+    _check_config(cfg)
+
+
+# --- estimate CSVs -------------------------------------------------------------
+
+ODD_CELLS = st.one_of(st.sampled_from(["", "nan", "inf", "-inf", "1e400", "-0", "0", "1", "2.5", "-1", "abc", " 1",
+                                       "0x10", "1_000", "\"", ",", "\n", "9" * 400, "6pt-bending", "\x00"]),
+                      st.text(max_size=6))
+
+
+def _good_csv(path, rng, n=3):
+    with CsvWriter(path) as w:
+        for k in range(n):
+            q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+            R = q * np.sign(np.linalg.det(q))
+            g = None if k == 1 else rng.normal(size=3)
+            w.write(EstimateRow(10.0 + k, 9.0 + k, "4pt-bending", R, rng.normal(size=3), g, 40 + k, 12.5,
+                                {"gravity_sigma_deg": 0.1, "hold": k}, (9.0, R, rng.normal(size=3))))
+    return path.read_text()
+
+
+def _check_rows(rows):
+    for r in rows:
+        assert math.isfinite(r.stamp) and math.isfinite(r.ref_stamp) and math.isfinite(r.time_ms)
+        assert np.allclose(r.R @ r.R.T, np.eye(3), atol=1e-6) and np.all(np.isfinite(r.t))
+        assert r.gravity is None or (np.all(np.isfinite(r.gravity)) and np.linalg.norm(r.gravity) > 0)
+        assert isinstance(r.num_inliers, int) and r.num_inliers >= 0
+        if r.origin is not None:
+            assert math.isfinite(r.origin[0]) and np.allclose(r.origin[1] @ r.origin[1].T, np.eye(3), atol=1e-6)
+
+
+@FUZZ
+@given(st.data())
+def test_read_csv_mutations(fuzz_dir, data):
+    """A valid estimates CSV with cells replaced, characters inserted or deleted, cut short; or random bytes."""
+    path = fuzz_dir / "estimates.csv"
+    text = _good_csv(path, np.random.default_rng(data.draw(st.integers(0, 2**32 - 1))))
+    lines = text.splitlines(keepends=True)
+    for _ in range(data.draw(st.integers(0, 3))):
+        action = data.draw(st.sampled_from(["cell", "cell", "chars", "cut"]))
+        if action == "cell":
+            k = data.draw(st.integers(0, len(lines) - 1))
+            cells = lines[k].rstrip("\n").split(",")
+            cells[data.draw(st.integers(0, len(cells) - 1))] = data.draw(ODD_CELLS)
+            lines[k] = ",".join(cells) + "\n"
+        elif action == "chars":
+            t = "".join(lines)
+            i = data.draw(st.integers(0, len(t)))
+            t = t[:i] + data.draw(st.text(alphabet=',"\n\r.-e0123456789nanif\x00', max_size=4)) + t[i + 2:]
+            lines = t.splitlines(keepends=True) or [""]
+        else:
+            t = "".join(lines)
+            lines = [t[:data.draw(st.integers(0, len(t)))]]
+    payload = "".join(lines).encode()
+    if data.draw(st.integers(0, 6)) == 0:
+        payload = data.draw(st.binary(max_size=300))
+    elif data.draw(st.integers(0, 6)) == 0:
+        payload = "".join(lines).encode(data.draw(st.sampled_from(["utf-16", "latin-1", "utf-8-sig"])),
+                                        errors="replace")
+    path.write_bytes(payload)
+    try:
+        rows = read_csv(path)
+    except InputError as exc:
+        assert str(exc).startswith(str(path))
+        return
+    _check_rows(rows)

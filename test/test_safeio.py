@@ -1,4 +1,5 @@
-"""Safe readers of untrusted files: every odd or hostile file is one InputError naming it."""
+"""Safe readers of untrusted files (every odd or hostile file is one InputError naming it) and safe writers of
+outputs (never into an input, complete or not at all)."""
 
 import gzip
 import io
@@ -13,7 +14,20 @@ import numpy as np
 import pytest
 
 from nrmpc_ros.errors import InputError
-from nrmpc_ros.safeio import YAML_MAX_BYTES, MiB, load_npz, load_yaml, read_text, yaml_from_text
+from nrmpc_ros.safeio import (
+    PARTIAL_SUFFIX,
+    YAML_MAX_BYTES,
+    AtomicFile,
+    MiB,
+    atomic_directory,
+    atomic_write,
+    check_output,
+    check_outputs,
+    load_npz,
+    load_yaml,
+    read_text,
+    yaml_from_text,
+)
 
 # --- read_text ----------------------------------------------------------------
 
@@ -279,3 +293,83 @@ def test_load_npz_missing_directory_and_file_size(tmp_path):
         fh.truncate(65 * MiB)
     with pytest.raises(InputError, match="matches file is 65 MiB, more than the 64 MiB"):
         load_npz(big, **NPZ)
+
+
+# --- outputs: check_output, atomic_write, atomic_directory ---------------------------------------------------
+
+def _left(d):
+    return sorted(p.name for p in d.iterdir() if p.name.endswith(PARTIAL_SUFFIX))
+
+
+def test_check_output_refuses_inputs_links_and_directories(tmp_path):
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("x: 1\n")
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("m\n")
+    (tmp_path / "soft").symlink_to(rig)
+    os.link(rig, tmp_path / "hard")
+    inputs = {"--rig": rig, "BAG": bag, "--config": None, "FILES": [tmp_path / "a.npz", None]}
+    refused = {rig: "is the input --rig", tmp_path / "soft": "is the input --rig", tmp_path / "hard":
+               "is the input --rig", bag / "sample.db3": "inside the input directory", bag / "sub" / "x":
+               "inside the input directory", bag: "is a directory", tmp_path / "a.npz": "is the input FILES",
+               tmp_path / "." / "rig.yaml": "is the input --rig"}
+    for path, fragment in refused.items():
+        with pytest.raises(InputError) as exc:
+            check_output(path, inputs, "--out")
+        assert str(exc.value).startswith("--out: ") and fragment in str(exc.value), path
+    check_output(tmp_path / "new.csv", inputs, "--out")  # a new file beside the inputs is fine
+    check_output(tmp_path / "outdir", inputs, "--out", directory=True)
+    with pytest.raises(InputError, match="--out: .* is a file"):
+        check_output(rig, {}, "--out", directory=True)
+    with pytest.raises(InputError, match="--out: .*a parent of this path is not a directory"):
+        check_output(rig / "x.csv", {}, "--out")
+    with pytest.raises(InputError, match="--batch: .* is also the --out output"):
+        check_outputs({"--out": tmp_path / "o.csv", "--batch": tmp_path / "." / "o.csv", "--plot": None}, inputs)
+
+
+def test_atomic_write_replaces_on_success_and_keeps_the_old_file_on_failure(tmp_path):
+    out = tmp_path / "sub" / "result.json"  # the missing directory is created
+    with atomic_write(out) as fh:
+        fh.write("first\n")
+    assert out.read_text() == "first\n"
+    os.chmod(out, 0o640)
+    with pytest.raises(RuntimeError):
+        with atomic_write(out) as fh:
+            fh.write("half of the sec")
+            raise RuntimeError("the run failed half-way")
+    assert out.read_text() == "first\n" and _left(out.parent) == []
+    with atomic_write(out, "wb") as fh:
+        fh.write(b"second\n")
+    assert out.read_bytes() == b"second\n" and (out.stat().st_mode & 0o777) == 0o640
+
+
+def test_atomic_file_shows_progress_beside_the_destination(tmp_path):
+    out = tmp_path / "rows.csv"
+    f = AtomicFile(out, flag="--out")
+    f.file.write("a,b\n")
+    f.file.flush()
+    assert not out.exists() and f.temp.parent == tmp_path and f.temp.read_text() == "a,b\n"
+    f.discard()
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    out.write_text("")
+    with pytest.raises(InputError, match="cannot write the --out file"):
+        AtomicFile(out / "x", flag="--out")  # a plain file where its directory should be
+
+
+def test_atomic_directory_renames_a_complete_directory_or_removes_it(tmp_path):
+    dest = tmp_path / "bag"
+    with pytest.raises(InputError, match="failed on purpose"):
+        with atomic_directory(dest, flag="--out") as work:
+            work.mkdir()
+            (work / "bag.db3").write_bytes(b"half")
+            raise InputError("bag.db3", "failed on purpose")
+    assert list(tmp_path.iterdir()) == []
+    with atomic_directory(dest, flag="--out") as work:
+        assert work.name == "bag" and not work.exists()
+        work.mkdir()
+        (work / "bag.db3").write_bytes(b"all")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"] and (dest / "bag.db3").read_bytes() == b"all"
+    with pytest.raises(InputError, match="--out: .* already exists"):
+        with atomic_directory(dest, flag="--out"):
+            pass

@@ -123,7 +123,7 @@ def test_camera_index_out_of_rig_range(rng, cross_rig):
 
 
 @pytest.mark.parametrize("content, message", [
-    (b"", "empty file"),
+    (b"", r"is empty \(0 bytes\)"),
     (b"hello", "not a readable"),
     (None, "no such"),
 ])

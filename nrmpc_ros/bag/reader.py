@@ -36,6 +36,18 @@ def _bag_paths(path: Path) -> list:
     raise InputError(str(path), "expected a rosbag2 directory (with metadata.yaml) or a ROS 1 .bag file")
 
 
+def bag_root(path) -> Path:
+    """What holds the whole bag named by ``path``: the rosbag2 directory (also when one of its storage files is
+    given), or the ROS 1 .bag file. Outputs must stay outside it. Anything else is returned as it is."""
+    p = Path(path)
+    try:
+        if p.suffix in (".db3", ".mcap") and (p.parent / "metadata.yaml").exists():
+            return p.parent
+    except (OSError, ValueError):
+        pass
+    return p
+
+
 class BagReader:
     """Read-only access to the topics of one bag."""
 

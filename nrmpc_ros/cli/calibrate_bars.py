@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from ..bag.reader import bag_root
 from ..calibration import calibrate_bars, describe
 from ..core import load_matches, load_rig, save_rig
 from ..errors import InputError
+from ..safeio import check_output
+from .argtypes import positive_radians, seed
 
 
 def register(sub):
@@ -20,10 +23,10 @@ def register(sub):
     p.add_argument("--out", required=True, help="calibrated rig YAML to write")
     p.add_argument("--matches", nargs="+", metavar="NPZ", help="use matches files with g1/g2 instead of a bag")
     p.add_argument("--shared", action="store_true", help="one compliance for all bars")
-    p.add_argument("--gravity-sigma", type=float, default=0.005,
+    p.add_argument("--gravity-sigma", type=positive_radians, default=0.005,
                    help="matches files: std of measured gravity (rad); a bag: prior std of the accelerometer's "
                         "constant tilt, each hold's own noise coming from its samples (default 0.005)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0, help="RANSAC seed (matches files)")
     p.set_defaults(func=run)
 
 
@@ -41,9 +44,9 @@ def _sequences_from_bag(bag, rig):
 def run(args) -> int:
     from ..calibration import calibrate_sequences
 
+    check_output(args.out, {"BAG": args.bag and bag_root(args.bag), "--rig": args.rig, "--matches": args.matches},
+                 "--out")
     rig = load_rig(args.rig)
-    if not args.gravity_sigma > 0:
-        raise InputError("--gravity-sigma", f"must be > 0 (rad), got {args.gravity_sigma}")
     if args.matches:
         pairs = [load_matches(p, rig) for p in args.matches]
         cal = calibrate_bars(rig, pairs, shared=args.shared, gravity_sigma_rad=args.gravity_sigma, seed=args.seed)
@@ -61,6 +64,6 @@ def run(args) -> int:
         state = (f"{cal.compliance[gi]:.6g} +- {cal.std[gi]:.2g} kg/(N m^2)" if cal.observable[gi]
                  else "not observable (unchanged)")
         header.append(f"{names}: compliance {state}")
-    save_rig(cal.calibrated_rig(rig), args.out, header="\n".join(header))
+    save_rig(cal.calibrated_rig(rig), args.out, header="\n".join(header), flag="--out")
     print(f"wrote {args.out}")
     return 0

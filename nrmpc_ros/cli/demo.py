@@ -6,14 +6,15 @@ import numpy as np
 
 from ..core import METHODS, estimate, pose_errors
 from ..sim.synthetic import RigSpec, Scenario, make_problem
+from .argtypes import positive_int, seed
 
 
 def register(sub):
     p = sub.add_parser("demo", help="run the three estimators on a synthetic problem (paper set-up) and print errors",
                        description="Draws seeded problems of the paper's nominal case (4 cameras on a cross, "
                                    "EI 0.1, 0.1 px noise, 5%% outliers) and prints errors and times per method.")
-    p.add_argument("--runs", type=int, default=5, help="number of seeded problems (default 5)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--runs", type=positive_int, default=5, help="number of seeded problems (default 5)")
+    p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--EI", type=float, default=0.1, help="flexural rigidity of every bar (N m^2)")
     p.add_argument("--cameras", type=int, default=4)
     p.set_defaults(func=run)

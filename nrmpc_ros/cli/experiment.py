@@ -5,6 +5,7 @@ from __future__ import annotations
 from ..errors import InputError
 from ..experiments.runner import default_workers
 from ..experiments.sweeps import EXPERIMENTS, QUICK_RUNS, run_experiment
+from .argtypes import positive_int, seed
 
 
 def float_list(text: str) -> tuple:
@@ -25,19 +26,19 @@ def register(sub):
     p.add_argument("name", choices=sorted(EXPERIMENTS), help="noise-ei (Figs. 4/5/8), outliers (Figs. 6/9), "
                    "gravity-noise (Figs. 7/10)")
     p.add_argument("--out", default="experiments", help="output directory (default: ./experiments)")
-    p.add_argument("--cameras", type=int, default=4, help="number of cameras: 4 = cross, otherwise a ring "
+    p.add_argument("--cameras", type=positive_int, default=4, help="number of cameras: 4 = cross, otherwise a ring "
                    "(default 4; the paper also uses 2)")
     p.add_argument("--rig", help="use this rig file instead of the simulated one (EI values then set every "
                    "bar that has a tip mass)")
-    p.add_argument("--runs", type=int, default=QUICK_RUNS,
+    p.add_argument("--runs", type=positive_int, default=QUICK_RUNS,
                    help=f"runs per grid cell (default {QUICK_RUNS}, a quick look; the paper uses 1000)")
-    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
-    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: one per core)")
+    p.add_argument("--seed", type=seed, default=0, help="base seed (default 0)")
+    p.add_argument("--workers", type=positive_int, default=None, help="local worker processes (default: one per core)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run the tasks on this Dask scheduler (tcp://host:8786) instead of local processes; "
                         "needs dask.distributed")
     p.add_argument("--methods", help="comma-separated subset of methods (default: the experiment's)")
-    p.add_argument("--points", type=int, help="correspondences per problem (default 1000)")
+    p.add_argument("--points", type=positive_int, help="correspondences per problem (default 1000)")
     p.add_argument("--noise", type=float_list, metavar="LIST", help="pixel-noise values (noise-ei), e.g. 0,0.1,0.2")
     p.add_argument("--ei", type=float_list, metavar="LIST", help="EI values (noise-ei), e.g. 0.1,1,10")
     p.add_argument("--outlier-levels", type=float_list, metavar="LIST", help="outlier fractions (outliers)")
@@ -84,7 +85,8 @@ def run(args) -> int:
     workers = args.workers if args.workers is not None else default_workers()
     res = run_experiment(args.name, args.out, cameras=args.cameras, runs=args.runs, seed=args.seed, workers=workers,
                          scheduler=args.scheduler, axes=axes, methods=methods, rig=rig, num_points=args.points,
-                         progress=not args.no_progress, command=_command(args, axes, workers))
+                         progress=not args.no_progress, command=_command(args, axes, workers),
+                         inputs={"--rig": args.rig})
     print(f"{args.name}: {len(res['rows'])} estimates in {res['wall_s']:.1f} s")
     for path in [*res["csv"], *res["images"], res["markdown"]]:
         print(f"  wrote {path}")

@@ -8,6 +8,7 @@ from pathlib import Path
 from ..core.rig import save_rig
 from ..errors import InputError
 from ..kalibr import rig_from_kalibr
+from ..safeio import check_output
 
 
 def register(sub):
@@ -29,14 +30,15 @@ def register(sub):
 
 def run(args) -> int:
     out = Path(args.out)
+    check_output(out, {"CAMCHAIN.yaml": args.camchain, "--imu-chain": args.imu_chain}, "--out")
     if out.exists() and not args.force:
-        raise InputError(str(out), "already exists (use --force to overwrite)")
+        raise InputError("--out", f"{out} already exists (use --force to overwrite)")
     rig, notes = rig_from_kalibr(args.camchain, args.imu_chain, body_frame=args.body_frame,
                                  imu_topic=args.imu_topic, frame_id=args.frame_id)
     header = (f"rig imported by nrmpc import-kalibr from {args.camchain}"
               + (f" and {args.imu_chain}" if args.imu_chain else "")
               + "\nALL BARS ARE RIGID: add 'bar: {mass: KG, EI: N_M2}' to every camera on a flexible bar.")
-    save_rig(rig, out, header=header)
+    save_rig(rig, out, header=header, flag="--out")
     print(f"wrote {out}: {rig.num_cameras} cameras", file=sys.stderr)
     for note in notes:
         print(f"  note: {note}", file=sys.stderr)

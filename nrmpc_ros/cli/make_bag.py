@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -20,7 +21,9 @@ from ..core.rig import load_rig, save_rig
 from ..errors import InputError
 from ..render.bagmaker import BagOptions
 from ..render.sequence import CAPTURES, PROFILES, MotionOptions
+from ..safeio import atomic_directory, check_outputs
 from ..sim.synthetic import LAYOUTS, RigSpec, make_rig
+from .argtypes import seed
 from .simulate import _load_scenario_file
 
 MOTION_ALIASES = {"static": "holds", "continuous": "stream"}  # --motion: the older name of --capture
@@ -110,7 +113,7 @@ def register(sub):
                     help="bars ring after each move with this damping ratio in (0, 1), e.g. 0.03, at their natural "
                          "frequency sqrt(3 EI / (m L^3)) / (2 pi) (default: none, quasi-static bending)")
     se = p.add_argument_group("sensors and output")
-    se.add_argument("--seed", type=int, help="seed of everything random (default 0)")
+    se.add_argument("--seed", type=seed, help="seed of everything random (default 0)")
     se.add_argument("--image-noise", type=float, help=f"pixel noise std, grey levels (default {d['image_noise']:g})")
     se.add_argument("--imu-noise", type=float, help=f"accelerometer noise std m/s^2 (default {d['imu_noise']:g})")
     se.add_argument("--gyro-noise", type=float, help=f"gyro noise std rad/s (default {d['gyro_noise']:g})")
@@ -128,7 +131,8 @@ def register(sub):
                     help=f"S x S rays per pixel: each pixel integrates its area as a sensor does; 1 samples its "
                          f"centre only, which aliases fine texture (default {d['supersample']})")
     se.add_argument("--storage", choices=sorted(STORAGES), help="rosbag2 storage (default sqlite3)")
-    se.add_argument("--out", metavar="DIR", help="output bag directory (must not exist; required)")
+    se.add_argument("--out", metavar="DIR", help="output bag directory (must not exist; required); it appears "
+                    "complete or not at all")
     se.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run, make_bag_parser=p)
 
@@ -260,15 +264,14 @@ def bag_options(o: dict):
 
 
 def _check_outputs(o: dict, scenario) -> None:
-    """--save-rig must not overwrite an input, and its directory must exist (checked before rendering)."""
-    if not o["save_rig"]:
-        return
-    target = Path(o["save_rig"]).resolve()
-    for name, path in (("--rig", o["rig"]), ("--scenario", scenario)):
-        if path and Path(path).resolve() == target:
-            raise InputError("--save-rig", f"would overwrite the input {name} file {path}")
-    if not target.parent.is_dir():
-        raise InputError("--save-rig", f"no such directory {target.parent}")
+    """Neither output may touch an input, --out must not exist yet and --save-rig's directory must (checked
+    before rendering)."""
+    check_outputs({"--out": o["out"], "--save-rig": o["save_rig"]}, {"--rig": o["rig"], "--scenario": scenario},
+                  directories=("--out",))
+    if os.path.lexists(o["out"]):
+        raise InputError("--out", f"{o['out']} already exists; remove it or choose another path")
+    if o["save_rig"] and not Path(o["save_rig"]).resolve().parent.is_dir():
+        raise InputError("--save-rig", f"no such directory {Path(o['save_rig']).resolve().parent}")
 
 
 def run(args) -> int:
@@ -279,9 +282,10 @@ def run(args) -> int:
     opts = bag_options(o)
     opts.validate()
     _check_outputs(o, getattr(args, "scenario", None))
-    summary = make_bag(rig, o["out"], opts, progress=not o["no_progress"])
+    with atomic_directory(o["out"], flag="--out") as work:  # readers see no bag or a complete one
+        summary = make_bag(rig, work, opts, progress=not o["no_progress"])
     if o["save_rig"]:
-        save_rig(rig, o["save_rig"], header="rig written by nrmpc make-bag")
+        save_rig(rig, o["save_rig"], header="rig written by nrmpc make-bag", flag="--save-rig")
     traj = summary["trajectory"]
     tilts = [math.degrees(math.acos(max(-1.0, min(1.0, float(R[2, 2]))))) for R in traj.R]
     print(f"wrote {o['out']}: {summary['views']} holds, {summary['frames']} triggers ({opts.motion.capture}) x "

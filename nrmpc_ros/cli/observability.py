@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..safeio import atomic_write, check_output
+from .argtypes import seed
 from .simulate import (
     _check_mode_flags,
     add_scenario_arguments,
@@ -38,7 +40,7 @@ def register(sub):
                     "observable to --accuracy-deg.")
     p.add_argument("--samples", type=int, default=30, help="geometries (gravity direction + motion) averaged "
                    "(default 30)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the geometries (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the geometries (default 0)")
     p.add_argument("--gravity-prior-sigma", type=float, default=None,
                    help="add measured gravity in both views with this angular std (rad), as 4pt-bending's prior "
                         "(default inf: vision only; with --sequence the scenario's gravity noise, 0.3 deg, and the "
@@ -48,7 +50,8 @@ def register(sub):
                    help="log-spaced EI values of the sweep (default 0.01,1000,21)")
     p.add_argument("--accuracy-deg", type=float, default=1.0,
                    help="required gravity accuracy (RMS bound, degrees) for the EI limit (default 1)")
-    p.add_argument("--out", default=".", help="directory for the sweep's PNG and CSV (default: .)")
+    p.add_argument("--out", default=".", help="directory for the sweep's PNG and CSV (default: .; each written "
+                   "atomically)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_scenario_arguments(p, with_gravity=False)
     add_sequence_arguments(p, sequence_help="bounds of each hold's gravity over a recording of K holds (joint "
@@ -96,8 +99,15 @@ def run(args) -> int:
     _check_mode_flags(args, args.sequence)
     if args.sequence:
         return run_sequence(args)
-    sc, rig, _ = scenario_from_args(args)
+    sc, rig, extras = scenario_from_args(args)
     _check_common(args, sc.pixel_noise)
+    outdir = Path(args.out)
+    png, csv_path = outdir / "observability_ei.png", outdir / "observability_ei.csv"
+    if args.sweep_ei:
+        inputs = {"--rig": args.rig, "--scenario": args.scenario, "rig_file of --scenario": extras.get("rig_file")}
+        check_output(outdir, inputs, "--out", directory=True)
+        for path in (png, csv_path):
+            check_output(path, inputs, "--out")
     if args.gravity_prior_sigma is None:
         args.gravity_prior_sigma = math.inf
     the_rig = rig if rig is not None else make_rig(sc.rig)
@@ -119,10 +129,7 @@ def run(args) -> int:
         rows = sweep_ei(rig, sc, eis, args.samples, args.seed)
         acc = math.radians(args.accuracy_deg)
         limit = ei_limit(eis, [r["gravity_rms"] for r in rows], acc)
-        outdir = Path(args.out)
-        outdir.mkdir(parents=True, exist_ok=True)
-        png, csv_path = outdir / "observability_ei.png", outdir / "observability_ei.csv"
-        with open(csv_path, "w", newline="") as fh:
+        with atomic_write(csv_path, newline="", flag="--out") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows([{k: f"{v:.6g}" for k, v in r.items()} for r in rows])

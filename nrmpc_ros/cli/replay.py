@@ -5,13 +5,11 @@ from __future__ import annotations
 import math
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-import yaml
 
-from ..bag.reader import BagReader
-from ..config import from_mapping
+from ..bag.reader import BagReader, bag_root
+from ..config import from_mapping, load_mapping
 from ..core import load_rig
 from ..errors import InputError
 from ..frontend.droplog import DropLog
@@ -23,6 +21,8 @@ from ..frontend.runner import PipelineRunner
 from ..frontend.topics import bag_image_topics
 from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
+from ..safeio import check_outputs
+from .argtypes import nonnegative_seconds, positive_int, seed
 
 
 def register(sub):
@@ -45,12 +45,12 @@ def register(sub):
                    "sequence, ...)")
     p.add_argument("--imu-topic", help="IMU topic (default: the rig file's imu.topic)")
     p.add_argument("--no-imu", action="store_true", help="ignore the IMU (auto then runs 6pt-bending)")
-    p.add_argument("--sync-tolerance", type=float, default=None,
+    p.add_argument("--sync-tolerance", type=nonnegative_seconds, default=None,
                    help="camera stamps of one set lie within +- this (s) of the set's median stamp (default: 0.45 "
                         "of the smallest camera frame period, estimated from the stamps)")
-    p.add_argument("--queue-size", type=int, default=None,
+    p.add_argument("--queue-size", type=positive_int, default=None,
                    help=f"synchronizer queue depth per camera (default {FeederConfig().queue_size})")
-    p.add_argument("--seed", type=int, default=0, help="RANSAC seed")
+    p.add_argument("--seed", type=seed, default=0, help="RANSAC seed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", action="store_true", help="print only the statistics, not every estimate")
     p.set_defaults(func=run)
@@ -67,18 +67,10 @@ def check_tum_flags(args, bag) -> None:
 
 
 def load_config(path, seed: int) -> PipelineConfig:
-    d = {}
-    if path:
-        try:
-            d = yaml.safe_load(Path(path).read_text()) or {}
-        except OSError as exc:
-            raise InputError(str(path), f"cannot read ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise InputError(str(path), f"not valid YAML ({exc})") from None
-        if not isinstance(d, dict):
-            raise InputError(str(path), "expected a mapping of pipeline settings")
+    """The pipeline settings of the --config file (errors name the file and the key); its seed wins over --seed."""
+    d = dict(load_mapping(path, "pipeline settings file")) if path else {}
     d.setdefault("seed", seed)
-    return PipelineConfig.from_dict(d, source=str(path or "pipeline config"))
+    return from_mapping(PipelineConfig, d, str(path or "--seed"))
 
 
 def input_config(args) -> FeederConfig:
@@ -96,6 +88,8 @@ def input_config(args) -> FeederConfig:
 
 
 def run(args) -> int:
+    check_outputs({"--out": args.out, "--batch": args.batch, "--tum": args.tum, "--tum-gt": args.tum_gt},
+                  {"BAG": bag_root(args.bag), "--rig": args.rig, "--config": args.config})
     rig = load_rig(args.rig)
     cfg = load_config(args.config, args.seed)
     t_start = time.perf_counter()
@@ -113,27 +107,21 @@ def run(args) -> int:
         check_camera_info(bag, rig, warn)
         runner = PipelineRunner(rig, cfg, method=args.method, drops=DropLog(math.inf))  # counts, first ones warned
         replay = BagReplay(bag, rig, runner, imu_topic, input_config(args), warn, image_topics)
-        writer = CsvWriter(args.out)
         rows = []
-        try:
+        with CsvWriter(args.out, "--out") as writer:  # becomes --out only when the whole run succeeds
             for estimates in replay.run(progress=not args.no_progress):
                 for est in estimates:
                     row = row_from_estimate(est)
                     writer.write(row)
                     rows.append(row)
-        finally:
-            writer.close()
-        batch = []
-        if args.batch:
-            method = rows[-1].method if rows else args.method
-            batch = batch_rows(runner.pipeline.batch(), method)
-            bw = CsvWriter(args.batch)
-            try:
-                for row in batch:
-                    bw.write(row)
-            finally:
-                bw.close()
-        ref = read_reference(bag, imu_topic)
+            ref = read_reference(bag, imu_topic, warn)
+            batch = []
+            if args.batch:
+                method = rows[-1].method if rows else args.method
+                batch = batch_rows(runner.pipeline.batch(), method)
+                with CsvWriter(args.batch, "--batch") as bw:
+                    for row in batch:
+                        bw.write(row)
     elapsed = time.perf_counter() - t_start
     ev = evaluate(rows, ref, rig)
     st = runner.stats

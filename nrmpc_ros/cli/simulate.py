@@ -13,6 +13,11 @@ from flags, from a YAML scenario file (the fields of
 :class:`nrmpc_ros.sim.sequence.SequenceScenario`, plus optional ``seed``,
 ``count`` and ``rig_file``), or both (flags win).
 
+Outputs: --out is a directory that may already hold other files (several
+runs write into one), so it is not replaced as a whole; each file is written
+atomically instead (complete or absent, never half-written), and every file
+name is checked against the inputs before the first one is written.
+
 The argument helpers here are shared with ``nrmpc observability``.
 """
 
@@ -23,9 +28,10 @@ import json
 import math
 from pathlib import Path
 
-import yaml
-
+from ..config import load_mapping
 from ..errors import InputError
+from ..safeio import atomic_write, check_output
+from .argtypes import positive_int, seed
 
 # flag dest -> Scenario field or "rig.<RigSpec field>"
 _RIG_FLAGS = {
@@ -45,6 +51,7 @@ _SEQUENCE_FLAGS = {
     "gravity_measured": "gravity_measured", "max_translation": "max_translation",
 }
 _EXTRA_KEYS = ("seed", "count", "rig_file")
+MAX_COUNT = 100_000  # problems per run: each is its own pair of files
 
 
 def add_scenario_arguments(p, with_gravity=True) -> None:
@@ -75,17 +82,8 @@ def add_scenario_arguments(p, with_gravity=True) -> None:
 
 
 def _load_scenario_file(path: str) -> dict:
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except FileNotFoundError:
-        raise InputError(path, "no such scenario file") from None
-    except yaml.YAMLError as exc:
-        raise InputError(path, f"not valid YAML ({exc})") from None
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise InputError(path, "a scenario file must be a mapping of Scenario fields")
-    return data
+    """The mapping of a scenario file, read through nrmpc_ros.safeio (size, encoding and YAML bounds)."""
+    return load_mapping(path, "scenario file")
 
 
 def _check_keys(source, d: dict, allowed, prefix=""):
@@ -149,7 +147,15 @@ def _scenario_from_args(args, scenario_cls, flags: dict, validate):
     if "layout" not in r and r.get("num_cameras", 4) != 4:
         r["layout"] = "ring"
     if "resolution" in r:
-        r["resolution"] = tuple(r["resolution"])
+        res = r["resolution"]
+        if not (isinstance(res, (list, tuple)) and len(res) == 2 and all(_integer(v) and v >= 1 for v in res)):
+            raise InputError(source, f"expected [width, height] in pixels, got {res!r}", "rig.resolution")
+        r["resolution"] = tuple(res)
+    for key in ("seed", "count"):
+        if key in extras and not (_integer(extras[key]) and extras[key] >= (0 if key == "seed" else 1)):
+            raise InputError(source, f"must be an integer >= {0 if key == 'seed' else 1}, got {extras[key]!r}", key)
+    if "rig_file" in extras and not isinstance(extras["rig_file"], str):
+        raise InputError(source, f"must be a path, got {extras['rig_file']!r}", "rig_file")
     try:
         sc = scenario_cls.from_dict(d)
     except TypeError as exc:
@@ -175,9 +181,30 @@ def _need(source: str, ok: bool, field: str, msg: str) -> None:
         raise InputError(source, msg, field)
 
 
+def _integer(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _real(x) -> bool:
+    """A number a scenario field may hold: int or float, never a bool, and not NaN."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and not (isinstance(x, float) and math.isnan(x))
+
+
+def _check_types(source: str, obj, prefix: str, strings: tuple) -> None:
+    """Every field of a scenario dataclass is a number (int or float, not a bool), or a string for ``strings``."""
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if f.name in strings:
+            _need(source, isinstance(v, str), prefix + f.name, f"must be a string, got {v!r}")
+        elif f.name not in ("rig", "resolution"):
+            _need(source, _real(v), prefix + f.name, f"must be a number, got {v!r}")
+
+
 def _validate_rig_spec(r, source: str) -> None:
     """RigSpec values make_rig can use; InputError names the field."""
-    _need(source, isinstance(r.num_cameras, int) and r.num_cameras >= 1, "rig.num_cameras", "must be an integer >= 1")
+    _need(source, _integer(r.num_cameras) and 1 <= r.num_cameras <= 1000, "rig.num_cameras",
+          "must be an integer in 1..1000")
+    _check_types(source, r, "rig.", ("layout", "looking"))
     try:
         r.validate()
     except ValueError as exc:
@@ -196,7 +223,9 @@ def _validate(sc, source: str) -> None:
         _need(source, ok, field, msg)
 
     _validate_rig_spec(sc.rig, source)
-    need(isinstance(sc.num_points, int) and sc.num_points >= 1, "num_points", "must be an integer >= 1")
+    _check_types(source, sc, "", ("gravity_frame",))
+    need(_integer(sc.num_points) and 1 <= sc.num_points <= 10_000_000, "num_points",
+         "must be an integer in 1..10000000")
     need(sc.num_points >= sc.rig.num_cameras, "num_points", "must be at least the number of cameras")
     need(0 <= sc.pixel_noise < math.inf, "pixel_noise", "must be finite and >= 0 (px)")
     need(0 <= sc.outlier_fraction < 1, "outlier_fraction", "must be in [0, 1)")
@@ -252,9 +281,10 @@ def register(sub):
                     "with --sequence sequences of static views with landmark tracks, and writes rig.yaml, "
                     "<prefix>_NNN.npz and <prefix>_NNN.truth.json into --out. "
                     "Solve pairs with: nrmpc solve --rig OUT/rig.yaml --method 4pt-bending OUT/*.npz")
-    p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--seed", type=int, help="seed of the first problem (default 0); problem k uses seed + k")
-    p.add_argument("--count", type=int, help="number of problems (default 1)")
+    p.add_argument("--out", required=True, help="output directory (created if missing); each file in it is written "
+                   "atomically")
+    p.add_argument("--seed", type=seed, help="seed of the first problem (default 0); problem k uses seed + k")
+    p.add_argument("--count", type=positive_int, help="number of problems (default 1)")
     p.add_argument("--prefix", help="file name prefix (default: pair, or seq with --sequence)")
     add_scenario_arguments(p)
     add_sequence_arguments(p)
@@ -271,35 +301,37 @@ def run(args) -> int:
     seed = args.seed if args.seed is not None else int(extras.get("seed", 0))
     count = args.count if args.count is not None else int(extras.get("count", 1))
     prefix = args.prefix if args.prefix is not None else ("seq" if sequence else "pair")
-    if count < 1:
-        raise InputError("--count", f"must be >= 1, got {count}")
-    if not prefix or "/" in prefix:
+    if count > MAX_COUNT:
+        raise InputError("--count" if args.count is not None else args.scenario, f"must be <= {MAX_COUNT}, got "
+                         f"{count}", None if args.count is not None else "count")
+    if not prefix or "/" in prefix or prefix in (".", ".."):
         raise InputError("--prefix", f"must be a plain file name prefix, got {prefix!r}")
     out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(str(out), f"cannot create the output directory ({exc})") from None
+    width = max(3, len(str(count - 1)))
+    names = [f"{prefix}_{k:0{width}d}" for k in range(count)]
+    inputs = {"--rig": args.rig, "--scenario": args.scenario, "rig_file of --scenario": extras.get("rig_file")}
+    check_output(out, inputs, "--out", directory=True)
+    for path in [out / "rig.yaml"] + [out / f"{n}{ext}" for n in names for ext in (".npz", ".truth.json")]:
+        check_output(path, inputs, "--out")
     rig = rig if rig is not None else make_rig(sc.rig)
     rig_path = out / "rig.yaml"
-    save_rig(rig, rig_path, header=f"written by nrmpc simulate; scenario: {json.dumps(sc.to_dict())}")
-    width = max(3, len(str(count - 1)))
-    for k in range(count):
+    save_rig(rig, rig_path, header=f"written by nrmpc simulate; scenario: {json.dumps(sc.to_dict())}", flag="--out")
+    for k, name in enumerate(names):
         s = seed + k
-        name = f"{prefix}_{k:0{width}d}"
         if sequence:
             from ..core.tracks import save_tracks
             from ..sim.sequence import make_sequence
 
             seq = make_sequence(sc, seed=s, rig=rig)
-            save_tracks(seq.tracks, out / f"{name}.npz")
+            save_tracks(seq.tracks, out / f"{name}.npz", flag="--out")
             truth = {"tracks": f"{name}.npz", "rig": "rig.yaml", "seed": s, **seq.truth_dict()}
         else:
             problem = make_problem(sc, seed=s, rig=rig)
-            save_matches(problem.matches, out / f"{name}.npz")
+            save_matches(problem.matches, out / f"{name}.npz", flag="--out")
             truth = {"matches": f"{name}.npz", "rig": "rig.yaml", "seed": s, **problem.truth_dict()}
         truth["scenario"] = _jsonable(sc.to_dict())
-        (out / f"{name}.truth.json").write_text(json.dumps(truth) + "\n")
+        with atomic_write(out / f"{name}.truth.json", flag="--out") as fh:
+            fh.write(json.dumps(truth) + "\n")
     kind = "sequence" if sequence else "problem"
     print(f"wrote {rig_path} and {count} {kind}(s) {prefix}_*.npz / .truth.json to {out}")
     return 0

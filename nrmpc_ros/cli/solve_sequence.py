@@ -10,15 +10,17 @@ ends the command with one error before any result is written.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from ..core import METHODS, load_rig
 from ..core.tracks import load_tracks
 from ..errors import InputError
+from ..safeio import atomic_write, check_output
+from .argtypes import seed
 
 
 def register(sub):
@@ -31,7 +33,7 @@ def register(sub):
                     "vision only.")
     p.add_argument("--rig", required=True, help="rig YAML file")
     p.add_argument("--method", required=True, choices=METHODS)
-    p.add_argument("--seed", type=int, default=0, help="seed of the pairwise starts (default 0, must be >= 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the pairwise starts (default 0, must be >= 0)")
     p.add_argument("--options", metavar="FILE.yaml",
                    help="SequenceOptions fields as a YAML mapping (e.g. max_iterations: 30; estimator: "
                         "{gravity_prior_sigma: 0.005}); unset fields keep their defaults")
@@ -42,22 +44,12 @@ def register(sub):
 
 def load_options(path: str | None):
     """SequenceOptions from a YAML mapping of its fields (defaults without a file); errors name file and key."""
+    from ..config import from_file
     from ..core.sequence import SequenceOptions
-    from ..safeio import load_yaml
 
     if path is None:
         return SequenceOptions()
-    return SequenceOptions.from_dict(load_yaml(path, what="sequence options file"), source=path)
-
-
-def _check_out(out: str, inputs: list[str]) -> None:
-    """--out must not be one of the inputs (no command writes into its inputs)."""
-    target = Path(out).resolve()
-    for path in inputs:
-        if Path(path).resolve() == target:
-            raise InputError("--out", f"{out} is also an input of this command; choose another output file")
-    if target.is_dir():
-        raise InputError("--out", f"{out} is a directory; give a file name")
+    return from_file(SequenceOptions, path, "sequence options file")
 
 
 def _needs_gravity(tracks, path: str) -> None:
@@ -95,10 +87,8 @@ def result_json(est, path: str) -> dict:
 def run(args) -> int:
     from ..core.sequence import estimate_sequence
 
-    if args.seed < 0:
-        raise InputError("--seed", f"must be >= 0, got {args.seed}")
     if args.out:
-        _check_out(args.out, [args.rig, *([args.options] if args.options else []), *args.tracks])
+        check_output(args.out, {"--rig": args.rig, "--options": args.options, "TRACKS.npz": args.tracks}, "--out")
     rig = load_rig(args.rig)
     opts = load_options(args.options)
     sequences = []
@@ -108,20 +98,10 @@ def run(args) -> int:
         if args.method == "4pt-bending":
             _needs_gravity(tracks, path)
         sequences.append((path, tracks))
-    if args.out:
-        try:
-            out = open(args.out, "w")
-        except OSError as exc:
-            raise InputError("--out", f"cannot write {args.out} ({exc.strerror or exc})") from None
-    else:
-        out = sys.stdout
-    try:
+    with atomic_write(args.out, flag="--out") if args.out else contextlib.nullcontext(sys.stdout) as out:
         for path, tracks in sequences:
             est = estimate_sequence(rig, tracks, args.method, seed=args.seed, options=opts)
             out.write(json.dumps(result_json(est, path), allow_nan=False) + "\n")
             out.flush()
-    finally:
-        if args.out:
-            out.close()
     return 0
 

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from ..safeio import MiB, load_npz
+from ..safeio import MiB, atomic_write, load_npz
 from .deformation import gravity_from_camera
 from .rig import MAX_CAMERAS, Rig
 
@@ -218,6 +217,8 @@ def load_matches(path, rig: Rig | None = None) -> Matches:
     return m
 
 
-def save_matches(m: Matches, path) -> None:
-    """Write a matches .npz (docs/CONVENTIONS.md (Files))."""
-    np.savez(Path(path), **m.to_npz_dict())
+def save_matches(m: Matches, path, flag: str | None = None) -> None:
+    """Write a matches .npz (docs/CONVENTIONS.md (Files)) atomically (:func:`~nrmpc_ros.safeio.atomic_write`);
+    ``flag`` names the option in errors."""
+    with atomic_write(path, "wb", flag=flag) as fh:
+        np.savez(fh, **m.to_npz_dict())

@@ -10,13 +10,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
 import yaml
 
 from ..errors import InputError
-from ..safeio import YAML_MAX_BYTES, load_yaml
+from ..safeio import YAML_MAX_BYTES, atomic_write, load_yaml
 from .so3 import matrix_to_quat_xyzw, quat_xyzw_to_matrix, skew
 
 CAMERA_MODELS = ("pinhole", "equidistant")
@@ -198,12 +197,14 @@ def _default_info_topic(image_topic: str) -> str:
     return f"{head}{sep}camera_info"
 
 
-def save_rig(rig: Rig, path, header: str | None = None) -> None:
-    """Write a rig YAML file (docs/CONVENTIONS.md (Files)); ``header`` lines become comments."""
+def save_rig(rig: Rig, path, header: str | None = None, flag: str | None = None) -> None:
+    """Write a rig YAML file (docs/CONVENTIONS.md (Files)) atomically (:func:`~nrmpc_ros.safeio.atomic_write`);
+    ``header`` lines become comments, ``flag`` names the option in errors."""
     text = yaml.safe_dump(rig.to_dict(), sort_keys=False, default_flow_style=None)
     if header:
         text = "".join(f"# {line}\n" for line in header.splitlines()) + text
-    Path(path).write_text(text)
+    with atomic_write(path, flag=flag) as fh:
+        fh.write(text)
 
 
 # ---------------------------------------------------------------------------

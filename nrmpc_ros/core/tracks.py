@@ -11,19 +11,20 @@ the estimators ignore it.
 
 from __future__ import annotations
 
-import zipfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ..safeio import MiB, atomic_write, load_npz
 from .matches import Matches, _bearings
 from .rig import Rig
 
 _REQUIRED = ("view", "cam", "track", "f")
 _KEYS = set(_REQUIRED) | {"g_meas"}
 _INT64_MAX = np.iinfo(np.int64).max
+TRACKS_MAX_BYTES = 1024 * MiB  # a recording of hundreds of holds with ~1000 tracks each is ~100 MB
+TRACKS_MAX_ARRAY_BYTES = 256 * MiB  # one array, uncompressed: ~11 million bearings
 
 
 @dataclass
@@ -144,6 +145,7 @@ def _indices(src, key, value, n) -> np.ndarray:
             first = int(np.argmax(bad))
             raise InputError(src, f"expected integers, got dtype {a.dtype} with {int(bad.sum())} non-integer "
                              f"values (first: entry {first} = {a[first].item()!r})", key)
+        a = a.astype(np.float64)  # float16 cannot hold the bound below: compare in float64
     if n and a.min() < 0:
         first = int(np.argmax(a < 0))
         raise InputError(src, f"negative index at entry {first} ({a[first].item()!r})", key)
@@ -219,49 +221,23 @@ def validate_tracks(t: Tracks) -> None:
     t.num_views = K
 
 
-def _read_npz(path) -> dict:
-    """All arrays of an .npz archive (no pickles), with one clear error for anything unreadable."""
-    src = str(path)
-    p = Path(path)
-    try:
-        if p.is_dir():
-            raise InputError(src, "is a directory, not a tracks .npz file")
-        size = p.stat().st_size
-    except FileNotFoundError:
-        raise InputError(src, "no such tracks file") from None
-    except OSError as exc:
-        raise InputError(src, f"cannot read the tracks file ({exc})") from None
-    if size == 0:
-        raise InputError(src, "empty file (0 bytes), not a tracks .npz file")
-    try:
-        z = np.load(p, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise InputError(src, f"not a readable .npz file ({exc})") from None
-    if not isinstance(z, np.lib.npyio.NpzFile):
-        raise InputError(src, "holds a single .npy array, not an .npz archive of named arrays")
-    data = {}
-    with z:
-        for key in z.files:
-            try:
-                data[key] = z[key]
-            except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-                raise InputError(src, f"array cannot be read ({exc})", key) from None
-    return data
-
-
 def load_tracks(path) -> Tracks:
-    """Load and validate a tracks .npz (keys view, cam, track, f and optional g_meas); bearings are normalised."""
+    """Load and validate a tracks .npz (keys view, cam, track, f and optional g_meas); bearings are normalised.
+
+    Read through :func:`nrmpc_ros.safeio.load_npz` (size limits checked before anything is unpacked, no
+    pickle, only the known keys); every problem is one InputError naming the file and the key.
+    """
     src = str(path)
-    data = _read_npz(path)
+    data = load_npz(path, what="tracks file", max_bytes=TRACKS_MAX_BYTES, max_array_bytes=TRACKS_MAX_ARRAY_BYTES,
+                    allowed_keys=_KEYS)
     for key in _REQUIRED:
         if key not in data:
             raise InputError(src, "missing required array", key)
-    unknown = sorted(set(data) - _KEYS)
-    if unknown:
-        raise InputError(src, f"unknown array (allowed: {', '.join(sorted(_KEYS))})", unknown[0])
     return Tracks(data["view"], data["cam"], data["track"], data["f"], data.get("g_meas"), source=src)
 
 
-def save_tracks(t: Tracks, path) -> None:
-    """Write a tracks .npz (the arrays of :meth:`Tracks.to_npz_dict`)."""
-    np.savez(Path(path), **t.to_npz_dict())
+def save_tracks(t: Tracks, path, flag: str | None = None) -> None:
+    """Write a tracks .npz (the arrays of :meth:`Tracks.to_npz_dict`) atomically
+    (:func:`~nrmpc_ros.safeio.atomic_write`); ``flag`` names the option in errors."""
+    with atomic_write(path, "wb", flag=flag) as fh:
+        np.savez(fh, **t.to_npz_dict())

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..core.rig import Rig
 from ..core.tracks import Tracks
+from ..safeio import atomic_write
 from ..sim.sequence import SequenceProblem, SequenceScenario, make_sequence
 from ..sim.synthetic import Scenario, make_problem, make_rig
 from .crlb import KINDS, Bound, problem_bound, sequence_bound, set_bar_ei, summarize_bounds
@@ -114,8 +115,11 @@ def plot_sweep(rows: list[dict], accuracy_rad: float, limit: float | None, path,
     ax.legend(fontsize=7)
     ax.grid(True, which="both", lw=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    try:
+        with atomic_write(path, "wb", flag="--out") as fh:
+            fig.savefig(fh, format="png", dpi=80)
+    finally:
+        plt.close(fig)
 
 
 def first_holds(problem: SequenceProblem, K: int) -> SequenceProblem:

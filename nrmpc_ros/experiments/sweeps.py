@@ -23,6 +23,7 @@ import numpy as np
 from ..core import METHODS
 from ..core.rig import Rig
 from ..errors import InputError
+from ..safeio import atomic_write, check_output
 from ..sim.synthetic import RigSpec, Scenario
 from .crlb import set_bar_ei
 from .runner import ERROR_KINDS, Task, execute, summarize, task_seed
@@ -117,9 +118,10 @@ def make_tasks(exp: Experiment, cameras: int, runs: int, seed: int, axes: dict |
 # ---------------------------------------------------------------------------
 
 def write_csv(rows: list[dict], path: Path) -> None:
+    """Rows as CSV, written atomically (nrmpc_ros.safeio.atomic_write)."""
     if not rows:
         return
-    with open(path, "w", newline="") as fh:
+    with atomic_write(path, newline="", flag="--out") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         for r in rows:
@@ -133,6 +135,17 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def _save_png(fig, path: Path) -> None:
+    with atomic_write(path, "wb", flag="--out") as fh:
+        fig.savefig(fh, format="png", dpi=80)
+
+
+def output_files(name: str, stem: Path) -> list[Path]:
+    """Every file an experiment writes beside ``stem`` (``<out>/<name>-<M>cam``): CSVs, plots, markdown."""
+    images = ["_errors.png", "_success.png"] if name == "noise-ei" else [".png"]
+    return [stem.with_name(stem.name + suffix) for suffix in ("_runs.csv", "_summary.csv", *images, ".md")]
 
 
 def _series(summary, method, axis, fixed: dict, stat: str):
@@ -176,7 +189,7 @@ def plot_noise_ei(summary, axes: dict, methods, path: Path, title: str) -> list[
     fig.suptitle(f"{title}: mean (solid) and median (dashed) over successful runs", fontsize=9)
     fig.tight_layout(rect=(0, 0.06, 1, 0.97))
     p1 = path.with_name(path.name + "_errors.png")
-    fig.savefig(p1, dpi=80)
+    _save_png(fig, p1)
     plt.close(fig)
 
     noises = sorted(axes["pixel_noise"])
@@ -197,7 +210,7 @@ def plot_noise_ei(summary, axes: dict, methods, path: Path, title: str) -> list[
     fig.suptitle(f"{title}: success rate (rotation < 0.5 rad and translation < 0.2 rad)", fontsize=9)
     fig.tight_layout()
     p2 = path.with_name(path.name + "_success.png")
-    fig.savefig(p2, dpi=80)
+    _save_png(fig, p2)
     plt.close(fig)
     return [p1, p2]
 
@@ -230,7 +243,7 @@ def plot_line(summary, axis: str, methods, path: Path, title: str) -> list[Path]
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     p = path.with_name(path.name + ".png")
-    fig.savefig(p, dpi=80)
+    _save_png(fig, p)
     plt.close(fig)
     return [p]
 
@@ -291,8 +304,11 @@ def markdown(exp: Experiment, summary, settings: dict, images: list[Path], keys:
 def run_experiment(name: str, out_dir, cameras: int = 4, runs: int = QUICK_RUNS, seed: int = 0, workers: int = 1,
                    scheduler: str | None = None, axes: dict | None = None, methods: tuple | None = None,
                    rig: Rig | None = None, num_points: int | None = None, progress: bool = True,
-                   command: str | None = None) -> dict:
-    """Run one experiment and write ``<name>-<M>cam_{runs,summary}.csv``, PNG plots and ``<name>-<M>cam.md``."""
+                   command: str | None = None, inputs: dict | None = None) -> dict:
+    """Run one experiment and write ``<name>-<M>cam_{runs,summary}.csv``, PNG plots and ``<name>-<M>cam.md``.
+
+    ``out_dir`` may hold other files, so each output is written atomically on its own (complete or absent);
+    none may be one of ``inputs`` ({flag: path}, checked before anything runs)."""
     if name not in EXPERIMENTS:
         raise InputError("experiment", f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
     exp = EXPERIMENTS[name]
@@ -301,8 +317,10 @@ def run_experiment(name: str, out_dir, cameras: int = 4, runs: int = QUICK_RUNS,
     tasks, cells = make_tasks(exp, cameras, runs, seed, axes, methods, rig, num_points)
     cameras = tasks[0].params["cameras"]
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     stem = out / f"{name}-{cameras}cam"
+    check_output(out, inputs or {}, "--out", directory=True)
+    for path in output_files(name, stem):
+        check_output(path, inputs or {}, "--out")
     t0 = time.perf_counter()
     rows = execute(tasks, workers=workers, scheduler=scheduler, progress=progress, desc=f"{name} ({cameras} cams)")
     wall = time.perf_counter() - t0
@@ -324,7 +342,8 @@ def run_experiment(name: str, out_dir, cameras: int = 4, runs: int = QUICK_RUNS,
         "wall time": f"{wall:.1f} s", "rig": rig.source if rig is not None else "simulated (paper set-up)",
     }
     md = stem.with_name(stem.name + ".md")
-    md.write_text(markdown(exp, summary, settings, images, keys[1:]))
+    with atomic_write(md, flag="--out") as fh:
+        fh.write(markdown(exp, summary, settings, images, keys[1:]))
     return {"rows": rows, "summary": summary, "wall_s": wall, "markdown": md, "images": images,
             "csv": [stem.with_name(stem.name + "_runs.csv"), stem.with_name(stem.name + "_summary.csv")]}
 

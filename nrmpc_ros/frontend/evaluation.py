@@ -11,9 +11,10 @@ prints them and :func:`plot_errors` draws them.
 from __future__ import annotations
 
 import csv
+import io
 import math
+import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -22,7 +23,9 @@ from ..core.metrics import pose_errors
 from ..core.rig import Rig
 from ..core.so3 import angle_between, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from ..errors import InputError
+from ..safeio import AtomicFile, MiB, atomic_write, read_text
 from .images import stamp_seconds
+from .topics import IMU_TYPE, POSE_TYPE, VECTOR_TYPE, check_topic_type, same_type
 
 CSV_HEADER = ["stamp", "ref_stamp", "method", "qx", "qy", "qz", "qw", "tx", "ty", "tz", "gx", "gy", "gz",
               "num_inliers", "time_ms"]
@@ -32,6 +35,7 @@ CSV_EXTRA = ["gravity_sigma_deg", "num_observations", *ORIGIN_COLUMNS, "sequence
              "links_descriptor"]
 GT_POSE_TOPIC = "/ground_truth/pose"
 GT_GRAVITY_TOPIC = "/ground_truth/gravity"
+CSV_MAX_BYTES = 256 * MiB  # a row per hold is ~500 bytes: half a million holds, far beyond any recording
 STAMP_TOLERANCE_S = 0.02  # ground truth is matched to an estimate's stamp within this (cameras may jitter)
 
 
@@ -89,17 +93,30 @@ def _fmt(x) -> str:
 
 
 class CsvWriter:
-    """Writes estimate rows (the header of docs/CONVENTIONS.md, then the extra columns), one flush per row."""
+    """Writes estimate rows (the header of docs/CONVENTIONS.md, then the extra columns), one flush per row.
 
-    def __init__(self, path):
+    The rows go to a temporary file beside ``path`` (:class:`~nrmpc_ros.safeio.AtomicFile`), flushed after
+    every row so a long run's progress can be watched there; :meth:`close` renames it onto ``path`` and
+    :meth:`discard` drops it, leaving an earlier ``path`` as it was. As a context manager it closes when the
+    block ends normally and discards when it raises. ``flag`` names the option in errors.
+    """
+
+    def __init__(self, path, flag: str | None = None):
         self.path = str(path)
-        try:
-            Path(path).parent.mkdir(parents=True, exist_ok=True)
-            self._f = open(path, "w", newline="")
-        except OSError as exc:
-            raise InputError(self.path, f"cannot write ({exc.strerror})") from None
+        self._out = AtomicFile(path, "w", flag=flag, newline="")
+        self._f = self._out.file
         self._w = csv.writer(self._f)
         self._w.writerow(CSV_HEADER + CSV_EXTRA)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.close()
+        else:
+            self.discard()
+        return False
 
     def write(self, row: EstimateRow) -> None:
         q = matrix_to_quat_xyzw(row.R)
@@ -114,43 +131,61 @@ class CsvWriter:
         self._f.flush()
 
     def close(self) -> None:
-        self._f.close()
+        """Finish the file: the rows written so far become ``path``."""
+        self._out.commit()
+
+    def discard(self) -> None:
+        """Drop the rows: ``path`` keeps what it held before (or stays absent)."""
+        self._out.discard()
 
 
 def read_csv(path) -> list:
-    """Rows of an estimates CSV; InputError naming the file, line and column when malformed."""
+    """Rows of an estimates CSV; InputError naming the file, line and column when malformed.
+
+    Read through :func:`nrmpc_ros.safeio.read_text`: UTF-8 text of at most ``CSV_MAX_BYTES``.
+    """
     src = str(path)
-    try:
-        f = open(path, newline="")
-    except OSError as exc:
-        raise InputError(src, f"cannot read ({exc.strerror})") from None
+    text = read_text(path, what="estimates CSV", max_bytes=CSV_MAX_BYTES)
     rows = []
-    with f:
-        reader = csv.reader(f)
-        try:
-            header = next(reader, None)
-        except (csv.Error, UnicodeDecodeError) as exc:
-            raise InputError(src, f"not a CSV text file ({exc})", "header") from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = next(reader, None)
         if header is None or header[: len(CSV_HEADER)] != CSV_HEADER:
-            raise InputError(src, f"not an estimates CSV: the header must start with {','.join(CSV_HEADER)}", "header")
-        try:
-            for line, rec in enumerate(reader, start=2):
-                if rec:
-                    rows.append(_row(src, line, dict(zip(header, rec)), header))
-        except (csv.Error, UnicodeDecodeError) as exc:
-            raise InputError(src, f"not a CSV text file ({exc})") from None
+            raise InputError(src, f"not an estimates CSV: the header must start with {','.join(CSV_HEADER)}",
+                             "header")
+        if len(set(header)) != len(header):
+            raise InputError(src, "not an estimates CSV: a column name repeats", "header")
+        for rec in reader:
+            if rec:
+                rows.append(_row(src, reader.line_num, rec, header))
+    except csv.Error as exc:
+        raise InputError(src, f"line {reader.line_num}: not valid CSV ({exc})") from None
     return rows
 
 
-def _row(src: str, line: int, d: dict, header: list) -> EstimateRow:
-    try:
-        num = {k: float(d[k]) for k in CSV_HEADER if k not in ("method", "gx", "gy", "gz")}
-        g = None if d["gx"] == "" else np.array([float(d[k]) for k in ("gx", "gy", "gz")])
-    except (KeyError, ValueError) as exc:
-        raise InputError(src, f"line {line}: bad or missing number ({exc})") from None
-    bad = [k for k, v in num.items() if not math.isfinite(v)] + ([] if g is None or np.isfinite(g).all() else ["gx"])
-    if bad:
-        raise InputError(src, f"line {line}: must be finite", bad[0])
+def _row(src: str, line: int, rec: list, header: list) -> EstimateRow:
+    if len(rec) != len(header):
+        raise InputError(src, f"line {line}: {len(rec)} columns, the header has {len(header)} (a truncated or "
+                              f"edited file?)")
+    d = dict(zip(header, rec))
+
+    def number(key):
+        try:
+            v = float(d[key])
+        except ValueError:
+            raise InputError(src, f"line {line}: not a number: {d[key]!r}", key) from None
+        if not math.isfinite(v):
+            raise InputError(src, f"line {line}: must be finite, got {d[key]!r}", key)
+        return v
+
+    num = {k: number(k) for k in CSV_HEADER if k not in ("method", "gx", "gy", "gz")}
+    g = None
+    if any(d[k] != "" for k in ("gx", "gy", "gz")):
+        g = np.array([number(k) for k in ("gx", "gy", "gz")])
+        if not np.linalg.norm(g) > 0:
+            raise InputError(src, f"line {line}: gravity is a zero vector (leave gx, gy, gz empty for none)", "gx")
+    if not (num["num_inliers"] >= 0 and num["num_inliers"].is_integer()):
+        raise InputError(src, f"line {line}: must be an integer >= 0, got {d['num_inliers']!r}", "num_inliers")
     q = np.array([num["qx"], num["qy"], num["qz"], num["qw"]])
     if abs(np.linalg.norm(q) - 1) > 1e-3:
         raise InputError(src, f"line {line}: quaternion must have unit norm", "qx")
@@ -204,9 +239,24 @@ def _vec(v) -> list:
     return [float(v.x), float(v.y), float(v.z)]
 
 
-def read_reference(bag, imu_topic: str | None = "/imu/data") -> Reference:
-    """IMU (if ``imu_topic`` is in the bag) and /ground_truth/* (if present) of a :class:`BagReader`."""
+def _warn(msg: str) -> None:
+    print(f"nrmpc: warning: {msg}", file=sys.stderr)
+
+
+def read_reference(bag, imu_topic: str | None = "/imu/data", warn=_warn) -> Reference:
+    """IMU (if ``imu_topic`` is in the bag) and /ground_truth/* (if present) of a :class:`BagReader`.
+
+    The IMU topic must carry sensor_msgs/Imu (InputError naming the topic otherwise). Ground truth is
+    optional: a ground-truth topic of another type than the one nrmpc make-bag writes is ignored with one
+    ``warn`` each, and so are samples that are not finite (or a pose with a zero quaternion).
+    """
+    if imu_topic:
+        check_topic_type(bag, imu_topic, IMU_TYPE, bag.source, "the IMU", imu_topic)
     topics = [t for t in (imu_topic, GT_POSE_TOPIC, GT_GRAVITY_TOPIC) if t and bag.has_topic(t)]
+    for topic, expected in ((GT_POSE_TOPIC, POSE_TYPE), (GT_GRAVITY_TOPIC, VECTOR_TYPE)):
+        if topic in topics and not same_type(bag.topics[topic][0], expected):
+            warn(f"{bag.source}: ground truth {topic} carries {bag.topics[topic][0]}, not {expected}: ignored")
+            topics.remove(topic)
     imu, pose, grav = [], [], []
     for topic, _, msg in bag.messages(topics):
         st = stamp_seconds(msg)
@@ -226,11 +276,13 @@ def read_reference(bag, imu_topic: str | None = "/imu/data") -> Reference:
     if pose:
         a = np.array(pose, dtype=float)
         a = a[np.argsort(a[:, 0], kind="stable")]
+        a = a[np.all(np.isfinite(a), axis=1) & (np.linalg.norm(a[:, 4:8], axis=1) > 1e-9)]
         ref.pose_t, ref.pose_p = a[:, 0], a[:, 1:4]
-        ref.pose_R = np.array([quat_xyzw_to_matrix(q / np.linalg.norm(q)) for q in a[:, 4:8]])
+        ref.pose_R = np.array([quat_xyzw_to_matrix(q / np.linalg.norm(q)) for q in a[:, 4:8]]).reshape(-1, 3, 3)
     if grav:
         a = np.array(grav, dtype=float)
         a = a[np.argsort(a[:, 0], kind="stable")]
+        a = a[np.all(np.isfinite(a), axis=1) & (np.linalg.norm(a[:, 1:4], axis=1) > 0)]
         ref.grav_t, ref.grav_g = a[:, 0], a[:, 1:4]
     return ref
 
@@ -386,8 +438,10 @@ def format_report(ev: Evaluation, per_estimate: bool = True) -> str:
     return "\n".join(lines)
 
 
-def plot_errors(ev: Evaluation, path) -> None:
-    """PNG: gravity error over time (vs IMU and ground truth, and the IMU's own) and relative-pose errors."""
+def plot_errors(ev: Evaluation, path, flag: str | None = None) -> None:
+    """PNG: gravity error over time (vs IMU and ground truth, and the IMU's own) and relative-pose errors.
+
+    Written atomically (:func:`~nrmpc_ros.safeio.atomic_write`); ``flag`` names the option in errors."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -414,9 +468,7 @@ def plot_errors(ev: Evaluation, path) -> None:
             ax.legend(fontsize=8)
     fig.tight_layout()
     try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=100)
-    except OSError as exc:
-        raise InputError(str(path), f"cannot write plot ({exc.strerror})") from None
+        with atomic_write(path, "wb", flag=flag) as fh:
+            fig.savefig(fh, format="png", dpi=100)
     finally:
         plt.close(fig)

@@ -25,7 +25,7 @@ from .droplog import DropLog
 from .feeder import Feeder, FeederConfig
 from .pipeline import Pipeline, PipelineConfig
 from .runner import PipelineRunner
-from .topics import bag_image_topics, bag_topic
+from .topics import CAMERA_INFO_TYPE, IMU_TYPE, bag_image_topics, bag_topic, check_topic_type
 
 
 def _stderr_warn(msg: str) -> None:
@@ -54,14 +54,20 @@ def resolve_imu_topic(bag: BagReader, rig: Rig, requested: str | None = None, us
                              f"is needed here (topics: {bag.describe_topics()})", topic)
         warn(f"IMU topic {topic!r} not in the bag (topics: {bag.describe_topics()}); running without IMU")
         return None
+    source, field = ("--imu-topic", None) if requested else (rig.source, "imu.topic")
+    check_topic_type(bag, topic, IMU_TYPE, source, "the IMU", field)
     return topic
 
 
 def check_camera_info(bag: BagReader, rig: Rig, warn: Callable = _stderr_warn) -> list:
     """Warn about each camera whose first CameraInfo in the bag disagrees with the rig file (the rig file wins);
-    returns the warnings."""
+    returns the warnings. A CameraInfo topic of another type is an error naming the rig file's key."""
     topics = {bag_topic(c.info_topic): c for c in rig.cameras if c.info_topic}
     topics = {t: c for t, c in topics.items() if bag.has_topic(t)}
+    for i, cam in enumerate(rig.cameras):
+        if cam.info_topic and bag_topic(cam.info_topic) in topics:
+            check_topic_type(bag, bag_topic(cam.info_topic), CAMERA_INFO_TYPE, rig.source,
+                             f"camera {cam.name}'s CameraInfo", f"cameras[{i}].info_topic")
     seen, out = set(), []
     for topic, _, msg in bag.messages(list(topics)):
         if topic in seen:

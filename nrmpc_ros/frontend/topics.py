@@ -10,6 +10,10 @@ the :class:`ImageTopic`'s ``note``. Neither present: one
 topics the bag has. The topic used having another type is an error too. Decoding is
 :func:`nrmpc_ros.frontend.images.decode_image`'s job (it takes both types).
 
+The other topics a bag is read for have one message type each (the
+``*_TYPE`` constants); :func:`check_topic_type` refuses a topic of another
+type with one error naming the topic, before any message is decoded.
+
 For the node's ``image_transport: auto``, :func:`choose_transport` makes the
 same choice from the topic names and types it sees on the graph; with neither
 published yet it takes the raw topic (and waits for it).
@@ -30,6 +34,10 @@ from ..errors import InputError
 RAW_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 COMPRESSED_SUFFIX = "/compressed"
+IMU_TYPE = "sensor_msgs/msg/Imu"
+CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+VECTOR_TYPE = "geometry_msgs/msg/Vector3Stamped"
 
 
 @dataclass(frozen=True)
@@ -62,6 +70,20 @@ def _kind(msgtype: str) -> str | None:
     """'raw' or 'compressed' for the image message types (ROS 2 or ROS 1 spelling), else None."""
     name = str(msgtype).replace("/msg/", "/")
     return {"sensor_msgs/Image": "raw", "sensor_msgs/CompressedImage": "compressed"}.get(name)
+
+
+def same_type(msgtype: str, expected: str) -> bool:
+    """Whether ``msgtype`` is ``expected``, in its ROS 2 (pkg/msg/Name) or ROS 1 (pkg/Name) spelling."""
+    return str(msgtype).replace("/msg/", "/") == expected.replace("/msg/", "/")
+
+
+def check_topic_type(bag, topic: str, expected: str, source: str, what: str, field: str | None = None) -> None:
+    """InputError naming ``source`` (and ``field``) when ``topic`` is in the open bag with another type than
+    ``expected``; ``what`` says what the topic was meant to carry ("the IMU")."""
+    have = bag.topics.get(topic)
+    if have is not None and not same_type(have[0], expected):
+        raise InputError(source, f"topic {topic!r} ({what}) carries {have[0]} in the bag {bag.source}, not "
+                                 f"{expected}", field)
 
 
 def compressed_topic(topic: str) -> str:
@@ -134,5 +156,6 @@ def choose_transport(topic: str, available: dict, compressed: str | None = None)
     return topic, False
 
 
-__all__ = ["COMPRESSED_TYPE", "RAW_TYPE", "ImageTopic", "bag_image_topics", "bag_topic", "choose_transport",
-           "compressed_topic", "expand_topic", "resolve_image_topics"]
+__all__ = ["CAMERA_INFO_TYPE", "COMPRESSED_TYPE", "IMU_TYPE", "POSE_TYPE", "RAW_TYPE", "VECTOR_TYPE", "ImageTopic",
+           "bag_image_topics", "bag_topic", "check_topic_type", "choose_transport", "compressed_topic", "expand_topic",
+           "resolve_image_topics", "same_type"]

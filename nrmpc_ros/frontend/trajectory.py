@@ -115,13 +115,12 @@ def tum_text(traj: Trajectory) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_tum(path, traj: Trajectory) -> None:
-    """Write one trajectory as a TUM file."""
-    try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        Path(path).write_text(tum_text(traj))
-    except OSError as exc:
-        raise InputError(str(path), f"cannot write ({exc.strerror or exc})") from None
+def write_tum(path, traj: Trajectory, flag: str | None = None) -> None:
+    """Write one trajectory as a TUM file (atomically: :func:`nrmpc_ros.safeio.atomic_write`)."""
+    from ..safeio import atomic_write
+
+    with atomic_write(path, flag=flag) as f:
+        f.write(tum_text(traj))
 
 
 def read_tum(path) -> Trajectory:
@@ -161,7 +160,8 @@ def sequence_errors(rows: list, ref: Reference | None) -> list:
     return out
 
 
-def write_trajectories(rows: list, path, ref: Reference | None = None, gt_path=None) -> list:
+def write_trajectories(rows: list, path, ref: Reference | None = None, gt_path=None,
+                       flags=("--tum", "--tum-gt")) -> list:
     """TUM files of the sequences in ``rows`` (:func:`sequence_paths` of ``path``) and, with ``gt_path``, the
     ground truth in each sequence's origin frame (:func:`sequence_paths` of ``gt_path``; a sequence whose
     holds have no ground truth gets none). Returns :func:`sequence_errors` with the files written:
@@ -171,9 +171,9 @@ def write_trajectories(rows: list, path, ref: Reference | None = None, gt_path=N
     gt_paths = sequence_paths(gt_path, len(seqs)) if gt_path else [None] * len(seqs)
     out = []
     for (traj, gt, err), p, gp in zip(seqs, paths, gt_paths):
-        write_tum(p, traj)
+        write_tum(p, traj, flags[0])
         if gp is not None and gt is not None and len(gt):
-            write_tum(gp, gt)
+            write_tum(gp, gt, flags[1])
         else:
             gp = None
         out.append((traj, gt, err, p, gp))
