@@ -1,4 +1,4 @@
-"""Rig files from Kalibr calibrations (issue 4; rig format of docs/CONVENTIONS.md (Files)).
+"""Rig files from Kalibr calibrations (the rig format of docs/CONVENTIONS.md, Files).
 
 A Kalibr camera chain (``camchain.yaml``, or ``camchain-imucam.yaml`` which
 adds ``T_cam_imu``) lists ``cam0, cam1, ...`` with ``camera_model``

@@ -14,7 +14,7 @@ from nrmpc_ros.sim.synthetic import RigSpec, Scenario, make_problem, make_rig
 
 
 def test_poselib_rigid_pipeline_in_our_conventions():
-    """On a rigid rig without noise PoseLib's answer, converted, is the ground truth (SPEC section 2)."""
+    """On a rigid rig without noise PoseLib's answer, converted, is the ground truth (docs/CONVENTIONS.md (Frames))."""
     sc = Scenario(rig=RigSpec(EI=math.inf), num_points=200, pixel_noise=0.0, outlier_fraction=0.0)
     for seed in range(3):
         p = make_problem(sc, seed)

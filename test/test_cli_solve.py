@@ -1,4 +1,4 @@
-"""`nrmpc solve` round trip (SPEC 9) on files written from the generator."""
+"""`nrmpc solve` round trip (docs/CONVENTIONS.md (Files)) on files written from the generator."""
 
 import json
 import subprocess

@@ -126,7 +126,7 @@ def test_gravity_from_camera_inverts_the_model(cross_rig, rng):
 
 
 def test_gravity_from_accelerometer_body_and_camera_mounts(cross_rig):
-    level = gravity_from_accelerometer(cross_rig, [0.0, 0.0, 9.7])  # a level IMU reads +z (SPEC 4)
+    level = gravity_from_accelerometer(cross_rig, [0.0, 0.0, 9.7])  # a level IMU reads +z
     assert np.allclose(level, G_DOWN)
     R_body_imu = quat_xyzw_to_matrix([0, 0, 1, 0])  # IMU yawed by 180 deg
     rig = replace(cross_rig, imu=ImuMount(mount="body", rotation=R_body_imu))

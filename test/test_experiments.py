@@ -1,4 +1,4 @@
-"""Monte Carlo runner and ``nrmpc experiment`` (issue 3): determinism, executors, statistics, outputs."""
+"""Monte Carlo runner and ``nrmpc experiment``: determinism, executors, statistics, outputs."""
 
 import csv
 import math

@@ -1,4 +1,4 @@
-"""ImuBuffer: averaged accelerometer -> gravity (SPEC section 4), stillness, NaN, gaps, maximum age."""
+"""ImuBuffer: averaged accelerometer -> gravity (docs/CONVENTIONS.md, Gravity measurements), NaN, gaps, age."""
 
 import math
 from dataclasses import replace

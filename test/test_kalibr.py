@@ -1,4 +1,5 @@
-"""``nrmpc import-kalibr``: Kalibr camchains (plain and OpenCV %YAML:1.0) to rig files (issue 4; SPEC section 7)."""
+"""``nrmpc import-kalibr``: Kalibr camchains (plain and OpenCV %YAML:1.0) to rig files
+(docs/CONVENTIONS.md, Files)."""
 
 import json
 

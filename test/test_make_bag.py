@@ -89,7 +89,7 @@ def test_imu_reads_minus_gravity_when_still(clean_bag):
         assert np.linalg.norm(g) == pytest.approx(9.81)
         k = np.searchsorted(imu_t, t)
         assert imu_t[k] == t
-        assert np.allclose(acc[k], -g, atol=1e-9), "a = -g (SPEC section 4), body-mounted identity IMU"
+        assert np.allclose(acc[k], -g, atol=1e-9), "a = -g, body-mounted identity IMU"
         assert np.allclose(gravity_from_accelerometer(rig, acc[k]), g)
         assert np.allclose(gyro[k], 0.0)
     # Gravity is tilted 10-40 deg from the body's -z, and the rig turns between views (the gyro sees it).
@@ -183,7 +183,8 @@ def test_existing_output_is_an_error(tmp_path, capsys):
 
 
 def test_imu_inside_a_camera_bends_with_it(tmp_path):
-    """An IMU mounted in camera 0 reads a = -W_0(g)^T g (rotated into the IMU); SPEC section 4 recovers g."""
+    """An IMU mounted in camera 0 reads a = -W_0(g)^T g (rotated into the IMU); gravity_from_accelerometer
+    (docs/CONVENTIONS.md, Gravity measurements) recovers g."""
     rig_path = tmp_path / "rig.yaml"
     d = make_rig(RigSpec(num_cameras=2, layout="line", EI=0.15, focal=470.0)).to_dict()
     s = 0.5**0.5

@@ -1,4 +1,4 @@
-"""PoseLib's minimal solvers behind our conventions (SPEC 2: p1 = R p2 + t)."""
+"""PoseLib's minimal solvers behind our conventions (docs/CONVENTIONS.md (Frames): p1 = R p2 + t)."""
 
 import numpy as np
 

@@ -40,7 +40,7 @@ def test_right_jacobian_first_order(rng):
 
 def test_quaternion_round_trip_and_spec_example():
     V = quat_xyzw_to_matrix([0.5, -0.5, 0.5, -0.5])
-    # SPEC 7 example: camera looks along body +x, image down = body -z
+    # docs/CONVENTIONS.md (Frames) example: camera looks along body +x, image down = body -z
     assert np.allclose(V[:, 2], [1, 0, 0]) and np.allclose(V[:, 1], [0, 0, -1])
     q = matrix_to_quat_xyzw(V)
     assert np.allclose(quat_xyzw_to_matrix(q), V)

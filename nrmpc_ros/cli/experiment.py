@@ -1,4 +1,4 @@
-"""``nrmpc experiment noise-ei|outliers|gravity-noise``: the paper's section 4 Monte Carlo studies (issue 3)."""
+"""``nrmpc experiment noise-ei|outliers|gravity-noise``: the paper's section 4 Monte Carlo studies."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``nrmpc import-kalibr``: write a rig file (docs/CONVENTIONS.md (Files)) from a Kalibr camera chain (issue 4)."""
+"""``nrmpc import-kalibr``: write a rig file (docs/CONVENTIONS.md (Files)) from a Kalibr camera chain."""
 
 from __future__ import annotations
 

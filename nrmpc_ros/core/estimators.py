@@ -1,4 +1,4 @@
-"""The three estimators of SPEC section 5: 6pt-nonbending, 6pt-bending, 4pt-bending.
+"""The three estimators (docs/CONVENTIONS.md, Estimators): 6pt-nonbending, 6pt-bending, 4pt-bending.
 
 Each is RANSAC (ours, with a PoseLib minimal solver) followed by the robust
 bundle adjustment of :mod:`.bundle`. ``estimate`` is the stable entry point.
@@ -113,7 +113,7 @@ class Estimate:
         return self.R.T @ self.gravity
 
     def to_json(self, matches_path: str | None = None) -> dict:
-        """The SPEC section 7 result object; a failed estimate also says why (``reason``, from ``info``)."""
+        """The result object of docs/CONVENTIONS.md (Python API); a failed estimate also says why (``reason``)."""
         out = {
             "matches": matches_path,
             "method": self.method,
@@ -498,7 +498,7 @@ _METHODS = {
 
 def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int = 0,
              options: EstimatorOptions | dict | None = None, *, gravity_hint=None) -> Estimate:
-    """Relative pose (R, t) and, for the bending methods, gravity from two views (SPEC section 5).
+    """Relative pose (R, t) and, for the bending methods, gravity from two views (docs/CONVENTIONS.md (Estimators)).
 
     ``seed`` makes RANSAC deterministic. Raises EstimationError / InputError for
     an unknown method, 4pt-bending without gravity measurements, or matches

@@ -111,7 +111,7 @@ def camera_rotations(m: Matches, num_cameras: int, threshold_rad: float, seed: i
 def _body_rotation_from_cameras(rig: Rig, cams, Rc, weights, g1, R0, iterations=3):
     """For each gravity hypothesis g1 (K, 3): the body rotation agreeing best with all cameras, and the cost.
 
-    With W_j(g) = Exp(phi_j(g)) V_j (SPEC 3), each camera's estimate of R is
+    With W_j(g) = Exp(phi_j(g)) V_j (docs/CONVENTIONS.md (Bending)), each camera's estimate of R is
     W_j(g1) Rc_j W_j(R^T g1)^T = Exp(phi_j(g1)) (V_j Rc_j V_j^T) Exp(phi_j(R^T g1))^T.
     """
     V = rig.rotations[cams]
@@ -212,7 +212,7 @@ def _translations(o1, d1, o2, d2, R, rounds=3):
     """Least-squares t from the generalized epipolar constraint, linear in t for fixed R and rays,
     batched over leading dimensions (rays (..., N, 3), R (..., 3, 3)).
 
-    l1^T G l2 = t . (R d2 x d1) + d1 . (R m2) + m1 . (R d2) = 0 (SPEC section 3);
+    l1^T G l2 = t . (R d2 x d1) + d1 . (R m2) + m1 . (R d2) = 0 (docs/CONVENTIONS.md (Bending));
     re-weighting rounds damp the influence of residual outliers.
     """
     RT = np.swapaxes(R, -1, -2)

@@ -4,7 +4,7 @@ All methods run one after the other in this process on the same seeded
 problems (the paper's nominal case by default), so their times are
 comparable: ``time_s`` is the wall time of :func:`nrmpc_ros.core.estimate`
 and, for PoseLib, of ``poselib.estimate_generalized_relative_pose`` alone
-(the conversion of its inputs is not timed). Errors are SPEC section 6;
+(the conversion of its inputs is not timed). Errors are docs/CONVENTIONS.md (Errors and success);
 error/CRLB divides the median error by the median-angle Cramér-Rao bound of
 the same problems (:mod:`.crlb`), so an efficient estimator scores ~1.
 """
@@ -73,7 +73,8 @@ def poselib_inputs(rig: Rig, m: Matches):
 
 
 def run_poselib(rig: Rig, m: Matches, threshold_px: float, seed: int = 0):
-    """(R, t, time_s) of PoseLib's rigid pipeline in SPEC section 2 conventions; (None, None, 0) if invalid input."""
+    """(R, t, time_s) of PoseLib's rigid pipeline in our frames (docs/CONVENTIONS.md, Frames); (None, None, 0) if
+    the input is invalid."""
     import poselib
 
     try:
@@ -173,7 +174,7 @@ def format_table(res: dict) -> str:
     bound = ", ".join(f"{k} {1e3 * c[k]['median']:.3g}" for k in ERROR_KINDS)
     lines.append("")
     lines.append(f"medians over all {res['runs']} runs (a run without a pose counts as pi); success: rotation < 0.5 "
-                 "rad and translation < 0.2 rad (SPEC 6)")
+                 "rad and translation < 0.2 rad (docs/CONVENTIONS.md (Errors and success))")
     lines.append(f"CRLB (median angle of an efficient estimator, mrad): {bound}")
     return "\n".join(lines)
 

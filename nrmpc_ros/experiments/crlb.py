@@ -1,4 +1,4 @@
-"""Cramér-Rao lower bounds on rotation, translation direction and gravity (issue 3, ``nrmpc observability``).
+"""Cramér-Rao lower bounds on rotation, translation direction and gravity (``nrmpc observability``).
 
 The measurement model is the one the refinement uses (docs/CONVENTIONS.md (Estimators), paper
 eq. 15): the tangent-plane (angular) residuals of both bearings of every

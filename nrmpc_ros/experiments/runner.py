@@ -1,4 +1,4 @@
-"""Monte Carlo runner: a grid of scenarios x seeded runs x methods, locally or on a Dask cluster (issue 3).
+"""Monte Carlo runner: a grid of scenarios x seeded runs x methods, locally or on a Dask cluster.
 
 A :class:`Task` is one seeded synthetic problem (one grid cell, one run) on
 which every requested method runs, so all methods see the same data. Tasks

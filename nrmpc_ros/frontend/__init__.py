@@ -1,4 +1,4 @@
-"""Front end: images and IMU samples in, relative pose and gravity estimates out (issue 4).
+"""Front end: images and IMU samples in, relative pose and gravity estimates out.
 
 ``Pipeline`` (:mod:`.pipeline`) is shared by ``nrmpc replay`` and the ROS 2
 node; :mod:`.sync` groups per-camera messages, :mod:`.images` decodes them,
