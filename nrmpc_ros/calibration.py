@@ -35,7 +35,7 @@ class BarCalibration:
 
     groups: np.ndarray  # (M,) camera -> group index, -1 = rigid mount (not calibrated)
     compliance: np.ndarray  # (G,)
-    std: np.ndarray  # (G,)
+    std: np.ndarray  # (G,) reported std: the larger of the formal and the jackknife one
     observable: np.ndarray  # (G,) bool
     num_sequences: int  # independent sequences (a view pair is a sequence of two views)
     num_views: int
@@ -43,6 +43,8 @@ class BarCalibration:
     iterations: int
     cost: float
     notes: list = field(default_factory=list)
+    std_formal: np.ndarray | None = None  # from the reduced information alone (white pixel noise)
+    std_jackknife: np.ndarray | None = None  # delete-a-group jackknife over the holds (NaN: too few holds)
 
     def calibrated_rig(self, rig: Rig) -> Rig:
         """The rig with EI = mass / compliance for observable bars; other bars keep their values."""
@@ -134,7 +136,7 @@ def calibrate_bars(rig: Rig, pairs: list, shared: bool = False, gravity_sigma_ra
 
 def calibrate_sequences(rig: Rig, sequences: list, shared: bool = False, bias_sigma_rad: float | None = 0.005,
                         max_iterations: int = 50, significance: float = 3.0, threshold_px: float = 2.0,
-                        rounds: int = 4) -> BarCalibration:
+                        rounds: int = 4, resample_groups: int = 10) -> BarCalibration:
     """Estimate bar compliance from sequences of holds with measured gravity (``SequenceRecord`` each, see
     :meth:`nrmpc_ros.core.incremental.IncrementalSequence.sequences`), started from their poses and gravity.
 
@@ -142,16 +144,49 @@ def calibrate_sequences(rig: Rig, sequences: list, shared: bool = False, bias_si
     current compliance and re-chosen while it changes; each sequence keeps one gravity, every view's
     measurement is a prior of its own std, and the accelerometer's constant tilt is estimated with prior std
     ``bias_sigma_rad`` (None: no tilt).
+
+    The standard deviations: the formal ones (inverse of the reduced information, white pixel noise) and,
+    with ``resample_groups`` > 1 and enough holds, the delete-a-group jackknife over the holds (the holds
+    split into that many groups, the calibration repeated without each), which also sees errors shared by
+    the observations of one hold (its averaged tracks' small biases, a hold not fully settled); the larger
+    of the two is reported.
     """
     groups = _groups(rig, shared)
     G = int(groups.max()) + 1
     if G <= 0:
         raise EstimationError(f"{rig.source}: no camera sits on a bar (all at the body centre); nothing to calibrate")
+    seqs = [rec for rec in sequences if rec.tracks.g_meas is not None and rec.gravity is not None]
+    if not seqs:
+        raise EstimationError("no sequence of two holds or more with measured gravity for bar calibration")
+    L = np.linalg.norm(rig.positions, axis=1)
+    k0 = rig.compliance.copy()
+    k0 = np.where(k0 > 0, k0, 2e-3 / (np.maximum(L, 1e-3) ** 2 * rig.gravity_magnitude))
+    kg0 = np.array([k0[groups == gi].mean() for gi in range(G)])
+    fit = _fit_sequences(rig, seqs, groups, kg0, bias_sigma_rad, max_iterations, threshold_px, rounds)
+    kg, res, it = fit["compliance"], fit["result"], fit["iterations"]
+    cov = res.covariance[res.layout.compliance, res.layout.compliance]
+    std_formal = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.all(np.isfinite(cov)) else np.full(G, np.inf)
+    std_jack = _jackknife_std(rig, seqs, groups, fit, bias_sigma_rad, max_iterations, threshold_px,
+                              resample_groups)
+    std = np.maximum(std_formal, np.nan_to_num(std_jack, nan=0.0))
+    observable = (kg > significance * std) & np.isfinite(std)
+    notes = []
+    for gi in range(G):
+        if not observable[gi]:
+            cams = [rig.cameras[i].name for i in np.flatnonzero(groups == gi)]
+            notes.append(f"compliance of {', '.join(cams)} not observable: {kg[gi]:.3g} +- {std[gi]:.2g} "
+                         f"kg/(N m^2) is not significantly different from a rigid mount")
+    return BarCalibration(groups=groups, compliance=kg, std=std, observable=observable, num_sequences=len(seqs),
+                          num_views=fit["num_views"], num_observations=fit["num_observations"], iterations=it,
+                          cost=res.cost, notes=notes, std_formal=std_formal, std_jackknife=std_jack)
+
+
+def _fit_sequences(rig: Rig, seqs: list, groups, kg, bias_sigma_rad, max_iterations, threshold_px, rounds) -> dict:
+    """One calibration from the given compliance and the sequences' poses and gravity (see
+    :func:`calibrate_sequences`)."""
     parts, R, t, g, meas, sig = [], [], [], [], [], []
-    for rec in sequences:
+    for rec in seqs:
         tr = rec.tracks
-        if tr.g_meas is None or rec.gravity is None:
-            continue
         obs, _ = Observations.from_arrays(tr.view, tr.cam, tr.track, tr.f, tr.num_views)
         seen = (np.bincount(obs.point, minlength=obs.num_points) >= 2)[obs.point]
         parts.append(obs.subset(seen)[0])
@@ -160,15 +195,9 @@ def calibrate_sequences(rig: Rig, sequences: list, shared: bool = False, bias_si
         g.append(rec.gravity)
         meas.append(tr.measured_gravity(rig))
         sig.append(rec.measured_sigma)
-    if not parts:
-        raise EstimationError("no sequence of two holds or more with measured gravity for bar calibration")
     obs = Observations.concatenate(parts)
     R, t, g = np.concatenate(R), np.concatenate(t), np.array(g)
     priors = GravityPriors(np.concatenate(meas), np.concatenate(sig), bias_sigma_rad)
-    L = np.linalg.norm(rig.positions, axis=1)
-    k0 = rig.compliance.copy()
-    k0 = np.where(k0 > 0, k0, 2e-3 / (np.maximum(L, 1e-3) ** 2 * rig.gravity_magnitude))
-    kg = np.array([k0[groups == gi].mean() for gi in range(G)])
     focal = float(np.mean([c.focal_px for c in rig.cameras]))
     res, it, bias = None, 0, None
     for rnd in range(rounds):
@@ -186,18 +215,59 @@ def calibrate_sequences(rig: Rig, sequences: list, shared: bool = False, bias_si
         it += res.iterations
         if rnd >= 1 and np.all(np.abs(kg - k_before) <= 0.01 * np.maximum(np.abs(kg), 1e-12)):
             break
-    cov = res.covariance[res.layout.compliance, res.layout.compliance]
-    std = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.all(np.isfinite(cov)) else np.full(G, np.inf)
-    observable = (kg > significance * std) & np.isfinite(std)
-    notes = []
-    for gi in range(G):
-        if not observable[gi]:
-            cams = [rig.cameras[i].name for i in np.flatnonzero(groups == gi)]
-            notes.append(f"compliance of {', '.join(cams)} not observable: {kg[gi]:.3g} +- {std[gi]:.2g} "
-                         f"kg/(N m^2) is not significantly different from a rigid mount")
-    return BarCalibration(groups=groups, compliance=kg, std=std, observable=observable, num_sequences=len(parts),
-                          num_views=obs.num_views, num_observations=len(obs), iterations=it, cost=res.cost,
-                          notes=notes)
+    return {"compliance": kg, "result": res, "iterations": it, "num_views": obs.num_views,
+            "num_observations": len(obs), "R": R, "t": t, "gravity": g}
+
+
+def _without_views(rec, drop: set):
+    """The sequence record without the views in ``drop`` (None if fewer than two remain); the first view kept
+    becomes the origin: the poses and the origin's gravity are re-expressed in its body frame."""
+    from .core.incremental import SequenceRecord
+
+    keep = [k for k in range(rec.tracks.num_views) if k not in drop]
+    if len(keep) < 2:
+        return None
+    R0, t0 = rec.R[keep[0]], rec.t[keep[0]]
+    R = np.einsum("ji,njk->nik", R0, rec.R[keep])
+    t = np.einsum("ji,nj->ni", R0, rec.t[keep] - t0)
+    return SequenceRecord(rec.tracks.views_subset(keep), R, t, R0.T @ rec.gravity,
+                          np.asarray(rec.measured_sigma)[keep])
+
+
+def _jackknife_std(rig: Rig, seqs: list, groups, fit: dict, bias_sigma_rad, max_iterations, threshold_px,
+                   num_groups: int) -> np.ndarray:
+    """Delete-a-group jackknife std of the compliance over the holds (NaN where it cannot be formed)."""
+    G = len(fit["compliance"])
+    views = [(s, k) for s, rec in enumerate(seqs) for k in range(rec.tracks.num_views)]
+    J = min(int(num_groups), len(views))
+    if J < 3:
+        return np.full(G, np.nan)
+    # the full solution's poses and gravity start every replicate (they differ from it by one group of holds)
+    start, n = [], 0
+    for rec in seqs:
+        m = rec.tracks.num_views
+        start.append(type(rec)(rec.tracks, fit["R"][n:n + m], fit["t"][n:n + m], fit["gravity"][len(start)],
+                               rec.measured_sigma))
+        n += m
+    order = np.random.default_rng(0).permutation(len(views))  # groups mix holds of every part of the recording
+    estimates = []
+    for j in range(J):
+        drop = {views[i] for i in order[j::J]}
+        part = [_without_views(rec, {k for s2, k in drop if s2 == s}) for s, rec in enumerate(start)]
+        part = [p for p in part if p is not None]
+        if not part:
+            continue
+        try:
+            r = _fit_sequences(rig, part, groups, fit["compliance"].copy(), bias_sigma_rad, max_iterations,
+                               threshold_px, rounds=2)
+        except EstimationError:
+            continue
+        estimates.append(r["compliance"])
+    if len(estimates) < 3:
+        return np.full(G, np.nan)
+    est = np.array(estimates)
+    m = len(est)
+    return np.sqrt((m - 1) / m * np.sum((est - est.mean(axis=0)) ** 2, axis=0))
 
 
 def _apply(rig: Rig, groups, kg) -> Rig:
