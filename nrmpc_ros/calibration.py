@@ -288,7 +288,10 @@ def describe(cal: BarCalibration, rig: Rig) -> str:
         if cal.observable[gi]:
             k, s = cal.compliance[gi], cal.std[gi]
             eis = ", ".join(f"EI {c.mass / k:.4g} N m^2 (mass {c.mass if c.mass > 0 else 1.0:g} kg)" for c in cams)
-            lines.append(f"  {names}: compliance {k:.5g} +- {s:.2g} kg/(N m^2) ({100 * s / k:.1f} %) -> {eis}")
+            why = ""
+            if cal.std_formal is not None and cal.std_jackknife is not None and np.isfinite(cal.std_jackknife[gi]):
+                why = f"; formal {cal.std_formal[gi]:.2g}, jackknife over holds {cal.std_jackknife[gi]:.2g}"
+            lines.append(f"  {names}: compliance {k:.5g} +- {s:.2g} kg/(N m^2) ({100 * s / k:.1f} %{why}) -> {eis}")
         else:
             lines.append(f"  {names}: not observable ({cal.compliance[gi]:.3g} +- {cal.std[gi]:.2g}); left as in "
                          "the rig file")
