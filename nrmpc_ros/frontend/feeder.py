@@ -54,7 +54,7 @@ IMU = "imu"  # stream id of the IMU in the stamp guard (cameras are 0..M-1)
 
 @dataclass
 class FeederConfig:
-    """Stamps, frame grouping and IMU order (docs/CONVENTIONS.md, "Sequences")."""
+    """Stamps, frame grouping and IMU order (README, "The ROS 2 node", Time)."""
 
     sync_tolerance_s: float = option(0.0, "half-width of the stamp window of one frame set (s); 0: 0.45 of the "
                                      "smallest camera frame period, estimated from the stamps", lo=0.0, hi=10.0)

@@ -1,6 +1,6 @@
 """Bad clocks: stamps far in the future are dropped, jumps back in time are confirmed and reported once.
 
-The policy (docs/CONVENTIONS.md, "Sequences"), per input stream (a camera, the IMU):
+The policy (README, "The ROS 2 node", Time), per input stream (a camera, the IMU):
 
 - **Future.** A stamp more than ``max_future_s`` ahead of the present is
   dropped ("stamp in the future"): the node's clock, or the recording time
