@@ -129,8 +129,11 @@ def run(args) -> int:
     if batch:
         evb = evaluate(batch, ref, rig)
         gb = evb.stats("gravity_vs_gt_deg")
-        print(f"batch (all holds at once, {args.batch}): gravity vs ground truth median {gb['median']:.3f} deg "
-              f"(n={gb['n']}); vs IMU median {evb.stats('gravity_vs_imu_deg')['median']:.3f} deg")
+        gi = evb.stats("gravity_vs_imu_deg")
+        parts = [f"vs ground truth median {gb['median']:.3f} deg (n={gb['n']})" if gb["n"] else "",
+                 f"vs IMU median {gi['median']:.3f} deg (n={gi['n']})" if gi["n"] else ""]
+        print(f"batch (all holds at once, {args.batch}): gravity " + ("; ".join(p for p in parts if p) or
+                                                                       f"of {len(batch)} holds written"))
     seqs = write_trajectories(rows, args.tum, ref, args.tum_gt) if args.tum else sequence_errors(rows, ref)
     print(describe_trajectories(seqs))
     d = st.as_dict()
