@@ -213,3 +213,23 @@ def test_rig_without_imu_block_ignores_samples(rig3, stream):
     pipe, ests = run(replace(rig3, imu=None), frames[:40], imu)
     assert ests and all(e.method == "6pt-bending" for e in ests)
     assert pipe.stats.dropped["imu sample ignored: rig file has no imu block"] > 0
+
+
+def test_a_recording_without_any_hold_says_why(rig3, stream):
+    """An IMU that never stops turning: every frame set is counted as not at rest and the report gives the
+    IMU's noise the stillness test used; without the IMU the image motion is named with its numbers."""
+    frames, _ = stream
+    rng = np.random.default_rng(5)
+    t0, t1 = frames[0][0] - 1.0, frames[30][0]
+    spinning = [(float(t), [0.0, 0.0, 9.81] + rng.normal(scale=0.02, size=3), [0.0, 0.0, 0.5])
+                for t in np.arange(t0, t1, 0.005)]
+    pipe, ests = run(rig3, frames[:30], spinning)
+    assert ests == [] and pipe.stats.holds == 0
+    report = pipe.no_hold_report()
+    assert report.startswith("no hold found in 30 frame sets")
+    assert "29 frame sets not at rest: the IMU says the rig moved" in report  # every one after the first
+    assert "IMU stillness test: noise" in report and "m/s^2" in report
+    pipe, _ = run(rig3, [f for f in frames if 101.55 < f[0] < 102.15])  # no IMU, the first move only
+    report = pipe.no_hold_report()
+    assert "0.3 px between two frames" in report and "the images alone decided" in report
+    assert "before the bars settle (2 periods of 0.421 s)" in report, report  # a start too short to be a hold

@@ -148,6 +148,8 @@ def run(args) -> int:
                  if st.ringing_holds else ""))
     if st.dropped:
         print("not estimated: " + "; ".join(f"{k}: {v}" for k, v in sorted(st.dropped.items())))
+    if not st.holds:
+        print(runner.pipeline.no_hold_report() or "no hold found: no frame set reached the pipeline")
     print(f"inputs dropped: {replay.drops.summary()}")
     jumps = replay.feeder.events["time jumps back"]
     if jumps:

@@ -39,6 +39,7 @@ from .tracking import KltTracker, TrackingConfig
 from .zupt import ZuptConfig, ZuptDetector
 
 PIPELINE_METHODS = ("auto",) + METHODS
+_MOTION_KINDS = ("the IMU says the rig moved", "tracks lost", "image moved", "image left the hold")
 
 
 @dataclass
@@ -158,6 +159,7 @@ class Pipeline:
         self._periods: list = []  # recent intervals between frame sets (s)
         self.last_stamp = -math.inf
         self._last_check = -math.inf  # when an open hold's settled part was last measured
+        self._last_motion: dict = {}  # kind of motion -> the latest frame's reason, with its numbers
 
     # ------------------------------------------------------------------ input
     def add_imu(self, stamp: float, accel, gyro=None, covariance=None) -> None:
@@ -239,12 +241,14 @@ class Pipeline:
                 self._reanchor(stamp, images)
             elif self._hold is not None:
                 if len(self._hold) == 1 and self._hold.snapshot:
-                    self.stats.dropped[f"frame not at rest ({why})"] += 1  # the first frame of a moving stream
+                    self._moving(why)  # the first frame of a moving stream
                     self._discard()
                 else:
                     out += self._close()
             elif still:
                 self._open(stamp, images, snapshot=False)
+            else:
+                self._moving(why)
         self.last_stamp = stamp
         out += self._measure_early(stamp)
         return out
@@ -301,6 +305,41 @@ class Pipeline:
         self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot)
         self._record(stamp, images)
         self._last_check = stamp
+
+    def _moving(self, why: str) -> None:
+        """Count a frame that is not at rest by kind of reason (the numbers of the latest one are kept)."""
+        kind = next((k for k in _MOTION_KINDS if k in why), why)
+        self.stats.dropped[f"frame not at rest ({kind})"] += 1
+        self._last_motion[kind] = why
+
+    def no_hold_report(self) -> str:
+        """Why no hold was found (empty once one was): what judged the frames moving, with the numbers."""
+        st = self.stats
+        if st.holds or not st.frames:
+            return ""
+        lines = [f"no hold found in {st.frames} frame sets"]
+        moving = {k: v for k, v in st.dropped.items() if k.startswith("frame not at rest")}
+        for k, n in sorted(moving.items(), key=lambda kv: -kv[1]):
+            kind = k[len("frame not at rest ("):-1]
+            lines.append(f"  {n} frame sets not at rest: {self._last_motion.get(kind, kind)} (the latest)")
+        noise = self.zupt.noise if self.rig.imu is not None and len(self.imu) else None
+        if noise is not None:
+            z = self.config.zupt
+            lines.append(f"  IMU stillness test: noise {max(noise.accel_sigma, z.accel_floor_m_s2):.3g} m/s^2 and "
+                         f"{max(noise.gyro_sigma, z.gyro_floor_rad_s):.3g} rad/s "
+                         f"per sample (from the {noise.source}), false-alarm probability "
+                         f"{self.config.zupt.significance:g} per {self.config.zupt.window_s:g} s window")
+        elif self.rig.imu is not None:
+            lines.append("  no IMU samples were given: the images alone decided")
+        if self.rig.imu is None or not len(self.imu):
+            lines.append(f"  without an IMU a hold starts where the image moves at most "
+                         f"{self.config.holds.still_step_px:g} px between two frames")
+        for k, n in sorted(st.dropped.items()):
+            if k.startswith("hold not used"):
+                lines.append(f"  {n} holds too short or unsettled: {k[len('hold not used: '):]}")
+        if st.frames < 2:
+            lines.append("  a single frame set: a hold of one frame needs the IMU still before it, or no IMU")
+        return "\n".join(lines)
 
     def _settle_window(self) -> float:
         """How long after a stop the bars may still ring (s)."""

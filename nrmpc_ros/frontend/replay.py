@@ -172,8 +172,10 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
     seqs = [s for s in runner.sequences() if s.tracks.g_meas is not None and s.gravity is not None]
     if not seqs:
         dropped = "; ".join(f"{k}: {v}" for k, v in sorted(st.dropped.items())) or "nothing dropped"
+        why = runner.pipeline.no_hold_report()
         raise InputError(bag.source, f"no sequence of holds with IMU gravity on {topic!r} ({st.frames} frame "
-                         f"sets, {st.holds} holds, {st.estimates} estimates; dropped: {dropped})", topic)
+                         f"sets, {st.holds} holds, {st.estimates} estimates; dropped: {dropped})"
+                         + (f"\n{why}" if why else ""), topic)
     return seqs
 
 

@@ -52,7 +52,8 @@ sum of squares divided by chi2.ppf(noise_quantile, k) is an unbiased
 estimate of s^2. The gyro bias and the still norm of the accelerometer come
 from the same quietest windows (their median): a constant slow rotation
 looks like gyro bias, so the still windows must be the majority of the
-quietest ones. A rig that never holds still makes the
+quietest ones, and the bias is bounded by ``max_gyro_bias_rad_s`` (a
+physical bound of MEMS gyros), so that a steady turn stays a motion. A rig that never holds still makes the
 quietest *motion* look like noise: the estimate is too large and motion
 passes as still. Give the covariances (or a known :class:`ImuNoise`) then.
 """
@@ -94,6 +95,9 @@ class ZuptConfig:
                                 hi=3600.0, lo_open=True)
     noise_refresh_s: float = option(10.0, "the noise is estimated again after this much new data (s)", lo=0.0,
                                     hi=3600.0, lo_open=True)
+    max_gyro_bias_rad_s: float = option(0.05, "the gyro bias estimated from the data is at most this (rad/s; MEMS "
+                                        "gyros stay within a few deg/s): a steady turn is motion, not bias",
+                                        lo=0.0, hi=10.0)
 
     def __post_init__(self):
         check(self, "zupt config")
@@ -235,6 +239,9 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     score = rw / max(var_w, cfg.gyro_floor_rad_s ** 2) + ra / max(var_a, cfg.accel_floor_m_s2 ** 2)
     quiet = score <= np.quantile(score, q)
     bias = np.median(mean_w[ok][quiet], axis=0)
+    size = float(np.linalg.norm(bias))
+    if size > cfg.max_gyro_bias_rad_s:  # a rig turning steadily the whole time is moving, whatever its rate
+        bias = bias * (cfg.max_gyro_bias_rad_s / size)
     norm = float(np.median(np.linalg.norm(mean_a[ok][quiet], axis=1)))
     if from_cov:
         return ImuNoise(s_a, s_w, bias, "covariance", norm, period)
