@@ -13,6 +13,7 @@ from . import threads  # noqa: F401 - one BLAS thread, before numpy is imported
 import importlib.util
 import signal
 import sys
+import time
 
 from .core.rig import load_rig
 from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
@@ -38,6 +39,7 @@ except ImportError as _exc:  # pragma: no cover - exercised only without ROS
     rclpy, Node, _RCLPY_ERROR = None, object, _exc
 
 NODE_NAME = "estimator"
+SUMMARY_LINGER_S = 0.5  # after the shutdown summary: time for a reliable /rosout delivery on a busy machine
 
 
 def _sensor_qos(depth: int):
@@ -165,6 +167,7 @@ class EstimatorNode(Node):
         """Stop the worker and log the summary (while the context still carries it to /rosout)."""
         self.service.stop()
         self._log("info", "shutting down: " + self.service.summary())
+        time.sleep(SUMMARY_LINGER_S)  # DDS delivers it to /rosout's subscribers before the context goes
 
 
 def main(argv: list | None = None) -> int:
