@@ -123,12 +123,7 @@ def calibrate_bars(rig: Rig, pairs: list, shared: bool = False, gravity_sigma_ra
     cov = res.covariance[res.layout.compliance, res.layout.compliance]
     std = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.all(np.isfinite(cov)) else np.full(G, np.inf)
     observable = (kg > significance * std) & np.isfinite(std)
-    notes = list(skipped)
-    for gi in range(G):
-        if not observable[gi]:
-            cams = [rig.cameras[i].name for i in np.flatnonzero(groups == gi)]
-            notes.append(f"compliance of {', '.join(cams)} not observable: {kg[gi]:.3g} +- {std[gi]:.2g} "
-                         f"kg/(N m^2) is not significantly different from a rigid mount")
+    notes = list(skipped) + _unobservable_notes(rig, groups, kg, std, observable)
     return BarCalibration(groups=groups, compliance=kg, std=std, observable=observable, num_sequences=len(parts),
                           num_views=obs.num_views, num_observations=len(obs), iterations=it, cost=res.cost,
                           notes=notes)
@@ -170,12 +165,7 @@ def calibrate_sequences(rig: Rig, sequences: list, shared: bool = False, bias_si
                               resample_groups)
     std = np.maximum(std_formal, np.nan_to_num(std_jack, nan=0.0))
     observable = (kg > significance * std) & np.isfinite(std)
-    notes = []
-    for gi in range(G):
-        if not observable[gi]:
-            cams = [rig.cameras[i].name for i in np.flatnonzero(groups == gi)]
-            notes.append(f"compliance of {', '.join(cams)} not observable: {kg[gi]:.3g} +- {std[gi]:.2g} "
-                         f"kg/(N m^2) is not significantly different from a rigid mount")
+    notes = _unobservable_notes(rig, groups, kg, std, observable)
     return BarCalibration(groups=groups, compliance=kg, std=std, observable=observable, num_sequences=len(seqs),
                           num_views=fit["num_views"], num_observations=fit["num_observations"], iterations=it,
                           cost=res.cost, notes=notes, std_formal=std_formal, std_jackknife=std_jack)
@@ -268,6 +258,16 @@ def _jackknife_std(rig: Rig, seqs: list, groups, fit: dict, bias_sigma_rad, max_
     est = np.array(estimates)
     m = len(est)
     return np.sqrt((m - 1) / m * np.sum((est - est.mean(axis=0)) ** 2, axis=0))
+
+
+def _unobservable_notes(rig: Rig, groups, kg, std, observable) -> list:
+    """One note per bar group whose compliance is not significantly different from a rigid mount."""
+    notes = []
+    for gi in np.flatnonzero(~np.asarray(observable)):
+        cams = [rig.cameras[i].name for i in np.flatnonzero(groups == gi)]
+        notes.append(f"compliance of {', '.join(cams)} not observable: {kg[gi]:.3g} +- {std[gi]:.2g} "
+                     f"kg/(N m^2) is not significantly different from a rigid mount")
+    return notes
 
 
 def _apply(rig: Rig, groups, kg) -> Rig:
