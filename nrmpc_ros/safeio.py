@@ -687,3 +687,22 @@ def atomic_directory(path, *, flag: str | None = None):
     with contextlib.suppress(OSError):
         os.rmdir(stage)
     _fsync_dir(dest.parent)
+
+
+def content_digest(path) -> str:
+    """SHA-256 of a file, or of a directory's relative file names and contents; "absent" when it does not
+    exist. Equal digests before and after a command show that it wrote nothing into that input."""
+    import hashlib
+
+    path = Path(path)
+    if not os.path.lexists(path):
+        return "absent"
+    h = hashlib.sha256()
+    if path.is_dir():
+        for p in sorted(path.rglob("*")):
+            h.update(str(p.relative_to(path)).encode())
+            if p.is_file():
+                h.update(p.read_bytes())
+    else:
+        h.update(path.read_bytes())
+    return h.hexdigest()

@@ -23,7 +23,6 @@ unnamed or modified. Takes a few minutes on two cores.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import io
 import os
 import pickle
@@ -41,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+
+from nrmpc_ros.safeio import content_digest
 
 REPO = Path(__file__).resolve().parents[1]
 COLUMNS = ("clear named error", "accepted correctly", "traceback", "silent wrong", "unnamed error", "data modified")
@@ -70,19 +71,7 @@ def nrmpc(*argv, check=True, timeout=600):
     return proc
 
 
-def digest(path: Path) -> str:
-    """Hash of a file, or of a directory's names and file contents; 'absent' when missing."""
-    if not os.path.lexists(path):
-        return "absent"
-    h = hashlib.sha256()
-    if path.is_dir():
-        for p in sorted(path.rglob("*")):
-            h.update(str(p.relative_to(path)).encode())
-            if p.is_file():
-                h.update(p.read_bytes())
-    else:
-        h.update(path.read_bytes())
-    return h.hexdigest()
+digest = content_digest  # a file's or a directory's content, to show nothing was written into it
 
 
 def partials(path: Path) -> list:

@@ -14,8 +14,9 @@ standard deviation (|z| < 3 when the standard deviations cover the errors).
 
 from __future__ import annotations
 
+# isort: off
 import nrmpc_ros.threads  # noqa: F401  (one BLAS thread, before numpy)
-
+# isort: on
 import argparse
 import json
 import sys

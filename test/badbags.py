@@ -3,12 +3,13 @@ bytes do not decode. Each helper works on a copy, so the recording it starts fro
 
 from __future__ import annotations
 
-import hashlib
 import shutil
 import sqlite3
 from pathlib import Path
 
 import yaml
+
+from nrmpc_ros.safeio import content_digest
 
 
 def copy_bag(src: Path, dst: Path) -> Path:
@@ -42,14 +43,4 @@ def corrupt_message(bag: Path, topic: str) -> Path:
     return bag
 
 
-def digest(path: Path) -> str:
-    """Hash of a file, or of a directory's file names and contents (to show nothing was written into it)."""
-    h = hashlib.sha256()
-    if path.is_dir():
-        for p in sorted(path.rglob("*")):
-            h.update(str(p.relative_to(path)).encode())
-            if p.is_file():
-                h.update(p.read_bytes())
-    else:
-        h.update(path.read_bytes())
-    return h.hexdigest()
+digest = content_digest  # a file's or a directory's content, to show nothing was written into it

@@ -179,6 +179,16 @@ def test_rig_from_dict_numeric_perturbations(data):
     _rig_or_input_error(lambda: rig_from_dict(d, SOURCE), SOURCE)
 
 
+def _mutated_text(d: dict, draw) -> str:
+    """YAML of ``d`` with up to three edits of the text (characters inserted, deleted, replaced)."""
+    text = yaml.safe_dump(d, sort_keys=False, default_flow_style=draw(st.sampled_from([None, True, False])))
+    for _ in range(draw(st.integers(0, 3))):
+        i = draw(st.integers(0, len(text)))
+        j = draw(st.integers(i, min(len(text), i + 8)))
+        text = text[:i] + draw(st.text(alphabet="[]{}:,-&*!|>'\"#%@` \n\t.~/_0189aeinfxyz", max_size=6)) + text[j:]
+    return text
+
+
 @pytest.fixture(scope="module")
 def fuzz_dir(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz")
@@ -191,11 +201,7 @@ def test_load_rig_mutated_yaml_text(fuzz_dir, data):
     d = copy.deepcopy(BASE_RIG)
     if data.draw(st.booleans()):
         _mutate(d, data.draw)
-    text = yaml.safe_dump(d, sort_keys=False, default_flow_style=data.draw(st.sampled_from([None, True, False])))
-    for _ in range(data.draw(st.integers(0, 3))):
-        i = data.draw(st.integers(0, len(text)))
-        j = data.draw(st.integers(i, min(len(text), i + 8)))
-        text = text[:i] + data.draw(st.text(alphabet="[]{}:,-&*!|>'\"#%@` \n\t.~/_0189aeinfxyz", max_size=6)) + text[j:]
+    text = _mutated_text(d, data.draw)
     path = fuzz_dir / "rig.yaml"
     path.write_text(text)
     _rig_or_input_error(lambda: load_rig(path), str(path))
@@ -478,11 +484,7 @@ def test_replay_config_file_mutated_text(fuzz_dir, data):
     d = copy.deepcopy(BASE_CONFIG)
     if data.draw(st.booleans()):
         _mutate(d, data.draw)
-    text = yaml.safe_dump(d, sort_keys=False, default_flow_style=data.draw(st.sampled_from([None, True, False])))
-    for _ in range(data.draw(st.integers(0, 3))):
-        i = data.draw(st.integers(0, len(text)))
-        j = data.draw(st.integers(i, min(len(text), i + 8)))
-        text = text[:i] + data.draw(st.text(alphabet="[]{}:,-&*!|>'\"#%@` \n\t.~/_0189aeinfxyz", max_size=6)) + text[j:]
+    text = _mutated_text(d, data.draw)
     path = fuzz_dir / "settings.yaml"
     path.write_bytes(text.encode() if data.draw(st.integers(0, 5)) else data.draw(st.binary(max_size=200)))
     try:
