@@ -20,6 +20,18 @@ class InputError(NrmpcError, ValueError):
         super().__init__(f"{where}: {message}")
 
 
+class OptionError(InputError):
+    """A library option out of range: a field of an options object or a keyword argument.
+
+    It names the option as the library knows it (``owner`` and ``field``, e.g.
+    ``bag options: field 'jpeg_quality'``); a command line that set the option
+    from a flag reports the flag instead (``nrmpc_ros.cli.common.flag_error``).
+    """
+
+    def __init__(self, owner: str, field: str, message: str):
+        super().__init__(owner, message, field)
+
+
 class EstimationError(NrmpcError, RuntimeError):
     """An estimator cannot run on the given data (e.g. 4pt-bending without gravity)."""
 

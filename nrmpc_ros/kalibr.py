@@ -24,7 +24,7 @@ import yaml
 
 from .core.rig import Rig, rig_from_dict
 from .core.so3 import matrix_to_quat_xyzw
-from .errors import InputError
+from .errors import InputError, OptionError
 from .safeio import YAML_MAX_BYTES, BoundedSafeLoader, read_text, yaml_from_text
 
 SUPPORTED_CAMERA_MODELS = ("pinhole",)
@@ -187,13 +187,13 @@ def rig_from_kalibr(camchain, imu_chain=None, body_frame: str = "cam0", imu_topi
     # Body frame: T_b_c0 maps cam0 points into the body frame.
     if body_frame == "imu":
         if T_c0_imu is None:
-            raise InputError(src, "--body-frame imu needs T_cam_imu (give --imu-chain camchain-imucam.yaml)",
-                             "T_cam_imu")
+            raise InputError(src, "body frame 'imu' needs T_cam_imu (an IMU chain: camchain-imucam.yaml)", "T_cam_imu")
         T_b_c0 = _inverse(T_c0_imu)
     elif body_frame in keys:
         T_b_c0 = T_ci_c0[keys.index(body_frame)]
     else:
-        raise InputError("--body-frame", f"must be 'imu' or one of {', '.join(keys)}, got {body_frame!r}")
+        raise OptionError("Kalibr import", "body_frame",
+                          f"must be 'imu' or one of {', '.join(keys)}, got {body_frame!r}")
     for cam, T_ci in zip(cams, T_ci_c0):
         T_b_ci = T_b_c0 @ _inverse(T_ci)
         cam["position"] = [float(x) for x in T_b_ci[:3, 3]]

@@ -88,5 +88,5 @@ def test_free_ringing_decays_by_the_decay_time():
 
 @pytest.mark.parametrize("zeta", [0.0, 1.0, -0.1, float("nan"), "0.1"])
 def test_damping_ratio_must_be_under_damped(zeta):
-    with pytest.raises(InputError, match="--damping"):
+    with pytest.raises(InputError, match="field 'damping'"):
         check_damping(zeta)

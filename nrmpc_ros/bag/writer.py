@@ -17,7 +17,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from ..core.rig import Camera
 from ..core.so3 import matrix_to_quat_xyzw
-from ..errors import InputError
+from ..errors import InputError, OptionError
 
 STORAGES = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
 # Raw encodings (sensor_msgs/Image) and compressed formats (sensor_msgs/CompressedImage of a mono8 image).
@@ -57,7 +57,8 @@ class BagWriter:
 
     def __init__(self, path, storage: str = "sqlite3"):
         if storage not in STORAGES:
-            raise InputError("--storage", f"unknown storage {storage!r} (supported: {', '.join(STORAGES)})")
+            raise OptionError("bag writer", "storage", f"unknown storage {storage!r} "
+                                                       f"(supported: {', '.join(STORAGES)})")
         self.path = Path(path)
         if self.path.exists():
             raise InputError(str(self.path), "output bag already exists; remove it or choose another --out")
@@ -121,8 +122,8 @@ class BagWriter:
         elif encoding == "mono16":
             data, step = (img.astype("<u2") * 257), 2 * img.shape[1]
         else:
-            raise InputError("--encoding", f"unsupported image encoding {encoding!r} "
-                                           f"(supported: {', '.join(ENCODINGS)})")
+            raise OptionError("bag writer", "encoding", f"unsupported image encoding {encoding!r} "
+                                                        f"(supported: {', '.join(ENCODINGS)})")
         return self._t[_TYPES["image"]](
             header=header, height=img.shape[0], width=img.shape[1], encoding=encoding, is_bigendian=0,
             step=step, data=np.ascontiguousarray(data).view(np.uint8).reshape(-1),

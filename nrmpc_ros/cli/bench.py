@@ -10,10 +10,10 @@ import json
 
 from ..core import METHODS
 from ..errors import InputError
-from .simulate import _SCENARIO_FLAGS, _jsonable, add_scenario_arguments, scenario_from_args
+from .common import SCENARIO_FLAGS, add_scenario_arguments, jsonable, scenario_from_args
 
 # flags of the two-view benchmark only, and of the sequence benchmark only (dest names)
-_PAIR_ONLY = ("no_poselib", "poselib_threshold", "scenario", "rig", *_SCENARIO_FLAGS)
+_PAIR_ONLY = ("no_poselib", "poselib_threshold", "scenario", "rig", *SCENARIO_FLAGS)
 _SEQUENCE_ONLY = ("rigs", "workers")
 
 
@@ -72,7 +72,7 @@ def run_sequence(args) -> int:
                              default_workers() if args.workers is None else args.workers,
                              progress=not (args.no_progress or args.json))
     if args.json:
-        print(json.dumps(_jsonable(res), allow_nan=False))  # an unbounded bound is "inf"
+        print(json.dumps(jsonable(res), allow_nan=False))  # an unbounded bound is "inf"
     else:
         print(format_sequence_table(res))
     return 0

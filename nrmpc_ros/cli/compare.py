@@ -16,6 +16,7 @@ from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
 from ..safeio import atomic_write, check_outputs
 from .argtypes import positive_seconds
+from .common import add_trajectory_arguments
 
 
 def register(sub):
@@ -33,10 +34,7 @@ def register(sub):
     p.add_argument("--imu-window", type=positive_seconds, default=0.25,
                    help="average still IMU samples within +- this (s)")
     p.add_argument("--plot", metavar="OUT.png", help="write a PNG of the errors over time")
-    p.add_argument("--tum", metavar="OUT.txt", help="write the hold poses in each sequence's origin frame (TUM "
-                   "format, for evo; a second sequence goes to OUT_seq1.txt, ...)")
-    p.add_argument("--tum-gt", metavar="GT.txt", help="with --tum: the ground truth at the same holds in the same "
-                   "origin frame")
+    add_trajectory_arguments(p, "the bag's /ground_truth/pose")
     p.add_argument("--json", metavar="OUT.json", help="write the statistics as JSON (null where a statistic has no "
                    "samples)")
     p.add_argument("--quiet", action="store_true", help="statistics only, not every estimate")

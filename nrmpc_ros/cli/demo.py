@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import METHODS, estimate, pose_errors
-from ..sim.synthetic import RigSpec, Scenario, make_problem
+from ..sim.synthetic import RigSpec, Scenario, default_layout, make_problem
 from .argtypes import positive_int, seed
 
 
@@ -21,8 +21,7 @@ def register(sub):
 
 
 def run(args) -> int:
-    layout = "cross" if args.cameras == 4 else "ring"
-    sc = Scenario(rig=RigSpec(num_cameras=args.cameras, layout=layout, EI=args.EI))
+    sc = Scenario(rig=RigSpec(num_cameras=args.cameras, layout=default_layout(args.cameras), EI=args.EI))
     rows = {m: [] for m in METHODS}
     for k in range(args.runs):
         pb = make_problem(sc, seed=args.seed + k)

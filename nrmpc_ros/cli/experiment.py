@@ -6,6 +6,7 @@ from ..errors import InputError
 from ..experiments.runner import default_workers
 from ..experiments.sweeps import EXPERIMENTS, QUICK_RUNS, run_experiment
 from .argtypes import positive_int, seed
+from .common import flag_of
 
 
 def float_list(text: str) -> tuple:
@@ -44,7 +45,8 @@ def register(sub):
     p.add_argument("--outlier-levels", type=float_list, metavar="LIST", help="outlier fractions (outliers)")
     p.add_argument("--gravity-noise", type=float_list, metavar="LIST", help="gravity noise in px (gravity-noise)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, field_flags={"num_points": "--points",
+                                          **{axis: flag_of(dest) for dest, axis in _AXIS_FLAGS.items()}})
 
 
 _AXIS_FLAGS = {"noise": "pixel_noise", "ei": "EI", "outlier_levels": "outlier_fraction",

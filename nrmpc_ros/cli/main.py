@@ -2,7 +2,9 @@
 
 Each subcommand module defines ``register(subparsers)`` which adds its parser
 and sets ``func`` to a ``run(args) -> int`` callable. Errors the user can fix
-(:class:`~nrmpc_ros.errors.NrmpcError`) print one clear line and exit 2.
+(:class:`~nrmpc_ros.errors.NrmpcError`) print one clear line and exit 2; a
+library option's error names the flag that set it
+(:func:`nrmpc_ros.cli.common.flag_error`).
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ import importlib
 import sys
 
 from .. import threads  # noqa: F401  (first of the package: one BLAS thread, before numpy is imported)
-from ..errors import NrmpcError
+from ..errors import InputError, NrmpcError
+from .common import flag_error
 
 # Subcommand modules, in the order `nrmpc --help` lists them.
 COMMANDS = [
@@ -35,6 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # not part of this build
             raise
         module.register(sub)
+    for command_parser in sub.choices.values():
+        command_parser.set_defaults(command_parser=command_parser)
     return parser
 
 
@@ -47,6 +52,8 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except NrmpcError as exc:
+        if isinstance(exc, InputError):
+            exc = flag_error(exc, args.command_parser, getattr(args, "field_flags", None))
         print(f"nrmpc {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

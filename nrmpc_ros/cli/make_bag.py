@@ -22,16 +22,16 @@ from ..errors import InputError
 from ..render.bagmaker import BagOptions
 from ..render.sequence import CAPTURES, PROFILES, MotionOptions
 from ..safeio import atomic_directory, check_outputs
-from ..sim.synthetic import LAYOUTS, RigSpec, make_rig
+from ..sim.scenarios import load_scenario_file
+from ..sim.synthetic import LAYOUTS, RigSpec, default_layout, make_rig
 from .argtypes import seed
-from .simulate import _load_scenario_file
 
 MOTION_ALIASES = {"static": "holds", "continuous": "stream"}  # --motion: the older name of --capture
 VGA_WIDTH, VGA_FOCAL = 640, 470.0  # the default focal length belongs to 640 px wide images
 
 _M, _B = MotionOptions(), BagOptions()  # the library's defaults, shown in --help
 DEFAULTS = {
-    "rig": None, "cameras": 4, "layout": "cross", "EI": 0.2, "mass": 0.1, "bar_length": 0.4, "focal": None,
+    "rig": None, "cameras": 4, "layout": None, "EI": 0.2, "mass": 0.1, "bar_length": 0.4, "focal": None,
     "width": None, "height": None, "save_rig": None, "views": _M.views, "hold_seconds": _M.hold_seconds,
     "rate": _M.rate, "imu_rate": _M.imu_rate, "capture": _M.capture, "move_seconds": None,
     "min_move_seconds": _M.min_move_seconds, "speed": _M.speed, "move_profile": _M.move_profile,
@@ -71,7 +71,7 @@ def register(sub):
     rig.add_argument("--rig", help="rig YAML file (docs/CONVENTIONS.md, Files); the layout flags below are "
                      "then ignored")
     rig.add_argument("--cameras", type=int, help=f"number of cameras (default {d['cameras']})")
-    rig.add_argument("--layout", choices=LAYOUTS, help=f"camera layout (default {d['layout']})")
+    rig.add_argument("--layout", choices=LAYOUTS, help="camera layout (default cross for 4 cameras, else ring)")
     rig.add_argument("--EI", type=float, help=f"bar flexural rigidity N m^2 (default {d['EI']}; inf = rigid)")
     rig.add_argument("--mass", type=float, help=f"tip mass kg (default {d['mass']})")
     rig.add_argument("--bar-length", type=float, help=f"bar length m (default {d['bar_length']})")
@@ -201,7 +201,7 @@ def resolve_options(args) -> dict:
     merged = dict(DEFAULTS)
     scenario = getattr(args, "scenario", None)
     if scenario:
-        data = _load_scenario_file(scenario)
+        data = load_scenario_file(scenario)
         actions = _actions(args.make_bag_parser)
         from_file = {}
         for key, value in data.items():
@@ -240,8 +240,9 @@ def rig_from_options(o: dict):
     height = o["height"] or round(width * 3 / 4)
     focal = o["focal"] if o["focal"] is not None else VGA_FOCAL * width / VGA_WIDTH
     try:
-        spec = RigSpec(num_cameras=o["cameras"], layout=o["layout"], bar_length=o["bar_length"], mass=o["mass"],
-                       EI=o["EI"], focal=focal, resolution=(int(width), int(height)))
+        spec = RigSpec(num_cameras=o["cameras"], layout=o["layout"] or default_layout(o["cameras"]),
+                       bar_length=o["bar_length"], mass=o["mass"], EI=o["EI"], focal=focal,
+                       resolution=(int(width), int(height)))
         return make_rig(spec, imu=not o["no_imu"])
     except ValueError as exc:
         raise InputError("--cameras" if "camera" in str(exc) else "--layout", str(exc)) from None

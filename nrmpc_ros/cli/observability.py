@@ -22,10 +22,10 @@ import numpy as np
 from ..errors import InputError
 from ..safeio import atomic_write, check_output
 from .argtypes import seed
-from .simulate import (
-    _check_mode_flags,
+from .common import (
     add_scenario_arguments,
     add_sequence_arguments,
+    check_mode_flags,
     scenario_from_args,
     sequence_scenario_from_args,
 )
@@ -96,7 +96,7 @@ def run(args) -> int:
     from ..experiments.observability import ei_limit, observability, plot_sweep, sweep_ei
     from ..sim.synthetic import make_rig
 
-    _check_mode_flags(args, args.sequence)
+    check_mode_flags(args, args.sequence)
     if args.sequence:
         return run_sequence(args)
     sc, rig, extras = scenario_from_args(args)

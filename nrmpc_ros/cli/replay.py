@@ -23,6 +23,7 @@ from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
 from ..safeio import check_outputs
 from .argtypes import nonnegative_seconds, positive_int, seed
+from .common import add_trajectory_arguments
 
 
 def register(sub):
@@ -37,10 +38,7 @@ def register(sub):
     p.add_argument("--out", required=True, help="output CSV: one row per hold as the node publishes it")
     p.add_argument("--batch", metavar="BATCH.csv", help="also write the joint solution of all holds at once "
                    "(each hold relative to the one before it)")
-    p.add_argument("--tum", metavar="OUT.txt", help="also write the hold poses in the sequence's origin frame "
-                   "(TUM format, for evo; a second sequence goes to OUT_seq1.txt, ...)")
-    p.add_argument("--tum-gt", metavar="GT.txt", help="with --tum: the bag's /ground_truth/pose at the same holds, "
-                   "in the same origin frame (evo_ape tum GT.txt OUT.txt needs no alignment)")
+    add_trajectory_arguments(p, "the bag's /ground_truth/pose")
     p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig: tracking, holds, imu, zupt, "
                    "sequence, ...)")
     p.add_argument("--imu-topic", help="IMU topic (default: the rig file's imu.topic)")

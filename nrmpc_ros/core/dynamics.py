@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import OptionError
 from .rig import Rig
 
 RINGING_DECAY_RATIO = 1e-3  # "settled": the ringing amplitude is below this fraction of its starting value
@@ -67,10 +67,10 @@ def ringing_decay_time(freq_hz, zeta: float, ratio: float = RINGING_DECAY_RATIO)
     return math.log(1.0 / ratio) / (zeta * w)
 
 
-def check_damping(zeta: float, source: str = "--damping") -> None:
-    """Only under-damped bars ring: the damping ratio must lie in (0, 1)."""
+def check_damping(zeta: float, owner: str = "bar dynamics") -> None:
+    """Only under-damped bars ring: the damping ratio (option ``damping`` of ``owner``) must lie in (0, 1)."""
     if not (isinstance(zeta, (int, float)) and 0.0 < zeta < 1.0):
-        raise InputError(source, f"damping ratio must be in (0, 1) (under-damped bars ring), got {zeta!r}")
+        raise OptionError(owner, "damping", f"damping ratio must be in (0, 1) (under-damped bars ring), got {zeta!r}")
 
 
 

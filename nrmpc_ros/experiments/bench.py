@@ -19,7 +19,7 @@ import numpy as np
 from ..core import METHODS, EstimatorOptions, estimate, pose_errors
 from ..core.matches import Matches
 from ..core.rig import Rig
-from ..errors import InputError
+from ..errors import OptionError
 from ..sim.synthetic import Scenario, make_problem
 from .crlb import problem_bound, summarize_bounds
 from .runner import ERROR_KINDS, task_seed
@@ -98,10 +98,10 @@ def run_bench(runs: int = 100, seed: int = 0, scenario: Scenario | None = None, 
     from tqdm import tqdm
 
     if runs < 1:
-        raise InputError("--runs", f"must be >= 1, got {runs}")
+        raise OptionError("benchmark", "runs", f"must be >= 1, got {runs}")
     sc = scenario or nominal_scenario()
     if sc.pixel_noise <= 0:
-        raise InputError("--noise", "must be > 0 (the Cramér-Rao bound needs noise)")
+        raise OptionError("benchmark", "pixel_noise", "must be > 0 (the Cramér-Rao bound needs noise)")
     opts = EstimatorOptions()
     if poselib_threshold_px is None:
         poselib_threshold_px = opts.loose_threshold_px  # the same rigid-model tolerance as 6pt-nonbending

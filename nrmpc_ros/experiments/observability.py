@@ -23,7 +23,6 @@ import numpy as np
 
 from ..core.rig import Rig
 from ..core.tracks import Tracks
-from ..safeio import atomic_write
 from ..sim.sequence import SequenceProblem, SequenceScenario, make_sequence
 from ..sim.synthetic import Scenario, make_problem, make_rig
 from .crlb import KINDS, Bound, problem_bound, sequence_bound, set_bar_ei, summarize_bounds
@@ -94,32 +93,20 @@ def ei_limit(ei_values, bound, accuracy_rad: float) -> float | None:
 
 
 def plot_sweep(rows: list[dict], accuracy_rad: float, limit: float | None, path, title: str):
-    import matplotlib
+    """PNG: each bound (RMS, and gravity's median) against EI, the required accuracy and the EI limit."""
+    from ..plots import draw_limits, draw_series, figure, save_png
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    ei = np.array([r["EI"] for r in rows])
-    fig, ax = plt.subplots(figsize=(5.5, 3.6))
-    for kind, colour in zip(KINDS, ("tab:orange", "tab:purple", "tab:blue")):
-        ax.plot(ei, np.degrees([r[f"{kind}_rms"] for r in rows]), "-o", ms=3, color=colour, label=f"{kind} (RMS)")
-    ax.plot(ei, np.degrees([r["gravity_median"] for r in rows]), "--", color="tab:blue", label="gravity (median)")
-    ax.axhline(np.degrees(accuracy_rad), color="k", lw=0.8, ls=":", label=f"required {np.degrees(accuracy_rad):g} deg")
-    if limit:
-        ax.axvline(limit, color="tab:red", lw=0.8, ls=":", label=f"EI limit {limit:.3g} N m^2")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("EI (N m^2)")
-    ax.set_ylabel("Cramér-Rao bound (deg)")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7)
-    ax.grid(True, which="both", lw=0.3)
+    fig, ax = figure(figsize=(5.5, 3.6))
+    ei = [r["EI"] for r in rows]
+    series = [(ei, np.degrees([r[f"{kind}_rms"] for r in rows]), "-o", colour, f"{kind} (RMS)")
+              for kind, colour in zip(KINDS, ("tab:orange", "tab:purple", "tab:blue"))]
+    series.append((ei, np.degrees([r["gravity_median"] for r in rows]), "--", "tab:blue", "gravity (median)"))
+    draw_series(ax, series, "Cramér-Rao bound (deg)", xlabel="EI (N m^2)", title=title,
+                logx=True, logy=True)
+    draw_limits(ax, horizontal=(np.degrees(accuracy_rad), "k", f"required {np.degrees(accuracy_rad):g} deg"),
+                vertical=(limit, "tab:red", f"EI limit {limit:.3g} N m^2") if limit else None)
     fig.tight_layout()
-    try:
-        with atomic_write(path, "wb", flag="--out") as fh:
-            fig.savefig(fh, format="png", dpi=80)
-    finally:
-        plt.close(fig)
+    save_png(fig, path, "--out", dpi=80)
 
 
 def first_holds(problem: SequenceProblem, K: int) -> SequenceProblem:

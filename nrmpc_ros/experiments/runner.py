@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import METHODS, Estimate, estimate, pose_errors, rig_from_dict
-from ..errors import InputError, NrmpcError
+from ..errors import NrmpcError, OptionError
 from ..sim.synthetic import Scenario, make_problem
 
 ERROR_KINDS = ("rotation", "translation", "gravity")
@@ -88,7 +88,7 @@ def execute(tasks: list[Task], workers: int = 1, scheduler: str | None = None, p
             desc: str = "monte carlo") -> list[dict]:
     """Run all tasks (in-process, on ``workers`` local processes, or on the Dask scheduler at ``scheduler``)."""
     if workers < 1:
-        raise InputError("--workers", f"must be >= 1, got {workers}")
+        raise OptionError("experiment runner", "workers", f"must be >= 1, got {workers}")
     methods_order = tasks[0].methods if tasks else METHODS
     rows: list[dict] = []
     bar = _progress(len(tasks), desc, progress)
@@ -120,12 +120,13 @@ def _execute_dask(tasks: list[Task], address: str, bar) -> list[dict]:
         from dask.distributed import Client
         from dask.distributed import as_completed as dask_as_completed
     except ImportError:
-        raise NrmpcError("--scheduler needs dask.distributed: pip install 'dask[distributed]' "
+        raise OptionError("experiment runner", "scheduler", "needs dask.distributed: pip install 'dask[distributed]' "
                          "(or the package's [dask] extra)") from None
     try:
         client = Client(address, timeout=30)
     except (OSError, TimeoutError) as exc:
-        raise NrmpcError(f"--scheduler {address}: cannot connect to the Dask scheduler ({exc})") from None
+        raise OptionError("experiment runner", "scheduler",
+                          f"{address}: cannot connect to the Dask scheduler ({exc})") from None
     rows: list[dict] = []
     try:
         futures = client.map(run_task, tasks, pure=False)

@@ -37,7 +37,7 @@ import numpy as np
 from ..core import EstimatorOptions, estimate
 from ..core.sequence import SequenceOptions, estimate_sequence
 from ..core.so3 import angle_between
-from ..errors import InputError, NrmpcError
+from ..errors import NrmpcError, OptionError
 from ..sim.sequence import SequenceScenario, make_sequence
 from ..sim.synthetic import RigSpec
 from .crlb import sequence_bound
@@ -52,6 +52,7 @@ RIGS = {
 }
 METHODS = ("6pt-bending", "4pt-bending")
 ROUTES = ("joint", "pairwise")
+_OWNER = "sequence benchmark"  # how OptionError names this module's options
 SUCCESS_DEG = 5.0  # every hold's gravity within this for a sequence to succeed
 FAILED_DEG = 180.0  # error of a hold without gravity
 _CRASHES = (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError)
@@ -223,17 +224,17 @@ def run_sequence_bench(runs: int = 20, seed: int = 0, rigs=tuple(RIGS), methods=
     ``bound_ratio`` the median pairwise bound over the median joint bound.
     """
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
-        raise InputError("--runs", f"must be an integer >= 1, got {runs!r}")
+        raise OptionError(_OWNER, "runs", f"must be an integer >= 1, got {runs!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise InputError("--seed", f"must be an integer >= 0, got {seed!r}")
+        raise OptionError(_OWNER, "seed", f"must be an integer >= 0, got {seed!r}")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InputError("--workers", f"must be an integer >= 1, got {workers!r}")
+        raise OptionError(_OWNER, "workers", f"must be an integer >= 1, got {workers!r}")
     rigs, methods = tuple(rigs), tuple(methods)
-    for flag, given, known in (("--rigs", rigs, RIGS), ("--methods", methods, METHODS)):
+    for name, given, known in (("rigs", rigs, RIGS), ("methods", methods, METHODS)):
         bad = [x for x in given if x not in known]
         if bad or not given or len(set(given)) != len(given):
             what = f"unknown {bad[0]!r}" if bad else "empty or repeated"
-            raise InputError(flag, f"{what} (choose from {', '.join(known)})")
+            raise OptionError(_OWNER, name, f"{what} (choose from {', '.join(known)})")
     tasks = [SequenceTask(rig, RIGS[rig], k, task_seed(seed, k), methods) for rig in rigs for k in range(runs)]
     records = _execute(tasks, min(workers, len(tasks)), progress)
     out_rigs = {}

@@ -22,9 +22,9 @@ import numpy as np
 
 from ..core import METHODS
 from ..core.rig import Rig
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from ..safeio import atomic_write, check_output
-from ..sim.synthetic import RigSpec, Scenario
+from ..sim.synthetic import RigSpec, Scenario, default_layout
 from .crlb import set_bar_ei
 from .runner import ERROR_KINDS, Task, execute, summarize, task_seed
 
@@ -52,13 +52,13 @@ EXPERIMENTS = {
 AXIS_LABELS = {"pixel_noise": "pixel noise (px)", "EI": "EI (N m^2)", "outlier_fraction": "outlier fraction",
                "gravity_noise_px": "gravity noise (px)"}
 QUICK_RUNS = 30
+_OWNER = "experiment"  # how OptionError names this module's options
 
 
 def base_scenario(cameras: int) -> Scenario:
     """The paper's nominal case for ``cameras`` cameras (cross for 4, ring otherwise)."""
-    layout = "cross" if cameras == 4 else "ring"
-    return Scenario(rig=RigSpec(num_cameras=cameras, layout=layout), pixel_noise=0.1, outlier_fraction=0.05,
-                    gravity_noise_px=0.01, gravity_frame="camera")
+    return Scenario(rig=RigSpec(num_cameras=cameras, layout=default_layout(cameras)), pixel_noise=0.1,
+                    outlier_fraction=0.05, gravity_noise_px=0.01, gravity_frame="camera")
 
 
 def _cell_scenario(base: Scenario, params: dict) -> Scenario:
@@ -76,27 +76,27 @@ def make_tasks(exp: Experiment, cameras: int, runs: int, seed: int, axes: dict |
                options: dict | None = None) -> tuple[list[Task], list[dict]]:
     """All (cell, run) tasks of an experiment; ``axes`` overrides grid values, ``rig`` replaces the simulated rig."""
     if runs < 1:
-        raise InputError("--runs", f"must be >= 1, got {runs}")
+        raise OptionError(_OWNER, "runs", f"must be >= 1, got {runs}")
     axes = dict(exp.axes if axes is None else axes)
     for key, values in axes.items():
         if not values:
-            raise InputError(f"--{key}", "needs at least one value")
+            raise OptionError(_OWNER, key, "needs at least one value")
         if any(not math.isfinite(v) and key != "EI" for v in values) or any(v < 0 for v in values):
-            raise InputError(f"--{key}", f"values must be finite and >= 0, got {list(values)}")
+            raise OptionError(_OWNER, key, f"values must be finite and >= 0, got {list(values)}")
         if key == "outlier_fraction" and any(v >= 1 for v in values):
-            raise InputError(f"--{key}", "outlier fractions must be < 1")
+            raise OptionError(_OWNER, key, "outlier fractions must be < 1")
         if key == "EI" and any(v <= 0 for v in values):
-            raise InputError(f"--{key}", "EI must be > 0 (inf = rigid)")
+            raise OptionError(_OWNER, key, "EI must be > 0 (inf = rigid)")
     methods = tuple(methods or exp.methods)
     bad = [m for m in methods if m not in METHODS]
     if bad:
-        raise InputError("--methods", f"unknown method {bad[0]!r} (choose from {', '.join(METHODS)})")
+        raise OptionError(_OWNER, "methods", f"unknown method {bad[0]!r} (choose from {', '.join(METHODS)})")
     if rig is not None:
         cameras = rig.num_cameras
     base = base_scenario(cameras)
     if num_points is not None:
         if num_points < 12:
-            raise InputError("--points", f"must be >= 12, got {num_points}")
+            raise OptionError(_OWNER, "num_points", f"must be >= 12, got {num_points}")
         base.num_points = int(num_points)
     names = list(axes)
     cells = [dict(zip(names, combo)) for combo in itertools.product(*(axes[n] for n in names))]
@@ -128,20 +128,6 @@ def write_csv(rows: list[dict], path: Path) -> None:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save_png(fig, path: Path) -> None:
-    with atomic_write(path, "wb", flag="--out") as fh:
-        fig.savefig(fh, format="png", dpi=80)
-
-
 def output_files(name: str, stem: Path) -> list[Path]:
     """Every file an experiment writes beside ``stem`` (``<out>/<name>-<M>cam``): CSVs, plots, markdown."""
     images = ["_errors.png", "_success.png"] if name == "noise-ei" else [".png"]
@@ -154,97 +140,79 @@ def _series(summary, method, axis, fixed: dict, stat: str):
     return np.array([p[0] for p in pts], float), np.array([p[1] for p in pts], float)
 
 
-def _positive(y):
-    return np.where(np.isfinite(y) & (y > 0), y, np.nan)
-
-
 def plot_noise_ei(summary, axes: dict, methods, path: Path, title: str) -> list[Path]:
     """Errors (rows) x methods (columns) over pixel noise, one line per EI; and success rate over EI."""
-    plt = _plt()
+    from ..plots import draw_note, draw_series, figure, positive, pyplot, save_png
+
     eis = sorted(axes["EI"])
-    cmap = plt.get_cmap("viridis")
+    cmap = pyplot().get_cmap("viridis")
     colours = {ei: cmap(i / max(len(eis) - 1, 1)) for i, ei in enumerate(eis)}
-    fig, axs = plt.subplots(3, len(methods), figsize=(3.3 * len(methods), 7.2), squeeze=False, sharex=True)
+    fig, axs = figure(3, len(methods), figsize=(3.3 * len(methods), 7.2), squeeze=False, sharex=True)
     for j, method in enumerate(methods):
         for i, kind in enumerate(ERROR_KINDS):
-            ax = axs[i, j]
+            series = []
             for ei in eis:
-                for stat, ls in (("mean", "-"), ("median", "--")):
+                for stat, ls in (("mean", ".-"), ("median", ".--")):
                     x, y = _series(summary, method, "pixel_noise", {"EI": ei}, f"{kind}_{stat}_success")
-                    ax.plot(x, _positive(y), ls, color=colours[ei], marker=".",
-                            label=f"EI {ei:g} {stat}" if (i, j) == (0, 0) else None)
-            if kind == "gravity" and method == "6pt-nonbending":
-                ax.text(0.5, 0.5, "no gravity", ha="center", va="center", transform=ax.transAxes)
-                ax.set_yticks([])
-            else:
-                ax.set_yscale("log")
-            if i == 0:
-                ax.set_title(method, fontsize=9)
-            if j == 0:
-                ax.set_ylabel(f"{kind} error (rad)", fontsize=8)
-            if i == 2:
-                ax.set_xlabel(AXIS_LABELS["pixel_noise"], fontsize=8)
-            ax.tick_params(labelsize=7)
-    fig.legend(loc="lower center", ncol=min(len(eis) * 2, 6), fontsize=7, frameon=False)
+                    series.append((x, positive(y), ls, colours[ei], f"EI {ei:g} {stat}" if (i, j) == (0, 0) else None))
+            no_gravity = kind == "gravity" and method == "6pt-nonbending"
+            draw_series(axs[i, j], [] if no_gravity else series, f"{kind} error (rad)" if j == 0 else "",
+                        xlabel=AXIS_LABELS["pixel_noise"] if i == 2 else None, title=method if i == 0 else None,
+                        logy=not no_gravity)
+            if no_gravity:
+                draw_note(axs[i, j], "no gravity")
+    handles, labels = axs[0, 0].get_legend_handles_labels()
+    if axs[0, 0].get_legend():
+        axs[0, 0].get_legend().remove()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(eis) * 2, 6), fontsize=7, frameon=False)
     fig.suptitle(f"{title}: mean (solid) and median (dashed) over successful runs", fontsize=9)
     fig.tight_layout(rect=(0, 0.06, 1, 0.97))
     p1 = path.with_name(path.name + "_errors.png")
-    _save_png(fig, p1)
-    plt.close(fig)
+    save_png(fig, p1, "--out", dpi=80)
 
     noises = sorted(axes["pixel_noise"])
-    fig, axs = plt.subplots(1, len(methods), figsize=(3.3 * len(methods), 2.8), squeeze=False, sharey=True)
-    ncm = plt.get_cmap("plasma")
+    fig, axs = figure(1, len(methods), figsize=(3.3 * len(methods), 2.8), squeeze=False, sharey=True)
+    ncm = pyplot().get_cmap("plasma")
     for j, method in enumerate(methods):
-        ax = axs[0, j]
+        series = []
         for k, nz in enumerate(noises):
             x, y = _series(summary, method, "EI", {"pixel_noise": nz}, "success_rate")
-            ax.plot(x, 100 * y, "-o", ms=3, color=ncm(k / max(len(noises), 1)), label=f"{nz:g} px")
-        ax.set_xscale("log")
-        ax.set_ylim(-3, 103)
-        ax.set_title(method, fontsize=9)
-        ax.set_xlabel(AXIS_LABELS["EI"], fontsize=8)
-        ax.tick_params(labelsize=7)
-    axs[0, 0].set_ylabel("success rate (%)", fontsize=8)
-    axs[0, -1].legend(fontsize=7, title="pixel noise", title_fontsize=7)
+            series.append((x, 100 * y, "-o", ncm(k / max(len(noises), 1)), f"{nz:g} px" if j == len(methods) - 1
+                           else None))
+        draw_series(axs[0, j], series, "success rate (%)" if j == 0 else "", xlabel=AXIS_LABELS["EI"],
+                    title=method, logx=True)
+        axs[0, j].set_ylim(-3, 103)
     fig.suptitle(f"{title}: success rate (rotation < 0.5 rad and translation < 0.2 rad)", fontsize=9)
     fig.tight_layout()
     p2 = path.with_name(path.name + "_success.png")
-    _save_png(fig, p2)
-    plt.close(fig)
+    save_png(fig, p2, "--out", dpi=80)
     return [p1, p2]
 
 
 def plot_line(summary, axis: str, methods, path: Path, title: str) -> list[Path]:
     """Errors (mean solid, median dashed, successful runs) and success rate over one axis, a line per method."""
-    plt = _plt()
-    fig, axs = plt.subplots(1, 4, figsize=(12, 2.9))
-    colours = {"6pt-nonbending": "tab:red", "6pt-bending": "tab:blue", "4pt-bending": "tab:green"}
+    from ..plots import METHOD_COLOURS, draw_series, figure, positive, save_png
+
+    fig, axs = figure(1, 4, figsize=(12, 2.9))
     for i, kind in enumerate(ERROR_KINDS):
-        ax = axs[i]
+        series = []
         for method in methods:
             if kind == "gravity" and method == "6pt-nonbending":
                 continue
-            for stat, ls in (("mean", "-"), ("median", "--")):
+            for stat, ls in (("mean", ".-"), ("median", ".--")):
                 x, y = _series(summary, method, axis, {}, f"{kind}_{stat}_success")
-                ax.plot(x, _positive(y), ls, marker=".", color=colours.get(method), label=f"{method} {stat}")
-        ax.set_yscale("log")
-        ax.set_title(f"{kind} error (rad)", fontsize=9)
-        ax.set_xlabel(AXIS_LABELS[axis], fontsize=8)
-        ax.tick_params(labelsize=7)
+                series.append((x, positive(y), ls, METHOD_COLOURS.get(method), f"{method} {stat}" if i == 0 else None))
+        draw_series(axs[i], series, "", xlabel=AXIS_LABELS[axis], title=f"{kind} error (rad)", logy=True)
+    series = []
     for method in methods:
         x, y = _series(summary, method, axis, {}, "success_rate")
-        axs[3].plot(x, 100 * y, "-o", ms=3, color=colours.get(method), label=method)
+        series.append((x, 100 * y, "-o", METHOD_COLOURS.get(method), None))
+    draw_series(axs[3], series, "", xlabel=AXIS_LABELS[axis], title="success rate (%)")
     axs[3].set_ylim(-3, 103)
-    axs[3].set_title("success rate (%)", fontsize=9)
-    axs[3].set_xlabel(AXIS_LABELS[axis], fontsize=8)
-    axs[3].tick_params(labelsize=7)
-    axs[0].legend(fontsize=6)
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     p = path.with_name(path.name + ".png")
-    _save_png(fig, p)
-    plt.close(fig)
+    save_png(fig, p, "--out", dpi=80)
     return [p]
 
 
@@ -313,7 +281,7 @@ def run_experiment(name: str, out_dir, cameras: int = 4, runs: int = QUICK_RUNS,
         raise InputError("experiment", f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
     exp = EXPERIMENTS[name]
     if cameras < 2 and rig is None:
-        raise InputError("--cameras", f"needs at least 2 cameras (metric scale), got {cameras}")
+        raise OptionError(_OWNER, "cameras", f"needs at least 2 cameras (metric scale), got {cameras}")
     tasks, cells = make_tasks(exp, cameras, runs, seed, axes, methods, rig, num_points)
     cameras = tasks[0].params["cameras"]
     out = Path(out_dir)

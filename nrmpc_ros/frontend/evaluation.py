@@ -23,7 +23,7 @@ from ..core.metrics import pose_errors
 from ..core.rig import Rig
 from ..core.so3 import angle_between, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from ..errors import InputError
-from ..safeio import AtomicFile, MiB, atomic_write, read_text
+from ..safeio import AtomicFile, MiB, read_text
 from .images import stamp_seconds
 from .topics import IMU_TYPE, POSE_TYPE, VECTOR_TYPE, check_topic_type, same_type
 
@@ -441,34 +441,18 @@ def format_report(ev: Evaluation, per_estimate: bool = True) -> str:
 def plot_errors(ev: Evaluation, path, flag: str | None = None) -> None:
     """PNG: gravity error over time (vs IMU and ground truth, and the IMU's own) and relative-pose errors.
 
-    Written atomically (:func:`~nrmpc_ros.safeio.atomic_write`); ``flag`` names the option in errors."""
-    import matplotlib
+    Written atomically (:func:`~nrmpc_ros.plots.save_png`); ``flag`` names the option in errors."""
+    from ..plots import draw_series, figure, save_png
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    fig, axes = figure(2, 1, figsize=(9, 6), sharex=True)
     t = np.array([r.stamp for r in ev.rows])
     t = t - t.min() if len(t) else t
     e = ev.errors
-    for key, style, color in (("gravity_vs_gt_deg", "o-", "C0"), ("gravity_vs_imu_deg", "s--", "C0"),
-                              ("imu_vs_gt_deg", ":", "C7")):
-        if np.isfinite(e[key]).any():
-            axes[0].plot(t, e[key], style, color=color, label=METRICS[key])
-    axes[0].set_ylabel("gravity error (deg)")
-    axes[0].set_title(", ".join(f"{m}: {sum(r.method == m for r in ev.rows)}" for m in ev.methods) or "no estimates")
-    for key, style in (("rotation_deg", "o-"), ("translation_deg", "s--")):
-        if np.isfinite(e[key]).any():
-            axes[1].plot(t, e[key], style, label=METRICS[key])
-    axes[1].set_ylabel("pose error (deg)")
-    axes[1].set_xlabel("time (s)")
-    for ax in axes:
-        ax.grid(True, alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=8)
+    title = ", ".join(f"{m}: {sum(r.method == m for r in ev.rows)}" for m in ev.methods) or "no estimates"
+    draw_series(axes[0], [(t, e[key], style, colour, METRICS[key]) for key, style, colour in (
+        ("gravity_vs_gt_deg", "o-", "C0"), ("gravity_vs_imu_deg", "s--", "C0"), ("imu_vs_gt_deg", ":", "C7"))],
+        "gravity error (deg)", title=title, fontsize=9)
+    draw_series(axes[1], [(t, e[key], style, None, METRICS[key]) for key, style in (
+        ("rotation_deg", "o-"), ("translation_deg", "s--"))], "pose error (deg)", xlabel="time (s)", fontsize=9)
     fig.tight_layout()
-    try:
-        with atomic_write(path, "wb", flag=flag) as fh:
-            fig.savefig(fh, format="png", dpi=100)
-    finally:
-        plt.close(fig)
+    save_png(fig, path, flag, dpi=100)

@@ -32,7 +32,7 @@ from ..core.deformation import bend_rotation_vectors
 from ..core.dynamics import check_damping
 from ..core.rig import ImuMount, Rig
 from ..core.so3 import cross, exp_and_left_jacobian, normalize
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from ..frontend.topics import bag_topic
 from .bars import CameraLoads, bent_extrinsics
 from .raycast import Renderer
@@ -50,6 +50,9 @@ CACHE_LOAD_TOLERANCE = 1e-6
 
 def _real(x) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+
+
+_OWNER = "bag options"  # how OptionError names this module's options
 
 
 @dataclass
@@ -73,31 +76,31 @@ class BagOptions:
     supersample: int = 2  # rays per pixel side: a pixel integrates its area (1: point sampling, aliased)
 
     def validate(self) -> None:
-        """One InputError naming the flag of the first bad option."""
+        """One OptionError naming the field of the first bad option."""
         if not (isinstance(self.seed, numbers.Integral) and self.seed >= 0):
-            raise InputError("--seed", f"must be an integer >= 0, got {self.seed!r}")
+            raise OptionError(_OWNER, "seed", f"must be an integer >= 0, got {self.seed!r}")
         if self.storage not in STORAGES:
-            raise InputError("--storage", f"unknown storage {self.storage!r} (supported: {', '.join(STORAGES)})")
+            raise OptionError(_OWNER, "storage", f"unknown storage {self.storage!r} (supported: {', '.join(STORAGES)})")
         if self.encoding not in ENCODINGS:
-            raise InputError("--encoding", f"unsupported {self.encoding!r} (supported: {', '.join(ENCODINGS)})")
+            raise OptionError(_OWNER, "encoding", f"unsupported {self.encoding!r} (supported: {', '.join(ENCODINGS)})")
         if not (isinstance(self.jpeg_quality, numbers.Integral) and 0 <= self.jpeg_quality <= 100):
-            raise InputError("--jpeg-quality", f"must be an integer in [0, 100], got {self.jpeg_quality!r}")
+            raise OptionError(_OWNER, "jpeg_quality", f"must be an integer in [0, 100], got {self.jpeg_quality!r}")
         if not (isinstance(self.supersample, numbers.Integral) and 1 <= self.supersample <= 8):
-            raise InputError("--supersample", f"must be an integer in [1, 8], got {self.supersample!r}")
+            raise OptionError(_OWNER, "supersample", f"must be an integer in [1, 8], got {self.supersample!r}")
         for name in ("image_noise", "imu_noise", "gyro_noise", "imu_bias", "gyro_bias", "jitter_ms"):
             value = getattr(self, name)
             if not (_real(value) and value >= 0):
-                raise InputError(f"--{name.replace('_', '-')}", f"must be a finite number >= 0, got {value!r}")
+                raise OptionError(_OWNER, name, f"must be a finite number >= 0, got {value!r}")
         if not (_real(self.drop_rate) and 0 <= self.drop_rate < 1):
-            raise InputError("--drop-rate", f"must be in [0, 1), got {self.drop_rate!r}")
+            raise OptionError(_OWNER, "drop_rate", f"must be in [0, 1), got {self.drop_rate!r}")
         if self.damping is not None:
-            check_damping(self.damping)
+            check_damping(self.damping, _OWNER)
         self.motion.validate()
         period_ms = 1e3 / self.motion.rate
         if 2 * self.jitter_ms >= period_ms:
-            raise InputError("--jitter-ms", f"must be below half the frame period ({period_ms / 2:g} ms at --rate "
-                                            f"{self.motion.rate:g}) so each camera's stamps stay in order, "
-                                            f"got {self.jitter_ms!r}")
+            raise OptionError(_OWNER, "jitter_ms", f"must be below half the frame period ({period_ms / 2:g} ms at "
+                              f"rate {self.motion.rate:g} Hz) so each camera's stamps stay in order, "
+                              f"got {self.jitter_ms!r}")
 
 
 def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opts: BagOptions,

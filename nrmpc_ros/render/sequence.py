@@ -37,11 +37,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.so3 import exp_so3, log_so3, rotation_angle
-from ..errors import InputError
+from ..errors import OptionError
 
 WORLD_GRAVITY = np.array([0.0, 0.0, -1.0])  # direction; scaled by the rig's gravity_magnitude
 CAPTURES = ("holds", "snapshot", "stream")
 PROFILES = ("cosine", "min-jerk", "trapezoid")
+_OWNER = "motion options"  # how OptionError names this module's options
 
 
 @dataclass
@@ -66,29 +67,29 @@ class MotionOptions:
     start_time: float = 1_700_000_000.0  # seconds, stamp of the first frame
 
     def validate(self) -> None:
-        """One InputError naming the flag of the first bad option."""
+        """One OptionError naming the field of the first bad option."""
         def positive(x):
             return isinstance(x, numbers.Real) and not isinstance(x, bool) and 0 < x < math.inf
 
         checks = [
-            ("--views", isinstance(self.views, (int, np.integer)) and self.views >= 1, "must be an integer >= 1"),
-            ("--hold-seconds", positive(self.hold_seconds), "must be a finite number > 0"),
-            ("--rate", positive(self.rate), "must be a finite number > 0"),
-            ("--imu-rate", positive(self.imu_rate), "must be a finite number > 0"),
-            ("--min-tilt", 0 <= self.min_tilt <= self.max_tilt < 90, "need 0 <= --min-tilt <= --max-tilt < 90 deg"),
-            ("--min-step", 0 <= self.min_step <= self.max_step <= 120,
-             "need 0 <= --min-step <= --max-step <= 120 deg"),
-            ("--max-translation", self.max_translation >= 0, "must be >= 0"),
-            ("--speed", positive(self.speed), "must be a finite number > 0"),
-            ("--min-move-seconds", positive(self.min_move_seconds), "must be a finite number > 0"),
-            ("--move-seconds", self.move_seconds is None or positive(self.move_seconds), "must be a finite number > 0"),
-            ("--move-profile", self.move_profile in PROFILES, f"must be one of {', '.join(PROFILES)}"),
-            ("--accel-fraction", 0 < self.accel_fraction <= 0.5, "must be in (0, 0.5]"),
-            ("--capture", self.capture in CAPTURES, f"must be one of {', '.join(CAPTURES)}"),
+            ("views", isinstance(self.views, (int, np.integer)) and self.views >= 1, "must be an integer >= 1"),
+            ("hold_seconds", positive(self.hold_seconds), "must be a finite number > 0"),
+            ("rate", positive(self.rate), "must be a finite number > 0"),
+            ("imu_rate", positive(self.imu_rate), "must be a finite number > 0"),
+            ("min_tilt", 0 <= self.min_tilt <= self.max_tilt < 90, "need 0 <= min_tilt <= max_tilt < 90 deg"),
+            ("min_step", 0 <= self.min_step <= self.max_step <= 120,
+             "need 0 <= min_step <= max_step <= 120 deg"),
+            ("max_translation", self.max_translation >= 0, "must be >= 0"),
+            ("speed", positive(self.speed), "must be a finite number > 0"),
+            ("min_move_seconds", positive(self.min_move_seconds), "must be a finite number > 0"),
+            ("move_seconds", self.move_seconds is None or positive(self.move_seconds), "must be a finite number > 0"),
+            ("move_profile", self.move_profile in PROFILES, f"must be one of {', '.join(PROFILES)}"),
+            ("accel_fraction", 0 < self.accel_fraction <= 0.5, "must be in (0, 0.5]"),
+            ("capture", self.capture in CAPTURES, f"must be one of {', '.join(CAPTURES)}"),
         ]
-        for flag, ok, msg in checks:
+        for name, ok, msg in checks:
             if not ok:
-                raise InputError(flag, f"{msg}, got {getattr(self, flag[2:].replace('-', '_'), None)!r}")
+                raise OptionError(_OWNER, name, f"{msg}, got {getattr(self, name, None)!r}")
 
 
 def move_profile(name: str, tau, accel_fraction: float = 0.25):
@@ -111,7 +112,7 @@ def move_profile(name: str, tau, accel_fraction: float = 0.25):
         ds = np.where(rise, acc * tau, np.where(fall, acc * r, 1.0 / (1.0 - a)))
         dds = np.where(rise, acc, np.where(fall, -acc, 0.0))
         return s, ds, dds
-    raise InputError("--move-profile", f"unknown profile {name!r} (supported: {', '.join(PROFILES)})")
+    raise OptionError(_OWNER, "move_profile", f"unknown profile {name!r} (supported: {', '.join(PROFILES)})")
 
 
 def _rz(yaw: float) -> np.ndarray:
@@ -136,7 +137,7 @@ def sample_attitudes(rng: np.random.Generator, opts: MotionOptions) -> np.ndarra
             if opts.min_step <= step <= opts.max_step:
                 break
         else:
-            raise InputError("--min-step", "cannot find attitudes within the tilt and step limits; widen them")
+            raise OptionError(_OWNER, "min_step", "cannot find attitudes within the tilt and step limits; widen them")
         yaw = y
         out.append(R)
     return np.array(out)
@@ -188,7 +189,7 @@ class Trajectory:
         if capture == "snapshot":
             return self.hold_end - self.period_ns, np.arange(len(self.R))
         if capture != "holds":
-            raise InputError("--capture", f"unknown capture mode {capture!r} (supported: {', '.join(CAPTURES)})")
+            raise OptionError(_OWNER, "capture", f"unknown capture mode {capture!r} (supported: {', '.join(CAPTURES)})")
         j = np.arange(self.hold_frames, dtype=np.int64)
         t = (self.hold_start[:, None] + j[None, :] * self.period_ns).reshape(-1)
         return t, np.repeat(np.arange(len(self.R)), self.hold_frames)

@@ -27,6 +27,11 @@ LOOKING = ("outward", "forward")
 GRAVITY_FRAMES = ("camera", "body", "none")
 
 
+def default_layout(num_cameras: int) -> str:
+    """The layout a simulated rig takes when none is given: the paper's cross for 4 cameras, else a ring."""
+    return "cross" if num_cameras == 4 else "ring"
+
+
 @dataclass
 class RigSpec:
     """Geometry of a simulated rig: layout, camera count, bars and optics."""
