@@ -97,7 +97,7 @@ def calibrate_bars(rig: Rig, pairs: list, shared: bool = False, gravity_sigma_ra
         for n, m in enumerate(pairs):
             est = estimate(rig_k, m, method="4pt-bending", seed=seed + n, options=opts)
             if not est.success or est.num_inliers < 12:
-                skipped.append(f"{m.source}: skipped ({est.info.get('reason', 'too few inliers')})")
+                skipped.append(f"{m.source}: skipped ({est.info.reason or 'too few inliers'})")
                 continue
             idx = est.inliers
             parts.append(Observations.two_view(m.f1[idx], m.f2[idx], m.cam[idx]))

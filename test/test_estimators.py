@@ -1,9 +1,11 @@
+import json
 import math
+from dataclasses import fields
 
 import numpy as np
 import pytest
 
-from nrmpc_ros.core import METHODS, estimate, pose_errors
+from nrmpc_ros.core import METHODS, EstimateInfo, estimate, pose_errors
 from nrmpc_ros.core.so3 import angle_between, exp_so3
 from nrmpc_ros.errors import EstimationError, InputError
 from nrmpc_ros.sim.synthetic import RigSpec, Scenario, make_problem
@@ -63,19 +65,81 @@ def test_forty_percent_outliers(method):
 
 def test_info_reports_covariances():
     _, est, e = _run("4pt-bending", Scenario(), seed=5)
-    cg = np.array(est.info["cov_gravity"])
+    cg = est.info.cov_gravity
     assert cg.shape == (3, 3) and np.all(np.isfinite(cg))
-    assert 0 < est.info["gravity_sigma_rad"] < 0.01
-    assert np.array(est.info["cov_rotation"]).shape == (3, 3)
+    assert 0 < est.info.gravity_sigma_rad < 0.01
+    assert est.info.cov_rotation.shape == (3, 3)
     json = est.to_json("x.npz")
     assert json["matches"] == "x.npz" and len(json["gravity"]) == 3 and json["num_inliers"] == est.num_inliers
+
+
+def _symmetric_psd(c: np.ndarray) -> bool:
+    scale = max(1.0, float(np.abs(c).max()))
+    return np.allclose(c, c.T, rtol=0, atol=1e-12 * scale) and np.linalg.eigvalsh(c).min() >= -1e-12 * scale
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_info_fields_are_typed_and_covariances_symmetric_psd(method):
+    """A real estimate's diagnostics are typed: covariances are float arrays of their shapes, symmetric
+    positive semi-definite, gravity's 3x3 one of rank 2 (nothing along gravity); counts are ints."""
+    ei = 10.0 if method == "6pt-nonbending" else 0.1
+    _, est, e = _run(method, Scenario(rig=RigSpec(EI=ei)), seed=5)
+    info = est.info
+    assert est.success and e["success"] and isinstance(info, EstimateInfo) and info.reason is None
+    shapes = {"cov_rotation": (3, 3), "cov_translation": (3, 3)}
+    if method == "6pt-nonbending":
+        assert info.cov_gravity is None and info.cov_gravity_tangent is None and info.gravity_sigma_rad is None
+    else:
+        shapes.update(cov_gravity_tangent=(2, 2), cov_gravity=(3, 3))
+        g = est.gravity / np.linalg.norm(est.gravity)
+        assert np.linalg.norm(info.cov_gravity @ g) < 1e-6 * np.abs(info.cov_gravity).max()
+        assert isinstance(info.gravity_sigma_rad, float) and info.gravity_sigma_rad > 0
+    for name, shape in shapes.items():
+        c = getattr(info, name)
+        assert isinstance(c, np.ndarray) and c.dtype == float and c.shape == shape, name
+        assert np.all(np.isfinite(c)) and _symmetric_psd(c), name
+    assert type(info.ransac_iterations) is int and type(info.ba_iterations) is int
+    assert type(info.sigma_rad) is float and info.sigma_rad > 0
+    if method == "6pt-bending":
+        assert type(info.gravity_starts) is int and type(info.cameras_with_rotation) is int
+        assert type(info.msac_score_rad2) is float and isinstance(info.gravity_candidates, tuple)
+        assert len(info.gravity_candidates) >= 1 and all(c.shape == (3,) for c in info.gravity_candidates)
+    if method == "4pt-bending":
+        assert info.measured_gravity.shape == (2, 3) and type(info.stage1_inliers) is int
+
+
+def test_info_as_dict_is_json_ready_and_round_trips():
+    """as_dict() holds what was recorded (defaults left out) as plain JSON values; from_dict() inverts it;
+    get() answers as the dict did (the default where nothing was recorded)."""
+    pb = make_problem(Scenario(), seed=5)
+    for method in METHODS:
+        info = estimate(pb.rig, pb.matches, method=method, seed=0).info
+        d = info.as_dict()
+        back = EstimateInfo.from_dict(json.loads(json.dumps(d)))
+        assert back.as_dict() == d and "reason" not in d and "cov_rotation" in d
+        for f in fields(EstimateInfo):
+            a, b = getattr(info, f.name), getattr(back, f.name)
+            if f.name == "gravity_candidates":
+                assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
+            elif isinstance(a, np.ndarray):
+                assert isinstance(b, np.ndarray) and np.array_equal(a, b), f.name
+            else:
+                assert a == b, f.name
+        assert info.get("cov_rotation") is info.cov_rotation and info.get("reason", "none") == "none"
+        assert list(info.get("gravity_candidates", [])) == list(info.gravity_candidates)
+    assert EstimateInfo().as_dict() == {}
+    assert EstimateInfo(reason="why", mirrored_start=False).as_dict() == {"reason": "why", "mirrored_start": False}
+    with pytest.raises(KeyError, match="covariance"):
+        EstimateInfo().get("covariance")
+    with pytest.raises(KeyError, match="covariance"):
+        EstimateInfo.from_dict({"covariance": 1.0})
 
 
 def test_rigid_rig_reports_no_gravity():
     sc = Scenario(rig=RigSpec(EI=math.inf))
     for method in ("6pt-bending", "4pt-bending"):
         _, est, e = _run(method, sc, seed=2)
-        assert est.success and est.gravity is None and "unobservable" in est.info["gravity_unobservable"]
+        assert est.success and est.gravity is None and "unobservable" in est.info.gravity_unobservable
         assert e["rotation"] < 5e-3
 
 
@@ -89,7 +153,7 @@ def test_four_point_needs_gravity_and_bad_inputs():
         estimate(pb.rig, pb.matches, options={"treshold_px": 3})
     few = pb.matches.subset(np.arange(5))
     est = estimate(pb.rig, few, method="6pt-bending")
-    assert not est.success and "at least" in est.info["reason"]
+    assert not est.success and "at least" in est.info.reason
 
 
 def test_same_seed_same_result():
@@ -115,11 +179,11 @@ def test_gravity_hint_keeps_its_basin_and_is_checked():
     near = estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=exp_so3([0.03, 0.0, 0.02]) @ pb.gravity)
     far = estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=_reversed_bending(pb.rig, pb.gravity))
     err = {k: pose_errors(e.R, e.t, pb.R, pb.t, e.gravity, pb.gravity) for k, e in (("near", near), ("far", far))}
-    assert near.info["gravity_hint"] and far.info["gravity_hint"] and "gravity_hint" not in own.info
+    assert near.info.gravity_hint and far.info.gravity_hint and not own.info.gravity_hint
     assert err["near"]["gravity"] < math.radians(3) and err["near"]["rotation"] < math.radians(0.2)
     assert err["far"]["gravity"] > math.radians(60)  # stayed in the hint's (wrong) basin ...
-    sigma2 = own.info["sigma_rad"] ** 2  # ... which fits the correspondences about as well (paper, section 3.3)
-    assert abs(far.info["msac_score_rad2"] - near.info["msac_score_rad2"]) / sigma2 < 9.21
+    sigma2 = own.info.sigma_rad ** 2  # ... which fits the correspondences about as well (paper, section 3.3)
+    assert abs(far.info.msac_score_rad2 - near.info.msac_score_rad2) / sigma2 < 9.21
     with pytest.raises(EstimationError, match="6pt-bending only"):
         estimate(pb.rig, pb.matches, method="4pt-bending", gravity_hint=pb.gravity)
     for bad in ([0.0, 0.0, 0.0], [np.nan, 0.0, -9.8], [1.0, 2.0]):
@@ -139,7 +203,7 @@ def test_gravity_hint_on_the_rigid_fit_route(monkeypatch):
     pb = make_problem(Scenario(), seed=3)
     plain = estimate(pb.rig, pb.matches, method="6pt-bending")
     hinted = estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=exp_so3([0.02, 0.0, 0.0]) @ pb.gravity)
-    assert plain.info["gravity_starts"] > 1 and hinted.info["gravity_starts"] == 1 and hinted.info["gravity_hint"]
+    assert plain.info.gravity_starts > 1 and hinted.info.gravity_starts == 1 and hinted.info.gravity_hint
     assert pose_errors(hinted.R, hinted.t, pb.R, pb.t, hinted.gravity, pb.gravity)["gravity"] < 1e-3
 
 
@@ -150,8 +214,8 @@ def test_parallel_bars_report_both_basins_among_the_candidates():
     pb = make_problem(AMBIGUOUS_LINE, seed=11)
     own = estimate(pb.rig, pb.matches, method="6pt-bending")
     far = estimate(pb.rig, pb.matches, method="6pt-bending", gravity_hint=_reversed_bending(pb.rig, pb.gravity))
-    cands = own.info["gravity_candidates"]
-    assert own.info["gravity_starts"] >= 2 and len(cands) == own.info["gravity_starts"] + 2
+    cands = own.info.gravity_candidates
+    assert own.info.gravity_starts >= 2 and len(cands) == own.info.gravity_starts + 2
     assert angle_between(cands[0], pb.gravity) < math.radians(3)
     assert min(angle_between(c, far.gravity) for c in cands) < math.radians(2)
     assert angle_between(far.gravity, pb.gravity) > math.radians(60)
@@ -165,8 +229,8 @@ def test_one_start_explains_a_cross_rig(outliers):
     sc = Scenario(outlier_fraction=outliers, pixel_noise=0.1)
     for seed in range(4):
         pb, est, e = _run("6pt-bending", sc, seed)
-        assert est.info["gravity_starts"] == 1 and est.info["ransac_iterations"] == 0, (seed, est.info)
-        assert len(est.info["gravity_candidates"]) == 1
+        assert est.info.gravity_starts == 1 and est.info.ransac_iterations == 0, (seed, est.info.as_dict())
+        assert len(est.info.gravity_candidates) == 1
         assert e["gravity"] < 2e-3 and e["rotation"] < 1e-3, (seed, e)
 
 

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 from numpy.random import default_rng  # imported here, not lazily at the first estimate (~15 ms)
@@ -80,12 +82,90 @@ class EstimatorOptions:
     final_refinement: bool = option(True, "6pt-bending: robust refinement on all correspondences after the best "
                                     "start (off where a joint adjustment over a sequence follows)")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check(self, "estimator options")
 
     @classmethod
     def from_dict(cls, d: dict | None, source: str = "estimator options") -> EstimatorOptions:
         return from_mapping(cls, d, source)
+
+
+_ARRAY_FIELDS = frozenset({"measured_gravity", "cov_rotation", "cov_translation", "cov_gravity_tangent",
+                           "cov_gravity"})
+
+
+@dataclass(eq=False)
+class EstimateInfo:
+    """Diagnostics of one :class:`Estimate` (docs/CONVENTIONS.md, Python API): why it failed, how the search
+    went, and the covariances of the final bundle adjustment.
+
+    A field holds its default (None, no hint, no candidates) where the method did not record it: each
+    method fills only what it measures (the gravity fields stay None for ``6pt-nonbending``). Covariances
+    are the final bundle adjustment's: rotation (rad^2, 3x3, tangent space), translation (m^2, 3x3),
+    gravity's two tangent directions (rad^2, 2x2) and gravity itself (m^2/s^4, 3x3, rank 2). ``eq=False``:
+    instances compare by identity (arrays have no single truth value).
+    """
+
+    reason: str | None = None  # why there is no pose (success False)
+    ransac_iterations: int | None = None  # minimal samples drawn, all RANSAC stages together
+    stage1_inliers: int | None = None  # inliers of the first RANSAC (rigid 6-point, or 4-point on measured gravity)
+    cameras_with_rotation: int | None = None  # 6pt-bending: cameras whose own epipolar geometry gave a rotation
+    camera_inliers: int | None = None  # ... and the correspondences it accepted (None: fewer than two such cameras)
+    gravity_hint: bool = False  # 6pt-bending started from a given gravity_hint only
+    gravity_starts: int | None = None  # 6pt-bending: gravity starts refined
+    mirrored_start: bool | None = None  # parallel bars: whether a mirrored or reversed start won (None: not tried)
+    gravity_candidates: tuple[np.ndarray, ...] = ()  # refined gravity of every start, best MSAC score first
+    msac_score_rad2: float | None = None  # 6pt-bending: MSAC score of all correspondences at the threshold
+    measured_gravity: np.ndarray | None = None  # 4pt-bending: (2, 3) measured gravity, each view's body frame
+    gravity_unobservable: str | None = None  # why there is no gravity although the method estimates one
+    sigma_rad: float | None = None  # robust noise scale of the final bundle adjustment (rad)
+    ba_iterations: int | None = None  # its iterations
+    cov_rotation: np.ndarray | None = None  # (3, 3)
+    cov_translation: np.ndarray | None = None  # (3, 3)
+    cov_gravity_tangent: np.ndarray | None = None  # (2, 2)
+    cov_gravity: np.ndarray | None = None  # (3, 3)
+    gravity_sigma_rad: float | None = None  # largest angular std of gravity
+
+    def _recorded(self) -> Iterator[tuple[str, Any]]:
+        """(name, value) of the fields not at their default."""
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is None or (type(value) in (bool, tuple) and value == f.default):
+                continue
+            yield f.name, value
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready: arrays as nested lists, fields at their default left out (what was recorded)."""
+        out = {}
+        for name, value in self._recorded():
+            if isinstance(value, tuple):
+                value = [np.asarray(v).tolist() for v in value]
+            elif isinstance(value, np.ndarray):
+                value = value.tolist()
+            out[name] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> EstimateInfo:
+        """The inverse of :meth:`as_dict`: lists become float arrays again; unknown keys are an error."""
+        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise KeyError(f"not estimate diagnostics: {', '.join(unknown)}")
+        values = dict(d)
+        for name, value in d.items():
+            if name == "gravity_candidates":
+                values[name] = tuple(np.asarray(v, dtype=float) for v in value)
+            elif name in _ARRAY_FIELDS and value is not None:
+                values[name] = np.asarray(value, dtype=float)
+        return cls(**values)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        """Backward compatibility with the dict ``info`` was: the field ``key`` (typed: arrays, not lists),
+        or ``default`` where it holds its default. New code reads the attributes; a key that is no field
+        raises KeyError."""
+        if key not in self.__dataclass_fields__:
+            raise KeyError(f"{key!r} is not an estimate diagnostic")
+        return dict(self._recorded()).get(key, default)
 
 
 @dataclass
@@ -99,10 +179,11 @@ class Estimate:
     gravity: np.ndarray | None = None
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     time_s: float = 0.0
-    info: dict = field(default_factory=dict)
+    info: EstimateInfo = field(default_factory=EstimateInfo)
 
     @property
     def num_inliers(self) -> int:
+        """Number of inlier correspondences."""
         return int(len(self.inliers))
 
     @property
@@ -112,7 +193,7 @@ class Estimate:
             return None
         return self.R.T @ self.gravity
 
-    def to_json(self, matches_path: str | None = None) -> dict:
+    def to_json(self, matches_path: str | None = None) -> dict[str, Any]:
         """The result object of docs/CONVENTIONS.md (Python API); a failed estimate also says why (``reason``)."""
         out = {
             "matches": matches_path,
@@ -126,7 +207,7 @@ class Estimate:
             "time_s": self.time_s,
         }
         if not self.success:
-            out["reason"] = str(self.info.get("reason", "no reason recorded"))
+            out["reason"] = "no reason recorded" if self.info.reason is None else str(self.info.reason)
         return out
 
 
@@ -134,14 +215,18 @@ class Estimate:
 # RANSAC problems
 # ---------------------------------------------------------------------------
 
+Pose = tuple[np.ndarray, np.ndarray]  # (R, t): view 2 into view 1
+
+
 class _RayProblem:
     """Rays of both views fixed (extrinsics at given gravity); errors are angular (rad)."""
 
-    def __init__(self, o1, d1, o2, d2):
+    def __init__(self, o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.ndarray):
         self.o1, self.d1, self.o2, self.d2 = o1, d1, o2, d2
         self.num_data = len(o1)
 
-    def errors(self, models, idx=None):
+    def errors(self, models: list[Pose], idx: np.ndarray | None = None) -> np.ndarray:
+        """Angular errors (rad) of the correspondences (all, or idx) under each model: (len(models), n)."""
         R = np.array([m[0] for m in models])
         t = np.array([m[1] for m in models])
         if idx is None:
@@ -150,20 +235,25 @@ class _RayProblem:
 
 
 class SixPointProblem(_RayProblem):
+    """RANSAC problem of the generalized 6-point relative pose on fixed rays."""
+
     sample_size = 6
 
-    def generate(self, s):
+    def generate(self, s: np.ndarray) -> list[Pose]:
         return solve_6pt(self.o1[s], self.d1[s], self.o2[s], self.d2[s])
 
 
 class UprightFourPointProblem(_RayProblem):
+    """RANSAC problem of the upright 4-point relative pose: rays and measured gravity g1, g2 (body frames)."""
+
     sample_size = 4
 
-    def __init__(self, o1, d1, o2, d2, g1, g2):
+    def __init__(self, o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.ndarray, g1: np.ndarray,
+                 g2: np.ndarray):
         super().__init__(o1, d1, o2, d2)
         self.frames = UprightFrames(g1, g2)
 
-    def generate(self, s):
+    def generate(self, s: np.ndarray) -> list[Pose]:
         return self.frames.solve(self.o1[s], self.d1[s], self.o2[s], self.d2[s])
 
 
@@ -228,20 +318,17 @@ def _refine_loop(rig, m, R, t, g, threshold, opts, prior=None, optimize_gravity=
     return R, t, g, inliers, res, float(np.minimum(err * err, threshold**2).sum())
 
 
-def _pose_info(res, optimize_gravity):
-    info = {}
+def _record_pose(info: EstimateInfo, res, optimize_gravity: bool) -> EstimateInfo:
+    """Put the final bundle adjustment's noise scale, iterations and covariances (if any) into info."""
     if res is None:
         return info
-    cov = res.covariance
-    info["sigma_rad"] = res.sigma_rad
-    info["ba_iterations"] = res.iterations
-    info["cov_rotation"] = cov[0:3, 0:3].tolist()
-    info["cov_translation"] = cov[3:6, 3:6].tolist()
+    cov = np.array(res.covariance, dtype=float)
+    info.sigma_rad, info.ba_iterations = float(res.sigma_rad), int(res.iterations)
+    info.cov_rotation, info.cov_translation = cov[0:3, 0:3], cov[3:6, 3:6]
     if optimize_gravity and res.g is not None:
         cg = cov[6:8, 6:8]
-        info["cov_gravity_tangent"] = cg.tolist()
-        info["cov_gravity"] = gravity_covariance(res.g, cg).tolist()
-        info["gravity_sigma_rad"] = float(math.sqrt(max(np.linalg.eigvalsh(cg).max(), 0.0)))
+        info.cov_gravity_tangent, info.cov_gravity = cg, np.asarray(gravity_covariance(res.g, cg), dtype=float)
+        info.gravity_sigma_rad = float(math.sqrt(max(np.linalg.eigvalsh(cg).max(), 0.0)))
     return info
 
 
@@ -261,11 +348,11 @@ def _six_point_nonbending(rig, m, opts, rng):
     R, t = rr.model
     R, t, _, inliers, res, _ = _refine_loop(rigid, m, R, t, None, loose, opts, optimize_gravity=False,
                                          inliers=rr.inliers)
-    info = {"ransac_iterations": rr.iterations, **_pose_info(res, False)}
-    return R, t, None, inliers, info
+    return R, t, None, inliers, _record_pose(EstimateInfo(ransac_iterations=int(rr.iterations)), res, False)
 
 
-def score_gravity_hypotheses(rig, m: Matches, idx, R, t, hypotheses, threshold):
+def score_gravity_hypotheses(rig: Rig, m: Matches, idx: np.ndarray, R: np.ndarray, t: np.ndarray,
+                             hypotheses: np.ndarray, threshold: float) -> np.ndarray:
     """MSAC cost of each gravity hypothesis (K, 3) on correspondences idx at fixed (R, t)."""
     f1, f2, cam = m.f1[idx], m.f2[idx], m.cam[idx]
     w1, W1 = deformed_extrinsics(rig, hypotheses)
@@ -276,17 +363,17 @@ def score_gravity_hypotheses(rig, m: Matches, idx, R, t, hypotheses, threshold):
     return np.minimum(err * err, threshold**2).sum(axis=1)
 
 
-def _starts_from_rigid_fit(rig, m, opts, rng, loose, gravity_hint=None):
+def _starts_from_rigid_fit(rig, m, opts, rng, loose, info: EstimateInfo, gravity_hint=None):
     """The paper's route: 6-point RANSAC with canonical extrinsics, then gravity hypotheses scored at that pose
-    (or only the gravity_hint)."""
+    (or only the gravity_hint); the RANSAC's samples and inliers go into info."""
     rr = _ransac_6pt(rig.as_rigid(), m, loose, opts, rng)
     if rr is None:
-        return [], {}
+        return []
     R0, t0 = rr.model
     idx = _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size))
-    info = {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers}
+    info.ransac_iterations, info.stage1_inliers = int(rr.iterations), int(rr.num_inliers)
     if gravity_hint is not None:
-        return [(R0, t0, gravity_hint, idx)], info
+        return [(R0, t0, gravity_hint, idx)]
     hyp = rig.gravity_magnitude * fibonacci_sphere(int(opts.gravity_hypotheses))
     costs = score_gravity_hypotheses(rig, m, idx, R0, t0, hyp, loose)
     starts = []
@@ -295,7 +382,7 @@ def _starts_from_rigid_fit(rig, m, opts, rng, loose, gravity_hint=None):
             starts.append((R0, t0, hyp[k], idx))
         if len(starts) >= int(opts.gravity_refine_starts):
             break
-    return starts, info
+    return starts
 
 
 def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, weak_geometry=False,
@@ -316,7 +403,7 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, w
     """
     cams, Rc, counts, cam_inl = camera_rotations(m, rig.num_cameras, CAMERA_THRESHOLD_FACTOR * tight,
                                                  seed=int(rng.integers(1 << 30)))
-    info = {"cameras_with_rotation": int(len(cams)), "camera_inliers": int(cam_inl.sum()), "ransac_iterations": 0}
+    info = EstimateInfo(cameras_with_rotation=int(len(cams)), camera_inliers=int(cam_inl.sum()), ransac_iterations=0)
     if len(cams) < 2:
         return [], info, cam_inl
     if gravity_hint is not None:
@@ -339,7 +426,7 @@ def _starts_from_camera_rotations(rig, m, opts, rng, loose, tight, num_starts, w
                 continue
             rr = _ransac_6pt(rig, m, loose, opts, rng, g=(g0, R0.T @ g0), max_iterations=opts.start_iterations_6pt,
                              min_iterations=WEAK_START_MIN_SAMPLES if weak_geometry else START_MIN_SAMPLES)
-            info["ransac_iterations"] += 0 if rr is None else rr.iterations
+            info.ransac_iterations += 0 if rr is None else int(rr.iterations)
             if rr is not None and rr.num_inliers >= 12:
                 yield (*rr.model, g0, _subset(rng, np.flatnonzero(rr.inliers), int(opts.subset_size)))
             else:
@@ -395,8 +482,8 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         if rr is None:
             return None
         R, t, _, inliers, res, _ = _refine_loop(rig, m, *rr.model, None, tight, opts, optimize_gravity=False)
-        return R, t, None, inliers, {"ransac_iterations": rr.iterations, **_pose_info(res, False),
-                                     "gravity_unobservable": _RIGID_REASON}
+        info = EstimateInfo(ransac_iterations=int(rr.iterations), gravity_unobservable=_RIGID_REASON)
+        return R, t, None, inliers, _record_pose(info, res, False)
     axis = _common_bar_axis(rig, m)
     # parallel bars observe gravity weakly (paper, section 3.3): search wider there
     num_starts = int(opts.gravity_refine_starts if axis is None else max(opts.gravity_refine_starts,
@@ -405,25 +492,24 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
                                                              weak_geometry=axis is not None,
                                                              gravity_hint=gravity_hint)
     if gravity_hint is not None:
-        info["gravity_hint"] = True
+        info.gravity_hint = True
         axis = None  # stay in the hint's basin: no mirrored or reversed starts
-    if info["cameras_with_rotation"] < 2:
-        starts, more = _starts_from_rigid_fit(rig, m, opts, rng, loose, gravity_hint)
-        info.update(more)
-        info.pop("camera_inliers")  # of fewer than two cameras: no yardstick for the starts
+    if info.cameras_with_rotation < 2:
+        starts = _starts_from_rigid_fit(rig, m, opts, rng, loose, info, gravity_hint)
+        info.camera_inliers = None  # of fewer than two cameras: no yardstick for the starts
     best = best_score = None
-    info["gravity_starts"] = 0
+    info.gravity_starts = 0
     candidates = []  # (MSAC score, refined gravity of a start): the basins this pair leaves open
-    accepted = camera_inl if info["cameras_with_rotation"] >= 2 else None
+    accepted = camera_inl if info.cameras_with_rotation >= 2 else None
     min_starts = 1 if axis is None else WEAK_MIN_STARTS
     for R0, t0, g0, idx in starts:
         res, score, inliers = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
-        info["gravity_starts"] += 1
+        info.gravity_starts += 1
         candidates.append((score, res.g))
         if best is None or score < best_score:
             best, best_score, best_idx, best_inliers = res, score, idx, inliers
-        if accepted is not None and info["gravity_starts"] >= min_starts and _explains(rig, opts, best_inliers,
-                                                                                        accepted):
+        if accepted is not None and info.gravity_starts >= min_starts and _explains(rig, opts, best_inliers,
+                                                                                      accepted):
             break  # explains the correspondences the cameras' own epipolar geometry accepts: the right basin
     if best is None:
         return None
@@ -433,27 +519,25 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         # flipped) can fit as well; both are second basins (paper, section 3.3, degenerate cases).
         # Refine from them too and keep the best.
         ga = (axis @ best.g) * axis  # axial part; flipping it, or the rest (bars bent the other way):
-        info["mirrored_start"] = False
+        info.mirrored_start = False
         for g_m in (best.g - 2.0 * ga, 2.0 * ga - best.g):
             mirrored, score, inliers = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
             candidates.append((score, mirrored.g))
             if score < best_score:
-                best, best_score, best_inliers, info["mirrored_start"] = mirrored, score, inliers, True
-    info["gravity_candidates"] = [gc for _, gc in sorted(candidates, key=lambda c: c[0]) if gc is not None]
+                best, best_score, best_inliers, info.mirrored_start = mirrored, score, inliers, True
+    info.gravity_candidates = tuple(gc for _, gc in sorted(candidates, key=lambda c: c[0]) if gc is not None)
     if not opts.final_refinement:
-        info["msac_score_rad2"] = best_score
-        info.update(_pose_info(best, True))
-        return best.R, best.t, best.g, best_inliers, info
+        info.msac_score_rad2 = float(best_score)
+        return best.R, best.t, best.g, best_inliers, _record_pose(info, best, True)
     if axis is not None:
         # on parallel bars the adjustment creeps along the weakly observed gravity direction: the winner is
         # first settled on its subset, at its own noise scale, where iterations are cheap
         best = refine_two_view(rig, m.f1[best_idx], m.f2[best_idx], m.cam[best_idx], best.R, best.t, best.g,
                                max_iter=int(opts.max_ba_iterations), huber_k=opts.huber_k)
         best_inliers = _start_score(rig, m, best, tight)[1]
-    R, t, g, inliers, res, info["msac_score_rad2"] = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts,
-                                                                   inliers=best_inliers)
-    info.update(_pose_info(res, True))
-    return R, t, g, inliers, info
+    R, t, g, inliers, res, info.msac_score_rad2 = _refine_loop(rig, m, best.R, best.t, best.g, tight, opts,
+                                                                inliers=best_inliers)
+    return R, t, g, inliers, _record_pose(info, res, True)
 
 
 def _require_gravity(m: Matches) -> None:
@@ -474,17 +558,17 @@ def _four_point_bending(rig, m, opts, rng):
     if rr is None:
         return None
     R, t = rr.model
-    info = {"ransac_iterations": rr.iterations, "stage1_inliers": rr.num_inliers,
-            "measured_gravity": [g1m.tolist(), g2m.tolist()]}
+    info = EstimateInfo(ransac_iterations=int(rr.iterations), stage1_inliers=int(rr.num_inliers),
+                        measured_gravity=np.array([g1m, g2m], dtype=float))
     flexible = rig.is_flexible
     prior = None
     if flexible and math.isfinite(opts.gravity_prior_sigma):
         prior = two_view_priors(g1m, g2m, float(opts.gravity_prior_sigma))
     R, t, g, inliers, res, _ = _refine_loop(rig, m, R, t, g1m, tight, opts, prior=prior, optimize_gravity=flexible,
                                          inliers=rr.inliers)
-    info.update(_pose_info(res, flexible))
+    _record_pose(info, res, flexible)
     if not flexible:
-        info["gravity_unobservable"] = _RIGID_REASON
+        info.gravity_unobservable = _RIGID_REASON
         g = None
     return R, t, g, inliers, info
 
@@ -497,19 +581,20 @@ _METHODS = {
 
 
 def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int = 0,
-             options: EstimatorOptions | dict | None = None, *, gravity_hint=None) -> Estimate:
+             options: EstimatorOptions | dict | None = None, *,
+             gravity_hint: np.ndarray | Sequence[float] | None = None) -> Estimate:
     """Relative pose (R, t) and, for the bending methods, gravity from two views (docs/CONVENTIONS.md (Estimators)).
 
     ``seed`` makes RANSAC deterministic. Raises EstimationError / InputError for
     an unknown method, 4pt-bending without gravity measurements, or matches
     that do not fit the rig. A run that cannot produce a pose returns
-    ``success=False`` with the reason in ``info['reason']``.
+    ``success=False`` with the reason in ``info.reason`` (:class:`EstimateInfo`).
 
     ``gravity_hint`` (6pt-bending only; view 1's body frame, m/s^2): gravity
     known roughly from elsewhere, e.g. fused from earlier views. The search
     then starts from it alone and stays in its basin, which settles the
     two-fold ambiguity of parallel bars (paper, section 3.3) by history; the
-    result is still a vision-only estimate. ``info['msac_score_rad2']`` (MSAC
+    result is still a vision-only estimate. ``info.msac_score_rad2`` (MSAC
     score over all correspondences at the inlier threshold) lets a caller
     compare it with the unhinted estimate.
     """
@@ -531,15 +616,15 @@ def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int 
     cams_seen = int(np.count_nonzero(np.bincount(matches.cam)))
     if len(matches) < need + 2 or cams_seen < 2:
         return Estimate(method=method, success=False, time_s=time.perf_counter() - t_start,
-                        info={"reason": f"needs at least {need + 2} correspondences seen by at least 2 cameras, "
-                                        f"got {len(matches)} from {cams_seen} camera(s)"})
+                        info=EstimateInfo(reason=f"needs at least {need + 2} correspondences seen by at least 2 "
+                                                 f"cameras, got {len(matches)} from {cams_seen} camera(s)"))
     rng = default_rng(seed)
     hint = {} if gravity_hint is None else {"gravity_hint": gravity_hint}
     out = _METHODS[method](rig, matches, opts, rng, **hint)
     elapsed = time.perf_counter() - t_start
     if out is None:
         return Estimate(method=method, success=False, time_s=elapsed,
-                        info={"reason": "no minimal sample gave a valid pose"})
+                        info=EstimateInfo(reason="no minimal sample gave a valid pose"))
     R, t, g, inliers, info = out
     if g is not None:
         g = rig.gravity_magnitude * normalize(g)
@@ -547,4 +632,4 @@ def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int 
                     time_s=elapsed, info=info)
 
 
-__all__ = ["METHODS", "Estimate", "EstimatorOptions", "estimate"]
+__all__ = ["METHODS", "Estimate", "EstimateInfo", "EstimatorOptions", "estimate"]

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core import METHODS, Estimate, estimate, pose_errors, rig_from_dict
+from ..core import METHODS, Estimate, EstimateInfo, estimate, pose_errors, rig_from_dict
 from ..errors import NrmpcError, OptionError
 from ..sim.synthetic import Scenario, make_problem
 
@@ -61,7 +61,7 @@ def run_task(task: Task) -> list[dict]:
             raise  # the set-up is wrong (e.g. 4pt-bending without gravity): stop and say so
         except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             # an estimator crash is a failed run, recorded with its reason, not the end of a long sweep
-            est = Estimate(method=method, success=False, info={"reason": repr(exc)})
+            est = Estimate(method=method, success=False, info=EstimateInfo(reason=repr(exc)))
             error = f"{type(exc).__name__}: {exc}"
         err = pose_errors(est.R, est.t, problem.R, problem.t, est.gravity, problem.gravity)
         rows.append({

@@ -106,7 +106,7 @@ def _pairwise(problem, method, seed, opts: EstimatorOptions) -> tuple[np.ndarray
             est = estimate(problem.rig, tracks.pair(k - 1, k), method, seed=seed + k, options=opts)
             g = est.gravity2 if est.success else None
             if g is None and not why:
-                why = f"pair ({k - 1}, {k}): {est.info.get('reason', 'no gravity')}"
+                why = f"pair ({k - 1}, {k}): {est.info.reason or 'no gravity'}"
         except NrmpcError:
             raise
         except _CRASHES as exc:
