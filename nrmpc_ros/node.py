@@ -18,7 +18,7 @@ import time
 from .core.rig import load_rig
 from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
 from .frontend import node_config as cfgs
-from .frontend.outputs import OUTPUTS, fill_message, message_fields
+from .frontend.outputs import OUTPUTS, HoldOutput, fill_message, message_fields
 from .frontend.service import EstimatorService
 from .ros_play import message_class
 
@@ -61,7 +61,7 @@ class EstimatorNode(Node):
             self._log("warn", warning)
         imu = imu and self.resolve_topic_name(imu)
         self.camera_topics = [self.resolve_topic_name(c.image_topic) for c in self.rig.cameras]
-        self.service = EstimatorService(self.rig, cfg, pipe_cfg, self.camera_topics, imu, self._publish, self._log)
+        self.service = EstimatorService(self.rig, cfg, pipe_cfg, self.camera_topics, imu, self.publish_hold, self._log)
         self._subs, self._transport = [None] * self.rig.num_cameras, [None] * self.rig.num_cameras
         for i in range(self.rig.num_cameras):
             self._subscribe_camera(i)
@@ -158,7 +158,13 @@ class EstimatorNode(Node):
         else:
             logger.warning(line)
 
-    def _publish(self, out) -> None:  # the worker thread
+    @property
+    def image_subscriptions(self) -> list[tuple[str, bool] | None]:
+        """Per camera, the image topic subscribed to and whether it is compressed (None: not yet)."""
+        return list(self._transport)
+
+    def publish_hold(self, out: HoldOutput) -> None:
+        """Publish one hold's outputs on the node's topics; the service calls it from its worker thread."""
         for key, fields in message_fields(out, self.service.frames, self.service.feeder.ros_stamp).items():
             if key in self.pubs:
                 self.pubs[key].publish(fill_message(self.pubs[key].msg_type(), fields))

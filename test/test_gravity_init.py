@@ -61,7 +61,7 @@ def test_hypotheses_start_near_the_truth_and_translation_is_linear():
 def test_pose_scores_rank_the_truth_first_on_parallel_bars():
     """On a 2-camera line rig (parallel bars) the full-pose MSAC score puts the true gravity ahead of its
     mirror about the bar axis and of distant directions; batched translations equal the single ones."""
-    from nrmpc_ros.core.gravity_init import _body_rotation_from_cameras, pose_hypothesis_scores
+    from nrmpc_ros.core.gravity_init import body_rotation_from_cameras, pose_hypothesis_scores
     from nrmpc_ros.core.so3 import fibonacci_sphere
     from nrmpc_ros.sim.synthetic import RigSpec
 
@@ -74,16 +74,16 @@ def test_pose_scores_rank_the_truth_first_on_parallel_bars():
     far = 9.81 * fibonacci_sphere(50)
     far = far[[angle_between(h, g) > 0.5 and angle_between(h, mirror) > 0.2 for h in far]]
     hyp = np.vstack([g, mirror, far])
-    R_h, _ = _body_rotation_from_cameras(rig, cams, Rc, counts / counts.sum(), hyp, pb.R)
+    R_h, _ = body_rotation_from_cameras(rig, cams, Rc, counts / counts.sum(), hyp, pb.R)
     idx = np.flatnonzero(inl)
     scores = pose_hypothesis_scores(rig, m, idx, 6.0 / 800.0, hyp, R_h)
     assert scores[0] < scores[1] and scores[0] < scores[2:].min()
     t_single = translation_given_rotation(rig, m, idx, R_h[1], hyp[1])
     from nrmpc_ros.core.deformation import rays
-    from nrmpc_ros.core.gravity_init import _translations
+    from nrmpc_ros.core.gravity_init import least_squares_translations
     o1, d1 = rays(rig, m.f1[idx], m.cam[idx], hyp[1])
     o2, d2 = rays(rig, m.f2[idx], m.cam[idx], R_h[1].T @ hyp[1])
-    assert np.allclose(_translations(o1[None], d1[None], o2[None], d2[None], R_h[1:2])[0], t_single)
+    assert np.allclose(least_squares_translations(o1[None], d1[None], o2[None], d2[None], R_h[1:2])[0], t_single)
 
 
 def test_start_translation_checks_the_sign_of_the_least_squares_translation():

@@ -121,7 +121,7 @@ def test_long_stream_window_matches_every_kept_sample(cross_rig, rng):
     kept = ts >= ts[-1] - 2.0
     assert len(buf) == kept.sum()
     np.testing.assert_array_equal(buf.window(0.0, ts[-1])[0], ts[kept])
-    assert buf.stats["gaps"] == 1 and buf._gaps == []  # the gap is older than the history now
+    assert buf.stats["gaps"] == 1 and buf.gaps == []  # the gap is older than the history now
     t, a, _ = buf.window(ts[-1] - 0.1, ts[-1])
     a[:] = 0.0  # windows are copies: the buffer keeps its samples
     assert np.all(buf.window(ts[-1] - 0.1, ts[-1])[1] != 0.0)

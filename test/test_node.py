@@ -102,14 +102,14 @@ def test_no_rig_file_is_a_clear_error(ctx):
 def test_transports_and_no_imu(ctx):
     node = make_node(ctx, image_transport="compressed", use_imu=False)
     try:
-        assert [t for t, _ in node._transport] == [f"/cam{i}/image_raw/compressed" for i in range(4)]
+        assert [t for t, _ in node.image_subscriptions] == [f"/cam{i}/image_raw/compressed" for i in range(4)]
         assert node.count_subscribers("/imu/data") == 0 and node.service.imu_topic is None
         assert node.service.diagnostics()[1].message.startswith("no IMU (use_imu is false)")
     finally:
         node.destroy_node()
     node = make_node(ctx, image_transport="auto")  # nothing published yet: the raw topics, checked again later
     try:
-        assert node._transport == [(f"/cam{i}/image_raw", False) for i in range(4)]
+        assert node.image_subscriptions == [(f"/cam{i}/image_raw", False) for i in range(4)]
     finally:
         node.destroy_node()
 
@@ -142,7 +142,7 @@ def test_published_messages_carry_their_frames_and_the_bent_camera_poses(ctx):
     try:
         deadline = time.monotonic() + 10
         while len(got) < len(topics) and time.monotonic() < deadline:
-            node._publish(out)
+            node.publish_hold(out)
             executor.spin_once(timeout_sec=0.1)
     finally:
         executor.shutdown(timeout_sec=1.0)

@@ -403,6 +403,11 @@ class SequenceBundleProblem:
         """Angular residuals (N, 2), rad."""
         return self._evaluate(state, rig or self.model_rig(state), jacobians=False)[0]
 
+    def jacobians(self, state: BundleState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residuals e (N, 2), their Jacobian on each observation's local columns ``structure.cols`` (N, 2, L)
+        and de/dX (N, 2, 3): what :meth:`linearize` assembles, open to a check against finite differences."""
+        return self._evaluate(state, self.model_rig(state))
+
     def _evaluate(self, state: BundleState, rig: Rig, jacobians: bool = True, camera: bool = True):
         """Residuals e (N, 2) and, if asked, the local camera Jacobian (N, 2, L) (None unless ``camera``) and
         de/dX (N, 2, 3).

@@ -108,8 +108,11 @@ def camera_rotations(m: Matches, num_cameras: int, threshold_rad: float, seed: i
     return np.array(cams, dtype=int), np.array(rots).reshape(-1, 3, 3), np.array(counts), inlier
 
 
-def _body_rotation_from_cameras(rig: Rig, cams, Rc, weights, g1, R0, iterations=3):
-    """For each gravity hypothesis g1 (K, 3): the body rotation agreeing best with all cameras, and the cost.
+def body_rotation_from_cameras(rig: Rig, cams: np.ndarray, Rc: np.ndarray, weights: np.ndarray, g1: np.ndarray,
+                               R0: np.ndarray, iterations: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """For each gravity hypothesis g1 (K, 3): the body rotation agreeing best with all cameras (K, 3, 3), and
+    the cost (K,); cams, Rc, weights as :func:`camera_rotations` gives them (weights summing to 1), R0 the
+    rotation the iterations start from.
 
     With W_j(g) = Exp(phi_j(g)) V_j (docs/CONVENTIONS.md (Bending)), each camera's estimate of R is
     W_j(g1) Rc_j W_j(R^T g1)^T = Exp(phi_j(g1)) (V_j Rc_j V_j^T) Exp(phi_j(R^T g1))^T.
@@ -141,7 +144,7 @@ def gravity_rotation_hypotheses(rig: Rig, cams, Rc, weights, num_hypotheses=200,
     gm = rig.gravity_magnitude
     weights, R_canonical = _weights_and_rigid_rotation(rig, cams, Rc, weights)
     hyp = gm * fibonacci_sphere(num_hypotheses)
-    R_h, cost = _body_rotation_from_cameras(rig, cams, Rc, weights, hyp, R_canonical)
+    R_h, cost = body_rotation_from_cameras(rig, cams, Rc, weights, hyp, R_canonical)
     rank = cost if scoring is None else pose_hypothesis_scores(rig, *scoring, hyp, R_h)
     spacing = 2.0 * np.sqrt(np.pi / num_hypotheses)  # typical angle between grid neighbours
     picked = []
@@ -166,7 +169,7 @@ def hinted_hypothesis(rig: Rig, cams, Rc, weights, gravity_hint):
     rotation agreeing best with the per-camera rotations when the bars bend under it."""
     weights, R_canonical = _weights_and_rigid_rotation(rig, cams, Rc, weights)
     g = rig.gravity_magnitude * normalize(np.asarray(gravity_hint, dtype=float))[None]
-    R, cost = _body_rotation_from_cameras(rig, cams, Rc, weights, g, R_canonical)
+    R, cost = body_rotation_from_cameras(rig, cams, Rc, weights, g, R_canonical)
     return [(g[0], R[0], float(cost[0]))]
 
 
@@ -183,7 +186,7 @@ def _refine_locally(rig, cams, Rc, weights, g, R, cost, spacing, levels=3):
     for _ in range(levels):
         B = tangent_basis(g / gm)  # (S, 3, 2)
         cand = gm * normalize(g[:, None, :] / gm + radius * np.einsum("sij,cj->sci", B, _OFFSETS))
-        R_c, c = _body_rotation_from_cameras(rig, cams, Rc, weights, cand.reshape(-1, 3), np.repeat(R, C, axis=0))
+        R_c, c = body_rotation_from_cameras(rig, cams, Rc, weights, cand.reshape(-1, 3), np.repeat(R, C, axis=0))
         c = c.reshape(S, C)
         k = np.argmin(c, axis=1)
         better = c[np.arange(S), k] < cost
@@ -203,12 +206,13 @@ def pose_hypothesis_scores(rig: Rig, m: Matches, idx, threshold, hyp, R_h):
     w2, W2 = deformed_extrinsics(rig, np.einsum("kji,kj->ki", R_h, hyp))  # R^T g
     o1, d1 = w1[:, cam], np.einsum("knij,nj->kni", W1[:, cam], f1)
     o2, d2 = w2[:, cam], np.einsum("knij,nj->kni", W2[:, cam], f2)
-    t = _translations(o1, d1, o2, d2, R_h)
+    t = least_squares_translations(o1, d1, o2, d2, R_h)
     err = two_view_angular_errors(o1, d1, o2, d2, R_h, t)
     return np.minimum(err * err, threshold**2).sum(axis=-1)
 
 
-def _translations(o1, d1, o2, d2, R, rounds=3):
+def least_squares_translations(o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.ndarray, R: np.ndarray,
+                               rounds: int = 3) -> np.ndarray:
     """Least-squares t from the generalized epipolar constraint, linear in t for fixed R and rays,
     batched over leading dimensions (rays (..., N, 3), R (..., 3, 3)).
 
@@ -232,23 +236,24 @@ def _translations(o1, d1, o2, d2, R, rounds=3):
 
 
 def translation_given_rotation(rig: Rig, m: Matches, idx, R, g):
-    """Least-squares t for fixed R and gravity g on correspondences idx (see :func:`_translations`)."""
+    """Least-squares t for fixed R and gravity g on correspondences idx (see :func:`least_squares_translations`)."""
     o1, d1 = rays(rig, m.f1[idx], m.cam[idx], g)
     o2, d2 = rays(rig, m.f2[idx], m.cam[idx], None if g is None else R.T @ g)
-    return _translations(o1, d1, o2, d2, R)
+    return least_squares_translations(o1, d1, o2, d2, R)
 
 
 def start_translation(rig: Rig, m: Matches, idx, R, g, threshold):
     """Translation of a start (R, g) on correspondences idx, and the angular errors (rad) of idx at that pose.
 
-    The least-squares t of :func:`_translations`, with its sign checked: the part of the constraint that fixes
-    the sign (the moments, i.e. the cameras' offsets from the body centre) is weak when the cameras hardly see
-    across the rig (parallel bars), and there noise or a wrong gravity can flip it. Of t and -t the one with
-    the smaller MSAC score at ``threshold`` (rad) is kept; the angular errors punish points behind a camera.
+    The least-squares t of :func:`least_squares_translations`, with its sign checked: the part of the
+    constraint that fixes the sign (the moments, i.e. the cameras' offsets from the body centre) is weak when
+    the cameras hardly see across the rig (parallel bars), and there noise or a wrong gravity can flip it. Of
+    t and -t the one with the smaller MSAC score at ``threshold`` (rad) is kept; the angular errors punish
+    points behind a camera.
     """
     o1, d1 = rays(rig, m.f1[idx], m.cam[idx], g)
     o2, d2 = rays(rig, m.f2[idx], m.cam[idx], R.T @ g)
-    t = _translations(o1, d1, o2, d2, R)
+    t = least_squares_translations(o1, d1, o2, d2, R)
     both = np.stack([t, -t])
     err = two_view_angular_errors(o1, d1, o2, d2, R, both)  # (2, n)
     k = int(np.argmin(np.minimum(err * err, threshold**2).sum(axis=1)))

@@ -142,6 +142,13 @@ class ImuBuffer:
         self._consolidate()
         return self._n - self._i0
 
+    @property
+    def gaps(self) -> list[tuple[float, float]]:
+        """The input gaps longer than ``gap_s`` as (last stamp before, first stamp after), oldest first; a gap
+        is forgotten once the sample after it leaves the history kept (``stats["gaps"]`` still counts it)."""
+        self._consolidate()
+        return list(self._gaps)
+
     def window(self, t0: float, t1: float):
         """Samples (t, accel, gyro) with t0 <= t <= t1 (copies)."""
         self._consolidate()
