@@ -76,6 +76,12 @@ class SequenceOptions:
                                    hi=10000000)
     pair_refine_starts: int = option(2, "pairwise starts: gravity hypotheses refined", lo=1, hi=1000)
     pair_ba_iterations: int = option(10, "pairwise starts: bundle-adjustment iterations", lo=1, hi=10000)
+    # view by view (core.incremental): once the gravity is settled a new view is placed on the landmarks the
+    # window already knows, and the window, adjusted already but for that view, needs one inlier round
+    resect_views: bool = option(True, "view by view: place a new view by resection on the window's landmarks "
+                                "once the sequence is no longer young (else the two-view estimator)")
+    window_rounds: int = option(2, "view by view: joint adjustments of the window while its inliers change",
+                                lo=1, hi=100)
 
     def __post_init__(self):
         check(self, "sequence options")
@@ -236,10 +242,12 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
 
 def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float, *, priors=None,
                     gravity_information: GravityInformation | None = None, points=None, free_views=None,
-                    max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0):
+                    max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0,
+                    inliers=None, min_rounds: int = 2):
     """Robust joint adjustment: classify observations as inliers (angular error below ``threshold``, rad,
-    ``start_factor`` times that at the start, where the poses are only roughly right), adjust on the inliers,
-    re-classify every observation and repeat (at least twice, each round from landmarks triangulated at the
+    ``start_factor`` times that at the start, where the poses are only roughly right, and within the given
+    ``inliers`` mask, for a start that is already adjusted and classified), adjust on the inliers, re-classify every
+    observation and repeat (at least ``min_rounds`` times, each round from landmarks triangulated at the
     poses so far) while the inlier set changes by more than 1 %. Returns
     (BundleResult on the inliers, inlier mask over obs)."""
     state = BundleState(np.asarray(R, float), np.asarray(t, float), gravity,
@@ -248,7 +256,8 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
     full, prob = triangulated(rig, obs, state)
     if points is not None:
         full = replace(full, points=np.asarray(points, float))
-    inl = _seen_twice(obs, _errors(prob, full) < start_factor * threshold)
+    inl = _errors(prob, full) < start_factor * threshold
+    inl = _seen_twice(obs, inl if inliers is None else inl & np.asarray(inliers, bool))
     res = None
     for r in range(max(1, rounds)):
         sub, used = obs.subset(inl)
@@ -264,8 +273,8 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
         new = _seen_twice(obs, _errors(prob, full) < threshold)
         changed = int(np.count_nonzero(new != inl))
         inl = new
-        if r >= 1 and changed <= max(2, 0.01 * np.count_nonzero(inl)):
-            break  # a second round always runs: from landmarks triangulated at the refined poses
+        if r + 1 >= min_rounds and changed <= max(2, 0.01 * np.count_nonzero(inl)):
+            break  # a rough start always gets a second round: from landmarks triangulated at the refined poses
     return res, inl
 
 
