@@ -6,14 +6,19 @@ that view's pose in the sequence origin (view 0) and its gravity from the
 joint solution (docs/PIPELINE.md, "Sequence"):
 
 1. The new view is paired with the newest earlier view that shares enough
-   landmarks (seen by two cameras at least) and estimated with the two-view
-   estimator of the method; its pose in the origin follows by chaining.
+   landmarks (seen by two cameras at least). While the sequence is young it
+   is estimated with the two-view estimator of the method and its pose in
+   the origin follows by chaining; later it is placed by resection on the
+   landmarks the window's earlier views triangulate (:mod:`.resection`; the
+   two-view estimator only where too few of them fit).
 2. Gravity: the first pair's gravity candidates (its own and the basins it
    left open) are compared by the joint cost; while the sequence is young,
-   or when a new pair's gravity contradicts the joint one, the joint
-   gravity competes again with the pair's candidates.
+   or when a new pair's gravity contradicts the joint one beyond that pair's
+   own noise, the joint gravity competes again with the pair's candidates.
 3. The newest ``window`` views are adjusted jointly (robust bundle adjustment
-   with inlier classification, :func:`.sequence.refine_sequence`); older
+   with inlier classification, :func:`.sequence.refine_sequence`; after a
+   resection from the inliers so far, the rest of the window being adjusted
+   already); older
    views keep their poses. Their observations of landmarks the window still
    sees stay in the problem (with those fixed poses); landmarks the window
    no longer sees are condensed, poses fixed, into information on the
@@ -388,7 +393,7 @@ class IncrementalSequence:
                                    priors=self._priors(k + 1), gravity_information=s.condensed, free_views=free,
                                    max_iterations=self.options.max_iterations, rounds=self.options.window_rounds,
                                    huber_k=self.options.estimator.huber_k, inliers=start,
-                                   min_rounds=1 if warm else 2)
+                                   min_rounds=1 if warm else 2, tol=self.options.relative_tolerance)
         st = res.state
         for i in free:
             s.R[i], s.t[i] = st.R[i], st.t[i]
@@ -453,7 +458,8 @@ class IncrementalSequence:
         obs, _ = obs.subset(seen)
         res, inl = refine_sequence(self.model_rig, obs, np.array(s.R), np.array(s.t), s.gravity, self.threshold,
                                    priors=self._priors(K), max_iterations=self.options.max_iterations,
-                                   rounds=self.options.inlier_rounds, huber_k=self.options.estimator.huber_k)
+                                   rounds=self.options.inlier_rounds, huber_k=self.options.estimator.huber_k,
+                                   tol=self.options.relative_tolerance)
         st = res.state
         grav = sig = None
         reason = ""
