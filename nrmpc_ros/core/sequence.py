@@ -73,8 +73,6 @@ class SequenceOptions:
                                              hi=180.0)
     max_candidates: int = option(8, "distinct gravity candidates scored at the chained poses", lo=1, hi=1000)
     refined_candidates: int = option(3, "of which the best get a short joint adjustment", lo=1, hi=1000)
-    refined_separation_deg: float = option(10.0, "... each at least this far (deg) from a better-scored one",
-                                           lo=0.0, hi=180.0)
     max_pair_gap: int = option(3, "a view is paired with at most this many views back", lo=1, hi=1000)
     min_pair_matches: int = option(12, "correspondences a pair needs (from two cameras at least)", lo=8,
                                    hi=10000000)
@@ -291,8 +289,7 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
     prior terms); returns (the candidate itself when there is only one, else the winner's BundleState, count).
 
     Every candidate is first scored at the chained poses (landmarks triangulated, no adjustment); the best
-    ``refined_candidates`` of them, ``refined_separation_deg`` apart (one per basin), get the short adjustment
-    on a subset of the tracks.
+    ``refined_candidates`` of them get the short adjustment on a subset of the tracks.
     """
     if len(candidates) == 1:
         return candidates[0], 1
@@ -300,12 +297,7 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
     for g0 in candidates:
         st, prob = triangulated(rig, obs, BundleState(R, t, g0, np.zeros((obs.num_points, 3))))
         quick.append(msac_score(_errors(prob, st), threshold))
-    keep = []  # the best-scored of each basin: a candidate this close to a better one converges to it
-    for i in np.argsort(quick):
-        if all(angle_between(candidates[i], g) > math.radians(opts.refined_separation_deg) for g in keep):
-            keep.append(candidates[i])
-        if len(keep) >= opts.refined_candidates:
-            break
+    keep = [candidates[i] for i in np.argsort(quick)[: opts.refined_candidates]]
     pts = np.arange(obs.num_points)
     if len(pts) > opts.candidate_tracks:
         pts = np.sort(rng.choice(pts, size=opts.candidate_tracks, replace=False))
