@@ -91,3 +91,25 @@ def test_a_view_without_shared_landmarks_starts_a_new_sequence_and_reset_does_to
 def test_bad_window():
     with pytest.raises(ValueError, match="window"):
         IncrementalSequence(make_sequence(SequenceScenario(rig=RING3, num_views=2), seed=0).rig, window=1)
+
+
+def test_settled_views_are_placed_by_resection(noisy, monkeypatch):
+    """Past the young views a new view is placed on the window's landmarks, not by a two-view estimate, and
+    ends as close to the truth as with the two-view estimates."""
+    import nrmpc_ros.core.incremental as incremental
+
+    calls = []
+    real = incremental.estimate
+    monkeypatch.setattr(incremental, "estimate", lambda *a, **k: calls.append(1) or real(*a, **k))
+    p = noisy
+    errs = {}
+    for resect in (False, True):
+        calls.clear()
+        seq = IncrementalSequence(p.rig, "6pt-bending", {"resect_views": resect}, window=10, seed=0)
+        last = feed(seq, p)[-1]
+        errs[resect] = (math.degrees(float(angle_between(last.gravity, p.gravity[-1]))),
+                        math.degrees(last.gravity_sigma_rad), len(calls))
+    assert errs[False][2] == p.tracks.num_views - 1
+    assert errs[True][2] <= 6, errs  # the young views, and a view resection could not place
+    for err, sig, _ in errs.values():
+        assert err < 4 * sig + 0.05, errs

@@ -6,14 +6,19 @@ that view's pose in the sequence origin (view 0) and its gravity from the
 joint solution (docs/PIPELINE.md, "Sequence"):
 
 1. The new view is paired with the newest earlier view that shares enough
-   landmarks (seen by two cameras at least) and estimated with the two-view
-   estimator of the method; its pose in the origin follows by chaining.
+   landmarks (seen by two cameras at least). While the sequence is young it
+   is estimated with the two-view estimator of the method and its pose in
+   the origin follows by chaining; later it is placed by resection on the
+   landmarks the window's earlier views triangulate (:mod:`.resection`; the
+   two-view estimator only where too few of them fit).
 2. Gravity: the first pair's gravity candidates (its own and the basins it
    left open) are compared by the joint cost; while the sequence is young,
-   or when a new pair's gravity contradicts the joint one, the joint
-   gravity competes again with the pair's candidates.
+   or when a new pair's gravity contradicts the joint one beyond that pair's
+   own noise, the joint gravity competes again with the pair's candidates.
 3. The newest ``window`` views are adjusted jointly (robust bundle adjustment
-   with inlier classification, :func:`.sequence.refine_sequence`); older
+   with inlier classification, :func:`.sequence.refine_sequence`; after a
+   resection from the inliers so far, the rest of the window being adjusted
+   already); older
    views keep their poses. Their observations of landmarks the window still
    sees stay in the problem (with those fixed poses); landmarks the window
    no longer sees are condensed, poses fixed, into information on the
@@ -37,6 +42,7 @@ import numpy as np
 from .bundle import BundleState, GravityInformation, GravityPriors, Observations, condense_gravity
 from .estimators import estimate
 from .matches import Matches
+from .resection import resect_view
 from .rig import Rig
 from .sequence import (
     RIGID_REASON,
@@ -49,6 +55,8 @@ from .sequence import (
 )
 from .so3 import angle_between, normalize
 from .tracks import Tracks
+
+RECONSIDER_SIGMAS = 3.0  # a pair's gravity contradicts the joint one beyond this many of its own stds only
 
 
 @dataclass
@@ -196,16 +204,23 @@ class IncrementalSequence:
             s.R.append(np.eye(3))
             s.t.append(np.zeros(3))
             return "the first view of a sequence is its origin"
-        paired = self._pair(k)
-        if isinstance(paired, str):
-            self._restart_from_last()
-            return f"new sequence: {paired}"
-        j, pm, est = paired
-        s.R.append(s.R[j] @ est.R)
-        s.t.append(s.R[j] @ est.t + s.t[j])
-        if self.with_gravity:
-            self._update_gravity(k, j, est)
-        res, first = self._solve_window(k)
+        placed = self._resect(k)
+        warm = placed is not None
+        if warm:
+            j, pm, (R, t) = placed
+            s.R.append(R)
+            s.t.append(t)
+        else:
+            paired = self._pair(k)
+            if isinstance(paired, str):
+                self._restart_from_last()
+                return f"new sequence: {paired}"
+            j, pm, est = paired
+            s.R.append(s.R[j] @ est.R)
+            s.t.append(s.R[j] @ est.t + s.t[j])
+            if self.with_gravity:
+                self._update_gravity(k, j, est)
+        res, first = self._solve_window(k, warm)
         self._retire(first + 1)
         return self._estimate(k, j, pm, res, first, time.perf_counter() - t0)
 
@@ -217,10 +232,11 @@ class IncrementalSequence:
         _, ia, ib = np.intersect1d(a, b, assume_unique=False, return_indices=True)
         return ia, ib
 
-    def _pair(self, k: int):
-        """(reference view, method, two-view estimate) of view k, or why none."""
+    def _links(self, k: int):
+        """The earlier views view k may be paired with, newest first: (j, shared observation indices in j and
+        in k, pair method) of those that share enough landmarks from two cameras, or a str why none does."""
         s = self.seq
-        why = []
+        why, out = [], []
         for j in range(k - 1, max(-1, k - 1 - self.options.max_pair_gap), -1):
             ia, ib = self._shared(j, k)
             cams = len(np.unique(s.cam[j][ia]))
@@ -228,7 +244,56 @@ class IncrementalSequence:
                 why.append(f"view {j}: {len(ia)} shared landmarks from {cams} camera(s)")
                 continue
             has_g = np.all(np.isfinite(s.measured[j])) and np.all(np.isfinite(s.measured[k]))
-            pm = self.method if self.method != "4pt-bending" or has_g else "6pt-bending"
+            out.append((j, ia, ib, self.method if self.method != "4pt-bending" or has_g else "6pt-bending"))
+        return out or "; ".join(why) or "no earlier view"
+
+    def _resect(self, k: int):
+        """(reference view, method, (R, t)) of view k placed by resection on the landmarks the earlier views
+        of the window triangulate (docs/PIPELINE.md, "Sequence"), or None where the two-view estimate is
+        to place it: a young sequence (its gravity still competes with each pair's), no link, or too few
+        landmarks that fit one pose."""
+        s = self.seq
+        opts = self.options
+        if not opts.resect_views or k < self.young_views or (self.with_gravity and s.gravity is None):
+            return None
+        links = self._links(k)
+        if isinstance(links, str):
+            return None
+        j, _, _, pm = links[0]
+        view, cam, track, f, inl = s.arrays()
+        known = (view < k) & (view > k - self.window) & inl & np.isin(track, s.track[k])
+        if s.retired:
+            known &= ~np.isin(track, np.fromiter(s.retired, np.int64))
+        obs, ids = Observations.from_arrays(view[known], cam[known], track[known], f[known], k)
+        twice = np.bincount(obs.point, minlength=obs.num_points) >= 2
+        if np.count_nonzero(twice) < opts.min_pair_matches:
+            return None
+        obs, used = obs.subset(twice[obs.point])
+        ids = ids[used]
+        state = BundleState(np.array(s.R[:k]), np.array(s.t[:k]), s.gravity, np.zeros((obs.num_points, 3)))
+        points = triangulated(self.model_rig, obs, state)[0].points
+        pos = np.searchsorted(ids, s.track[k])
+        hit = np.flatnonzero(ids[np.minimum(pos, len(ids) - 1)] == s.track[k])
+        res = resect_view(self.model_rig, points[pos[hit]], s.f[k][hit], s.cam[k][hit], s.R[j], s.t[j],
+                          s.gravity if self.with_gravity else None, self.threshold, seed=self.seed + k)
+        if res is None or res.num_inliers < opts.min_pair_matches or \
+                len(np.unique(s.cam[k][hit[res.inliers]])) < 2:
+            return None
+        inlier = np.zeros(len(s.cam[k]), bool)
+        inlier[hit[res.inliers]] = True
+        inlier[np.setdiff1d(np.arange(len(inlier)), hit)] = True  # new landmarks: judged by the window solve
+        s.inlier[k] = inlier
+        return j, pm, (res.R, res.t)
+
+    def _pair(self, k: int):
+        """(reference view, method, two-view estimate) of view k, or why none."""
+        s = self.seq
+        links = self._links(k)
+        if isinstance(links, str):
+            return links
+        why = []
+        for j, ia, ib, pm in links:
+            has_g = np.all(np.isfinite(s.measured[j])) and np.all(np.isfinite(s.measured[k]))
             m = Matches(s.f[j][ia], s.f[k][ib], s.cam[j][ia], s.measured[j] if has_g else None,
                         s.measured[k] if has_g else None, source=f"views {j}, {k}")
             est = estimate(self.model_rig, m, method=pm, seed=self.seed + k, options=self._pair_options)
@@ -277,7 +342,10 @@ class IncrementalSequence:
             cands += [(s.R[i] @ s.measured[i], 0.0) for i in (j, k) if np.all(np.isfinite(s.measured[i]))]
         if s.gravity is not None:
             young = k < self.young_views
-            if not young and angle_between(cands[0][0], s.gravity) < self.reconsider_rad:
+            # a pair contradicts the joint gravity by more than reconsider_deg and its own noise allows
+            sigma = float(est.info.get("gravity_sigma_rad", 0.0))
+            if not young and angle_between(cands[0][0], s.gravity) < max(self.reconsider_rad,
+                                                                         RECONSIDER_SIGMAS * sigma):
                 return
             cands = [(s.gravity, math.inf)] + cands
         opts = self.options
@@ -311,14 +379,21 @@ class IncrementalSequence:
             free = free[1:]  # nothing older ties the window to the origin: its first view holds the gauge
         return obs, np.flatnonzero(keep), free
 
-    def _solve_window(self, k: int):
+    def _solve_window(self, k: int, warm: bool = False):
+        """Robust adjustment of the window ending at view k. ``warm``: every view of it but k is adjusted
+        already and k was placed by resection, so the inliers so far start it and one round may do."""
         s = self.seq
         first = max(0, k + 1 - self.window)
         obs, idx, free = self._window_problem(k, first)
+        start = None
+        if warm:  # the inliers so far, and the observations of landmarks not seen twice before view k
+            before = np.bincount(obs.point, weights=obs.view < k, minlength=obs.num_points)
+            start = np.concatenate(s.inlier)[idx] | (before[obs.point] < 2)
         res, inl = refine_sequence(self.model_rig, obs, np.array(s.R), np.array(s.t), s.gravity, self.threshold,
                                    priors=self._priors(k + 1), gravity_information=s.condensed, free_views=free,
-                                   max_iterations=self.options.max_iterations, rounds=2,
-                                   huber_k=self.options.estimator.huber_k)
+                                   max_iterations=self.options.max_iterations, rounds=self.options.window_rounds,
+                                   huber_k=self.options.estimator.huber_k, inliers=start,
+                                   min_rounds=1 if warm else 2, tol=self.options.relative_tolerance)
         st = res.state
         for i in free:
             s.R[i], s.t[i] = st.R[i], st.t[i]
@@ -383,7 +458,8 @@ class IncrementalSequence:
         obs, _ = obs.subset(seen)
         res, inl = refine_sequence(self.model_rig, obs, np.array(s.R), np.array(s.t), s.gravity, self.threshold,
                                    priors=self._priors(K), max_iterations=self.options.max_iterations,
-                                   rounds=self.options.inlier_rounds, huber_k=self.options.estimator.huber_k)
+                                   rounds=self.options.inlier_rounds, huber_k=self.options.estimator.huber_k,
+                                   tol=self.options.relative_tolerance)
         st = res.state
         grav = sig = None
         reason = ""

@@ -67,6 +67,9 @@ ILL_CONDITIONED = 1e-9  # det below this share of the largest diagonal entry cub
 
 DENSE_COST_RATIO = 20.0  # a GEMM flop costs about this much less than a scattered (bincount) entry
 DENSE_JACOBIAN_ENTRIES = 1 << 20  # observations x (camera parameters + 1) up to which J^T J comes from a GEMM
+# ... when the camera block has at most this many columns per local column: a GEMM over a wider, mostly zero
+# Jacobian (many views) costs more than scattering each observation's local products
+DENSE_JACOBIAN_WIDTH = 3
 
 
 class SchurStructure:
@@ -87,7 +90,7 @@ class SchurStructure:
         self._n1 = n1
         N, L = self.cols.shape
         # J^T J: from a dense (rows, nc) Jacobian when it is small, else scattered per observation
-        self._dense_jacobian = N * n1 <= DENSE_JACOBIAN_ENTRIES
+        self._dense_jacobian = N * n1 <= DENSE_JACOBIAN_ENTRIES and n1 <= DENSE_JACOBIAN_WIDTH * L
         if self._dense_jacobian:
             self._jc = (np.arange(N)[:, None] * n1 + self.cols).reshape(-1)
         else:

@@ -4,10 +4,14 @@ Gravity is fixed in the world, so over K views g_k = R_k^T g_0: the
 sequence has one gravity unknown and every view's bending constrains it.
 :func:`estimate_sequence` is the entry point:
 
-1. **Initialisation from the pairwise estimators.** Each view is paired with
-   the nearest earlier view that shares enough tracks (the previous one
-   unless it shares too few) and estimated with the method's two-view
-   estimator; the pair poses are chained into poses in view 0.
+1. **Initialisation from the pairwise estimators.** The first views
+   (``chain_pairs``) are each paired with the nearest earlier view that
+   shares enough tracks (the previous one unless it shares too few) and
+   estimated with the method's two-view estimator; the pair poses are chained
+   into poses in view 0. Each later view is placed by resection
+   (:mod:`.resection`) on the landmarks the views before it triangulate, the
+   cameras bent at the pairs' gravity candidate that explains those views
+   best; the two-view estimator places it only where that fails.
 2. **Gravity basin by the joint cost.** Every pair's gravity, and the other
    basins it left open (its refined starts: on parallel bars the bending
    reversed or mirrored), carried into view 0, is a candidate for g_0
@@ -44,6 +48,7 @@ from .bundle import (
 )
 from .estimators import METHODS, EstimatorOptions, estimate
 from .loss import msac_score
+from .resection import resect_view
 from .rig import Rig
 from .so3 import angle_between
 from .tracks import Tracks
@@ -57,6 +62,10 @@ class SequenceOptions:
 
     estimator: EstimatorOptions = option(EstimatorOptions(), "the two-view estimators and the thresholds")
     max_iterations: int = option(50, "joint bundle-adjustment iterations per inlier round", lo=1, hi=10000)
+    # chi^2/2 of a sequence is about its number of observations: 1e-4 of it moves the parameters far below
+    # their std, while the inlier rounds re-classify and re-adjust anyway
+    relative_tolerance: float = option(1e-4, "a joint adjustment stops once a step gains less than this share "
+                                       "of the cost", lo=0.0, hi=1.0)
     inlier_rounds: int = option(4, "joint adjustments while the inlier set still changes", lo=1, hi=100)
     candidate_iterations: int = option(8, "short joint adjustment of each gravity candidate", lo=1, hi=10000)
     candidate_tracks: int = option(300, "tracks (random subset) those short adjustments use", lo=8, hi=10000000)
@@ -76,6 +85,17 @@ class SequenceOptions:
                                    hi=10000000)
     pair_refine_starts: int = option(2, "pairwise starts: gravity hypotheses refined", lo=1, hi=1000)
     pair_ba_iterations: int = option(10, "pairwise starts: bundle-adjustment iterations", lo=1, hi=10000)
+    # view by view (core.incremental): once the gravity is settled a new view is placed on the landmarks the
+    # window already knows, and the window, adjusted already but for that view, needs one inlier round
+    # the batch: the first views' pairs give the gravity candidates, later views are placed on their landmarks
+    chain_pairs: int = option(3, "batch: views after the origin placed by the two-view estimator (their gravity "
+                              "candidates compete); later ones by resection on the landmarks of the views "
+                              "before, the estimator only where that fails (null: every view)", lo=1,
+                              hi=1000000, nullable=True)
+    resect_views: bool = option(True, "view by view: place a new view by resection on the window's landmarks "
+                                "once the sequence is no longer young (else the two-view estimator)")
+    window_rounds: int = option(2, "view by view: joint adjustments of the window while its inliers change",
+                                lo=1, hi=100)
 
     def __post_init__(self):
         check(self, "sequence options")
@@ -132,8 +152,10 @@ def _failure(method, t0, reason) -> SequenceEstimate:
     return SequenceEstimate(method=method, success=False, time_s=time.perf_counter() - t0, reason=reason)
 
 
-def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, seed: int):
-    """Poses of every view in view 0 from two-view estimates, and gravity candidates for g_0.
+def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, seed: int, threshold: float,
+                 with_gravity: bool):
+    """Poses of every view in view 0 from two-view estimates (the first ``opts.chain_pairs`` views after the
+    origin, and any later one resection cannot place) and resection, and gravity candidates for g_0.
 
     Returns (R (K,3,3), t (K,3), candidates list of (g_0, weight), pair methods) or a str reason.
     """
@@ -141,7 +163,16 @@ def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, s
     R, t = [np.eye(3)], [np.zeros(3)]
     candidates, methods = [], []
     pair_opts = opts.pair_estimator()
+    bend = {}  # the candidates so far -> the one that bends the cameras of the resections
     for k in range(1, K):
+        if opts.chain_pairs is not None and k > opts.chain_pairs:
+            placed = _resect_next(rig, tracks, method, np.array(R), np.array(t), candidates, threshold, opts,
+                                  seed + k, with_gravity, bend)
+            if placed is not None:
+                R.append(placed[0])
+                t.append(placed[1])
+                methods.append(placed[2])
+                continue
         why = []
         for j in range(k - 1, max(-1, k - 1 - opts.max_pair_gap), -1):
             m = tracks.pair(j, k)
@@ -165,6 +196,55 @@ def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, s
         else:
             return f"view {k} cannot be linked to the views before it ({'; '.join(why) or 'no earlier view'})"
     return np.array(R), np.array(t), candidates, methods
+
+
+def _resect_next(rig: Rig, tracks: Tracks, method: str, R, t, candidates, threshold: float,
+                 opts: SequenceOptions, seed: int, with_gravity: bool, bend: dict):
+    """(R, t, (method, reference view)) of the next view k = len(R) placed by resection on the landmarks the
+    views before it triangulate, the cameras bent at the candidate g_0 that explains those views best (chosen
+    once for the candidates so far, kept in ``bend``); None where that fails (no candidate, too few landmarks
+    seen twice before, or too few inliers from two cameras)."""
+    k = len(R)
+    before = tracks.view < k
+    obs, ids = _observation_ids(tracks, before, k)
+    if obs is None or obs.num_points < opts.min_pair_matches:
+        return None
+    gravity = None
+    if with_gravity:
+        distinct = distinct_candidates(candidates, math.radians(opts.candidate_separation_deg), opts.max_candidates)
+        if not distinct:
+            return None
+        if len(candidates) not in bend:
+            scores = [msac_score(_errors(*triangulated(rig, obs, BundleState(R, t, g, np.zeros((obs.num_points, 3))))
+                                         [::-1]), threshold) for g in distinct] if len(distinct) > 1 else [0.0]
+            bend.clear()
+            bend[len(candidates)] = distinct[int(np.argmin(scores))]
+        gravity = bend[len(candidates)]
+    points = triangulated(rig, obs, BundleState(R, t, gravity, np.zeros((obs.num_points, 3))))[0].points
+    mine = np.flatnonzero(tracks.view == k)
+    pos = np.minimum(np.searchsorted(ids, tracks.track[mine]), len(ids) - 1)
+    known = ids[pos] == tracks.track[mine]
+    hit, pos = mine[known], pos[known]
+    if len(hit) < opts.min_pair_matches:
+        return None
+    shared = np.bincount(tracks.view[before & np.isin(tracks.track, tracks.track[hit])], minlength=k)
+    j = int(np.argmax(shared))  # the guess: the view that shares most of these landmarks
+    res = resect_view(rig, points[pos], tracks.f[hit], tracks.cam[hit], R[j], t[j], gravity, threshold, seed=seed)
+    if res is None or res.num_inliers < opts.min_pair_matches or len(np.unique(tracks.cam[hit[res.inliers]])) < 2:
+        return None
+    return res.R, res.t, (method, j)
+
+
+def _observation_ids(tracks: Tracks, mask: np.ndarray, num_views: int):
+    """Observations (of ``mask``) of the landmarks seen at least twice there, and their track ids; (None, None)
+    when there are none."""
+    obs, ids = Observations.from_arrays(tracks.view[mask], tracks.cam[mask], tracks.track[mask], tracks.f[mask],
+                                        num_views)
+    twice = np.bincount(obs.point, minlength=obs.num_points) >= 2
+    if not twice.any():
+        return None, None
+    obs, used = obs.subset(twice[obs.point])
+    return obs, ids[used]
 
 
 def distinct_candidates(candidates, separation_rad: float, limit: int) -> list:
@@ -236,11 +316,14 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
 
 def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float, *, priors=None,
                     gravity_information: GravityInformation | None = None, points=None, free_views=None,
-                    max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0):
+                    max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0,
+                    inliers=None, min_rounds: int = 2, tol: float = 1e-6):
     """Robust joint adjustment: classify observations as inliers (angular error below ``threshold``, rad,
-    ``start_factor`` times that at the start, where the poses are only roughly right), adjust on the inliers,
-    re-classify every observation and repeat (at least twice, each round from landmarks triangulated at the
-    poses so far) while the inlier set changes by more than 1 %. Returns
+    ``start_factor`` times that at the start, where the poses are only roughly right, and within the given
+    ``inliers`` mask, for a start that is already adjusted and classified), adjust on the inliers, re-classify every
+    observation and repeat (at least ``min_rounds`` times, each round from landmarks triangulated at the
+    poses so far) while the inlier set changes by more than 1 %; ``tol``: relative cost decrease that ends an
+    adjustment. Returns
     (BundleResult on the inliers, inlier mask over obs)."""
     state = BundleState(np.asarray(R, float), np.asarray(t, float), gravity,
                         np.zeros((obs.num_points, 3)) if points is None else np.asarray(points, float),
@@ -248,7 +331,8 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
     full, prob = triangulated(rig, obs, state)
     if points is not None:
         full = replace(full, points=np.asarray(points, float))
-    inl = _seen_twice(obs, _errors(prob, full) < start_factor * threshold)
+    inl = _errors(prob, full) < start_factor * threshold
+    inl = _seen_twice(obs, inl if inliers is None else inl & np.asarray(inliers, bool))
     res = None
     for r in range(max(1, rounds)):
         sub, used = obs.subset(inl)
@@ -257,15 +341,15 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
         res = adjust_bundle(rig, sub, full.R, full.t, full.gravity, None, priors=priors,
                             gravity_information=gravity_information, free_views=free_views,
                             max_iterations=max_iterations if r == 0 else max(10, max_iterations // 3),
-                            huber_k=huber_k)
+                            huber_k=huber_k, tol=tol)
         new_full, prob = triangulated(rig, obs, res.state)
         new_full.points[used] = res.state.points
         full = new_full
         new = _seen_twice(obs, _errors(prob, full) < threshold)
         changed = int(np.count_nonzero(new != inl))
         inl = new
-        if r >= 1 and changed <= max(2, 0.01 * np.count_nonzero(inl)):
-            break  # a second round always runs: from landmarks triangulated at the refined poses
+        if r + 1 >= min_rounds and changed <= max(2, 0.01 * np.count_nonzero(inl)):
+            break  # a rough start always gets a second round: from landmarks triangulated at the refined poses
     return res, inl
 
 
@@ -299,15 +383,15 @@ def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", see
     K = tracks.num_views
     if K < 2:
         return _failure(method, t0, "needs at least two views")
-    chained = _chain_pairs(model_rig, tracks, method, opts, seed)
+    focal = float(np.mean([c.focal_px for c in rig.cameras]))
+    threshold = opts.estimator.threshold_px / focal
+    chained = _chain_pairs(model_rig, tracks, method, opts, seed, threshold, with_gravity)
     if isinstance(chained, str):
         return _failure(method, t0, chained)
     R, t, cands, pair_methods = chained
     obs, obs_index = _observations(tracks)
     if len(obs) == 0:
         return _failure(method, t0, "no track is seen in two views")
-    focal = float(np.mean([c.focal_px for c in rig.cameras]))
-    threshold = opts.estimator.threshold_px / focal
     priors = None
     if method == "4pt-bending" and math.isfinite(opts.estimator.gravity_prior_sigma):
         priors = GravityPriors(measured, opts.estimator.gravity_prior_sigma, opts.gravity_bias_sigma)
@@ -326,7 +410,7 @@ def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", see
             R, t, gravity = chosen.R, chosen.t, chosen.gravity
     res, inl = refine_sequence(model_rig, obs, R, t, gravity, threshold, priors=priors,
                                max_iterations=opts.max_iterations, rounds=opts.inlier_rounds,
-                               huber_k=opts.estimator.huber_k)
+                               huber_k=opts.estimator.huber_k, tol=opts.relative_tolerance)
     inliers = np.zeros(len(tracks), bool)
     inliers[obs_index[inl]] = True
     st = res.state
