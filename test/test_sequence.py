@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from nrmpc_ros.core.sequence import estimate_sequence
+from nrmpc_ros.core.bundle import Observations
+from nrmpc_ros.core.sequence import broken_link, estimate_sequence
 from nrmpc_ros.core.so3 import angle_between, rotation_angle
 from nrmpc_ros.core.tracks import Tracks
 from nrmpc_ros.errors import EstimationError
@@ -50,6 +51,28 @@ def test_twenty_percent_outliers():
     inl = est.inliers
     # outliers are found; good observations whose track lost its other views to outliers carry nothing
     assert np.mean(inl[~p.inlier_mask]) < 0.02 and np.mean(inl[p.inlier_mask]) > 0.6
+
+
+def test_a_broken_link_is_found():
+    """The link between views 4 and 5 keeps a tenth of its common landmarks: view 5 is named."""
+    sc = SequenceScenario(rig=RIGS["cross4"], num_views=8, pixel_noise=0.3, outlier_fraction=0.0)
+    tr = make_sequence(sc, seed=4).tracks
+    obs, _ = Observations.from_arrays(tr.view, tr.cam, tr.track, tr.f, tr.num_views)
+    inl = np.ones(len(obs), bool)
+    assert broken_link(obs, inl, 0.5, 12) is None
+    common = np.intersect1d(obs.point[obs.view == 4], obs.point[obs.view == 5])
+    lost = np.isin(obs.point, common[: int(0.9 * len(common))]) & (obs.view == 5)
+    assert broken_link(obs, inl & ~lost, 0.5, 12) == 5
+
+
+def test_views_misplaced_together_are_put_back():
+    """A start whose views 5.. sit 3 deg off together (a pair estimate chained on at 20 % outliers): the
+    adjustment alone keeps them so; the broken link is repaired."""
+    sc = SequenceScenario(rig=RIGS["cross4"], num_views=8, pixel_noise=0.3, outlier_fraction=0.2)
+    p = make_sequence(sc, seed=3)
+    est = estimate_sequence(p.rig, p.tracks, method="6pt-bending", seed=0)
+    rot, grav = errors(p, est)
+    assert est.link_repairs >= 1 and math.degrees(rot) < 0.1 and math.degrees(grav) < 0.5, (rot, grav)
 
 
 def test_a_hold_that_shares_few_tracks():

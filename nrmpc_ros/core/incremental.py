@@ -3,7 +3,7 @@
 :class:`IncrementalSequence` takes the observations of one static view at a
 time (camera, landmark id, bearing, optionally measured gravity) and returns
 that view's pose in the sequence origin (view 0) and its gravity from the
-joint solution (docs/PIPELINE.md, "Sequence"):
+joint solution (docs/PIPELINE.md, "The joint estimate over the sequence"):
 
 1. The new view is paired with the newest earlier view that shares enough
    landmarks (seen by two cameras at least). While the sequence is young it
@@ -51,6 +51,7 @@ from .sequence import (
     choose_gravity,
     distinct_candidates,
     refine_sequence,
+    repair_links,
     triangulated,
 )
 from .so3 import angle_between, normalize
@@ -249,9 +250,9 @@ class IncrementalSequence:
 
     def _resect(self, k: int):
         """(reference view, method, (R, t)) of view k placed by resection on the landmarks the earlier views
-        of the window triangulate (docs/PIPELINE.md, "Sequence"), or None where the two-view estimate is
-        to place it: a young sequence (its gravity still competes with each pair's), no link, or too few
-        landmarks that fit one pose."""
+        of the window triangulate (docs/PIPELINE.md, "The joint estimate over the sequence"), or None where
+        the two-view estimate is to place it: a young sequence (its gravity still competes with each pair's),
+        no link, or too few landmarks that fit one pose."""
         s = self.seq
         opts = self.options
         if not opts.resect_views or k < self.young_views or (self.with_gravity and s.gravity is None):
@@ -456,10 +457,13 @@ class IncrementalSequence:
         obs, _ = Observations.from_arrays(view, cam, track, f, K)
         seen = (np.bincount(obs.point, minlength=obs.num_points) >= 2)[obs.point]
         obs, _ = obs.subset(seen)
+        refine = dict(priors=self._priors(K), max_iterations=self.options.max_iterations,
+                      rounds=self.options.inlier_rounds, huber_k=self.options.estimator.huber_k,
+                      tol=self.options.relative_tolerance)
         res, inl = refine_sequence(self.model_rig, obs, np.array(s.R), np.array(s.t), s.gravity, self.threshold,
-                                   priors=self._priors(K), max_iterations=self.options.max_iterations,
-                                   rounds=self.options.inlier_rounds, huber_k=self.options.estimator.huber_k,
-                                   tol=self.options.relative_tolerance)
+                                   **refine)
+        res, inl, repairs = repair_links(self.model_rig, self.tracks(), obs, res, inl, self.method, self.threshold,
+                                         self.options, self.seed, **refine)
         st = res.state
         grav = sig = None
         reason = ""
@@ -472,7 +476,7 @@ class IncrementalSequence:
         inliers[np.flatnonzero(seen)[inl]] = True
         return SequenceEstimate(method=self.method, success=True, R=st.R, t=st.t, gravity=grav,
                                 gravity_sigma_rad=sig, inliers=inliers, time_s=time.perf_counter() - t0,
-                                reason=reason, bundle=res)
+                                reason=reason, bundle=res, link_repairs=repairs)
 
 
 __all__ = ["IncrementalSequence", "SequenceRecord", "ViewEstimate"]

@@ -94,6 +94,11 @@ class SequenceOptions:
                               hi=1000000, nullable=True)
     resect_views: bool = option(True, "view by view: place a new view by resection on the window's landmarks "
                                 "once the sequence is no longer young (else the two-view estimator)")
+    link_repairs: int = option(4, "batch: views re-placed (with the views after them) where the adjusted "
+                               "sequence kept few of the landmarks they share with the view before", lo=0, hi=100)
+    link_retention: float = option(0.5, "a link between consecutive views is broken when the share of their "
+                                   "common landmarks kept as inliers is below this fraction of the median link's",
+                                   lo=0.0, hi=1.0)
     window_rounds: int = option(2, "view by view: joint adjustments of the window while its inliers change",
                                 lo=1, hi=100)
 
@@ -127,6 +132,7 @@ class SequenceEstimate:
     bundle: BundleResult | None = None
     pair_methods: list = field(default_factory=list)  # the two-view method and reference view of each view k >= 1
     candidates: int = 0  # distinct gravity candidates compared
+    link_repairs: int = 0  # views re-placed where the adjusted sequence broke the link to the view before
 
     @property
     def num_inliers(self) -> int:
@@ -353,6 +359,104 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
     return res, inl
 
 
+def link_retention(obs: Observations, inliers: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(shared (K,), kept (K,)): for k >= 1 the landmarks seen in both views k-1 and k, and how many of them
+    keep both observations among ``inliers``; entry 0 is 0."""
+    K, P = obs.num_views, obs.num_points
+    seen = np.zeros(K * P, bool)
+    good = np.zeros(K * P, bool)
+    key = obs.view * P + obs.point
+    seen[key] = True
+    good[key[np.asarray(inliers, bool)]] = True
+    seen, good = seen.reshape(K, P), good.reshape(K, P)
+    shared = np.zeros(K, np.int64)
+    kept = np.zeros(K, np.int64)
+    shared[1:] = np.count_nonzero(seen[1:] & seen[:-1], axis=1)
+    kept[1:] = np.count_nonzero(good[1:] & good[:-1], axis=1)
+    return shared, kept
+
+
+def broken_link(obs: Observations, inliers: np.ndarray, fraction: float, min_shared: int) -> int | None:
+    """The first view k whose link to view k-1 is broken: of at least ``min_shared`` common landmarks, a share
+    kept as inliers below ``fraction`` of the median link's. An adjustment started with views k, k+1, ...
+    misplaced together (a wrong pair estimate chained on) keeps them consistent among themselves and drops
+    the observations that would pull them back; None when every link holds."""
+    shared, kept = link_retention(obs, inliers)
+    valid = np.flatnonzero(shared >= max(1, min_shared))
+    if len(valid) < 2:
+        return None
+    share = kept[valid] / shared[valid]
+    bad = valid[share < fraction * float(np.median(share))]
+    return int(bad[0]) if len(bad) else None
+
+
+def _relinked(rig: Rig, tracks: Tracks, obs: Observations, state: BundleState, k: int, method: str,
+              threshold: float, opts: SequenceOptions, seed: int):
+    """(R, t) with views k, k+1, ... moved together so that view k sits where the views before it put it; None
+    when that fails.
+
+    View k is placed by resection on the landmarks of the views before it, triangulated at the adjusted
+    poses from those views alone (from their observations within ``threshold`` of them: the inlier
+    classification of the whole sequence also dropped, in the views before k, the observations of the
+    landmarks view k disagreed with); where too few such landmarks reach view k, by the two-view estimate
+    of the pair (k-1, k) again, started from the gravity the views before k agree on."""
+    g0 = None if state.gravity is None else np.asarray(state.gravity, float).reshape(-1, 3)[0]
+    placed = None
+    sub, used = obs.subset(obs.view < k)
+    st, prob = triangulated(rig, sub, replace(state, points=np.zeros((sub.num_points, 3))))
+    sub, kept = sub.subset(_seen_twice(sub, _errors(prob, st) < threshold))
+    lookup = np.full(obs.num_points, -1)
+    lookup[used[kept]] = np.arange(len(kept))
+    mine = np.flatnonzero(obs.view == k)
+    hit = mine[lookup[obs.point[mine]] >= 0]
+    if len(hit) >= opts.min_pair_matches:
+        points = triangulated(rig, sub, replace(state, points=np.zeros((sub.num_points, 3))))[0].points
+        r = resect_view(rig, points[lookup[obs.point[hit]]], obs.f[hit], obs.cam[hit], state.R[k - 1],
+                        state.t[k - 1], g0, threshold, seed=seed)
+        if r is not None and r.num_inliers >= opts.min_pair_matches:
+            placed = r.R, r.t
+    if placed is None:
+        m = tracks.pair(k - 1, k)
+        if len(m) < opts.min_pair_matches:
+            return None
+        pm = method if method != "4pt-bending" or m.has_gravity else "6pt-bending"
+        hint = None if g0 is None or pm != "6pt-bending" else state.R[k - 1].T @ g0
+        est = estimate(rig, m, method=pm, seed=seed, options=opts.pair_estimator(), gravity_hint=hint)
+        if not est.success:
+            return None
+        placed = state.R[k - 1] @ est.R, state.R[k - 1] @ est.t + state.t[k - 1]
+    dR = placed[0] @ state.R[k].T
+    R, t = state.R.copy(), state.t.copy()
+    R[k:] = dR @ state.R[k:]
+    t[k:] = (state.t[k:] - state.t[k]) @ dR.T + placed[1]
+    return R, t
+
+
+def repair_links(rig: Rig, tracks: Tracks, obs: Observations, res, inliers, method: str, threshold: float,
+                 opts: SequenceOptions, seed: int, **refine):
+    """Re-place the views after each broken link (:func:`broken_link`) by resection and adjust again, kept
+    where the joint MSAC score over all observations falls; returns (BundleResult, inliers, repairs)."""
+    def score(state):
+        st, prob = triangulated(rig, obs, state)
+        return msac_score(_errors(prob, st), threshold)
+
+    repairs = 0
+    best = score(res.state)
+    for _ in range(opts.link_repairs):
+        k = broken_link(obs, inliers, opts.link_retention, opts.min_pair_matches)
+        if k is None:
+            break
+        moved = _relinked(rig, tracks, obs, res.state, k, method, threshold, opts, seed + k)
+        if moved is None:
+            break
+        res2, inl2 = refine_sequence(rig, obs, moved[0], moved[1], res.state.gravity, threshold, **refine)
+        s2 = score(res2.state)
+        if s2 >= best:
+            break
+        res, inliers, best, repairs = res2, inl2, s2, repairs + 1
+    return res, inliers, repairs
+
+
 def _seen_twice(obs: Observations, mask: np.ndarray) -> np.ndarray:
     """mask restricted to landmarks that keep at least two of their observations in it."""
     n = np.bincount(obs.point, weights=mask.astype(float), minlength=obs.num_points)
@@ -408,9 +512,10 @@ def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", see
             gravity = chosen
         else:
             R, t, gravity = chosen.R, chosen.t, chosen.gravity
-    res, inl = refine_sequence(model_rig, obs, R, t, gravity, threshold, priors=priors,
-                               max_iterations=opts.max_iterations, rounds=opts.inlier_rounds,
-                               huber_k=opts.estimator.huber_k, tol=opts.relative_tolerance)
+    refine = dict(priors=priors, max_iterations=opts.max_iterations, rounds=opts.inlier_rounds,
+                  huber_k=opts.estimator.huber_k, tol=opts.relative_tolerance)
+    res, inl = refine_sequence(model_rig, obs, R, t, gravity, threshold, **refine)
+    res, inl, repairs = repair_links(model_rig, tracks, obs, res, inl, method, threshold, opts, seed, **refine)
     inliers = np.zeros(len(tracks), bool)
     inliers[obs_index[inl]] = True
     st = res.state
@@ -423,8 +528,9 @@ def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", see
         reason = RIGID_REASON
     return SequenceEstimate(method=method, success=True, R=st.R, t=st.t, gravity=grav, gravity_sigma_rad=sig,
                             inliers=inliers, time_s=time.perf_counter() - t0, reason=reason, bundle=res,
-                            pair_methods=pair_methods, candidates=n_cand)
+                            pair_methods=pair_methods, candidates=n_cand, link_repairs=repairs)
 
 
-__all__ = ["RIGID_REASON", "SequenceEstimate", "SequenceOptions", "choose_gravity", "distinct_candidates",
-           "estimate_sequence", "refine_sequence", "triangulated"]
+__all__ = ["RIGID_REASON", "SequenceEstimate", "SequenceOptions", "broken_link", "choose_gravity",
+           "distinct_candidates", "estimate_sequence", "link_retention", "refine_sequence", "repair_links",
+           "triangulated"]
