@@ -25,6 +25,7 @@ from .gravity_init import (
     hinted_hypothesis,
     start_translation,
 )
+from .loss import msac_score
 from .matches import Matches
 from .minimal import UprightFrames, solve_6pt
 from .ransac import RansacOptions, ransac
@@ -315,7 +316,7 @@ def _refine_loop(rig, m, R, t, g, threshold, opts, prior=None, optimize_gravity=
             break
     if err is None:
         err = _bending_errors(rig, m, R, t, g)
-    return R, t, g, inliers, res, float(np.minimum(err * err, threshold**2).sum())
+    return R, t, g, inliers, res, msac_score(err, threshold)
 
 
 def _record_pose(info: EstimateInfo, res, optimize_gravity: bool) -> EstimateInfo:
@@ -360,7 +361,7 @@ def score_gravity_hypotheses(rig: Rig, m: Matches, idx: np.ndarray, R: np.ndarra
     o1, d1 = w1[:, cam], np.einsum("knij,nj->kni", W1[:, cam], f1)
     o2, d2 = w2[:, cam], np.einsum("knij,nj->kni", W2[:, cam], f2)
     err = two_view_angular_errors(o1, d1, o2, d2, R, t)
-    return np.minimum(err * err, threshold**2).sum(axis=1)
+    return msac_score(err, threshold, axis=1)
 
 
 def _starts_from_rigid_fit(rig, m, opts, rng, loose, info: EstimateInfo, gravity_hint=None):
@@ -443,7 +444,7 @@ def _start_score(rig, m: Matches, res, threshold) -> tuple:
     start with fewer inliers has a smaller sum. This score is.
     """
     err = _bending_errors(rig, m, res.R, res.t, res.g)
-    return float(np.minimum(err * err, threshold**2).sum()), err < threshold
+    return msac_score(err, threshold), err < threshold
 
 
 def _start_refinement(rig, m: Matches, idx, R, t, g, tight, opts):

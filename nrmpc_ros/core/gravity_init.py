@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from .deformation import bend_rotation_vectors, deformed_extrinsics, rays
+from .loss import msac_score
 from .matches import Matches
 from .residuals import two_view_angular_errors
 from .rig import Rig
@@ -208,7 +209,7 @@ def pose_hypothesis_scores(rig: Rig, m: Matches, idx, threshold, hyp, R_h):
     o2, d2 = w2[:, cam], np.einsum("knij,nj->kni", W2[:, cam], f2)
     t = least_squares_translations(o1, d1, o2, d2, R_h)
     err = two_view_angular_errors(o1, d1, o2, d2, R_h, t)
-    return np.minimum(err * err, threshold**2).sum(axis=-1)
+    return msac_score(err, threshold, axis=-1)
 
 
 def least_squares_translations(o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.ndarray, R: np.ndarray,
@@ -256,5 +257,5 @@ def start_translation(rig: Rig, m: Matches, idx, R, g, threshold):
     t = least_squares_translations(o1, d1, o2, d2, R)
     both = np.stack([t, -t])
     err = two_view_angular_errors(o1, d1, o2, d2, R, both)  # (2, n)
-    k = int(np.argmin(np.minimum(err * err, threshold**2).sum(axis=1)))
+    k = int(np.argmin(msac_score(err, threshold, axis=1)))
     return both[k], err[k]
