@@ -27,7 +27,6 @@ import io
 import os
 import pickle
 import shutil
-import sqlite3
 import subprocess
 import sys
 import tempfile
@@ -42,6 +41,9 @@ import numpy as np
 import yaml
 
 from nrmpc_ros.safeio import content_digest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+from badbags import corrupt_message, retype  # noqa: E402  (the tests' damaged bags, one definition)
 
 REPO = Path(__file__).resolve().parents[1]
 COLUMNS = ("clear named error", "accepted correctly", "traceback", "silent wrong", "unnamed error", "data modified")
@@ -138,28 +140,6 @@ def copy_bag(f: dict, name: str) -> Path:
         shutil.rmtree(dst)
     shutil.copytree(f["bag"], dst)
     return dst
-
-
-def retype(bag: Path, topic: str, msgtype: str) -> Path:
-    """Declare ``topic`` of a copied rosbag2 as another message type (metadata.yaml and the database)."""
-    meta = bag / "metadata.yaml"
-    d = yaml.safe_load(meta.read_text())
-    for t in d["rosbag2_bagfile_information"]["topics_with_message_count"]:
-        if t["topic_metadata"]["name"] == topic:
-            t["topic_metadata"]["type"] = msgtype
-    meta.write_text(yaml.safe_dump(d, sort_keys=False))
-    with sqlite3.connect(next(bag.glob("*.db3"))) as db:
-        db.execute("UPDATE topics SET type = ? WHERE name = ?", (msgtype, topic))
-    return bag
-
-
-def corrupt_message(bag: Path, topic: str) -> Path:
-    """Overwrite the middle message of ``topic`` with bytes that do not decode."""
-    with sqlite3.connect(next(bag.glob("*.db3"))) as db:
-        ids = [r[0] for r in db.execute("SELECT m.id FROM messages m JOIN topics t ON m.topic_id = t.id "
-                                        "WHERE t.name = ? ORDER BY m.timestamp", (topic,))]
-        db.execute("UPDATE messages SET data = ? WHERE id = ?", (b"\x00\x01\x00\x00\xff", ids[len(ids) // 2]))
-    return bag
 
 
 # ---------------------------------------------------------------------------

@@ -13,6 +13,7 @@ import math
 import string
 import warnings
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -179,14 +180,48 @@ def test_rig_from_dict_numeric_perturbations(data):
     _rig_or_input_error(lambda: rig_from_dict(d, SOURCE), SOURCE)
 
 
-def _mutated_text(d: dict, draw) -> str:
-    """YAML of ``d`` with up to three edits of the text (characters inserted, deleted, replaced)."""
+def _mutated_text(d: dict, draw, mapping_too: bool = False) -> str:
+    """YAML of ``d`` with up to three edits of the text (characters inserted, deleted, replaced); with
+    ``mapping_too``, of a copy of ``d`` first mutated as a mapping half of the time."""
+    if mapping_too:
+        d = copy.deepcopy(d)
+        if draw(st.booleans()):
+            _mutate(d, draw)
     text = yaml.safe_dump(d, sort_keys=False, default_flow_style=draw(st.sampled_from([None, True, False])))
     for _ in range(draw(st.integers(0, 3))):
         i = draw(st.integers(0, len(text)))
         j = draw(st.integers(i, min(len(text), i + 8)))
         text = text[:i] + draw(st.text(alphabet="[]{}:,-&*!|>'\"#%@` \n\t.~/_0189aeinfxyz", max_size=6)) + text[j:]
     return text
+
+
+def _mutated_bytes(raw: bytes, draw) -> bytes:
+    """``raw`` with one to four bytes overwritten, sometimes cut short, or (one time in five) other bytes."""
+    out = bytearray(raw)
+    for _ in range(draw(st.integers(1, 4))):
+        out[draw(st.integers(0, len(out) - 1))] = draw(st.integers(0, 255))
+    if draw(st.booleans()):
+        out = out[:draw(st.integers(0, len(out)))]
+    if draw(st.integers(0, 4)) == 0:
+        out = bytearray(draw(st.binary(max_size=200)))
+    return bytes(out)
+
+
+def _corrupted_npz(path: Path, arrays: dict, draw) -> Path:
+    """An .npz of ``arrays`` (compressed or not) written to ``path`` with its bytes mutated."""
+    buf = io.BytesIO()
+    (np.savez_compressed if draw(st.booleans()) else np.savez)(buf, **arrays)
+    path.write_bytes(_mutated_bytes(buf.getvalue(), draw))
+    return path
+
+
+def _loaded_or_named_error(load, path: Path):
+    """``load(path)``, or None after an InputError that starts with the path."""
+    try:
+        return load(path)
+    except InputError as exc:
+        assert str(exc).startswith(str(path))
+        return None
 
 
 @pytest.fixture(scope="module")
@@ -198,10 +233,7 @@ def fuzz_dir(tmp_path_factory):
 @given(st.data())
 def test_load_rig_mutated_yaml_text(fuzz_dir, data):
     """A valid rig file, mutated as a mapping and then as text (characters inserted, deleted, replaced)."""
-    d = copy.deepcopy(BASE_RIG)
-    if data.draw(st.booleans()):
-        _mutate(d, data.draw)
-    text = _mutated_text(d, data.draw)
+    text = _mutated_text(BASE_RIG, data.draw, mapping_too=True)
     path = fuzz_dir / "rig.yaml"
     path.write_text(text)
     _rig_or_input_error(lambda: load_rig(path), str(path))
@@ -299,27 +331,11 @@ def test_load_matches_random_arrays(fuzz_dir, cross_rig, data):
 @given(st.data())
 def test_load_matches_corrupted_bytes(fuzz_dir, data):
     """A valid archive with bytes flipped, cut or replaced; and random bytes."""
-    buf = io.BytesIO()
     rng = np.random.default_rng(5)
-    compress = data.draw(st.booleans())
-    (np.savez_compressed if compress else np.savez)(buf, f1=rng.normal(size=(6, 3)), f2=rng.normal(size=(6, 3)),
-                                                    cam=np.arange(6) % 4)
-    raw = bytearray(buf.getvalue())
-    for _ in range(data.draw(st.integers(1, 4))):
-        i = data.draw(st.integers(0, len(raw) - 1))
-        raw[i] = data.draw(st.integers(0, 255))
-    if data.draw(st.booleans()):
-        raw = raw[:data.draw(st.integers(0, len(raw)))]
-    if data.draw(st.integers(0, 4)) == 0:
-        raw = bytearray(data.draw(st.binary(max_size=200)))
-    path = fuzz_dir / "c.npz"
-    path.write_bytes(bytes(raw))
-    try:
-        m = load_matches(path)
-    except InputError as exc:
-        assert str(exc).startswith(str(path))
-        return
-    _check_matches(m, None)
+    arrays = {"f1": rng.normal(size=(6, 3)), "f2": rng.normal(size=(6, 3)), "cam": np.arange(6) % 4}
+    m = _loaded_or_named_error(load_matches, _corrupted_npz(fuzz_dir / "c.npz", arrays, data.draw))
+    if m is not None:
+        _check_matches(m, None)
 
 
 def _shaped(n, cols=None):
@@ -414,35 +430,18 @@ def test_load_tracks_random_arrays(fuzz_dir, data):
                 arrays[key] = np.asarray(arrays[key]).astype(data.draw(NUMERIC_DTYPES))
     path = fuzz_dir / "t.npz"
     _write_npz(path, arrays)
-    try:
-        t = load_tracks(path)
-    except InputError as exc:
-        assert str(exc).startswith(str(path))
-        return
-    _check_tracks(t)
+    t = _loaded_or_named_error(load_tracks, path)
+    if t is not None:
+        _check_tracks(t)
 
 
 @FUZZ
 @given(st.data())
 def test_load_tracks_corrupted_bytes(fuzz_dir, data):
-    buf = io.BytesIO()
     arrays = _good_tracks(np.random.default_rng(7))
-    (np.savez_compressed if data.draw(st.booleans()) else np.savez)(buf, **arrays)
-    raw = bytearray(buf.getvalue())
-    for _ in range(data.draw(st.integers(1, 4))):
-        raw[data.draw(st.integers(0, len(raw) - 1))] = data.draw(st.integers(0, 255))
-    if data.draw(st.booleans()):
-        raw = raw[:data.draw(st.integers(0, len(raw)))]
-    if data.draw(st.integers(0, 4)) == 0:
-        raw = bytearray(data.draw(st.binary(max_size=200)))
-    path = fuzz_dir / "tc.npz"
-    path.write_bytes(bytes(raw))
-    try:
-        t = load_tracks(path)
-    except InputError as exc:
-        assert str(exc).startswith(str(path))
-        return
-    _check_tracks(t)
+    t = _loaded_or_named_error(load_tracks, _corrupted_npz(fuzz_dir / "tc.npz", arrays, data.draw))
+    if t is not None:
+        _check_tracks(t)
 
 
 # --- pipeline settings ---------------------------------------------------------
@@ -481,10 +480,7 @@ def test_pipeline_config_from_dict_mutations(data):
 @given(st.data())
 def test_replay_config_file_mutated_text(fuzz_dir, data):
     """The --config file of nrmpc replay: a valid settings file mutated as a mapping, then as text."""
-    d = copy.deepcopy(BASE_CONFIG)
-    if data.draw(st.booleans()):
-        _mutate(d, data.draw)
-    text = _mutated_text(d, data.draw)
+    text = _mutated_text(BASE_CONFIG, data.draw, mapping_too=True)
     path = fuzz_dir / "settings.yaml"
     path.write_bytes(text.encode() if data.draw(st.integers(0, 5)) else data.draw(st.binary(max_size=200)))
     try:
@@ -552,9 +548,6 @@ def test_read_csv_mutations(fuzz_dir, data):
         payload = "".join(lines).encode(data.draw(st.sampled_from(["utf-16", "latin-1", "utf-8-sig"])),
                                         errors="replace")
     path.write_bytes(payload)
-    try:
-        rows = read_csv(path)
-    except InputError as exc:
-        assert str(exc).startswith(str(path))
-        return
-    _check_rows(rows)
+    rows = _loaded_or_named_error(read_csv, path)
+    if rows is not None:
+        _check_rows(rows)
