@@ -10,7 +10,7 @@ import json
 
 from ..core import METHODS
 from ..errors import InputError
-from .common import SCENARIO_FLAGS, add_scenario_arguments, jsonable, scenario_from_args
+from .common import SCENARIO_FLAGS, add_scenario_arguments, flag_of, jsonable, scenario_from_args
 
 # flags of the two-view benchmark only, and of the sequence benchmark only (dest names)
 _PAIR_ONLY = ("no_poselib", "poselib_threshold", "scenario", "rig", *SCENARIO_FLAGS)
@@ -65,7 +65,7 @@ def run_sequence(args) -> int:
 
     for dest in _PAIR_ONLY:
         if getattr(args, dest, None) is not None:
-            raise InputError(_flag(args, dest), "applies to the two-view benchmark only, not with --sequence")
+            raise InputError(flag_of(dest), "applies to the two-view benchmark only, not with --sequence")
     rigs = _names(args.rigs, RIGS)
     res = run_sequence_bench(20 if args.runs is None else args.runs, args.seed, rigs,
                              _names(args.methods, SEQUENCE_METHODS),
@@ -78,10 +78,6 @@ def run_sequence(args) -> int:
     return 0
 
 
-def _flag(args, dest: str) -> str:
-    return {"EI": "--EI", "no_poselib": "--no-poselib"}.get(dest, "--" + dest.replace("_", "-"))
-
-
 def run(args) -> int:
     from ..experiments.bench import format_table, run_bench
 
@@ -89,7 +85,7 @@ def run(args) -> int:
         return run_sequence(args)
     for dest in _SEQUENCE_ONLY:
         if getattr(args, dest, None) is not None:
-            raise InputError(_flag(args, dest), "applies to the sequence benchmark only (add --sequence)")
+            raise InputError(flag_of(dest), "applies to the sequence benchmark only (add --sequence)")
     methods = _names(args.methods, METHODS)
     bad = [m for m in methods if m not in METHODS]
     if bad or not methods:

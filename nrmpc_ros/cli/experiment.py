@@ -64,7 +64,7 @@ def _command(args, axes: dict, workers: int) -> str:
         parts.append(f"--points {args.points}")
     flags = {axis: flag for flag, axis in _AXIS_FLAGS.items()}
     for axis, values in axes.items():
-        parts.append(f"--{flags[axis].replace('_', '-')} " + ",".join(f"{v:g}" for v in values))
+        parts.append(f"{flag_of(flags[axis])} " + ",".join(f"{v:g}" for v in values))
     parts.append(f"--scheduler {args.scheduler}" if args.scheduler else f"--workers {workers}")
     return " ".join(parts)
 
@@ -79,7 +79,7 @@ def run(args) -> int:
         if value is None:
             continue
         if axis not in axes:
-            raise InputError(f"--{flag.replace('_', '-')}", f"is not an axis of {args.name} "
+            raise InputError(flag_of(flag), f"is not an axis of {args.name} "
                              f"(its axes: {', '.join(axes)})")
         axes[axis] = value
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None

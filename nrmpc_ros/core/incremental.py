@@ -42,7 +42,6 @@ import numpy as np
 from .bundle import BundleState, GravityInformation, GravityPriors, Observations, condense_gravity
 from .estimators import estimate
 from .matches import Matches
-from .resection import resect_view
 from .rig import Rig
 from .sequence import (
     RIGID_REASON,
@@ -52,6 +51,7 @@ from .sequence import (
     distinct_candidates,
     refine_sequence,
     repair_links,
+    resect_on_landmarks,
     triangulated,
 )
 from .so3 import angle_between, normalize
@@ -265,21 +265,13 @@ class IncrementalSequence:
         known = (view < k) & (view > k - self.window) & inl & np.isin(track, s.track[k])
         if s.retired:
             known &= ~np.isin(track, np.fromiter(s.retired, np.int64))
-        obs, ids = Observations.from_arrays(view[known], cam[known], track[known], f[known], k)
-        twice = np.bincount(obs.point, minlength=obs.num_points) >= 2
-        if np.count_nonzero(twice) < opts.min_pair_matches:
+        placed = resect_on_landmarks(self.model_rig, (view[known], cam[known], track[known], f[known]), s.R[:k],
+                                     s.t[:k], s.gravity if self.with_gravity else None,
+                                     (s.cam[k], s.track[k], s.f[k]), (s.R[j], s.t[j]), self.threshold,
+                                     opts.min_pair_matches, self.seed + k)
+        if placed is None:
             return None
-        obs, used = obs.subset(twice[obs.point])
-        ids = ids[used]
-        state = BundleState(np.array(s.R[:k]), np.array(s.t[:k]), s.gravity, np.zeros((obs.num_points, 3)))
-        points = triangulated(self.model_rig, obs, state)[0].points
-        pos = np.searchsorted(ids, s.track[k])
-        hit = np.flatnonzero(ids[np.minimum(pos, len(ids) - 1)] == s.track[k])
-        res = resect_view(self.model_rig, points[pos[hit]], s.f[k][hit], s.cam[k][hit], s.R[j], s.t[j],
-                          s.gravity if self.with_gravity else None, self.threshold, seed=self.seed + k)
-        if res is None or res.num_inliers < opts.min_pair_matches or \
-                len(np.unique(s.cam[k][hit[res.inliers]])) < 2:
-            return None
+        res, hit = placed
         inlier = np.zeros(len(s.cam[k]), bool)
         inlier[hit[res.inliers]] = True
         inlier[np.setdiff1d(np.arange(len(inlier)), hit)] = True  # new landmarks: judged by the window solve

@@ -212,45 +212,65 @@ def _resect_next(rig: Rig, tracks: Tracks, method: str, R, t, candidates, thresh
     seen twice before, or too few inliers from two cameras)."""
     k = len(R)
     before = tracks.view < k
-    obs, ids = _observation_ids(tracks, before, k)
-    if obs is None or obs.num_points < opts.min_pair_matches:
-        return None
     gravity = None
     if with_gravity:
         distinct = distinct_candidates(candidates, math.radians(opts.candidate_separation_deg), opts.max_candidates)
         if not distinct:
             return None
         if len(candidates) not in bend:
+            obs, _ = Observations.from_arrays(tracks.view[before], tracks.cam[before], tracks.track[before],
+                                              tracks.f[before], k)  # a landmark seen once scores 0 for all
             scores = [msac_score(_errors(*triangulated(rig, obs, BundleState(R, t, g, np.zeros((obs.num_points, 3))))
                                          [::-1]), threshold) for g in distinct] if len(distinct) > 1 else [0.0]
             bend.clear()
             bend[len(candidates)] = distinct[int(np.argmin(scores))]
         gravity = bend[len(candidates)]
-    points = triangulated(rig, obs, BundleState(R, t, gravity, np.zeros((obs.num_points, 3))))[0].points
     mine = np.flatnonzero(tracks.view == k)
-    pos = np.minimum(np.searchsorted(ids, tracks.track[mine]), len(ids) - 1)
-    known = ids[pos] == tracks.track[mine]
-    hit, pos = mine[known], pos[known]
-    if len(hit) < opts.min_pair_matches:
+    seen = np.isin(tracks.track, tracks.track[mine]) & before
+    shared = np.bincount(tracks.view[seen], minlength=k)
+    j = int(np.argmax(shared))  # the guess: the view that shares most of this view's landmarks
+    placed = resect_on_landmarks(rig, (tracks.view[before], tracks.cam[before], tracks.track[before],
+                                       tracks.f[before]), R, t, gravity,
+                                 (tracks.cam[mine], tracks.track[mine], tracks.f[mine]), (R[j], t[j]), threshold,
+                                 opts.min_pair_matches, seed)
+    if placed is None:
         return None
-    shared = np.bincount(tracks.view[before & np.isin(tracks.track, tracks.track[hit])], minlength=k)
-    j = int(np.argmax(shared))  # the guess: the view that shares most of these landmarks
-    res = resect_view(rig, points[pos], tracks.f[hit], tracks.cam[hit], R[j], t[j], gravity, threshold, seed=seed)
-    if res is None or res.num_inliers < opts.min_pair_matches or len(np.unique(tracks.cam[hit[res.inliers]])) < 2:
-        return None
+    res = placed[0]
     return res.R, res.t, (method, j)
 
 
-def _observation_ids(tracks: Tracks, mask: np.ndarray, num_views: int):
-    """Observations (of ``mask``) of the landmarks seen at least twice there, and their track ids; (None, None)
-    when there are none."""
-    obs, ids = Observations.from_arrays(tracks.view[mask], tracks.cam[mask], tracks.track[mask], tracks.f[mask],
-                                        num_views)
+def resect_on_landmarks(rig: Rig, known, R, t, gravity, new, guess, threshold: float, min_inliers: int,
+                        seed: int = 0):
+    """Place a new view by resection on the landmarks earlier views triangulate.
+
+    ``known`` = (view, cam, track, f) of the earlier views' observations (views index ``R``, ``t``: poses in
+    view 0), ``new`` = (cam, track, f) of the new view; landmarks seen twice in ``known`` are triangulated at
+    those poses (cameras bent at ``gravity`` = g_0, None for straight) and the new view's observations of
+    them resected (:func:`.resection.resect_view`) from ``guess`` = (R, t). Returns (Resection, indices into
+    ``new`` of the observations used), or None with fewer than ``min_inliers`` landmarks or inliers, or
+    inliers from one camera only.
+    """
+    view, cam, track, f = known
+    new_cam, new_track, new_f = new
+    if len(view) == 0:
+        return None
+    obs, ids = Observations.from_arrays(view, cam, track, f, len(R))
     twice = np.bincount(obs.point, minlength=obs.num_points) >= 2
-    if not twice.any():
-        return None, None
+    if np.count_nonzero(twice) < min_inliers:
+        return None
     obs, used = obs.subset(twice[obs.point])
-    return obs, ids[used]
+    ids = ids[used]
+    points = triangulated(rig, obs, BundleState(np.asarray(R), np.asarray(t), gravity,
+                                                np.zeros((obs.num_points, 3))))[0].points
+    pos = np.minimum(np.searchsorted(ids, new_track), len(ids) - 1)
+    hit = np.flatnonzero(ids[pos] == new_track)
+    if len(hit) < min_inliers:
+        return None
+    res = resect_view(rig, points[pos[hit]], new_f[hit], new_cam[hit], guess[0], guess[1], gravity, threshold,
+                      seed=seed)
+    if res is None or res.num_inliers < min_inliers or len(np.unique(new_cam[hit[res.inliers]])) < 2:
+        return None
+    return res, hit
 
 
 def distinct_candidates(candidates, separation_rad: float, limit: int) -> list:
@@ -404,17 +424,13 @@ def _relinked(rig: Rig, tracks: Tracks, obs: Observations, state: BundleState, k
     placed = None
     sub, used = obs.subset(obs.view < k)
     st, prob = triangulated(rig, sub, replace(state, points=np.zeros((sub.num_points, 3))))
-    sub, kept = sub.subset(_seen_twice(sub, _errors(prob, st) < threshold))
-    lookup = np.full(obs.num_points, -1)
-    lookup[used[kept]] = np.arange(len(kept))
-    mine = np.flatnonzero(obs.view == k)
-    hit = mine[lookup[obs.point[mine]] >= 0]
-    if len(hit) >= opts.min_pair_matches:
-        points = triangulated(rig, sub, replace(state, points=np.zeros((sub.num_points, 3))))[0].points
-        r = resect_view(rig, points[lookup[obs.point[hit]]], obs.f[hit], obs.cam[hit], state.R[k - 1],
-                        state.t[k - 1], g0, threshold, seed=seed)
-        if r is not None and r.num_inliers >= opts.min_pair_matches:
-            placed = r.R, r.t
+    ok = _errors(prob, st) < threshold
+    mine = obs.view == k
+    found = resect_on_landmarks(rig, (sub.view[ok], sub.cam[ok], used[sub.point[ok]], sub.f[ok]), state.R[:k],
+                                state.t[:k], g0, (obs.cam[mine], obs.point[mine], obs.f[mine]),
+                                (state.R[k - 1], state.t[k - 1]), threshold, opts.min_pair_matches, seed)
+    if found is not None:
+        placed = found[0].R, found[0].t
     if placed is None:
         m = tracks.pair(k - 1, k)
         if len(m) < opts.min_pair_matches:
