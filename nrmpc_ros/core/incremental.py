@@ -292,7 +292,7 @@ class IncrementalSequence:
             est = estimate(self.model_rig, m, method=pm, seed=self.seed + k, options=self._pair_options)
             if est.success:
                 return j, pm, est
-            why.append(f"view {j}: {est.info.get('reason', 'estimation failed')}")
+            why.append(f"view {j}: {est.info.reason or 'estimation failed'}")
         return "; ".join(why) or "no earlier view"
 
     def _restart_from_last(self) -> None:
@@ -330,13 +330,13 @@ class IncrementalSequence:
             return
         Rj = s.R[j]
         cands = [(Rj @ np.asarray(g, float), float(est.num_inliers))
-                 for g in [est.gravity] + list(est.info.get("gravity_candidates", []))]
+                 for g in [est.gravity] + list(est.info.gravity_candidates)]
         if self.method == "4pt-bending":
             cands += [(s.R[i] @ s.measured[i], 0.0) for i in (j, k) if np.all(np.isfinite(s.measured[i]))]
         if s.gravity is not None:
             young = k < self.young_views
             # a pair contradicts the joint gravity by more than reconsider_deg and its own noise allows
-            sigma = float(est.info.get("gravity_sigma_rad", 0.0))
+            sigma = est.info.gravity_sigma_rad or 0.0
             if not young and angle_between(cands[0][0], s.gravity) < max(self.reconsider_rad,
                                                                          RECONSIDER_SIGMAS * sigma):
                 return

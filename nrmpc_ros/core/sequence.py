@@ -189,14 +189,14 @@ def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, s
             pm = method if method != "4pt-bending" or m.has_gravity else "6pt-bending"
             est = estimate(rig, m, method=pm, seed=seed + k, options=pair_opts)
             if not est.success:
-                why.append(f"view {j}: {est.info.get('reason', 'estimation failed')}")
+                why.append(f"view {j}: {est.info.reason or 'estimation failed'}")
                 continue
             R.append(R[j] @ est.R)
             t.append(R[j] @ est.t + t[j])
             methods.append((pm, j))
             if est.gravity is not None:
                 weight = float(est.num_inliers)
-                for g in [est.gravity] + list(est.info.get("gravity_candidates", [])):
+                for g in [est.gravity] + list(est.info.gravity_candidates):
                     candidates.append((R[j] @ np.asarray(g, float), weight))
             break
         else:
