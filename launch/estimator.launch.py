@@ -6,6 +6,9 @@
 ``ros2 launch nrmpc_ros estimator.launch.py --show-args`` lists the arguments.
 The node reads ``params_file`` first and then the overrides given here
 (``rig_file``, ``method``, ``use_sim_time``, and ``imu_topic`` when not empty).
+``rviz:=true`` also starts rviz2 with share/nrmpc_ros/rviz/nrmpc.rviz, its topics
+and fixed frame made for the launched rig and namespace (a log line instead
+when rviz2 is not installed).
 Relative ``rig_file`` and ``params_file`` paths are looked up in the working
 directory first, then in share/nrmpc_ros (and its config/), as the node does.
 
@@ -36,8 +39,14 @@ ARGUMENTS = (
                          "image_topic (its /compressed topic follows it) or image_topic/compressed", None),
     ("use_sim_time", "false", "take time from /clock (e.g. with nrmpc play or ros2 bag play --clock)", BOOLEANS),
     ("log_level", "info", "log level of the node", LOG_LEVELS),
+    ("rviz", "false", "also start rviz2 with share/nrmpc_ros/rviz/nrmpc.rviz made for this rig and namespace "
+                      "(when rviz2 is installed; a log line says so when it is not)", BOOLEANS),
 )
 DEFAULT_FILES = {"rig_file": ("config", "sample_cross4.yaml"), "params_file": ("config", "estimator.yaml")}
+RVIZ_FILE = "rviz/nrmpc.rviz"
+# The node's outputs the RViz config shows, relative to the node (in its namespace).
+RVIZ_TOPICS = {"rviz_default_plugins/MarkerArray": "estimator/markers",
+               "rviz_default_plugins/PoseWithCovariance": "estimator/pose"}
 
 
 def parse_remaps(text: str, argument: str = "image_remaps") -> list[tuple[str, str]]:
@@ -90,6 +99,45 @@ def check_image_remaps(remaps: list[tuple[str, str]], image_topics: list[str], n
                                                          f"{rig_source} (its topics here: {here})")
 
 
+def rviz_config_for(text: str, namespace: str, body_frame: str, image_topic: str) -> str:
+    """The RViz config ``text`` (rviz/nrmpc.rviz) for a launched node: the node's topics in ``namespace``, the rig's
+    body frame as the fixed frame, ``image_topic`` (fully qualified, after remapping) in the image display."""
+    import yaml
+
+    cfg = yaml.safe_load(text)
+    manager = cfg["Visualization Manager"]
+    manager["Global Options"]["Fixed Frame"] = body_frame
+    for display in manager["Displays"]:
+        cls = display["Class"]
+        if cls in RVIZ_TOPICS:
+            display["Topic"]["Value"] = expand_topic(RVIZ_TOPICS[cls], namespace)
+        elif cls == "rviz_default_plugins/Image":
+            display["Topic"]["Value"] = image_topic
+    return yaml.safe_dump(cfg, sort_keys=False)
+
+
+def _rviz_actions(share: Path | None, rig, namespace: str, remaps: list) -> list:
+    """rviz2 with the config made for this node, or a log line saying why not."""
+    import tempfile
+
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    from launch.actions import LogInfo
+    from launch_ros.actions import Node
+
+    try:
+        get_package_share_directory("rviz2")
+    except PackageNotFoundError:
+        return [LogInfo(msg="rviz:=true but rviz2 is not installed (apt install ros-jazzy-rviz2): the estimator "
+                            "runs without it")]
+    config = find_file(RVIZ_FILE, share, "rviz")
+    image = expand_topic(rig.cameras[0].image_topic, namespace)
+    image = dict((expand_topic(a, namespace), expand_topic(b, namespace)) for a, b in remaps).get(image, image)
+    out = Path(tempfile.mkdtemp(prefix="nrmpc_rviz_")) / "nrmpc.rviz"
+    out.write_text(rviz_config_for(config.read_text(), namespace, rig.body_frame, image))
+    return [LogInfo(msg=f"rviz2 with {out} (from {config})"),
+            Node(package="rviz2", executable="rviz2", arguments=["-d", str(out)], output="screen")]
+
+
 def _launch_setup(context, *args, **kwargs):
     """The estimator Node with every launch argument resolved (runs at launch time, inside the launch service)."""
     from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
@@ -130,6 +178,8 @@ def _launch_setup(context, *args, **kwargs):
         output="screen",
         emulate_tty=True,
     )
+    if value["rviz"].lower() == "true":
+        return [node, *_rviz_actions(share, rig, namespace, remaps)]
     return [node]
 
 

@@ -177,7 +177,8 @@ def _fit_sequences(rig: Rig, seqs: list, groups, kg, bias_sigma_rad, max_iterati
     parts, R, t, g, meas, sig = [], [], [], [], [], []
     for rec in seqs:
         tr = rec.tracks
-        obs, _ = Observations.from_arrays(tr.view, tr.cam, tr.track, tr.f, tr.num_views)
+        scale = None if rec.noise_scale is None else np.asarray(rec.noise_scale, float)[tr.view]
+        obs, _ = Observations.from_arrays(tr.view, tr.cam, tr.track, tr.f, tr.num_views, scale)
         seen = (np.bincount(obs.point, minlength=obs.num_points) >= 2)[obs.point]
         parts.append(obs.subset(seen)[0])
         R.append(rec.R)
@@ -221,7 +222,8 @@ def _without_views(rec, drop: set):
     R = np.einsum("ji,njk->nik", R0, rec.R[keep])
     t = np.einsum("ji,nj->ni", R0, rec.t[keep] - t0)
     return SequenceRecord(rec.tracks.views_subset(keep), R, t, R0.T @ rec.gravity,
-                          np.asarray(rec.measured_sigma)[keep])
+                          np.asarray(rec.measured_sigma)[keep],
+                          None if rec.noise_scale is None else np.asarray(rec.noise_scale)[keep])
 
 
 def _jackknife_std(rig: Rig, seqs: list, groups, fit: dict, bias_sigma_rad, max_iterations, threshold_px,
@@ -237,7 +239,7 @@ def _jackknife_std(rig: Rig, seqs: list, groups, fit: dict, bias_sigma_rad, max_
     for rec in seqs:
         m = rec.tracks.num_views
         start.append(type(rec)(rec.tracks, fit["R"][n:n + m], fit["t"][n:n + m], fit["gravity"][len(start)],
-                               rec.measured_sigma))
+                               rec.measured_sigma, rec.noise_scale))
         n += m
     order = np.random.default_rng(0).permutation(len(views))  # groups mix holds of every part of the recording
     estimates = []
@@ -299,4 +301,107 @@ def describe(cal: BarCalibration, rig: Rig) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["BarCalibration", "calibrate_bars", "calibrate_sequences", "describe"]
+# ---------------------------------------------------------------------------
+# The bars' dynamics: natural frequency and damping from the ringing in the images
+# ---------------------------------------------------------------------------
+
+DISAGREE_SIGMAS = 3.0  # a fitted frequency off the rig file's by more than this many of its stds disagrees
+
+
+@dataclass
+class BarDynamics:
+    """One bar's first bending mode identified from the ringing of its camera's image offset after the stops."""
+
+    camera: str
+    freq_hz: float
+    freq_std_hz: float
+    zeta: float
+    zeta_std: float
+    rig_freq_hz: float  # sqrt(3 EI / (m L^3)) / (2 pi) from the rig file
+    num_stops: int  # holds whose offsets entered the fit
+    residual_px: float  # RMS of the fit's residual per image axis
+
+    @property
+    def disagrees(self) -> bool:
+        """The fitted frequency is off the rig file's by more than DISAGREE_SIGMAS of its std."""
+        return abs(self.freq_hz - self.rig_freq_hz) > DISAGREE_SIGMAS * self.freq_std_hz
+
+
+def _few_stops_factor(num_stops: int) -> float:
+    """The jackknife std over ``num_stops`` stops is itself estimated from num_stops - 1 degrees of freedom: the
+    ratio of Student's t to the normal two-sided 95 % quantile makes +-2 of the published std cover the error
+    as often as +-2 of the true std would (1.31 for six stops, 1.15 for ten, 1 for many)."""
+    from scipy.stats import norm, t
+
+    return float(t.ppf(0.975, max(num_stops - 1, 1)) / norm.ppf(0.975))
+
+
+def identify_bar_dynamics(rig: Rig, holds: list, min_frames: int = 8) -> list:
+    """Each flexible bar's natural frequency and damping ratio from its camera's image offsets after every stop
+    (:attr:`~nrmpc_ros.frontend.holds.Hold.trace`), fitted jointly over the holds (one frequency and damping
+    per bar, each hold its own rest offset and ringing amplitude and phase:
+    :func:`~nrmpc_ros.frontend.ringing.fit_damped_response`) in the camera's rotation angle (times its
+    focal length), started at the rig file's frequency. The stds are the larger of the fit's own (which
+    allows for errors correlated within a stop) and the delete-one-stop jackknife's (with three stops or
+    more; widened by Student's t for its few degrees of freedom): the offsets' errors are not white
+    (docs/PIPELINE.md, "Measuring a hold"). Per camera a :class:`BarDynamics`, or None for a rigid bar or
+    one without enough frames."""
+    from .core.dynamics import bar_natural_frequencies
+    from .frontend.ringing import fit_damped_response
+
+    f_rig = bar_natural_frequencies(rig)
+    out = []
+    for i, cam in enumerate(rig.cameras):
+        if not (np.isfinite(f_rig[i]) and f_rig[i] > 0):
+            out.append(None)
+            continue
+        # the offset of the tracks' median is f tan(rotation since the anchor frame): the ringing is a damped
+        # sinusoid in the angle, f atan(offset / f), not in the pixels (tan's cubic term biases the damping up)
+        focal = float(cam.focal_px)
+        segs = [(h.trace_t - h.start, focal * np.arctan(h.trace[:, i] / focal)) for h in holds
+                if h.trace is not None and np.isfinite(h.trace[:, i, 0]).sum() >= min_frames]
+        fit = fit_damped_response(segs, float(f_rig[i])) if segs else None
+        if fit is None:
+            out.append(None)
+            continue
+        f_std, z_std = fit.freq_std_hz, fit.zeta_std
+        if len(segs) >= 3:  # the rendering's or the tracks' errors are not white: the spread over the stops says
+            loo = [fit_damped_response(segs[:k] + segs[k + 1:], float(f_rig[i])) for k in range(len(segs))]
+            loo = np.array([(r.freq_hz, r.zeta) for r in loo if r is not None])
+            if len(loo) >= 3:
+                jack = np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
+                jack *= _few_stops_factor(len(loo))
+                f_std, z_std = max(f_std, float(jack[0])), max(z_std, float(jack[1]))
+        out.append(BarDynamics(cam.name, fit.freq_hz, f_std, fit.zeta, z_std, float(f_rig[i]), len(segs),
+                               fit.residual_rms))
+    return out
+
+
+def describe_dynamics(dyn: list, rig: Rig) -> str:
+    """Human-readable table of :func:`identify_bar_dynamics`."""
+    lines = ["bar dynamics from the ringing after the stops (natural frequency, damping ratio):"]
+    for cam, d in zip(rig.cameras, dyn):
+        if d is None:
+            lines.append(f"  {cam.name}: rigid, or too few frames after the stops to fit the ringing")
+            continue
+        check = (f"DISAGREES with the rig file's {d.rig_freq_hz:.4g} Hz (by "
+                 f"{abs(d.freq_hz - d.rig_freq_hz) / max(d.freq_std_hz, 1e-12):.1f} std)" if d.disagrees
+                 else f"agrees with the rig file's {d.rig_freq_hz:.4g} Hz")
+        lines.append(f"  {d.camera}: {d.freq_hz:.4g} +- {d.freq_std_hz:.2g} Hz ({check}), damping "
+                     f"{d.zeta:.4g} +- {d.zeta_std:.2g}, over {d.num_stops} stops (residual {d.residual_px:.3f} px)")
+    return "\n".join(lines)
+
+
+def rig_dict_with_dynamics(rig: Rig, dyn: list) -> dict:
+    """The rig file's mapping with each identified bar's ``damping`` and ``frequency_hz`` (docs/CONVENTIONS.md,
+    "The rig in motion"; the frequency is informational, the loader derives it from EI, mass and length)."""
+    d = rig.to_dict()
+    for cd, b in zip(d["cameras"], dyn):
+        if b is not None and "bar" in cd:
+            cd["bar"]["damping"] = float(round(b.zeta, 6))
+            cd["bar"]["frequency_hz"] = float(round(b.freq_hz, 6))
+    return d
+
+
+__all__ = ["BarCalibration", "BarDynamics", "calibrate_bars", "calibrate_sequences", "describe", "describe_dynamics",
+           "identify_bar_dynamics", "rig_dict_with_dynamics"]

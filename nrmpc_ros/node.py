@@ -1,8 +1,9 @@
 """The ROS 2 node ``estimator``; with ``ros_play`` the only rclpy user in nrmpc_ros (README, "The ROS 2 node").
 
 Parameters are declared from :class:`~nrmpc_ros.frontend.node_config.NodeConfig` and ``pipeline.*``; callbacks
-hand messages to :class:`~nrmpc_ros.frontend.service.EstimatorService`, whose worker thread runs the
-pipeline; this module turns its outputs into messages. ``estimator --help`` lists topics and parameters.
+hand messages to :class:`~nrmpc_ros.frontend.service.EstimatorService`, whose two worker threads run the
+pipeline (the intake of frame sets, and the estimation of measured holds); this module turns its outputs into
+messages. ``estimator --help`` lists topics and parameters.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 from . import threads  # noqa: F401 - one BLAS thread, before numpy is imported
 # isort: on
 import importlib.util
+import os
 import signal
 import sys
 import time
@@ -18,8 +20,9 @@ import time
 from .core.rig import load_rig
 from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
 from .frontend import node_config as cfgs
-from .frontend.outputs import OUTPUTS, HoldOutput, fill_message, message_fields
-from .frontend.service import EstimatorService
+from .frontend.markers import build_markers, marker_array_fields
+from .frontend.outputs import OUTPUTS, HoldOutput, fill_message, frame_pose_fields, message_fields
+from .frontend.service import SHUTDOWN_S, EstimatorService
 from .ros_play import message_class
 
 try:  # rclpy is optional for the package; --help works without it
@@ -29,7 +32,7 @@ try:  # rclpy is optional for the package; --help works without it
     from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
-    from rclpy.qos import QoSProfile, qos_profile_sensor_data
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from rclpy.signals import SignalHandlerOptions
     from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu
     from std_srvs.srv import Trigger
@@ -39,7 +42,10 @@ except ImportError as _exc:  # pragma: no cover - exercised only without ROS
     rclpy, Node, _RCLPY_ERROR = None, object, _exc
 
 NODE_NAME = "estimator"
+MARKERS = ("visualization_msgs/msg/MarkerArray", "~/markers")  # latched: the last state of the rig
 SUMMARY_LINGER_S = 0.5  # after the shutdown summary: time for a reliable /rosout delivery on a busy machine
+SIGNAL_WAKE_S = 0.1  # longest wait of the executor before Python sees a signal that arrived during it
+EXIT_S = 0.4  # after the linger: destroying the node and the context, ending the process (measured: 0.1-0.25 s)
 
 
 def _sensor_qos(depth: int):
@@ -48,7 +54,7 @@ def _sensor_qos(depth: int):
 
 
 class EstimatorNode(Node):
-    """The ``estimator`` node; ``start_worker=False`` leaves the worker stopped (tests drive it)."""
+    """The ``estimator`` node; ``start_worker=False`` leaves both workers stopped (tests drive them)."""
 
     def __init__(self, *, start_worker: bool = True, **node_kwargs):
         if rclpy is None:
@@ -61,7 +67,8 @@ class EstimatorNode(Node):
             self._log("warn", warning)
         imu = imu and self.resolve_topic_name(imu)
         self.camera_topics = [self.resolve_topic_name(c.image_topic) for c in self.rig.cameras]
-        self.service = EstimatorService(self.rig, cfg, pipe_cfg, self.camera_topics, imu, self.publish_hold, self._log)
+        self.service = EstimatorService(self.rig, cfg, pipe_cfg, self.camera_topics, imu, self.publish_hold, self._log,
+                                        publish_poses=self.publish_poses, publish_status=self.publish_markers)
         self._subs, self._transport = [None] * self.rig.num_cameras, [None] * self.rig.num_cameras
         for i in range(self.rig.num_cameras):
             self._subscribe_camera(i)
@@ -75,6 +82,10 @@ class EstimatorNode(Node):
         if not cfg.publish_tf or importlib.util.find_spec("tf2_msgs") is None:  # not always installed
             del outputs["tf"]
         self.pubs = {k: self.create_publisher(message_class(t, topic), topic, 100) for k, (t, topic) in outputs.items()}
+        if importlib.util.find_spec("visualization_msgs") is not None:  # transient local: a late RViz gets the last
+            latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.pubs["markers"] = self.create_publisher(message_class(*MARKERS), MARKERS[1], latched)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_timer(cfg.diagnostics_period_s, self._on_timer)
@@ -109,8 +120,10 @@ class EstimatorNode(Node):
         return values
 
     def _subscribe_camera(self, i: int) -> None:
-        choice = cfgs.transport(self.rig.cameras[i].image_topic, self.cfg.image_transport,
-                               dict(self.get_topic_names_and_types()), self.resolve_topic_name)
+        topic = self.rig.cameras[i].image_topic
+        publishers = {t: [p.topic_type for p in self.get_publishers_info_by_topic(t)]
+                      for t in cfgs.transport_topics(topic, self.resolve_topic_name)}  # not our own subscription
+        choice = cfgs.transport(topic, self.cfg.image_transport, publishers, self.resolve_topic_name)
         if choice == self._transport[i]:
             return
         if self._subs[i] is not None:
@@ -164,26 +177,52 @@ class EstimatorNode(Node):
         return list(self._transport)
 
     def publish_hold(self, out: HoldOutput) -> None:
-        """Publish one hold's outputs on the node's topics; the service calls it from its worker thread."""
+        """Publish one hold's outputs on the node's topics; the service calls it from its estimation worker."""
         for key, fields in message_fields(out, self.service.frames, self.service.feeder.ros_stamp).items():
             if key in self.pubs:
                 self.pubs[key].publish(fill_message(self.pubs[key].msg_type(), fields))
 
-    def shutdown(self) -> None:
-        """Stop the worker and log the summary (while the context still carries it to /rosout)."""
-        self.service.stop()
-        self._log("info", "shutting down: " + self.service.summary())
+    def publish_poses(self, out) -> None:
+        """Publish one frame set's camera poses (TF, and ~/camera_poses when due); from the intake worker."""
+        for key, fields in frame_pose_fields(out, self.service.frames, self.service.feeder.ros_stamp).items():
+            if key in self.pubs:
+                self.pubs[key].publish(fill_message(self.pubs[key].msg_type(), fields))
+
+    def publish_markers(self, status, out: HoldOutput | None) -> None:
+        """Publish the rig's markers (frontend/markers.py) for its state and last estimate; the service calls it
+        from either worker after every estimate and state change (one at a time)."""
+        pub = self.pubs.get("markers")
+        if pub is None:
+            return
+        markers = build_markers(self.rig, out, status, self.cfg.markers_bend_scale)
+        stamp = self.service.feeder.ros_stamp(out.estimate.stamp if out is not None else status.stamp)
+        pub.publish(fill_message(pub.msg_type(), marker_array_fields(markers, self.rig.body_frame, stamp)))
+
+    def shutdown(self, budget_s: float = SHUTDOWN_S) -> None:
+        """Stop the workers and log the summary (while the context still carries it to /rosout), all within
+        ``budget_s`` of the call (README, "The ROS 2 node", Drops and logs)."""
+        worker = self.service.stop(max(0.0, budget_s - SUMMARY_LINGER_S - EXIT_S))
+        self._log("info", f"shutting down: {self.service.summary()}; {worker}")
         time.sleep(SUMMARY_LINGER_S)  # DDS delivers it to /rosout's subscribers before the context goes
 
 
 def main(argv: list | None = None) -> int:
-    """Entry point of ``estimator`` and ``ros2 run nrmpc_ros estimator``."""
+    """Entry point of ``estimator`` and ``ros2 run nrmpc_ros estimator``.
+
+    SIGINT and SIGTERM end the process within ``SHUTDOWN_S`` (README, "The ROS 2 node"): the executor waits at
+    most ``SIGNAL_WAKE_S`` before it sees the signal, the node stops within the rest, and as the process's entry
+    point (``argv`` None) it ends without the interpreter's own teardown (modules, and an estimate abandoned in
+    the worker thread), which on a busy machine could take longer than the budget.
+    """
+    entry = argv is None
     argv = list(sys.argv if argv is None else argv)
     code = cfgs.command_line(argv[1:], rclpy is None and f"rclpy is not importable ({_RCLPY_ERROR}); {ROS_EXTRA_HINT}")
     if code is not None:
         return code
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: the summary still reaches /rosout
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    stop = []  # the signal that asked to stop: the executor loop ends at its next wake-up
+    for sig in (signal.SIGINT, signal.SIGTERM):  # both stop the node, also where SIGINT came ignored (a shell's
+        signal.signal(sig, lambda signum, _frame: stop.append(signum))  # background job): launch files send it
     node = None
     try:
         try:
@@ -193,16 +232,22 @@ def main(argv: list | None = None) -> int:
             return 2
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        try:
-            executor.spin()
+        try:  # a flag, not an exception: an exception raised inside rclpy's C calls (taking a message) would
+            # come out as another error, and the summary would be lost
+            while rclpy.ok() and not stop:  # the wait ends every SIGNAL_WAKE_S: a signal does not end a DDS wait
+                executor.spin_once(timeout_sec=SIGNAL_WAKE_S)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
-        node.shutdown()
-        return 0
+        node.shutdown(SHUTDOWN_S - SIGNAL_WAKE_S)
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    if entry:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
+    return 0
 
 
 if __name__ == "__main__":

@@ -10,6 +10,15 @@ holds and their IMU gravity are collected with the wrong rig (:func:`nrmpc_ros.f
 as ``nrmpc calibrate-bars`` does), then :func:`nrmpc_ros.calibration.calibrate_sequences` estimates every
 bar's compliance; the table gives per bag and bar the relative EI error and the error over the reported
 standard deviation (|z| < 3 when the standard deviations cover the errors).
+
+    python scripts/bench_calibration.py --dynamics DIR [DIR ...] [--json results.json]
+
+Each DIR holds a rendered ``bag`` and the ``rig.yaml`` it was rendered with (scripts/bench_extrinsics.py
+writes both; any make-bag bag with ``--save-rig`` renamed so works): every bar's natural frequency and damping
+ratio identified from the ringing after the stops as ``nrmpc calibrate-bars`` does
+(:func:`nrmpc_ros.calibration.identify_bar_dynamics` on the holds the pipeline measures, starting at the rig
+file's frequency), against the rig file's truth, with the error over the reported std. Targets: frequency
+within 3 %, damping within 20 %, |z| < 3.
 """
 
 from __future__ import annotations
@@ -25,8 +34,9 @@ from pathlib import Path
 import numpy as np
 from bench_holds import _rigs, _styles, make_bags
 
-from nrmpc_ros.calibration import calibrate_sequences
+from nrmpc_ros.calibration import calibrate_sequences, identify_bar_dynamics
 from nrmpc_ros.core import load_rig
+from nrmpc_ros.core.dynamics import bar_natural_frequencies
 from nrmpc_ros.frontend.replay import collect_sequences
 
 
@@ -48,6 +58,47 @@ def calibrate_bag(path: Path, rig_file: Path, factor: float) -> dict:
     return {"holds": int(sum(s.tracks.num_views for s in seqs)), "sequences": len(seqs), "bars": rows}
 
 
+def dynamics_of_bag(folder: Path) -> dict:
+    """Every bar's identified frequency and damping against the rig file it was rendered with."""
+    rig = load_rig(folder / "rig.yaml")
+    holds: list = []
+    collect_sequences(folder / "bag", rig, warn=lambda m: None, stats={}, holds=holds)
+    f_true = bar_natural_frequencies(rig)
+    rows = []
+    for i, d in enumerate(identify_bar_dynamics(rig, holds)):
+        if d is None:
+            continue
+        z_true = rig.cameras[i].damping
+        rows.append({"camera": d.camera, "freq_hz": d.freq_hz, "freq_true_hz": float(f_true[i]),
+                     "freq_error": d.freq_hz / f_true[i] - 1.0, "freq_z": (d.freq_hz - f_true[i]) / d.freq_std_hz,
+                     "zeta": d.zeta, "zeta_true": z_true, "zeta_error": d.zeta / z_true - 1.0,
+                     "zeta_z": (d.zeta - z_true) / d.zeta_std, "stops": d.num_stops})
+    return {"bag": str(folder), "cameras": rig.num_cameras, "holds": len(holds), "bars": rows}
+
+
+def main_dynamics(folders, json_out=None) -> int:
+    results = []
+    print("| bag | cameras | holds | bar | frequency (true) | error | z | damping (true) | error | z |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for folder in folders:
+        r = dynamics_of_bag(Path(folder))
+        results.append(r)
+        for b in r["bars"]:
+            print(f"| {Path(folder).name} | {r['cameras']} | {r['holds']} | {b['camera']} | {b['freq_hz']:.3f} "
+                  f"({b['freq_true_hz']:.3f}) Hz | {100 * b['freq_error']:+.2f} % | {b['freq_z']:+.2f} | "
+                  f"{b['zeta']:.4f} ({b['zeta_true']:g}) | {100 * b['zeta_error']:+.1f} % | {b['zeta_z']:+.2f} |",
+                  flush=True)
+    bars = [b for r in results for b in r["bars"]]
+    if bars:
+        worst = {k: max(abs(b[k]) for b in bars) for k in ("freq_error", "freq_z", "zeta_error", "zeta_z")}
+        print(f"bars: {len(bars)}; largest frequency error {100 * worst['freq_error']:.2f} % (|z| "
+              f"{worst['freq_z']:.2f}), largest damping error {100 * worst['zeta_error']:.1f} % (|z| "
+              f"{worst['zeta_z']:.2f})")
+    if json_out:
+        Path(json_out).write_text(json.dumps(results, indent=1))
+    return 0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="/tmp/nrmpc_bench_holds_vga", help="folder of the rendered bags (reused)")
@@ -55,7 +106,11 @@ def main(argv=None) -> int:
     p.add_argument("--rigs", default="all", help="comma-separated rigs (default all: line2,fish3,cross4)")
     p.add_argument("--factor", type=float, default=2.0, help="the starting rig's EI is the truth times this")
     p.add_argument("--json", help="also write the results as JSON")
+    p.add_argument("--dynamics", nargs="+", metavar="DIR", help="identify the bars' frequency and damping on "
+                   "these folders (each a bag/ and its rig.yaml) instead")
     args = p.parse_args(argv)
+    if args.dynamics:
+        return main_dynamics(args.dynamics, args.json)
     rigs, styles = _rigs(), _styles()
     if args.rigs != "all":
         rigs = {k: rigs[k] for k in args.rigs.split(",")}

@@ -40,9 +40,11 @@ import yaml  # noqa: E402
 import nrmpc_ros.frontend.pipeline as pipeline_module  # noqa: E402
 from nrmpc_ros.bag.reader import BagReader  # noqa: E402
 from nrmpc_ros.core import load_rig  # noqa: E402
-from nrmpc_ros.frontend.evaluation import evaluate, read_reference, row_from_estimate  # noqa: E402
+from nrmpc_ros.frontend.estimates_csv import row_from_estimate  # noqa: E402
+from nrmpc_ros.frontend.evaluation import evaluate  # noqa: E402
 from nrmpc_ros.frontend.images import decode_image, stamp_seconds  # noqa: E402
 from nrmpc_ros.frontend.pipeline import FrameSet, Pipeline, PipelineConfig  # noqa: E402
+from nrmpc_ros.frontend.reference import read_reference  # noqa: E402
 from nrmpc_ros.frontend.sync import StampSynchronizer  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -137,7 +139,7 @@ def bench(rig, events, method="auto", config: PipelineConfig | None = None, refe
         "frontend_ms_per_pair": 1000.0 * (total - est_clock.total) / max(n, 1),
         "tracking_ms_per_frame": 1000.0 * (total - pair_clock.total) / max(frames, 1),
         "median_matches": float(np.median([e.num_matches for e in ests])) if ests else math.nan,
-        "dropped": dict(pipe.stats.dropped),
+        "dropped": pipe.stats.as_dict()["dropped"],
     }
     out.update(accuracy(rig, ests, reference))
     return out

@@ -1,11 +1,31 @@
 #!/usr/bin/env python3
-"""The pipeline on bags of every recording style and rig: coverage, accuracy, settling, noise (docs/RESULTS.md).
+"""The pipeline on bags recorded the way users record them: a matrix of styles x rigs against the targets.
 
-    python scripts/bench_holds.py [--out /tmp/nrmpc_bench_holds] [--styles all] [--rigs all] [--seeds 1]
+    python scripts/bench_holds.py [--quick | --full] [--out /tmp/nrmpc_bench_matrix] [--workers 1]
                                   [--methods auto,6pt-bending] [--json results.json]
+    python scripts/bench_holds.py --vga [--styles all] [--rigs all] [--seeds 1]   # the VGA style table
 
-Bags are rendered once into --out (reused when they exist; delete the folder to re-render) with
-:func:`nrmpc_ros.render.bagmaker.make_bag`: for each rig (two cameras on one straight bar, three cameras of
+Matrix (the default, docs/RESULTS.md): small bags (320x240, f = 235 px, one ray per pixel, six holds, bars
+ringing with damping ratio 0.05) rendered once into --out with :func:`nrmpc_ros.render.bagmaker.make_bag`
+(reused when they exist; delete the folder to re-render). Rigs: 2 to 6 cameras (``line2`` two cameras on one
+bar, ``ring3``, ``cross4``, ``ring5``, ``ring6``), each with soft (2 Hz) or stiff (6 Hz) bars. Styles (holds
+at 10 Hz, IMU at 200 Hz unless said): ``imu100`` / ``imu200`` / ``imu500`` the IMU rate; ``snap0.5`` one image
+per camera 0.5 s after each stop; ``camrates`` each camera its own rate (10, 15, 30, 20, 12, 25 Hz) and phase;
+``exposure`` auto-exposure drift (gain 1 +- 0.3, 10 s periods); ``creep`` random 2-4 s holds of which a third
+creep at 0.5 deg/s (not still); ``imuclock`` random 1.5-3.5 s holds and an IMU clock 15 ms off the cameras'.
+``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
+both bar stiffnesses among them.
+
+Every bag is replayed with each method through the same loop as ``nrmpc replay``. Per bag and method:
+coverage of the still holds after the first (target >= 0.9); estimates stamped in a creeping hold or while
+moving (target 0: ``/ground_truth/angular_velocity`` non-zero, or outside every still hold of the ground
+truth); median gravity error against ground truth; the IMU-only error (the accelerometer's still samples
+within +-0.25 s of each still hold's ground-truth stamps: :mod:`nrmpc_ros.frontend.imu_reference`); ``auto``
+(4pt-bending) against it (target <= 0.75x);
+``6pt-bending`` median (target <= 1.0 deg); the share of published gravities within 1, 2 and 3 of their own
+standard deviations (``gravity_sigma_deg``) of the truth (target >= 95 % within 3).
+
+The ``--vga`` table: for each rig (two cameras on one straight bar, three cameras of
 which one fisheye, the four-camera cross; stiff-enough bars to settle within the holds) and each recording
 style (snapshots with and without IMU; a 10 Hz stream with smooth moves; a stream with abrupt moves, ringing
 bars (damping 0.03), +-8 ms camera stamp jitter and 2 % frame drops; JPEG-compressed images). Every bag is
@@ -32,10 +52,14 @@ from nrmpc_ros.bag.reader import BagReader
 from nrmpc_ros.core import load_rig, save_rig
 from nrmpc_ros.core.dynamics import bar_natural_frequencies, ringing_decay_time
 from nrmpc_ros.core.rig import Camera, Rig
-from nrmpc_ros.frontend.evaluation import batch_rows, evaluate, read_reference, row_from_estimate
+from nrmpc_ros.core.so3 import angle_between
+from nrmpc_ros.frontend.estimates_csv import batch_rows, row_from_estimate
+from nrmpc_ros.frontend.evaluation import evaluate, static_holds
+from nrmpc_ros.frontend.imu_reference import ImuReference
 from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig
+from nrmpc_ros.frontend.reference import STAMP_TOLERANCE_S, read_reference
 from nrmpc_ros.frontend.replay import replay_bag, resolve_imu_topic
-from nrmpc_ros.render.bagmaker import BagOptions, make_bag
+from nrmpc_ros.render.bagmaker import ANGULAR_VELOCITY_TOPIC, BagOptions, make_bag
 from nrmpc_ros.render.sequence import MotionOptions
 from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 
@@ -102,8 +126,9 @@ def implied_settle_s(rig: Rig, damping: float | None) -> float:
     return float(ringing_decay_time(float(f.min()), damping)) if len(f) else math.nan
 
 
-def run_bag(path: Path, rig_file: Path, method: str) -> dict:
-    rig = load_rig(rig_file)
+def replay_rows(path: Path, rig, method: str, with_holds: bool = False):
+    """Replay one bag with one method: (rows, reference, pipeline, wall s, the ground truth's still holds or
+    None)."""
     t0 = time.perf_counter()
     with BagReader(path) as bag:
         imu_topic = resolve_imu_topic(bag, rig, warn=lambda m: None)
@@ -111,7 +136,13 @@ def run_bag(path: Path, rig_file: Path, method: str) -> dict:
         rows = [row_from_estimate(e) for es in replay_bag(bag, rig, pipe, imu_topic, warn=lambda m: None)
                 for e in es]
         ref = read_reference(bag, imu_topic)
-    wall = time.perf_counter() - t0
+        holds = still_holds(bag, ref) if with_holds else None
+    return rows, ref, pipe, time.perf_counter() - t0, holds
+
+
+def run_bag(path: Path, rig_file: Path, method: str) -> dict:
+    rig = load_rig(rig_file)
+    rows, ref, pipe, wall, _ = replay_rows(path, rig, method)
     ev = evaluate(rows, ref, rig)
     batch = batch_rows(pipe.batch(), method)
     evb = evaluate(batch, ref, rig)
@@ -127,8 +158,10 @@ def run_bag(path: Path, rig_file: Path, method: str) -> dict:
             "hold_ms": float(np.median([r.time_ms for r in rows])) if rows else math.nan}
 
 
-def main(argv=None) -> int:
+def vga_main(argv=None) -> int:
+    """The VGA style table (``--vga``)."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--vga", action="store_true")
     p.add_argument("--out", default="/tmp/nrmpc_bench_holds_vga", help="folder of the rendered bags (reused)")
     p.add_argument("--styles", default="all", help="comma-separated styles (default all: " +
                    ",".join(_styles()) + ")")
@@ -160,6 +193,220 @@ def main(argv=None) -> int:
                   f"{r['batch_gravity_deg']:.3f} | {r['imu_gravity_deg']:.3f} | {r['rotation_deg']:.3f} | "
                   f"{r['settle_s']:.2f} ({implied:.2f}) | {r['noise_px']:.3f} -> {r['averaged_noise_px']:.4f} | "
                   f"{r['hold_ms']:.0f} |", flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1, default=str))
+    return 0
+
+
+
+
+# -- the matrix ------------------------------------------------------------------------------------------------
+
+SMALL = (320, 240)
+SMALL_FOCAL = 235.0
+BAR_HZ = {"soft": 2.0, "stiff": 6.0}  # the project's bars span 1.5-8 Hz
+MASS, BAR_LENGTH = 0.1, 0.4
+SUPERSAMPLE = 1  # one ray per pixel: a quarter of the rendering time of 2 x 2 (as the test recordings)
+DAMPING = 0.05  # a lightly damped bar: ringing falls to 1e-3 after 22 s at 2 Hz, 7 s at 6 Hz
+LAYOUT = {2: "line", 3: "ring", 4: "cross", 5: "ring", 6: "ring"}
+CAMERA_RATES = (10.0, 15.0, 30.0, 20.0, 12.0, 25.0)
+TARGETS = {"coverage": 0.9, "bad": 0, "ratio_4pt": 0.75, "median_6pt_deg": 1.0, "within3": 0.95}
+
+
+def matrix_rigs() -> dict:
+    """'<layout><M>-<soft|stiff>' -> Rig: 2 to 6 cameras, soft and stiff bars, an IMU at the body centre."""
+    out = {}
+    for M, layout in LAYOUT.items():
+        for bar, hz in BAR_HZ.items():
+            EI = (2.0 * math.pi * hz) ** 2 * MASS * BAR_LENGTH**3 / 3.0  # f = sqrt(3 EI / (m L^3)) / (2 pi)
+            out[f"{layout}{M}-{bar}"] = make_rig(RigSpec(num_cameras=M, layout=layout, focal=SMALL_FOCAL,
+                                                         resolution=SMALL, EI=EI, mass=MASS, bar_length=BAR_LENGTH))
+    return out
+
+
+def matrix_styles() -> dict:
+    """Style -> function of the camera count giving (MotionOptions kwargs, BagOptions kwargs)."""
+    base = {"views": 6, "hold_seconds": 2.5, "min_move_seconds": 1.0, "rate": 10.0}
+    bag = {"damping": DAMPING}
+
+    def rates(M):
+        return {"camera_rates": CAMERA_RATES[:M], "camera_phases_ms": tuple(7.0 * i for i in range(M))}
+
+    return {
+        "imu100": lambda M: ({**base, "imu_rate": 100.0}, bag),
+        "imu200": lambda M: ({**base, "imu_rate": 200.0}, bag),
+        "imu500": lambda M: ({**base, "imu_rate": 500.0}, bag),
+        "snap0.5": lambda M: ({**base, "capture": "snapshot", "snapshot_delay": 0.5}, bag),
+        "camrates": lambda M: ({**base, **rates(M)}, bag),
+        "exposure": lambda M: (base, {**bag, "exposure_drift": 0.3, "exposure_period_s": 10.0}),
+        "creep": lambda M: ({**base, "views": 7, "hold_seconds_range": (2.0, 4.0), "creep_fraction": 1 / 3,
+                             "creep_deg_per_s": 0.5}, bag),
+        "imuclock": lambda M: ({**base, "hold_seconds_range": (1.5, 3.5)}, {**bag, "imu_time_offset_ms": 15.0}),
+    }
+
+
+QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross4-soft"),
+         ("snap0.5", "line2-soft"), ("camrates", "ring5-stiff"), ("exposure", "ring6-soft"),
+         ("creep", "cross4-stiff"), ("imuclock", "line2-stiff")]
+
+
+def matrix_cells(full: bool) -> list:
+    """(style, rig) pairs of the quick subset or of the full matrix."""
+    if not full:
+        return list(QUICK)
+    return [(s, r) for r in matrix_rigs() for s in matrix_styles()]
+
+
+def render_cell(out: Path, style: str, rig_name: str, seed: int = 0) -> tuple:
+    """(bag dir, rig file) of one cell, rendered if missing (written beside, then renamed: never half a bag)."""
+    rig = matrix_rigs()[rig_name]
+    rig_file = out / f"{rig_name}.yaml"
+    if not rig_file.exists():
+        save_rig(rig, rig_file, header="rig of scripts/bench_holds.py (matrix)")
+    path = out / f"{style}-{rig_name}-{seed}"
+    if not path.exists():
+        mo, bo = matrix_styles()[style](rig.num_cameras)
+        tmp = out / (path.name + ".partial")
+        if tmp.exists():
+            import shutil
+
+            shutil.rmtree(tmp)
+        t0 = time.perf_counter()
+        make_bag(rig, tmp, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=SUPERSAMPLE, **bo),
+                 progress=False)
+        tmp.rename(path)
+        print(f"rendered {path.name} in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    return path, rig_file
+
+
+def still_holds(bag, ref) -> list:
+    """(start, end) stamps of the ground truth's holds in which the body is still (zero angular velocity at
+    every ground-truth stamp): static_holds minus the creeping ones."""
+    holds = static_holds(ref)
+    if not bag.has_topic(ANGULAR_VELOCITY_TOPIC):
+        return holds
+    t, w = [], []
+    for _, _, msg in bag.messages([ANGULAR_VELOCITY_TOPIC]):
+        t.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+        w.append(math.sqrt(msg.vector.x ** 2 + msg.vector.y ** 2 + msg.vector.z ** 2))
+    t, w = np.array(t), np.array(w)
+    return [(a, b) for a, b in holds if not np.any(w[(t >= a) & (t <= b)] > 0)]
+
+
+def score_cell(path: Path, rig_file: Path, method: str) -> dict:
+    """Replay one bag with one method and score it against the ground truth (see the module docstring)."""
+    rig = load_rig(rig_file)
+    rows, ref, _, wall, holds = replay_rows(path, rig, method, with_holds=True)
+    ev = evaluate(rows, ref, rig)
+    stamps = np.array([r.stamp for r in rows])
+    tol = STAMP_TOLERANCE_S
+
+    def within(a, b):
+        return (stamps >= a - tol) & (stamps <= b + tol)
+
+    later = holds[1:]  # the first hold is every sequence's reference: it gets no estimate of its own
+    covered = sum(bool(np.any(within(a, b))) for a, b in later)
+    inside = np.zeros(len(stamps), bool)
+    for a, b in holds:
+        inside |= within(a, b)
+    err = ev.errors["gravity_vs_gt_deg"]
+    sigma = np.array([float(r.extra.get("gravity_sigma_deg") or math.nan) for r in rows])
+    published = np.isfinite(err) & np.isfinite(sigma) & (sigma > 0)
+    z = err[published] / sigma[published]
+    imu_err = []
+    if ref.has_imu:
+        imu = ImuReference(ref, rig)
+        for a, b in holds:
+            for k in np.flatnonzero((ref.grav_t >= a) & (ref.grav_t <= b)):
+                g = imu.gravity_at(float(ref.grav_t[k]))
+                if g is not None:
+                    imu_err.append(math.degrees(float(angle_between(g, ref.grav_g[k]))))
+    share = {f"within{k}": float(np.mean(z <= k)) if len(z) else math.nan for k in (1, 2, 3)}
+    return {"estimates": len(rows), "still_holds": len(holds), "covered": covered,
+            "coverage": covered / len(later) if later else math.nan, "bad": int(np.count_nonzero(~inside)),
+            "gravity_deg": ev.stats("gravity_vs_gt_deg")["median"],
+            "imu_only_deg": float(np.median(imu_err)) if imu_err else math.nan, "published": int(len(z)),
+            "methods": sorted({r.method for r in rows}), "wall_s": wall, **share}
+
+
+def run_cell(job) -> list:
+    """Render (if missing) and score one (out, style, rig, methods) cell; one result dict per method."""
+    out, style, rig_name, methods = job
+    path, rig_file = render_cell(out, style, rig_name)
+    results = []
+    for method in methods:
+        r = score_cell(path, rig_file, method)
+        r.update(style=style, rig=rig_name, method=method)
+        results.append(r)
+    return results
+
+
+def verdict(r: dict) -> str:
+    """The targets a result misses ('ok' when none): coverage, bad estimates, accuracy, calibration."""
+    miss = []
+    if not r["coverage"] >= TARGETS["coverage"]:
+        miss.append("coverage")
+    if r["bad"] > TARGETS["bad"]:
+        miss.append("bad")
+    if r["method"] == "auto" and not r["gravity_deg"] <= TARGETS["ratio_4pt"] * r["imu_only_deg"]:
+        miss.append("vs IMU")
+    if r["method"] == "6pt-bending" and not r["gravity_deg"] <= TARGETS["median_6pt_deg"]:
+        miss.append("6pt median")
+    if not r["within3"] >= TARGETS["within3"]:
+        miss.append("3 sigma")
+    return "ok" if not miss else "misses " + ", ".join(miss)
+
+
+def _f(x, fmt) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
+
+
+def table(results: list) -> str:
+    """Markdown table of the results, one row per bag and method."""
+    lines = ["| style | rig | method | coverage | bad | gravity deg | IMU only deg | vs IMU | within 1/2/3 std | "
+             "verdict |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in results:
+        ratio = r["gravity_deg"] / r["imu_only_deg"] if r["method"] == "auto" else math.nan
+        lines.append(f"| {r['style']} | {r['rig']} | {r['method']} | {r['covered']}/{r['still_holds'] - 1} "
+                     f"| {r['bad']} | {_f(r['gravity_deg'], '.3f')} | {_f(r['imu_only_deg'], '.3f')} | "
+                     f"{_f(ratio, '.2f')} | {_f(r['within1'], '.0%')} / {_f(r['within2'], '.0%')} / "
+                     f"{_f(r['within3'], '.0%')} ({r['published']}) | {verdict(r)} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if "--vga" in argv:
+        return vga_main(argv)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--quick", action="store_true", help="one rig per style (the default)")
+    g.add_argument("--full", action="store_true", help="every style on every rig (2-6 cameras, soft and stiff)")
+    p.add_argument("--vga", action="store_true", help="the VGA style table instead (see the module docstring)")
+    p.add_argument("--out", default="/tmp/nrmpc_bench_matrix", help="folder of the rendered bags (reused)")
+    p.add_argument("--workers", type=int, default=1, help="bags rendered and replayed in parallel (default 1)")
+    p.add_argument("--methods", default="auto,6pt-bending", help="comma-separated methods")
+    p.add_argument("--cells", help="comma-separated style:rig cells instead of --quick/--full")
+    p.add_argument("--json", help="also write the results as JSON")
+    args = p.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cells = [tuple(c.split(":")) for c in args.cells.split(",")] if args.cells else matrix_cells(args.full)
+    jobs = [(out, s, r, args.methods.split(",")) for s, r in cells]
+    t0 = time.perf_counter()
+    if args.workers > 1:
+        from multiprocessing import Pool
+
+        with Pool(args.workers) as pool:
+            results = [r for rs in pool.imap(run_cell, jobs) for r in rs]
+    else:
+        results = []
+        for job in jobs:
+            cell = run_cell(job)
+            results += cell
+            print("\n".join(table(cell).split("\n")[2:]), file=sys.stderr, flush=True)
+    print(table(results))
+    print(f"\n{len(cells)} bags, {len(results)} replays in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=str))
     return 0

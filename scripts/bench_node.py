@@ -12,7 +12,17 @@
 Without ``--bag`` a 320x240 bag of 4 holds streamed at 10 Hz is rendered first (about 15 s). The node runs as
 its own process (``--cpus 0`` pins it to one core with taskset).
 
+3. ``--matrix BAG RIG``: a 6-camera JPEG stream bag (``scripts/bench_replay_speed.py`` renders one) published at
+   1x from this process for 2, 4 and 6 of its cameras at 15 and 30 Hz, raw (each JPEG decoded once beforehand)
+   and compressed; per configuration the node's CPU seconds per second of data (from /proc, start-up
+   excluded) and per image beside the cost of ``cv2.imdecode`` and of one forward ``calcOpticalFlowPyrLK`` on
+   the same images measured in this run, frame-set latency median and p95 (its /diagnostics), hold latency
+   median and p95 (arrival of the frame set that completed a hold to its estimate published), holds measured
+   against the bag's and estimates published, frame sets dropped while busy, and the time from SIGINT to the
+   node's exit. ``--matrix-rows 6x30 6x15 2x30`` runs only those camera x rate rows.
+
     python scripts/bench_node.py [--bag BAG --rig RIG] [--cpus 0] [--rate 1] [--seconds 20] [--json OUT]
+    python scripts/bench_node.py --matrix BAG RIG [--cpus 0] [--json OUT]
 """
 
 from __future__ import annotations
@@ -158,6 +168,126 @@ def stream(domain: int, bag: Path, seconds: float, fps: float) -> int:
     return sets
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a running process (all its threads), from /proc."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def matrix_messages(bag: Path, cameras: int, rate_hz: float, raw: bool) -> tuple:
+    """([(t_ns, topic, rclpy message)] of the first ``cameras`` cameras at ``rate_hz`` and the IMU, raw Image
+    (decoded once here) or CompressedImage; seconds of data; images)."""
+    import cv2
+    from rclpy.serialization import deserialize_message
+    from rosbags.rosbag2 import Reader
+    from sensor_msgs.msg import CompressedImage, Image, Imu
+
+    topics = {f"/cam{i}/image_raw/compressed" for i in range(cameras)}
+    with Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic in topics or c.topic == "/imu/data"]
+        msgs = [(t, c.topic, raw_msg) for c, t, raw_msg in reader.messages(connections=conns)]
+    stamps = sorted({t for t, topic, _ in msgs if topic in topics})
+    every = max(1, int(round(1.0 / (rate_hz * np.median(np.diff(stamps)) * 1e-9))))
+    keep = set(stamps[::every])
+    out, images = [], 0
+    for t, topic, data in msgs:
+        if topic == "/imu/data":
+            out.append((t, topic, deserialize_message(data, Imu)))
+        elif t in keep:
+            msg = deserialize_message(data, CompressedImage)
+            images += 1
+            if raw:
+                img = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_GRAYSCALE)
+                msg = Image(header=msg.header, height=img.shape[0], width=img.shape[1], step=img.shape[1],
+                            encoding="mono8", data=img.tobytes())
+                topic = topic[: -len("/compressed")]
+            out.append((t, topic, msg))
+    return out, (stamps[-1] - stamps[0]) * 1e-9, images
+
+
+def publish_at_1x(domain: int, msgs: list) -> None:
+    """``msgs`` at their recorded pace with fresh stamps, once every topic has a subscriber."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    topics = sorted({topic for _, topic, _ in msgs})
+    nodes = {t: BackgroundNode(f"bench_pub_{k}", domain) for k, t in enumerate(topics)}
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    pubs = {t: n.node.create_publisher(type(next(m for _, tt, m in msgs if tt == t)), t, qos)
+            for t, n in nodes.items()}
+    end = time.monotonic() + 60
+    while time.monotonic() < end and not all(p.get_subscription_count() for p in pubs.values()):
+        time.sleep(0.1)
+    time.sleep(0.5)
+    t0, wall0, stamp0 = msgs[0][0], time.monotonic(), int(time.time() * 1e9)
+    for t, topic, msg in msgs:
+        time.sleep(max(0.0, wall0 + (t - t0) * 1e-9 - time.monotonic()))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp0 + (t - t0), 1_000_000_000)
+        pubs[topic].publish(msg)
+    for n in nodes.values():
+        n.close()
+
+
+def matrix(bag: Path, rig: Path, cpus: str, views: int, cameras=(2, 4, 6), rates=(15.0, 30.0),
+           rows_only=None) -> list:
+    """The DDS matrix (module docstring, 3.); one dict per configuration."""
+    import bench_replay_speed as speed
+
+    work = Path(tempfile.mkdtemp(prefix="bench_node_matrix_"))
+    messages, _ = speed.load(bag)
+    rows = []
+    print("| cameras | Hz | transport | CPU s per s of data (node) | node ms/image | x decode | x KLT fwd | "
+          "frame-set latency median / p95 (ms) | hold latency median / p95 (ms) | holds | estimates | "
+          "dropped busy | SIGINT to exit (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for cams, rate in (rows_only or [(c, r) for c in cameras for r in rates]):
+        for raw in (True, False):
+            msgs, seconds, images = matrix_messages(bag, cams, rate, raw)
+            unit = speed.unit_costs(messages, rig)
+            domain = random.randint(1, 100)
+            env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_LOG_DIR=str(work / "ros_log"))
+            listener = Listener(domain)
+            name = f"{cams}x{rate:g}_{'raw' if raw else 'jpeg'}"
+            node = start([str(BIN / "estimator"), "--ros-args", "-p",
+                          f"rig_file:={speed.sub_rig(rig, cams, work)}", "-p",
+                          f"image_transport:={'raw' if raw else 'compressed'}", "-p", "camera_timeout_s:=1.0"],
+                         env, work / f"node_{name}.log", cpus)
+            try:
+                if not listener.wait(listener.started, 90):
+                    raise SystemExit(f"the node did not start; see {work}")
+                cpu0 = cpu_seconds(node.pid)
+                publish_at_1x(domain, msgs)
+                listener.wait(listener.done, 60)
+                cpu = cpu_seconds(node.pid) - cpu0
+                t0 = time.monotonic()
+                node.send_signal(signal.SIGINT)
+                node.wait(30)
+                exit_s = time.monotonic() - t0
+            finally:
+                stop(node)
+                listener.close()
+            est = listener.diag.get("estimation", ("", {}))[1]
+            per_image = 1e3 * cpu / images
+            row = {"cameras": cams, "rate_hz": rate, "transport": "raw" if raw else "compressed",
+                   "images": images, "data_s": seconds, "cpu_per_data_s": cpu / seconds,
+                   "ms_per_image": per_image, **unit, "x_decode": per_image / unit["decode_ms"],
+                   "x_klt": per_image / unit["klt_forward_ms"],
+                   "latency_median_ms": est.get("frame set latency median (ms)"),
+                   "latency_p95_ms": est.get("frame set latency p95 (ms)"), "holds": int(est.get("holds", 0)),
+                   # before the two workers: "latency median (ms)", the frame sets that completed an estimate
+                   "hold_latency_median_ms": est.get("hold latency median (ms)", est.get("latency median (ms)")),
+                   "hold_latency_p95_ms": est.get("hold latency p95 (ms)"),
+                   "views": views, "estimates": int(est.get("estimates", 0)),
+                   "dropped_busy": int(est.get("dropped: worker: frame set dropped while the estimator is busy",
+                                               0)), "sigint_exit_s": exit_s}
+            rows.append(row)
+            print(f"| {cams} | {rate:g} | {row['transport']} | {row['cpu_per_data_s']:.2f} | {per_image:.2f} | "
+                  f"{row['x_decode']:.2f} | {row['x_klt']:.2f} | {row['latency_median_ms']} / "
+                  f"{row['latency_p95_ms']} | {row['hold_latency_median_ms']} / {row['hold_latency_p95_ms']} | "
+                  f"{row['holds']}/{views} | {row['estimates']} | {row['dropped_busy']} | {exit_s:.2f} |",
+                  flush=True)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--bag", type=Path, help="bag to play (default: render one)")
@@ -168,7 +298,27 @@ def main(argv=None) -> int:
     ap.add_argument("--fps", type=float, default=10.0, help="frame rate of the stream run")
     ap.add_argument("--work-queue-size", type=int, default=8)
     ap.add_argument("--json", help="also write the results to this file")
+    ap.add_argument("--matrix", nargs=2, type=Path, metavar=("BAG", "RIG"),
+                    help="run the camera/rate/transport matrix on this 6-camera JPEG stream bag and rig instead")
+    ap.add_argument("--views", type=int, default=4, help="holds of the --matrix bag")
+    ap.add_argument("--matrix-cameras", type=int, nargs="+", default=[2, 4, 6], help="camera counts of --matrix")
+    ap.add_argument("--matrix-rates", type=float, nargs="+", default=[15.0, 30.0], help="frame rates of --matrix")
+    ap.add_argument("--matrix-rows", nargs="+", metavar="CAMSxHZ",
+                    help="only these rows of --matrix, e.g. 6x30 6x15 2x30 (instead of cameras x rates)")
     args = ap.parse_args(argv)
+    if args.matrix:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        only = None
+        if args.matrix_rows:
+            try:
+                only = [(int(c), float(r)) for c, r in (row.lower().split("x") for row in args.matrix_rows)]
+            except ValueError:
+                ap.error(f"--matrix-rows: expected CAMERASxHZ such as 6x30, got {' '.join(args.matrix_rows)}")
+        rows = matrix(*args.matrix, args.cpus, args.views, args.matrix_cameras, args.matrix_rates, only)
+        print(f"load average {os.getloadavg()[0]:.1f} (machine shared: compare ratios, not absolute times)")
+        if args.json:
+            Path(args.json).write_text(json.dumps(rows, indent=2))
+        return 0
     work = Path(tempfile.mkdtemp(prefix="bench_node_"))
     bag, rig = (args.bag, args.rig) if args.bag else render(work)
     expected = replay(bag, rig, work / "replay.csv")

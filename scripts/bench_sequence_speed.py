@@ -39,7 +39,7 @@ import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from nrmpc_ros.core import EstimatorOptions, estimate  # noqa: E402
-from nrmpc_ros.core.incremental import IncrementalSequence  # noqa: E402
+from nrmpc_ros.core.incremental import IncrementalSequence, ViewEstimate  # noqa: E402
 from nrmpc_ros.core.sequence import SequenceOptions, estimate_sequence  # noqa: E402
 from nrmpc_ros.core.so3 import angle_between  # noqa: E402
 from nrmpc_ros.sim.sequence import SequenceScenario, make_sequence  # noqa: E402
@@ -91,7 +91,7 @@ def run_updates(problem, method: str, seed: int, opts: SequenceOptions, window: 
         m = tr.view == k
         g = None if tr.g_meas is None else tr.g_meas[k]
         out, dt = _timed(seq.add_view, tr.cam[m], tr.track[m], tr.f[m], g, sigma)
-        if not isinstance(out, str):
+        if isinstance(out, ViewEstimate):
             last = out
             if out.window >= window:
                 times.append(dt)

@@ -16,12 +16,6 @@ def cross_rig():
     return make_rig(RigSpec())
 
 
-@pytest.fixture
-def noise_free():
-    """Noise- and outlier-free scenario at the paper's nominal rig (EI = 0.1)."""
-    return Scenario(pixel_noise=0.0, outlier_fraction=0.0, gravity_noise_px=0.0)
-
-
 def problem(scenario=None, seed=0, **kw):
     return make_problem(scenario or Scenario(**kw), seed=seed)
 

@@ -8,6 +8,7 @@ from nrmpc_ros.core.bundle import (
     ParameterLayout,
     SequenceBundleProblem,
     adjust_bundle,
+    camera_noise_factors,
     condense_gravity,
     refine_two_view,
     two_view_priors,
@@ -192,3 +193,92 @@ def test_inv3(rng):
     ill = np.diag([1e8, 1e7, 1e-2])[None] + 0.0  # a landmark whose depth is barely fixed
     ill[0, 0, 2] = ill[0, 2, 0] = 1.0
     assert np.allclose(inv3(ill) @ ill[0], np.eye(3), atol=1e-6)
+
+
+def test_observation_scale_weighs_a_noisy_view_down(rng):
+    """``Observations.scale``: residuals and Jacobians are whitened by it, so a view whose bearings are 10 times
+    noisier (and said so) barely moves the solution, and the published std grows with the scale."""
+    from dataclasses import replace
+
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=1.0, focal=500.0))
+    obs, R, t, g0, X = _sequence(rig, 4, rng, noise_rad=2e-4)
+    noisy = obs.view == 3
+    f = obs.f.copy()
+    f[noisy] = normalize(f[noisy] + 2e-3 * rng.normal(size=(int(noisy.sum()), 3)))
+    bad = replace(obs, f=f)
+    scale = np.where(noisy, 10.0, 1.0)
+    told = replace(bad, scale=scale)
+    layout = ParameterLayout(4, [1, 2, 3], True)
+    p0 = SequenceBundleProblem(rig, bad, layout, 1e-3)
+    p1 = SequenceBundleProblem(rig, told, layout, 1e-3)
+    from nrmpc_ros.core.bundle import BundleState
+
+    st = BundleState(R, t, g0, X)
+    np.testing.assert_allclose(p1.residuals(st), p0.residuals(st) / scale[:, None])
+    res0 = adjust_bundle(rig, bad, R, t, g0, X, sigma_rad=2e-4)
+    res1 = adjust_bundle(rig, told, R, t, g0, X, sigma_rad=2e-4)
+    err = [angle_between(r.gravity, g0) for r in (res0, res1)]
+    assert err[1] < err[0]
+    assert res1.gravity_sigma_rad(3) > res0.gravity_sigma_rad(3)
+    sub, _ = told.subset(np.flatnonzero(noisy))
+    assert np.all(sub.scale == 10.0)
+    both = Observations.concatenate([told, obs])
+    assert both.scale is not None and len(both.scale) == len(both) and np.all(both.scale[len(told):] == 1.0)
+
+
+def test_noise_scale_is_an_input_of_the_problem_and_is_reestimated_between_runs(rng):
+    """A problem's sigma is fixed (with_sigma is the same problem at another scale: the information of an
+    all-inlier fit scales with 1/sigma^2); adjust_bundle without a sigma settles at the residuals' noise and
+    reports the optimiser's statistics whole."""
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=0.5, focal=500.0))
+    noise = 1e-3
+    obs, R, t, g0, X = _sequence(rig, 3, rng, points_per_camera=30, noise_rad=noise)
+    res = adjust_bundle(rig, obs, *_perturb(R, t, g0, rng), huber_k=1e6)
+    assert res.sigma_rad == pytest.approx(noise, rel=0.2)  # the tangent-plane noise of unit bearings
+    st = res.stats
+    assert st.stop == "converged" and 0 < st.accepted <= st.iterations == res.iterations
+    assert st.cost == res.cost and np.isfinite(st.initial_cost) and st.initial_cost > 0
+    prob = SequenceBundleProblem(rig, obs, res.layout, res.sigma_rad, huber_k=1e6)
+    twice = prob.with_sigma(2.0 * res.sigma_rad)
+    assert prob.sigma == res.sigma_rad and twice.workspace is prob.workspace
+    np.testing.assert_allclose(twice.linearize(res.state).information(),
+                               prob.linearize(res.state).information() / 4.0, rtol=1e-9)
+    np.testing.assert_allclose(prob.linearize(res.state).information(), res.information, rtol=1e-6)
+    fixed = adjust_bundle(rig, obs, res.R, res.t, res.gravity, res.points, sigma_rad=2e-3, huber_k=1e6)
+    assert fixed.sigma_rad == 2e-3
+
+
+def _noisier_camera(rng, factor=3.0, noise_rad=1e-3):
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=1.0, focal=500.0))
+    obs, R, t, g0, X = _sequence(rig, 4, rng)
+    scale = np.array([1.0, 1.0, factor])[obs.cam]
+    f = normalize(obs.f + noise_rad * scale[:, None] * rng.normal(size=obs.f.shape))
+    obs = Observations(obs.view, obs.cam, obs.point, f, obs.num_views, obs.num_points)
+    return rig, obs, R, t, g0, X
+
+
+def test_camera_noise_factors_find_the_noisier_camera(rng):
+    """One camera three times noisier than the others: its a posteriori factor says so."""
+    rig, obs, R, t, g0, X = _noisier_camera(rng)
+    res = adjust_bundle(rig, obs, R, t, g0, X)
+    e = SequenceBundleProblem(rig, obs, ParameterLayout(obs.num_views, [], False), 1.0).residuals(res.state)
+    f = camera_noise_factors(e, obs.cam, rig.num_cameras)
+    assert 2.5 < f[2] / f[0] < 3.6 and 0.85 < f[1] / f[0] < 1.15
+
+
+def test_camera_scale_weighs_each_camera(rng):
+    """At a fixed sigma, scaling every camera's noise by 2 scales the covariance by 4 (noise-free residuals:
+    no robust down-weighting); weighing the noisier camera by its factor gives a gravity std that the errors
+    confirm."""
+    rig, obs, R, t, g0, X = _noisier_camera(rng, noise_rad=0.0)
+    a = adjust_bundle(rig, obs, R, t, g0, X, sigma_rad=1e-3)
+    b = adjust_bundle(rig, obs, R, t, g0, X, sigma_rad=1e-3, camera_scale=np.full(3, 2.0))
+    np.testing.assert_allclose(b.covariance, 4 * a.covariance, rtol=1e-6, atol=1e-18)
+    z = []
+    for _ in range(12):
+        rig, obs, R, t, g0, X = _noisier_camera(rng)
+        res = adjust_bundle(rig, obs, R, t, g0, X, camera_scale=np.array([1.0, 1.0, 3.0]))
+        C = res.gravity_tangent_covariance(3)
+        z.append(angle_between(res.state.view_gravity[3], R[3].T @ g0) / np.sqrt(np.trace(C) / 2))
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.6 < rms < 1.9, rms

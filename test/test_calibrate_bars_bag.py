@@ -39,6 +39,7 @@ def bags(tmp_path_factory):
     return {"bending": render(tmp, "bending", 0.2, 1), "stiff": render(tmp, "stiff", 1e5, 3), "tmp": tmp}
 
 
+@pytest.mark.slow
 def test_bending_rig_compliance_recovered_from_a_rig_file_off_by_two(bags, capsys):
     bag, truth_file = bags["bending"]
     tmp = bags["tmp"]
@@ -55,6 +56,7 @@ def test_bending_rig_compliance_recovered_from_a_rig_file_off_by_two(bags, capsy
     assert f"from bag {bag}" in out.read_text()
 
 
+@pytest.mark.slow
 def test_stiff_rig_reported_not_observable(bags, capsys):
     bag, _ = bags["stiff"]
     tmp = bags["tmp"]
@@ -67,6 +69,7 @@ def test_stiff_rig_reported_not_observable(bags, capsys):
     np.testing.assert_allclose([c.EI for c in load_rig(out).cameras], 2e5, rtol=1e-9)  # left as in the file
 
 
+@pytest.mark.slow
 def test_collect_sequences_returns_holds_with_imu_gravity(bags):
     bag, truth_file = bags["bending"]
     stats = {}
@@ -80,6 +83,7 @@ def test_collect_sequences_returns_holds_with_imu_gravity(bags):
         assert s.R.shape == (tr.num_views, 3, 3) and s.gravity.shape == (3,)
 
 
+@pytest.mark.slow
 def test_bag_or_rig_without_imu_is_a_clear_error(bags, tmp_path):
     bag, truth_file = bags["bending"]
     d = yaml.safe_load(truth_file.read_text())

@@ -18,6 +18,7 @@ def test_library_options_name_their_field():
         MotionOptions(hold_seconds=0.0).validate()
 
 
+@pytest.mark.slow
 def test_command_line_names_the_flag(tmp_path, capsys):
     out = tmp_path / "bag"
     rc = main(["make-bag", "--views", "2", "--rate", "10", "--jitter-ms", "60", "--no-progress", "--out", str(out)])

@@ -17,7 +17,7 @@ from badbags import copy_bag, corrupt_message, digest
 from recordings import recording
 
 from nrmpc_ros.cli.main import main
-from nrmpc_ros.frontend.evaluation import read_csv
+from nrmpc_ros.frontend.estimates_csv import read_csv
 from nrmpc_ros.safeio import PARTIAL_SUFFIX
 
 CAMCHAIN = {"cam0": {"camera_model": "pinhole", "intrinsics": [400.0, 400.0, 320.0, 240.0],
@@ -113,6 +113,7 @@ CASES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_an_output_never_writes_into_an_input(files, capsys, name):
     argv, flag, inputs = CASES[name]
@@ -127,6 +128,7 @@ def test_an_output_never_writes_into_an_input(files, capsys, name):
     assert _partials(files["d"]) == [] and _partials(files["bag"]) == []
 
 
+@pytest.mark.slow
 def test_links_to_an_input_are_the_input(files, tmp_path, capsys):
     """A symlink or a hard link to the rig is the rig: refused as --out."""
     (tmp_path / "soft.yaml").symlink_to(files["rig"])
@@ -138,6 +140,7 @@ def test_links_to_an_input_are_the_input(files, tmp_path, capsys):
     assert digest(files["rig"]) == before
 
 
+@pytest.mark.slow
 def test_replay_failing_half_way_keeps_the_previous_output(files, tmp_path, capsys):
     """A message that does not decode ends the replay with one error naming the bag and topic: the estimates
     written so far are dropped and the CSV of an earlier run stays as it was, with no temporary file beside it."""
@@ -155,6 +158,7 @@ def test_replay_failing_half_way_keeps_the_previous_output(files, tmp_path, caps
     assert len(read_csv(out / "estimates.csv")) == len(read_csv(files["csv"]))
 
 
+@pytest.mark.slow
 def test_a_failed_replay_leaves_nothing_where_there_was_nothing(files, tmp_path, capsys):
     bag = corrupt_message(copy_bag(files["bag"], tmp_path / "bag"), "/cam0/image_raw")
     code, err = _run(["replay", bag, "--rig", files["rig"], "--out", tmp_path / "o" / "x.csv", "--no-progress"],
@@ -163,6 +167,7 @@ def test_a_failed_replay_leaves_nothing_where_there_was_nothing(files, tmp_path,
     assert list((tmp_path / "o").iterdir()) == []
 
 
+@pytest.mark.slow
 def test_solve_with_a_bad_file_after_good_ones_keeps_the_previous_output(files, tmp_path, capsys):
     out = tmp_path / "results.jsonl"
     out.write_text("previous results\n")

@@ -24,13 +24,14 @@ from nrmpc_ros.errors import InputError
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 # What an ament_python package needs to build: nothing else (no bags, tests or caches) is copied.
-PACKAGE_FILES = ("setup.py", "setup.cfg", "package.xml", "resource", "nrmpc_ros", "config", "launch")
+PACKAGE_FILES = ("setup.py", "setup.cfg", "package.xml", "resource", "nrmpc_ros", "config", "launch", "rviz")
 LAUNCH = REPO / "launch" / "estimator.launch.py"
 RIG = REPO / "config" / "sample_cross4.yaml"
 # Files of share/nrmpc_ros, installed by setup.py's data_files.
-SHARED = ("package.xml", "config/estimator.yaml", "config/sample_cross4.yaml", "launch/estimator.launch.py")
+SHARED = ("package.xml", "config/estimator.yaml", "config/sample_cross4.yaml", "launch/estimator.launch.py",
+          "rviz/nrmpc.rviz")
 LAUNCH_ARGUMENTS = ("rig_file", "params_file", "method", "namespace", "imu_topic", "image_remaps", "use_sim_time",
-                    "log_level")
+                    "log_level", "rviz")
 # Imported Python packages and their rosdep keys (rosdistro's rosdep/python.yaml); any other imported package is a
 # ROS package and its module name is its package name.
 PYTHON_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "cv2": "python3-opencv", "yaml": "python3-yaml",
@@ -106,6 +107,7 @@ def _load_launch_file(path: Path):
 
 
 # --------------------------------------------------------------------------- what colcon installs
+@pytest.mark.slow
 def test_colcon_build_installs_the_ros2_run_executable(workspace):
     prefix = workspace / "install" / "nrmpc_ros"
     exe = prefix / "lib" / "nrmpc_ros" / "estimator"
@@ -117,6 +119,7 @@ def test_colcon_build_installs_the_ros2_run_executable(workspace):
         assert installed.read_bytes() == (REPO / rel).read_bytes(), rel
 
 
+@pytest.mark.slow
 def test_installed_launch_file_is_python_that_imports_without_launch(workspace):
     path = _share(workspace) / "launch" / "estimator.launch.py"
     compile(path.read_text(), str(path), "exec")
@@ -125,6 +128,7 @@ def test_installed_launch_file_is_python_that_imports_without_launch(workspace):
     assert tuple(name for name, *_ in module.ARGUMENTS) == LAUNCH_ARGUMENTS
 
 
+@pytest.mark.slow
 def test_generate_launch_description_declares_the_arguments(workspace, monkeypatch):
     try:
         from launch.utilities import perform_substitutions
@@ -187,6 +191,81 @@ def test_launch_files_are_found_in_the_working_directory_then_in_share(tmp_path,
         find("other.yaml", share, "params_file")
 
 
+# --------------------------------------------------------------------------- the RViz config
+RVIZ = REPO / "rviz" / "nrmpc.rviz"
+
+
+def _rviz_names(cfg: dict) -> tuple:
+    """(topics, frames) an RViz config names."""
+    topics, frames = set(), set()
+
+    def walk(d):
+        if isinstance(d, dict):
+            for k, v in d.items():
+                if k == "Topic" and isinstance(v, dict):
+                    topics.add(v["Value"])
+                elif k in ("Fixed Frame", "Reference Frame", "Target Frame") and v != "<Fixed Frame>":
+                    frames.add(v)
+                else:
+                    walk(v)
+        elif isinstance(d, list):
+            for x in d:
+                walk(x)
+
+    walk(cfg)
+    return topics, frames
+
+
+def _published(rig, namespace: str = "/") -> tuple:
+    """(topics, frames) the estimator node in ``namespace`` publishes for ``rig`` with the default parameters, and
+    the camera topics it reads (the image display shows one)."""
+    from nrmpc_ros.frontend.node_config import NodeConfig
+    from nrmpc_ros.frontend.outputs import OUTPUTS
+    from nrmpc_ros.frontend.topics import expand_topic
+    from nrmpc_ros.node import MARKERS
+
+    node = expand_topic("estimator", namespace)
+    topics = {t.replace("~", node) for _, t in [*OUTPUTS.values(), MARKERS]} | {"/diagnostics"}
+    topics |= {expand_topic(c.image_topic, namespace) for c in rig.cameras}
+    cfg = NodeConfig()
+    frames = {rig.body_frame, f"{rig.body_frame}_origin", *(c.name + cfg.camera_frame_suffix for c in rig.cameras)}
+    return topics, frames
+
+
+def test_the_rviz_config_is_yaml_naming_only_what_the_node_publishes():
+    import yaml
+
+    cfg = yaml.safe_load(RVIZ.read_text())
+    topics, frames = _rviz_names(cfg)
+    published, node_frames = _published(load_rig(RIG))
+    assert topics and topics <= published, topics - published
+    assert frames and frames <= node_frames, frames - node_frames
+    classes = {d["Class"] for d in cfg["Visualization Manager"]["Displays"]}
+    assert {"rviz_default_plugins/TF", "rviz_default_plugins/MarkerArray", "rviz_default_plugins/PoseWithCovariance",
+            "rviz_default_plugins/Image"} <= classes
+    markers = next(d for d in cfg["Visualization Manager"]["Displays"] if d["Class"].endswith("/MarkerArray"))
+    assert markers["Topic"]["Durability Policy"] == "Transient Local"  # the node latches the last state
+
+
+def test_launch_makes_the_rviz_config_for_the_rig_and_namespace():
+    import yaml
+
+    make = _load_launch_file(LAUNCH).rviz_config_for
+    cfg = yaml.safe_load(make(RVIZ.read_text(), "/rig1", "body", "/rig1/front/image_raw"))
+    topics, frames = _rviz_names(cfg)
+    assert topics == {"/rig1/estimator/markers", "/rig1/estimator/pose", "/rig1/front/image_raw"}
+    assert frames == {"body"}
+
+
+@pytest.mark.slow
+def test_colcon_installs_the_rviz_config(workspace):
+    import yaml
+
+    installed = _share(workspace) / "rviz" / "nrmpc.rviz"
+    assert installed.is_file(), "setup.py data_files: share/nrmpc_ros/rviz"
+    assert yaml.safe_load(installed.read_text()) == yaml.safe_load(RVIZ.read_text())
+
+
 # --------------------------------------------------------------------------- package.xml
 def test_package_xml_follows_the_format_3_schema():
     parse_package = pytest.importorskip("catkin_pkg.package", reason="catkin_pkg comes with colcon-ros").parse_package
@@ -227,6 +306,7 @@ def test_package_xml_declares_every_runtime_import():
 
 
 # --------------------------------------------------------------------------- what ros2 run runs
+@pytest.mark.slow
 def test_installed_estimator_help_from_another_directory(workspace, tmp_path):
     env = _run_env(workspace)
     exe = workspace / "install" / "nrmpc_ros" / "lib" / "nrmpc_ros" / "estimator"
@@ -243,6 +323,7 @@ def test_installed_estimator_help_from_another_directory(workspace, tmp_path):
     assert str(workspace / "install") in where.stdout
 
 
+@pytest.mark.slow
 def test_installed_estimator_runs_with_the_installed_params_and_rig_from_another_directory(workspace, tmp_path):
     """``ros2 run nrmpc_ros estimator --ros-args --params-file <share>/config/estimator.yaml`` from a directory
     without config/: the params file's relative rig_file is found in share/nrmpc_ros, the node publishes

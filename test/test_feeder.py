@@ -10,9 +10,13 @@ import numpy as np
 import pytest
 from rendered_bags import rig_file
 
+from nrmpc_ros.config import from_mapping
 from nrmpc_ros.core import load_rig
+from nrmpc_ros.errors import InputError
 from nrmpc_ros.frontend.droplog import DropLog
+from nrmpc_ros.frontend.drops import Drop
 from nrmpc_ros.frontend.feeder import Feeder, FeederConfig
+from nrmpc_ros.frontend.stamps import JumpPolicy
 
 ROOT = Path(__file__).resolve().parents[1]
 TOPICS = [f"/cam{i}/image_raw" for i in range(4)]
@@ -109,11 +113,11 @@ def test_bad_inputs_are_dropped_counted_and_logged_once(rig):
     f.imu_msg(imu(100.01))
     f.imu_msg(imu(100.01))  # not newer than the last
     counts = f.drops.counts()
-    assert counts[(TOPICS[0], "image not decoded")] == 2
-    assert counts[(TOPICS[1], "wrong image size")] == 1
-    assert counts[("/imu/data", "IMU sample with NaN or inf")] == 1
-    assert counts[("/imu/data", "IMU sample with zero acceleration")] == 1
-    assert counts[("/imu/data", "IMU sample out of order")] == 1
+    assert counts[(TOPICS[0], Drop.IMAGE_NOT_DECODED)] == 2
+    assert counts[(TOPICS[1], Drop.WRONG_IMAGE_SIZE)] == 1
+    assert counts[("/imu/data", Drop.IMU_NOT_FINITE)] == 1
+    assert counts[("/imu/data", Drop.IMU_ZERO_ACCEL)] == 1
+    assert counts[("/imu/data", Drop.IMU_OUT_OF_ORDER)] == 1
     warned = [line for level, line in logs if level == "warn"]
     assert len(warned) == 5 and any("yuv422" in w for w in warned) and any("32x24" in w for w in warned)
     f.end()
@@ -128,7 +132,7 @@ def test_stamps_in_the_future_are_dropped_and_the_present_stays(rig):
     f.imu_msg(imu(2145916800.0), now=100.5)
     feed(f, messages(t0=100.5, seconds=0.5), now=101.0)
     f.end()
-    assert f.drops.by_reason()["stamp in the future"] == 5
+    assert f.drops.by_reason()[Drop.STAMP_IN_FUTURE] == 5
     assert max(t for _, t in trace(work) if t is not None) < 101.0
     assert sum(k == "frames" for k, _ in trace(work)) == 10
 
@@ -147,11 +151,21 @@ def test_a_jump_back_flushes_and_restarts_then_carries_on(rig):
     assert "detected jump back in time" in work[i].data
 
 
+def test_one_jump_policy_and_the_grouping_settings_from_the_input_config(rig):
+    cfg = from_mapping(FeederConfig, {"jump_back_s": 2.0, "jump_confirm": 5,
+                                      "grouping": {"min_streams": 2, "jump_periods": 8.0}}, "input config")
+    f = Feeder(rig, cfg, [].append, DropLog(), TOPICS, "/imu/data")
+    assert f.guard.policy == f.sync.policy == JumpPolicy(2.0, 5)
+    assert f.sync.min_streams == 2 and f.sync.jump_periods == 8.0
+    with pytest.raises(InputError, match="grouping.period_fraction"):
+        from_mapping(FeederConfig, {"grouping": {"period_fraction": 0.0}}, "input config")
+
+
 def test_frames_dropped_by_the_grouping_are_counted_with_their_topic(rig):
     f, _, _ = feeder(rig, imu_topic=None)
     feed(f, [m for m in messages(seconds=1.0) if m[1] == "image"])
     f.image(2, image(100.65))  # after its stream moved on: late
-    assert f.drops.counts()[(TOPICS[2], "frame late")] == 1
+    assert f.drops.counts()[(TOPICS[2], Drop.FRAME_LATE)] == 1
 
 
 def test_ros_stamps_come_back_as_received(rig):

@@ -39,7 +39,7 @@ from nrmpc_ros.core.rig import (
 )
 from nrmpc_ros.core.tracks import load_tracks
 from nrmpc_ros.errors import InputError
-from nrmpc_ros.frontend.evaluation import CsvWriter, EstimateRow, read_csv
+from nrmpc_ros.frontend.estimates_csv import CsvWriter, EstimateRow, read_csv
 from nrmpc_ros.frontend.pipeline import PipelineConfig
 from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 

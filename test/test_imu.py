@@ -9,7 +9,7 @@ import pytest
 from nrmpc_ros.core import gravity_from_accelerometer
 from nrmpc_ros.core.rig import ImuMount
 from nrmpc_ros.core.so3 import angle_between, exp_so3
-from nrmpc_ros.frontend.imu import ImuBuffer, ImuConfig
+from nrmpc_ros.frontend.imu import ImuBuffer, ImuConfig, ImuGravityRefusal, ImuRefusal, ImuReject
 
 
 def fill(buf, rng, g_imu, t0=0.0, t1=1.0, rate=200.0, noise=0.05, gyro=None):
@@ -51,19 +51,19 @@ def test_rotated_mount_and_camera_mount(cross_rig, rng):
 def test_nan_out_of_order_and_shape_are_counted_not_raised(cross_rig, rng):
     buf = ImuBuffer(cross_rig)
     fill(buf, rng, np.array([0, 0, -9.81]), 0.0, 0.5)
-    assert buf.add(0.6, [np.nan, 0, 9.8], [0, 0, 0]) == "NaN or inf"
-    assert buf.add(0.61, [0, 0, 9.8], [0, np.inf, 0]) == "NaN or inf"
-    assert buf.add(0.1, [0, 0, 9.8], [0, 0, 0]) == "out of order"
-    assert buf.add(0.62, [0, 9.8], [0, 0, 0]) == "wrong shape"
-    assert buf.stats["rejected: NaN or inf"] == 2
-    assert buf.stats["rejected: out of order"] == 1
+    assert buf.add(0.6, [np.nan, 0, 9.8], [0, 0, 0]) is ImuReject.NOT_FINITE
+    assert buf.add(0.61, [0, 0, 9.8], [0, np.inf, 0]) is ImuReject.NOT_FINITE
+    assert buf.add(0.1, [0, 0, 9.8], [0, 0, 0]) is ImuReject.OUT_OF_ORDER
+    assert buf.add(0.62, [0, 9.8], [0, 0, 0]) is ImuReject.WRONG_SHAPE
+    assert buf.stats[ImuReject.NOT_FINITE] == 2
+    assert buf.stats[ImuReject.OUT_OF_ORDER] == 1
     assert buf.stats["samples"] == 100
     res, why = buf.gravity(0.0, 0.5)
     assert why is None and np.all(np.isfinite(res.gravity))
 
 
 def test_gaps_are_counted_and_reported(cross_rig, rng):
-    buf = ImuBuffer(cross_rig, ImuConfig(gap_s=0.05))
+    buf = ImuBuffer(cross_rig, ImuConfig())
     g = np.array([0, 0, -9.81])
     fill(buf, rng, g, 0.0, 0.4)
     fill(buf, rng, g, 0.7, 1.0)
@@ -75,21 +75,37 @@ def test_gaps_are_counted_and_reported(cross_rig, rng):
     assert res.gaps == []
 
 
+@pytest.mark.parametrize("rate", [50.0, 100.0, 1000.0])
+def test_gaps_ages_and_pads_follow_the_measured_rate(cross_rig, rng, rate):
+    """A gap is gap_periods sample periods whatever the rate: 8 missing samples are a gap at 1000 Hz and at
+    50 Hz, a late sample of 1.5 periods is not; the max age and a snapshot's pad are never below the rate's."""
+    buf = ImuBuffer(cross_rig)
+    g = np.array([0, 0, -9.81])
+    fill(buf, rng, g, 0.0, 1.0, rate=rate)
+    assert buf.period_s == pytest.approx(1.0 / rate)
+    fill(buf, rng, g, 1.0 + 8.0 / rate, 1.5, rate=rate)  # 8 samples missing
+    fill(buf, rng, g, 1.5 + 1.5 / rate, 2.0, rate=rate)  # one late sample
+    assert buf.stats["gaps"] == 1
+    assert buf.max_age_s >= buf.config.gap_periods / rate and buf.max_age_s >= buf.config.max_age_s
+    res, why = buf.gravity(2.0 - 1.0 / rate, 2.0 - 1.0 / rate)  # one frame: the pad holds min_samples samples
+    assert why is None and res.num_samples >= buf.config.min_samples
+
+
 def test_max_age(cross_rig, rng):
     buf = ImuBuffer(cross_rig, ImuConfig(max_age_s=0.1))
     fill(buf, rng, np.array([0, 0, -9.81]), 0.0, 1.0)
     assert buf.has_recent(1.05) and not buf.has_recent(1.5)
     res, why = buf.gravity(0.8, 1.5)
-    assert res is None and "older than the view" in why
+    assert res is None and why.rule is ImuRefusal.STALE and "older than the view" in str(why)
     res, why = buf.gravity(3.0, 3.5)
-    assert res is None and "IMU samples in the window" in why
-    assert ImuBuffer(cross_rig).gravity(0.0, 1.0) == (None, "no IMU samples")
+    assert res is None and why.rule is ImuRefusal.FEW_SAMPLES and "IMU samples in the window" in str(why)
+    assert ImuBuffer(cross_rig).gravity(0.0, 1.0) == (None, ImuGravityRefusal(ImuRefusal.NO_SAMPLES))
 
 
 def test_rig_without_imu_block(cross_rig, rng):
     buf = ImuBuffer(replace(cross_rig, imu=None))
     fill(buf, rng, np.array([0, 0, -9.81]), 0.0, 0.2)
-    assert buf.gravity(0.0, 0.2) == (None, "the rig file has no imu block")
+    assert buf.gravity(0.0, 0.2) == (None, ImuGravityRefusal(ImuRefusal.NO_IMU_BLOCK))
 
 
 def test_history_is_trimmed(cross_rig, rng):
@@ -102,7 +118,7 @@ def test_history_is_trimmed(cross_rig, rng):
 
 def test_long_stream_window_matches_every_kept_sample(cross_rig, rng):
     """Many block moves, trims and compactions of the buffer: windows hold exactly the samples kept, in order."""
-    buf = ImuBuffer(cross_rig, ImuConfig(capacity_s=2.0, gap_s=0.05))
+    buf = ImuBuffer(cross_rig, ImuConfig(capacity_s=2.0))
     ts = np.cumsum(rng.uniform(0.002, 0.008, 6000))
     ts[3000:] += 0.5  # one gap, later trimmed away with its samples
     acc = rng.normal(size=(len(ts), 3))
@@ -139,6 +155,6 @@ def test_sample_containers(cross_rig):
     np.testing.assert_array_equal(a[-2], [0.0, 0.0, 10.0])
     assert np.all(w == 0.0)
     for bad in ([0.0, 9.8], np.zeros(4), np.zeros((2, 3)), 9.8):
-        assert buf.add(1.0, bad) == "wrong shape"
-    assert buf.add(1.0, [0, 0, 9.8], [0, 0]) == "wrong shape"
-    assert buf.stats["rejected: wrong shape"] == 5 and buf.stats["samples"] == len(ok)
+        assert buf.add(1.0, bad) is ImuReject.WRONG_SHAPE
+    assert buf.add(1.0, [0, 0, 9.8], [0, 0]) is ImuReject.WRONG_SHAPE
+    assert buf.stats[ImuReject.WRONG_SHAPE] == 5 and buf.stats["samples"] == len(ok)

@@ -6,12 +6,13 @@ import math
 import numpy as np
 import pytest
 
-from nrmpc_ros.core.incremental import IncrementalSequence
+from nrmpc_ros.core.incremental import IncrementalSequence, NewSequence, StartReason, ViewEstimate
 from nrmpc_ros.core.so3 import angle_between, rotation_angle
 from nrmpc_ros.sim.sequence import SequenceScenario, make_sequence
 from nrmpc_ros.sim.synthetic import RigSpec
 
 RING3 = RigSpec(num_cameras=3, layout="ring", EI=1.3)
+LINE2 = RigSpec(num_cameras=2, layout="line", EI=0.2)  # two cameras at the ends of one bar
 
 
 def views(p):
@@ -33,15 +34,21 @@ def noisy():
     return make_sequence(sc, seed=4)
 
 
-def test_noise_free_views_are_exact_through_the_window():
-    p = make_sequence(SequenceScenario(rig=RING3, num_views=7, pixel_noise=0.0, outlier_fraction=0.0), seed=1)
-    seq = IncrementalSequence(p.rig, "6pt-bending", window=4)
+@pytest.mark.parametrize("rig", [RING3, LINE2], ids=["ring3", "line2"])
+def test_noise_free_views_are_exact_through_the_window(rig):
+    """Every view's pose and gravity exact; vision only on parallel bars (two cameras on one bar) the young
+    views publish their poses but no gravity yet."""
+    p = make_sequence(SequenceScenario(rig=rig, num_views=8, pixel_noise=0.0, outlier_fraction=0.0), seed=1)
+    seq = IncrementalSequence(p.rig, "6pt-bending", {"young_views": 3}, window=4)
     out = feed(seq, p)
-    assert isinstance(out[0], str) and "origin" in out[0]
+    assert isinstance(out[0], NewSequence) and out[0].reason is StartReason.FIRST_VIEW
     for k, v in enumerate(out[1:], start=1):
         assert v.view == k and v.sequence == 0 and v.window <= 4
         assert rotation_angle(p.R[k].T @ v.R) < 1e-6 and np.linalg.norm(v.t - p.t[k]) < 1e-6
-        assert float(angle_between(v.gravity, p.gravity[k])) < 1e-6
+        if k < 3 and rig is LINE2:
+            assert v.gravity is None and v.gravity_sigma_rad == math.inf
+        else:
+            assert float(angle_between(v.gravity, p.gravity[k])) < 1e-6
 
 
 def test_window_keeps_the_information_of_retired_views(noisy):
@@ -49,8 +56,9 @@ def test_window_keeps_the_information_of_retired_views(noisy):
     the reported std; the per-view std shrinks as views come in."""
     p = noisy
     seq = IncrementalSequence(p.rig, "6pt-bending", window=4)
-    out = [v for v in feed(seq, p) if not isinstance(v, str)]
+    out = [v for v in feed(seq, p) if isinstance(v, ViewEstimate)]
     assert len(out) == 13 and max(v.window for v in out) == 4
+    assert all(v.gravity is not None for v in out)  # bars along three axes: gravity from the first pair on
     last = out[-1]
     err = math.degrees(float(angle_between(last.gravity, p.gravity[-1])))
     sig = math.degrees(last.gravity_sigma_rad)
@@ -65,9 +73,11 @@ def test_window_keeps_the_information_of_retired_views(noisy):
 
 def test_measured_gravity_enters_as_priors(noisy):
     p = make_sequence(SequenceScenario(rig=RING3, num_views=6, pixel_noise=0.3, gravity_noise_deg=0.2), seed=2)
-    vision = [v for v in feed(IncrementalSequence(p.rig, "6pt-bending"), p) if not isinstance(v, str)]
-    imu = [v for v in feed(IncrementalSequence(p.rig, "4pt-bending"), p, math.radians(0.2)) if not isinstance(v, str)]
+    vision = [v for v in feed(IncrementalSequence(p.rig, "6pt-bending"), p) if isinstance(v, ViewEstimate)]
+    imu = [v for v in feed(IncrementalSequence(p.rig, "4pt-bending"), p, math.radians(0.2))
+           if isinstance(v, ViewEstimate)]
     assert {v.method for v in imu} == {"4pt-bending"}
+    assert all(v.gravity is not None for v in imu)  # measured gravity: published from the first pair on
     assert imu[-1].gravity_sigma_rad < vision[-1].gravity_sigma_rad
 
 
@@ -79,7 +89,7 @@ def test_a_view_without_shared_landmarks_starts_a_new_sequence_and_reset_does_to
         seq.add_view(c, t, f, g)
     c, t, f, g = items[4]
     out = seq.add_view(c, t + 10**6, f, g)  # landmark ids nobody has seen
-    assert isinstance(out, str) and out.startswith("new sequence")
+    assert isinstance(out, NewSequence) and out.reason is StartReason.NO_SHARED_LANDMARKS and out.sequence == 1
     assert seq.seq.number == 1 and seq.num_views == 1
     seq.reset()
     assert seq.seq.number == 2 and seq.num_views == 0
@@ -113,3 +123,92 @@ def test_settled_views_are_placed_by_resection(noisy, monkeypatch):
     assert errs[True][2] <= 6, errs  # the young views, and a view resection could not place
     for err, sig, _ in errs.values():
         assert err < 4 * sig + 0.05, errs
+
+
+def test_a_noisier_view_weighs_less_and_its_std_grows():
+    """A view that says its bearings carry extra noise (a hold whose bars may still ring) gets the noise scale
+    sqrt(1 + (extra / nominal)^2): its observations weigh less, its pose's std grows by about the scale, and
+    the (shared) gravity's std grows a little."""
+    p = make_sequence(SequenceScenario(rig=RING3, num_views=5, pixel_noise=0.3), seed=3)
+    plain = IncrementalSequence(p.rig, "6pt-bending")
+    assert plain.noise_scale(0.0) == 1.0 and plain.noise_scale(math.nan) == 1.0
+    assert plain.noise_scale(3.0 * plain.noise_rad) == pytest.approx(math.sqrt(10.0))
+    out = feed(plain, p)
+    told = IncrementalSequence(p.rig, "6pt-bending")
+    for k, (c, t, f, g) in enumerate(views(p)):
+        last = told.add_view(c, t, f, g, None, noise_scale=10.0 if k == 4 else 1.0)
+    assert not isinstance(out[-1], str) and not isinstance(last, str)
+    assert last.gravity_sigma_rad > out[-1].gravity_sigma_rad
+    rot = [math.sqrt(np.trace(v.cov_pose[:3, :3])) for v in (out[-1], last)]
+    assert rot[1] > 4.0 * rot[0]
+
+
+def test_a_view_back_at_an_old_place_continues_the_sequence(noisy):
+    """A view that shares landmarks only with views older than the last few (the rig came back) is placed on
+    them instead of starting a new sequence."""
+    p = noisy
+    items = list(views(p))
+    seq = IncrementalSequence(p.rig, "6pt-bending", {"max_pair_gap": 2})
+    for c, t, f, g in items[:8]:
+        seq.add_view(c, t, f, g)
+    c, t, f, g = items[1]
+    recent = np.concatenate([x[1] for x in items[5:8]])
+    assert np.count_nonzero(np.isin(t, recent)) < seq.options.min_pair_matches  # nothing to pair with recently
+    out = seq.add_view(c, t, f, g)  # view 1 again
+    assert isinstance(out, ViewEstimate) and out.sequence == 0 and out.view == 8
+    assert rotation_angle(p.R[1].T @ out.R) < math.radians(0.5) and np.linalg.norm(out.t - p.t[1]) < 0.02
+    assert float(angle_between(out.gravity, p.gravity[1])) < 4 * out.gravity_sigma_rad + math.radians(0.05)
+
+
+def test_a_later_view_linking_both_sequences_merges_them(noisy):
+    """A break starts sequence 1 at view 5 (its landmarks renamed: nothing links); view 6 links to view 5 and,
+    through some landmarks it shares with view 4, to sequence 0: sequence 1 is merged into sequence 0, its
+    views re-expressed in sequence 0's origin, and later views continue there."""
+    p = noisy
+    tr = p.tracks
+    off = 10**6
+    seen = [set(tr.track[tr.view == k].tolist()) for k in range(tr.num_views)]
+    common = np.array(sorted(seen[4] & seen[5] & seen[6]))
+    back = set(common[::2].tolist())  # in view 6 these keep their names: the link to sequence 0
+    renamed = seen[5] - back
+    seq = IncrementalSequence(p.rig, "6pt-bending")
+    outs = []
+    for k, (c, t, f, g) in enumerate(views(p)):
+        if k >= 5:
+            t = t + off * (np.isin(t, list(renamed)) | (k == 5))
+        outs.append(seq.add_view(c, t, f, g))
+        if k == 9:
+            break
+    assert isinstance(outs[5], NewSequence) and outs[5].reason is StartReason.NO_SHARED_LANDMARKS
+    m = outs[6]
+    assert isinstance(m, ViewEstimate) and (m.merged, m.merged_views) == (0, 5)
+    for k, v in enumerate(outs[6:], start=6):
+        assert v.sequence == 0 and v.view == k
+        assert rotation_angle(p.R[k].T @ v.R) < math.radians(0.5) and np.linalg.norm(v.t - p.t[k]) < 0.03
+        assert float(angle_between(v.gravity, p.gravity[k])) < 4 * v.gravity_sigma_rad + math.radians(0.05)
+    assert seq.num_views == 10 and seq.seq.number == 0
+
+
+def test_a_bridged_break_carries_gravity_into_the_new_sequence():
+    """Vision only on one bar: after a break the new sequence would publish no gravity while young; bridged by
+    the rotation between the holds (the gyro's), its gravity starts from the old one's and is published
+    from its first pair on, within its std of the truth."""
+    p = make_sequence(SequenceScenario(rig=LINE2, num_views=10, pixel_noise=0.3, outlier_fraction=0.0), seed=3)
+    items = list(views(p))
+    for bridged in (False, True):
+        seq = IncrementalSequence(p.rig, "6pt-bending")
+        outs = [seq.add_view(c, t, f, g) for c, t, f, g in items[:7]]
+        assert outs[6].gravity is not None  # no longer young
+        c, t, f, g = items[7]
+        assert isinstance(seq.add_view(c, t + 10**6, f, g), NewSequence)
+        sigma = math.radians(0.3)
+        if bridged:
+            assert seq.bridge(p.R[6].T @ p.R[7], sigma)
+        outs = [seq.add_view(c, t + 10**6, f, g) for c, t, f, g in items[8:]]
+        assert [v.sequence for v in outs] == [1, 1]
+        if not bridged:
+            assert all(v.gravity is None for v in outs)
+            continue
+        for k, v in zip((8, 9), outs):
+            err = float(angle_between(v.gravity, p.gravity[k]))
+            assert v.gravity_sigma_rad >= sigma * 0.5 and err < 3 * v.gravity_sigma_rad, (k, err)

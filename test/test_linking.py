@@ -98,3 +98,28 @@ def test_ids_follow_the_tracker_into_the_next_hold(texture):
     linker.reset()
     d = linker.link(hold_of(img1, ids1 + 500, uv1))
     assert sum(d.links.values()) == 0  # after a reset nothing links to the holds before it
+
+
+def test_a_hold_back_at_an_older_view_links_to_that_hold(texture):
+    """The previous hold saw another scene: the tracks of a hold back near an older view take over that older
+    hold's landmarks (descriptor store, verified per camera); without the store they start new landmarks."""
+    other = make_texture(11)
+    R2 = exp_so3(np.array([0.3, 1.0, 0.1]) / np.linalg.norm([0.3, 1.0, 0.1]) * math.radians(12))
+    img0, ids0, uv0 = tracked(texture, np.eye(3))
+    img1, ids1, uv1 = tracked(other, np.eye(3))
+    img2, ids2, uv2 = tracked(texture, R2)
+    for store in (200, 0):
+        linker = HoldLinker(RIG, TrackingConfig(link_store_holds=store))
+        a = linker.link(hold_of(img0, ids0, uv0))
+        b = linker.link(hold_of(img1, ids1 + 10000, uv1))
+        c = linker.link(hold_of(img2, ids2 + 20000, uv2))
+        assert not np.isin(b.landmark, a.landmark).any()
+        linked = np.isin(c.landmark, a.landmark)
+        if store == 0:
+            assert c.links["older"] == 0 and not linked.any()
+            continue
+        assert c.links["older"] >= 25 and linked.sum() == c.links["older"]
+        pos_a = dict(zip(a.landmark.tolist(), uv0))
+        err = [np.linalg.norm(project(np.eye(3), R2, pos_a[lm][None])[0] - uv)
+               for lm, uv in zip(c.landmark[linked], uv2[linked])]
+        assert np.median(err) < 1.0 and np.percentile(err, 90) < 3.0  # the same points

@@ -48,18 +48,21 @@ def clean_bag(tmp_path_factory):
     return d / "b", load_rig(rig_path)
 
 
+@pytest.mark.slow
 def test_topics_counts_and_stamps(clean_bag):
     path, rig = clean_bag
     msgs, types = read_bag(path)
     cams = [f"/cam{i}/image_raw" for i in range(4)]
     infos = [f"/cam{i}/camera_info" for i in range(4)]
-    assert set(msgs) == set(cams + infos + ["/imu/data", "/ground_truth/pose", "/ground_truth/gravity"])
+    gt_extrinsics = [f"/ground_truth/extrinsics/{c.name}" for c in rig.cameras]
+    assert set(msgs) == set(cams + infos + gt_extrinsics + ["/imu/data", "/ground_truth/pose", "/ground_truth/gravity",
+                                                            "/ground_truth/angular_velocity"])
     assert types["/cam0/image_raw"] == "sensor_msgs/msg/Image"
     assert types["/imu/data"] == "sensor_msgs/msg/Imu"
     assert types["/ground_truth/pose"] == "geometry_msgs/msg/PoseStamped"
     assert types["/ground_truth/gravity"] == "geometry_msgs/msg/Vector3Stamped"
     frames = 3 * 2  # views x (0.5 s at 4 Hz)
-    for topic in cams + infos + ["/ground_truth/pose", "/ground_truth/gravity"]:
+    for topic in cams + infos + ["/ground_truth/pose", "/ground_truth/gravity", "/ground_truth/angular_velocity"]:
         assert len(msgs[topic]) == frames, topic
         assert all(t == stamp(m) for t, m in msgs[topic]), "header stamp = bag time"
     ref = [t for t, _ in msgs["/cam0/image_raw"]]
@@ -77,6 +80,7 @@ def test_topics_counts_and_stamps(clean_bag):
     assert np.all(np.diff(ref) > 0)
 
 
+@pytest.mark.slow
 def test_imu_reads_minus_gravity_when_still(clean_bag):
     path, rig = clean_bag
     msgs, _ = read_bag(path)
@@ -99,6 +103,7 @@ def test_imu_reads_minus_gravity_when_still(clean_bag):
     assert np.abs(gyro).max() > 0.05
 
 
+@pytest.mark.slow
 def test_ground_truth_pose_and_gravity_agree(clean_bag):
     path, _ = clean_bag
     msgs, _ = read_bag(path)
@@ -113,6 +118,7 @@ def test_ground_truth_pose_and_gravity_agree(clean_bag):
     assert all(5 - 1e-6 <= s <= 30 + 1e-6 for s in steps)
 
 
+@pytest.mark.slow
 def test_images_use_the_bent_extrinsics(clean_bag):
     path, rig = clean_bag
     msgs, _ = read_bag(path)
@@ -134,6 +140,7 @@ def test_images_use_the_bent_extrinsics(clean_bag):
     assert np.array_equal(a.data, b.data)
 
 
+@pytest.mark.slow
 def test_deterministic_and_noisy_options(tmp_path):
     args = ["make-bag", "--cameras", "2", "--layout", "line", "--views", "2", "--static-seconds", "0.25",
             "--rate", "4", "--seed", "3", "--no-progress"]
@@ -159,6 +166,7 @@ def test_deterministic_and_noisy_options(tmp_path):
     assert acc[window].std(axis=0).min() > 0.005
 
 
+@pytest.mark.slow
 def test_continuous_motion_png_mcap(tmp_path):
     out = tmp_path / "c"
     rc = main(["make-bag", "--cameras", "3", "--layout", "ring", "--views", "2", "--static-seconds", "0.2",
@@ -182,6 +190,7 @@ def test_existing_output_is_an_error(tmp_path, capsys):
     assert "already exists" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_imu_inside_a_camera_bends_with_it(tmp_path):
     """An IMU mounted in camera 0 reads a = -W_0(g)^T g (rotated into the IMU); gravity_from_accelerometer
     (docs/CONVENTIONS.md, Gravity measurements) recovers g."""
@@ -204,6 +213,7 @@ def test_imu_inside_a_camera_bends_with_it(tmp_path):
         assert np.allclose(gravity_from_accelerometer(rig, acc[t]), g, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("encoding", ["mono8", "bgr8", "rgb8", "mono16", "png", "jpeg"])
 def test_image_encodings(tmp_path, encoding):
     import cv2
@@ -257,6 +267,7 @@ def styles(tmp_path_factory):
     }.items()}
 
 
+@pytest.mark.slow
 def test_snapshot_one_image_per_camera_per_hold(tmp_path):
     msgs, _ = make(tmp_path, "s", "--capture", "snapshot", "--views", "3", "--hold-seconds", "2",
                    "--move-seconds", "0.5", "--seed", "2")
@@ -274,6 +285,7 @@ def test_snapshot_one_image_per_camera_per_hold(tmp_path):
         assert np.abs(gyro[still]).max() < 0.01 < np.abs(gyro[after]).max()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("capture, expected", [("holds", 3 * 5), ("stream", 3 * 5 + 2 * 5)])
 def test_holds_and_stream_counts(tmp_path, capture, expected):
     msgs, _ = make(tmp_path, capture, "--capture", capture, "--views", "3", "--hold-seconds", "0.5",
@@ -284,6 +296,7 @@ def test_holds_and_stream_counts(tmp_path, capture, expected):
     assert (np.diff(ts) == 100_000_000).all() == (capture == "stream")
 
 
+@pytest.mark.slow
 def test_jitter_moves_each_camera_stamp_but_not_the_content(styles):
     plain, jit = styles["plain"], styles["jitter"]
     assert [t for t, _ in jit["/ground_truth/pose"]] == [t for t, _ in plain["/ground_truth/pose"]]
@@ -304,6 +317,7 @@ def test_jitter_moves_each_camera_stamp_but_not_the_content(styles):
     assert [t for t, _ in jit["/imu/data"]] == [t for t, _ in plain["/imu/data"]]
 
 
+@pytest.mark.slow
 def test_drops_remove_image_and_camera_info(styles):
     plain, drops = styles["plain"], styles["drops"]
     n = len(plain["/ground_truth/pose"])
@@ -318,6 +332,7 @@ def test_drops_remove_image_and_camera_info(styles):
     assert 0 < len(kept[0]) < n and 0 < len(kept[1]) < n and kept[0] != kept[1], "independent per camera"
 
 
+@pytest.mark.slow
 def test_compressed_images_on_the_compressed_topic(styles):
     import cv2
 
@@ -337,6 +352,7 @@ def test_compressed_images_on_the_compressed_topic(styles):
     assert size["jpeg"] < 0.5 * size["png"], "--jpeg-quality 40 compresses"
 
 
+@pytest.mark.slow
 def test_no_imu_and_resolution(tmp_path):
     rig_path = tmp_path / "rig.yaml"
     msgs, _ = make(tmp_path, "n", "--no-imu", "--views", "2", "--hold-seconds", "0.2", "--rate", "5",
@@ -350,6 +366,7 @@ def test_no_imu_and_resolution(tmp_path):
     assert rig.imu is None and rig.cameras[0].resolution == (320, 240)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("profile", ["min-jerk", "trapezoid"])
 def test_move_profiles_through_the_imu(tmp_path, profile):
     """The integrated gyro reproduces each move's attitude change; the accelerometer is smooth (min-jerk) or
@@ -379,6 +396,7 @@ def test_move_profiles_through_the_imu(tmp_path, profile):
             assert np.sort(jumps)[-5] < 0.2 * peak
 
 
+@pytest.mark.slow
 def test_make_bag_summary_hold_intervals(tmp_path):
     rig = make_rig(RigSpec(num_cameras=2, layout="line", EI=0.2, focal=117.5, resolution=(160, 120)))
     opts = BagOptions(motion=MotionOptions(views=3, hold_seconds=0.5, rate=10, capture="snapshot"), seed=1,
@@ -399,6 +417,7 @@ def test_make_bag_summary_hold_intervals(tmp_path):
     assert summary["bar_frequencies_hz"] == pytest.approx([math.sqrt(3 * 0.2 / (0.1 * 0.4**3)) / (2 * math.pi)] * 2)
 
 
+@pytest.mark.slow
 def test_ringing_bars_render_their_own_load(tmp_path):
     """With --damping every frame of a hold is re-rendered at each camera's filtered load."""
     rig = make_rig(RigSpec(num_cameras=2, layout="line", EI=0.2, focal=117.5, resolution=(160, 120)))
@@ -459,6 +478,7 @@ def test_imu_inside_a_ringing_camera_feels_the_tip_motion():
     assert swing > 1.0, "the ringing tip shakes the accelerometer"
 
 
+@pytest.mark.slow
 def test_scenario_file_and_flag_overrides(tmp_path):
     sc = tmp_path / "sc.yaml"
     sc.write_text("cameras: 2\nlayout: line\nresolution: 160x120\nviews: 2\nhold-seconds: 0.2\nrate: 5\n"
@@ -467,11 +487,14 @@ def test_scenario_file_and_flag_overrides(tmp_path):
     assert main(["make-bag", "--scenario", str(sc), "--views", "3", "--no-progress", "--out", str(out)]) == 0
     msgs, _ = read_bag(out)
     assert set(msgs) == {"/cam0/image_raw/compressed", "/cam1/image_raw/compressed", "/cam0/camera_info",
-                         "/cam1/camera_info", "/ground_truth/pose", "/ground_truth/gravity"}
+                         "/cam1/camera_info", "/ground_truth/pose", "/ground_truth/gravity",
+                         "/ground_truth/angular_velocity",
+                         "/ground_truth/extrinsics/cam0", "/ground_truth/extrinsics/cam1"}
     assert len(msgs["/cam0/image_raw/compressed"]) == 3, "--views on the command line overrides the file"
     assert msgs["/cam0/camera_info"][0][1].width == 160
 
 
+@pytest.mark.slow
 def test_scenario_rig_path_is_relative_to_the_file(tmp_path):
     d = tmp_path / "scenarios"
     d.mkdir()
@@ -520,3 +543,176 @@ def test_save_rig_never_overwrites_the_input_rig(tmp_path, capsys):
     before = rig_path.read_text()
     assert main(["make-bag", "--rig", str(rig_path), "--save-rig", str(rig_path), "--out", str(tmp_path / "b")]) == 2
     assert "--save-rig" in capsys.readouterr().err and rig_path.read_text() == before
+
+
+# -- recordings like users make: hold lengths, creep, per-camera triggers, snapshots, exposure, clocks, bars ------
+
+def test_random_hold_lengths_are_whole_frame_periods_and_keep_the_attitudes():
+    fixed = make_trajectory(np.random.default_rng(3), MotionOptions(views=8, rate=10.0))
+    traj = make_trajectory(np.random.default_rng(3), MotionOptions(views=8, rate=10.0, hold_seconds_range=(1.0, 3.0)))
+    assert np.allclose(traj.R, fixed.R) and np.allclose(traj.p, fixed.p)
+    assert np.all((traj.hold_frames >= 10) & (traj.hold_frames <= 30)) and len(set(traj.hold_frames.tolist())) > 2
+    assert np.array_equal(traj.hold_end - traj.hold_start, traj.hold_frames * traj.period_ns)
+    assert np.all(traj.hold_start[1:] == traj.hold_end[:-1] + traj.move_ns)
+    t, view = traj.frame_times("holds")
+    assert np.array_equal(np.bincount(view), traj.hold_frames)
+    assert np.all(traj.view_index(t) == view)
+
+
+def test_creeping_holds_turn_at_the_given_rate_and_the_rest_stay_still():
+    opts = MotionOptions(views=7, rate=10.0, hold_seconds=2.0, creep_fraction=0.5, creep_deg_per_s=0.5)
+    traj = make_trajectory(np.random.default_rng(4), opts)
+    still = make_trajectory(np.random.default_rng(4), dataclasses.replace(opts, creep_fraction=0.0))
+    assert np.allclose(traj.R, still.R), "creep is drawn last: the attitudes of the seed stay"
+    assert traj.creeping.sum() == 3 and not traj.creeping[0]
+    for k in range(traj.R.shape[0]):
+        a, b = int(traj.hold_start[k]), int(traj.hold_end[k])
+        t = np.array([a, (a + b) // 2, b - 1])
+        R, _, omega, acc = traj.state(t)
+        turned = math.degrees(float(rotation_angle(R[0].T @ R[-1])))
+        if traj.creeping[k]:
+            assert np.allclose(np.degrees(np.linalg.norm(omega, axis=1)), 0.5)
+            assert turned == pytest.approx(0.5 * (b - 1 - a) * 1e-9, rel=1e-6)
+        else:
+            assert np.all(omega == 0) and turned == 0
+        assert np.all(acc == 0)
+    # the move after a creeping hold starts where the creep ended, and reaches the next hold's attitude
+    k = int(np.flatnonzero(traj.creeping)[0])
+    R_end, _, _, _ = traj.state(np.array([traj.hold_end[k], traj.hold_start[k + 1]]) if k + 1 < len(traj.R)
+                                else np.array([traj.hold_end[k] - 1, traj.hold_end[k] - 1]))
+    assert float(rotation_angle(R_end[0].T @ traj.R_end[k])) < 1e-6
+    if k + 1 < len(traj.R):
+        assert float(rotation_angle(R_end[1].T @ traj.R[k + 1])) < 1e-9
+
+
+def test_each_camera_fires_at_its_own_rate_and_phase():
+    opts = MotionOptions(views=3, rate=10.0, hold_seconds=1.0, camera_rates=(10.0, 15.0, 30.0),
+                         camera_phases_ms=(0.0, 20.0, 5.0))
+    traj = make_trajectory(np.random.default_rng(0), opts)
+    t, view, fires = traj.camera_triggers(opts, 3)
+    assert np.all(np.diff(t) > 0) and np.all(view >= 0) and fires.any(axis=1).all()
+    for i, (rate, phase) in enumerate(zip(opts.camera_rates, opts.camera_phases_ms)):
+        ti = t[fires[:, i]]
+        for k in range(3):
+            own = ti[view[fires[:, i]] == k]
+            assert own[0] == traj.hold_start[k] + round(phase * 1e6)
+            assert np.all(np.diff(own) == round(1e9 / rate)) and own[-1] < traj.hold_end[k]
+    stream = dataclasses.replace(opts, capture="stream")
+    ts, vs, fs = traj.camera_triggers(stream, 3)
+    assert (vs < 0).any() and fs.sum(axis=0).tolist() == [
+        len(np.arange(traj.start_ns + round(p * 1e6), traj.end_ns, round(1e9 / r))) for r, p in
+        zip(opts.camera_rates, opts.camera_phases_ms)]
+
+
+def test_without_camera_options_every_camera_fires_on_the_frame_grid():
+    for capture in ("holds", "snapshot", "stream"):
+        opts = MotionOptions(views=3, hold_seconds=1.0, capture=capture)
+        traj = make_trajectory(np.random.default_rng(1), opts)
+        t, view, fires = traj.camera_triggers(opts, 4)
+        t0, v0 = traj.frame_times(capture)
+        assert np.array_equal(t, t0) and np.array_equal(view, v0) and fires.all()
+
+
+def test_snapshot_delay_takes_one_image_per_camera_that_long_after_each_stop():
+    opts = MotionOptions(views=4, hold_seconds_range=(1.0, 2.0), capture="snapshot", snapshot_delay=0.5,
+                         camera_phases_ms=(0.0, 3.0))
+    traj = make_trajectory(np.random.default_rng(2), opts)
+    t, view, fires = traj.camera_triggers(opts, 2)
+    for i, phase in enumerate((0.0, 3.0)):
+        assert np.array_equal(t[fires[:, i]], traj.hold_start + 500_000_000 + round(phase * 1e6))
+    assert np.array_equal(np.unique(view), np.arange(4))
+
+
+def test_exposure_drifts_slowly_within_its_amplitude_and_differs_per_camera():
+    from nrmpc_ros.render.bagmaker import EXPOSURE_OFFSET_GREY, Exposure
+
+    exp = Exposure(3, BagOptions(exposure_drift=0.3, exposure_period_s=10.0), np.random.default_rng(0))
+    t = np.linspace(0.0, 60.0, 601)
+    go = np.array([[exp.gain_offset(i, s) for s in t] for i in range(3)])  # (3, T, 2)
+    assert np.all(np.abs(go[..., 0] - 1) <= 0.3) and np.ptp(go[..., 0], axis=1).min() > 0.4
+    assert np.all(np.abs(go[..., 1]) <= EXPOSURE_OFFSET_GREY * 0.3)
+    assert np.abs(np.diff(go[..., 0], axis=1)).max() < 0.3 * 2 * math.pi * 0.1 / 7.0 + 1e-12  # slow: 0.1 s steps
+    assert not np.allclose(go[0], go[1])
+    none = Exposure(1, BagOptions(), np.random.default_rng(0))
+    assert none.gain_offset(0, 12.3) == (1.0, 0.0)
+
+
+def test_bar_hz_sets_the_bars_natural_frequency():
+    from nrmpc_ros.cli.make_bag import ei_for_frequency
+    from nrmpc_ros.core.dynamics import bar_natural_frequencies
+
+    for hz in (1.5, 4.2, 8.0):
+        rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=ei_for_frequency(hz, 0.1, 0.4), mass=0.1,
+                               bar_length=0.4))
+        assert np.allclose(bar_natural_frequencies(rig), hz)
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["--camera-rates", "10,15,20"], "--camera-rates"), (["--camera-rates", "10,x"], "--camera-rates"),
+    (["--camera-rates", "10,0"], "--camera-rates"),
+    (["--camera-rates", "10,10", "--camera-phases-ms", "0,100"], "--camera-phases-ms"),
+    (["--camera-phases-ms", "0"], "--camera-phases-ms"),
+    (["--hold-seconds-range", "3,1"], "--hold-seconds-range"), (["--hold-seconds-range", "2"], "--hold-seconds-range"),
+    (["--capture", "snapshot", "--hold-seconds", "2", "--snapshot-delay", "2"], "--snapshot-delay"),
+    (["--capture", "snapshot", "--snapshot-delay", "-1"], "--snapshot-delay"),
+    (["--snapshot-delay", "0.5"], "--snapshot-delay"), (["--camera-phases-ms", "0,100"], "--camera-phases-ms"),
+    (["--creep-fraction", "1.5"], "--creep-fraction"), (["--creep-deg-per-s", "0"], "--creep-deg-per-s"),
+    (["--exposure-drift", "0.9"], "--exposure-drift"), (["--exposure-period-s", "0"], "--exposure-period-s"),
+    (["--imu-time-offset-ms", "nan"], "--imu-time-offset-ms"), (["--bar-hz", "3", "--EI", "1"], "--bar-hz"),
+    (["--bar-hz", "0"], "--bar-hz"), (["--bar-hz", "3", "--mass", "0"], "--bar-hz"),
+    (["--rig", "config/sample_cross4.yaml", "--bar-hz", "3"], "--bar-hz"),
+])
+def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
+    rig_flags = ["--no-progress"] if "--rig" in args else TINY
+    try:
+        code = main(["make-bag", *rig_flags, *args, "--out", str(tmp_path / "b")])
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2
+    assert flag in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()
+
+
+def test_scenario_lists_for_per_camera_options(tmp_path, capsys):
+    sc = tmp_path / "s.yaml"
+    sc.write_text("camera-rates: [10, 20, 30]\nhold-seconds-range: [1, 2]\n")
+    assert main(["make-bag", *TINY, "--scenario", str(sc), "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "--camera-rates" in err and "one value per camera (2)" in err
+
+
+@pytest.mark.slow
+def test_users_recording_options_in_a_bag(tmp_path):
+    """Per-camera rates and phases, a 100 Hz IMU 7 ms off the cameras' clock, creeping holds, exposure drift."""
+    msgs, types = make(tmp_path, "b", "--resolution", "80x60", "--views", "4", "--hold-seconds-range", "0.5,1",
+                       "--camera-rates", "10,20", "--camera-phases-ms", "0,10", "--imu-rate", "100",
+                       "--imu-time-offset-ms", "7", "--creep-fraction", "0.34", "--exposure-drift", "0.3",
+                       "--exposure-period-s", "2", "--bar-hz", "4", "--damping", "0.2", "--jitter-ms", "3",
+                       *QUIET)
+    with Reader(tmp_path / "b") as r:
+        assert np.all(np.diff([t for _, t, _ in r.messages()]) >= 0), "bag time never goes back"
+    c0 = np.array([stamp(m) for _, m in msgs["/cam0/image_raw"]])
+    c1 = np.array([stamp(m) for _, m in msgs["/cam1/image_raw"]])
+    assert 1.7 * len(c0) < len(c1) < 2.3 * len(c0)
+    imu_t = np.array([stamp(m) for _, m in msgs["/imu/data"]])
+    assert np.all(np.diff(imu_t) == 10_000_000) and imu_t[0] == 1_700_000_000_000_000_000 + 7_000_000
+    gt = np.array([stamp(m) for _, m in msgs["/ground_truth/pose"]])
+    w = np.linalg.norm(vectors(msgs, "/ground_truth/angular_velocity", "vector"), axis=1)
+    assert types["/ground_truth/angular_velocity"] == "geometry_msgs/msg/Vector3Stamped"
+    assert len(gt) == len(w) and np.all(np.isin(np.round(c1, -7), np.round(gt, -7)))  # a truth per trigger
+    assert np.allclose(np.degrees(w[w > 0]), 0.5) and (w == 0).sum() > 0, "one hold creeps, the others are still"
+    means = np.array([m.data.mean() for _, m in msgs["/cam0/image_raw"]])
+    assert np.ptp(means) > 5, "the exposure drifts"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cameras", [5, 6])
+def test_rings_of_five_and_six_cameras_see_different_views(cameras):
+    rig = make_rig(RigSpec(num_cameras=cameras, layout="ring", resolution=(64, 48), focal=47.0))
+    renderer = Renderer(rig, make_scene(0), 1)
+    R, c = renderer.camera_poses(np.eye(3), np.zeros(3), np.broadcast_to(rig.gravity_magnitude * np.array(
+        [0.0, 0.0, -1.0]), (cameras, 3)))
+    images = [renderer.render_camera(i, R[i], c[i]) for i in range(cameras)]
+    for i in range(cameras):
+        for j in range(i + 1, cameras):
+            assert np.mean(np.abs(images[i] - images[j])) > 5.0, (i, j)

@@ -50,6 +50,7 @@ def make_node(ctx, namespace="", **params):
     return EstimatorNode(start_worker=False, context=ctx, parameter_overrides=overrides, namespace=namespace)
 
 
+@pytest.mark.slow
 def test_parameters_have_descriptions_ranges_and_reach_the_configs(ctx):
     node = make_node(ctx, **{"pipeline.holds.measure_s": 3, "input.jump_back_s": 2.5, "image_transport": "raw"})
     try:
@@ -69,6 +70,7 @@ def test_parameters_have_descriptions_ranges_and_reach_the_configs(ctx):
         node.destroy_node()
 
 
+@pytest.mark.slow
 def test_relative_rig_topics_follow_the_namespace(ctx):
     node = make_node(ctx, namespace="/rig1")
     try:
@@ -79,6 +81,7 @@ def test_relative_rig_topics_follow_the_namespace(ctx):
         node.destroy_node()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("params, match", [
     ({"pipeline.holds.measure": 2.0}, r"parameter pipeline.holds.measure: unknown parameter"),
     ({"pipline.seed": 1}, r"unknown parameter\(s\) pipline.seed"),
@@ -94,11 +97,13 @@ def test_bad_parameters_stop_the_start_with_their_name(ctx, params, match):
         make_node(ctx, **params).destroy_node()
 
 
+@pytest.mark.slow
 def test_no_rig_file_is_a_clear_error(ctx):
     with pytest.raises(InputError, match="parameter rig_file: required"):
         EstimatorNode(start_worker=False, context=ctx)
 
 
+@pytest.mark.slow
 def test_transports_and_no_imu(ctx):
     node = make_node(ctx, image_transport="compressed", use_imu=False)
     try:
@@ -114,6 +119,30 @@ def test_transports_and_no_imu(ctx):
         node.destroy_node()
 
 
+def test_auto_transport_switches_when_a_compressed_camera_appears_after_the_node(ctx):
+    """The node's own raw subscriptions are no publishers: a camera that then publishes only compressed images is
+    followed on its /compressed topic; a raw camera keeps the raw topic."""
+    from sensor_msgs.msg import CompressedImage, Image
+
+    node = make_node(ctx, image_transport="auto", diagnostics_period_s=0.1)
+    camera = rclpy.create_node("camera", context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    try:
+        assert node.image_subscriptions == [(f"/cam{i}/image_raw", False) for i in range(4)]
+        camera.create_publisher(CompressedImage, "/cam0/image_raw/compressed", 10)
+        camera.create_publisher(Image, "/cam1/image_raw", 10)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and node.image_subscriptions[0][1] is False:
+            executor.spin_once(timeout_sec=0.1)  # the diagnostics timer looks at the graph again
+        assert node.image_subscriptions[:3] == [("/cam0/image_raw/compressed", True), ("/cam1/image_raw", False),
+                                                ("/cam2/image_raw", False)]
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        camera.destroy_node()
+        node.destroy_node()
+
+
 def hold_estimate():
     rng = np.random.default_rng(7)
     R0k = exp_so3(rng.normal(scale=0.3, size=3))
@@ -125,6 +154,7 @@ def hold_estimate():
                         hold=None, links=Counter())
 
 
+@pytest.mark.slow
 def test_published_messages_carry_their_frames_and_the_bent_camera_poses(ctx):
     node = make_node(ctx)
     listener = rclpy.create_node("listener", context=ctx)
@@ -164,6 +194,7 @@ def test_published_messages_carry_their_frames_and_the_bent_camera_poses(ctx):
     assert np.allclose(quat_xyzw_to_matrix([q.x, q.y, q.z, q.w]) @ g, [0, 0, -9.81], atol=1e-9), "levelled origin"
 
 
+@pytest.mark.slow
 def test_reset_service_and_method_at_run_time(ctx):
     node = make_node(ctx)
     client_node = rclpy.create_node("client", context=ctx)
@@ -189,6 +220,7 @@ def test_reset_service_and_method_at_run_time(ctx):
         node.destroy_node()
 
 
+@pytest.mark.slow
 def test_the_shutdown_summary_reaches_rosout(ctx):
     node = make_node(ctx)
     listener = rclpy.create_node("rosout_listener", context=ctx)

@@ -22,13 +22,14 @@ import pytest
 from rendered_bags import CAMERAS, IMU, stream_bag
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: install the ros extra (pip install -e .[ros])")
+pytestmark = pytest.mark.slow  # a node over DDS on rendered bags
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Vector3Stamped  # noqa: E402
 from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
-from sensor_msgs.msg import CameraInfo, Image, Imu  # noqa: E402
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
@@ -113,6 +114,17 @@ class Listener(BackgroundNode):
             time.sleep(0.2)
         raise AssertionError(f"the node did not finish: {self.diagnostics[-1:]}")
 
+    def wait_until_idle(self, at_least_s: float, timeout: float = 120.0) -> None:
+        """At least ``at_least_s``, then until a diagnostics message sent after that says nothing waits for the
+        estimator (a worker slowed by the machine's load catches up before the next input)."""
+        time.sleep(at_least_s)
+        seen, deadline = len(self.diagnostics), time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if len(self.diagnostics) > seen and self.last("estimation")[2].get("work waiting") == "0":
+                return
+            time.sleep(0.1)
+        raise AssertionError(f"the estimator did not catch up: {self.diagnostics[-1:]}")
+
     def gravity_by_stamp(self) -> dict:
         return {stamp_key(msg_stamp(m.header)): np.array([m.vector.x, m.vector.y, m.vector.z])
                 for m in self.got["gravity"]}
@@ -140,6 +152,22 @@ def stop(proc: subprocess.Popen | None, grace: float = 10.0) -> None:
             return
         except subprocess.TimeoutExpired:
             continue
+
+
+class CpuHog:
+    """Processes spinning on every core for at most ``seconds`` (a machine saturated by another program)."""
+
+    def __init__(self, seconds: float = 120.0):
+        spin = f"import time\nend = time.monotonic() + {seconds}\nwhile time.monotonic() < end:\n    pass\n"
+        self.procs = [subprocess.Popen([sys.executable, "-c", spin], start_new_session=True)
+                      for _ in range(os.cpu_count() or 2)]
+
+    def __enter__(self) -> CpuHog:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for proc in self.procs:
+            stop(proc, grace=1.0)
 
 
 def estimator(rig: Path, *args) -> list:
@@ -204,8 +232,11 @@ def test_the_node_publishes_the_replays_estimates_in_their_frames(bag, replayed,
     # the same estimates as nrmpc replay: same stamps, gravity to 1e-9
     assert check_against_replay(listener, replayed) == len(replayed)
     rig = load_rig(rig_path)
-    for cams, g in zip(listener.got["cams"], listener.got["gravity"]):
-        assert cams.header.frame_id == g.header.frame_id == "base_link" and cams.header.stamp == g.header.stamp
+    # ~/camera_poses also comes per frame set from the IMU-driven bars; the hold's own comes after them
+    hold_poses = {(c.header.stamp.sec, c.header.stamp.nanosec): c for c in listener.got["cams"]}
+    for g in listener.got["gravity"]:
+        cams = hold_poses[(g.header.stamp.sec, g.header.stamp.nanosec)]
+        assert cams.header.frame_id == g.header.frame_id == "base_link"
         w, W = deformed_extrinsics(rig, np.array([g.vector.x, g.vector.y, g.vector.z]))
         for i, p in enumerate(cams.poses):
             assert np.allclose([p.position.x, p.position.y, p.position.z], w[i], atol=1e-9, rtol=0)
@@ -219,6 +250,8 @@ def test_the_node_publishes_the_replays_estimates_in_their_frames(bag, replayed,
     cams, imu, est = listener.last("cameras"), listener.last("IMU"), listener.last("estimation")
     assert cams[2]["/cam0/image_raw: camera_info"] == "agrees with the rig file"
     assert int(cams[2]["/cam0/image_raw: images"]) == 104 and imu[0] == b"\x00" and est[0] == b"\x00"
+    assert est[2]["holds waiting"] == est[2]["frame sets waiting"] == "0", "both workers are done"
+    assert float(est[2]["hold latency p95 (ms)"]) >= float(est[2]["hold latency median (ms)"]) > 0
     assert "shutting down: 416 images" in log and "dropped: nothing dropped" in log
     assert any(line.startswith("shutting down: 416 images") for line in listener.rosout), "SIGINT: still on /rosout"
     assert "no image yet" not in log and "stopped publishing" not in log, "no false alarms at start-up or at the end"
@@ -281,13 +314,23 @@ def test_play_loop_gives_estimates_on_every_pass(bag, replayed, tmp_path):
     assert log.count("detected jump back in time") >= 2
 
 
+def jpeg(msg: Image) -> CompressedImage:
+    """A mono8 Image as a JPEG CompressedImage (quality 95) with its header."""
+    import cv2
+
+    img = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.step)[:, :msg.width]
+    out = CompressedImage(header=msg.header, format="mono8; jpeg compressed mono8")
+    out.data = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    return out
+
+
 class Injector:
     """Publishes a bag's messages from this process, one DDS participant per topic (and copies with other
     stamps or values: the faults)."""
 
     TYPES = {"sensor_msgs/msg/Image": Image, "sensor_msgs/msg/Imu": Imu, "sensor_msgs/msg/CameraInfo": CameraInfo}
 
-    def __init__(self, domain: int, path: Path):
+    def __init__(self, domain: int, path: Path, compressed: bool = False):
         from rosbags.rosbag2 import Reader
 
         self.messages = []
@@ -295,10 +338,15 @@ class Injector:
             types = {c.topic: c.msgtype for c in reader.connections}
             conns = [c for c in reader.connections if c.topic in CAMERAS + [IMU]]
             for conn, t_ns, raw in reader.messages(connections=conns):
-                self.messages.append((t_ns, conn.topic, deserialize_message(raw, self.TYPES[types[conn.topic]])))
+                msg = deserialize_message(raw, self.TYPES[types[conn.topic]])
+                if compressed and conn.topic in CAMERAS:  # as image_transport publishes it: <topic>/compressed
+                    msg = jpeg(msg)
+                self.messages.append((t_ns, conn.topic, msg))
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.nodes = {t: BackgroundNode(f"inject_{k}", domain) for k, t in enumerate(CAMERAS + [IMU])}
-        self.pubs = {t: n.node.create_publisher(Image if t in CAMERAS else Imu, t, qos) for t, n in self.nodes.items()}
+        self.pubs = {t: n.node.create_publisher(Imu, t, qos) if t == IMU else
+                     n.node.create_publisher(CompressedImage, t + "/compressed", qos) if compressed else
+                     n.node.create_publisher(Image, t, qos) for t, n in self.nodes.items()}
         self.last = {t: next(m for _, topic, m in self.messages if topic == t) for t in self.pubs}
 
     def wait_for_subscribers(self, timeout: float = 30.0) -> None:
@@ -331,9 +379,33 @@ class Injector:
             n.close()
 
 
-def test_faults_are_dropped_counted_reported_and_estimates_resume(bag, replayed, tmp_path):
+SATURATED_XFAIL = pytest.mark.xfail(strict=False, reason=(
+    "known: with every core saturated the node's single-threaded executor takes one message per subscription per "
+    "wait, so the 200 Hz IMU falls seconds behind the images; the IMU samples of the first pass then arrive after "
+    "the second pass's images and read as a second jump back in time. With the IMU in an executor thread of its "
+    "own every hold of the second pass came at the replay's stamp (gravity 0.1 deg off), but the idle run's "
+    "stamp-guard counts of the faults changed: that thread needs the guard's view of the faults kept"))
+
+
+@pytest.mark.parametrize("saturated", [False, pytest.param(True, marks=[pytest.mark.slow, SATURATED_XFAIL])],
+                         ids=["idle", "cpu-saturated"])
+def test_faults_are_dropped_counted_reported_and_estimates_resume(bag, replayed, tmp_path, saturated):
     """A frame set and an IMU sample in 2038, a NaN IMU burst, a camera silent for 5 s, a burst of 500 frame
-    sets, then the bag again from its start (a jump back): the second pass gives the replay's estimates."""
+    sets, then the bag again from its start (a jump back): the second pass gives the replay's estimates; with
+    every core kept busy by another program, every one of its holds, each within three of its published
+    standard deviations of the replay's (the busy estimator drops frames of moves, not the holds)."""
+    from contextlib import nullcontext
+
+    with CpuHog(180.0) if saturated else nullcontext():
+        faults_run(bag, replayed, tmp_path, saturated)
+
+
+def busy_drops(listener: Listener) -> int:
+    """Frame sets the node's worker has dropped so far because the estimator was busy."""
+    return int(listener.last("estimation")[2].get("dropped: worker: frame set dropped while the estimator is busy", 0))
+
+
+def faults_run(bag, replayed, tmp_path, saturated: bool = False):
     path, rig_path, _ = bag
     done = set()
     def faults(t_ns):
@@ -357,13 +429,15 @@ def test_faults_are_dropped_counted_reported_and_estimates_resume(bag, replayed,
     def silent(t, topic):  # camera 3 says nothing for 5 s of the bag (2.5 s at rate 2; the timeout is 1 s)
         return topic == CAMERAS[3] and 2.0e9 <= t < 7.0e9
 
-    with Session(tmp_path, rig_path, "-p", "work_queue_size:=30", "-p", "image_queue_size:=500") as run:
+    with Session(tmp_path, rig_path, "-p", "work_queue_size:=30", "-p", "image_queue_size:=500", "-p",
+                 "imu_queue_size:=5000") as run:  # no input lost before the node takes it: the worker decides
         listener, inject = run.listener, Injector(run.domain, path)
         try:
             inject.wait_for_subscribers()
             inject.play(rate=2.0, faults=faults, skip=silent)  # the first pass, with the faults
+            listener.wait_until_idle(1.0)  # the second pass meets an idle estimator: it must give the replay's
             first_estimates = len(listener.got["gravity"])
-            time.sleep(1.0)
+            busy_before = busy_drops(listener)
             inject.play(rate=2.0)  # the bag again: its stamps jump back
             listener.wait_until_done()
         finally:
@@ -378,9 +452,18 @@ def test_faults_are_dropped_counted_reported_and_estimates_resume(bag, replayed,
     assert log.count("camera /cam3/image_raw stopped publishing") == 1
     assert log.count("camera /cam3/image_raw is publishing again") == 1
     assert log.count("detected jump back in time") == 1 and est[2]["time jumps back"] == "1"
-    # estimates resume: the second pass, clean, gives the replay's estimates
+    # estimates resume: the second pass, clean, gives the replay's estimates (every hold, at its stamp)
     second = listener.got["gravity"][first_estimates:]
     stamps = [stamp_key(msg_stamp(m.header)) for m in second]
     assert stamps[-len(replayed):] == sorted(replayed), (first_estimates, stamps)
-    check_against_replay(listener, replayed, stamps[-len(replayed):])
+    if not saturated and busy_drops(listener) == busy_before:  # the node kept up: the replay's numbers exactly
+        check_against_replay(listener, replayed, stamps[-len(replayed):])
+    else:  # frames of moves dropped while busy (a saturated or slow machine): other links, the same holds,
+        # within the published uncertainty
+        got = listener.gravity_by_stamp()
+        for s in stamps[-len(replayed):]:
+            row = replayed[s]
+            g = np.array([float(row[k]) for k in ("gx", "gy", "gz")])
+            angle = math.degrees(math.acos(min(1.0, float(got[s] @ g) / (np.linalg.norm(got[s]) * np.linalg.norm(g)))))
+            assert angle <= 3.0 * float(row["gravity_sigma_deg"]), (s, angle, row["gravity_sigma_deg"])
     assert "shutting down:" in log and "stamp in the future" in log.split("shutting down:")[-1]

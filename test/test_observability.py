@@ -9,7 +9,7 @@ import pytest
 from nrmpc_ros.cli.main import main
 from nrmpc_ros.core.bundle import refine_two_view
 from nrmpc_ros.core.metrics import pose_errors
-from nrmpc_ros.experiments.crlb import problem_bound, set_bar_ei
+from nrmpc_ros.experiments.crlb import problem_bound
 from nrmpc_ros.experiments.observability import (
     ei_limit,
     first_holds,
@@ -50,7 +50,7 @@ def test_bound_scales_with_noise_and_compliance():
     for kind in ("rotation", "translation", "gravity"):  # the bound is linear in the noise
         assert b2.rms(kind) == pytest.approx(2 * b1.rms(kind), rel=1e-6)
     # stiffer bars: smaller deflections, gravity bound grows ~ linearly with EI once EI is large
-    p100 = make_problem(sc, 3, rig=set_bar_ei(rig, 100.0))
+    p100 = make_problem(sc, 3, rig=rig.with_bar_ei(100.0))
     assert problem_bound(p100, 1e-4).rms("gravity") / b1.rms("gravity") == pytest.approx(10.0, rel=0.05)
     rigid = make_problem(sc, 3, rig=make_rig(RigSpec(EI=math.inf)))
     b = problem_bound(rigid, 1e-4)

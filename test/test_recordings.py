@@ -9,9 +9,13 @@ from recordings import RIGS, STYLES, recording
 
 from nrmpc_ros.bag.reader import BagReader
 from nrmpc_ros.core import load_rig
-from nrmpc_ros.frontend.evaluation import evaluate, read_reference, row_from_estimate
+from nrmpc_ros.frontend.estimates_csv import row_from_estimate
+from nrmpc_ros.frontend.evaluation import evaluate
 from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig
+from nrmpc_ros.frontend.reference import read_reference
 from nrmpc_ros.frontend.replay import replay_bag, resolve_imu_topic
+
+pytestmark = pytest.mark.slow  # every test here renders bags
 
 
 def replay(path, rig_file, method="auto"):
@@ -34,13 +38,16 @@ def test_every_hold_gets_an_estimate_inside_it(recordings_dir, rig_name, style):
     assert ev.holds_with_estimate == holds - 1, pipe.stats.dropped
     assert ev.outside_holds == 0
     assert pipe.stats.holds == holds
-    for e in ests:  # an estimate's stamp is a frame of the hold's settled part, after the bars settled
+    for e in ests:  # an estimate's stamp is a frame of the hold's frames used; what may still ring is its noise
         assert e.hold.settled_start <= e.stamp <= e.hold.settled_end
-        assert e.hold.settle_s >= pipe.config.holds.settle_periods * pipe.bar_period_s - 1e-9 or e.hold.snapshot
+        assert e.noise_scale >= 1.0 and e.hold.ringing_px >= 0.0
+        assert (e.noise_scale > 1.0) == (e.hold.ringing_px > 0.0) or e.hold.ringing_px < 1e-3
     with_imu = STYLES[style][1].get("imu", True)
     assert {e.method for e in ests} == ({"4pt-bending"} if with_imu else {"6pt-bending"})
-    g = ev.stats("gravity_vs_gt_deg")["median"]
-    assert g < (1.0 if with_imu else 15.0)
+    if not with_imu and pipe.sequence.parallel_bars:  # vision only on one bar: a young sequence has no gravity
+        assert all(e.gravity is None for e in ests)
+    else:
+        assert ev.stats("gravity_vs_gt_deg")["median"] < (1.0 if with_imu else 15.0)
     assert ev.stats("rotation_deg")["median"] < 0.5
 
 

@@ -10,7 +10,8 @@ from recordings import recording
 from nrmpc_ros.bag.reader import BagReader
 from nrmpc_ros.cli.main import main
 from nrmpc_ros.core.so3 import angle_between, rotation_angle
-from nrmpc_ros.frontend.evaluation import CSV_EXTRA, CSV_HEADER, read_csv, read_reference
+from nrmpc_ros.frontend.estimates_csv import CSV_EXTRA, CSV_HEADER, read_csv
+from nrmpc_ros.frontend.reference import read_reference
 
 
 @pytest.fixture(scope="module")
@@ -32,6 +33,7 @@ def replays(bag, tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_csv_format(replays):
     csv_path, _ = replays["auto"]
     header = csv_path.read_text().splitlines()[0].split(",")
@@ -47,6 +49,7 @@ def test_csv_format(replays):
     assert {r.method for r in vision} == {"6pt-bending"}
 
 
+@pytest.mark.slow
 def test_conventions_against_ground_truth_directly(bag, replays):
     """(R, t) maps the current hold into the reference hold, gravity is in the current body frame, and the pose
     in the origin chains the relative poses (docs/CONVENTIONS.md, "Frames")."""
@@ -69,6 +72,7 @@ def test_conventions_against_ground_truth_directly(bag, replays):
         assert math.degrees(rotation_angle((Ro.T @ R2).T @ R0)) < 0.5
 
 
+@pytest.mark.slow
 def test_batch_solution(replays):
     """The batch CSV holds every hold after the first, relative to the one before, from one joint solve."""
     rows, batch = read_csv(replays["auto"][0]), read_csv(replays["auto"][1])
@@ -77,6 +81,7 @@ def test_batch_solution(replays):
         assert math.degrees(angle_between(a.gravity, b.gravity)) < 1.0
 
 
+@pytest.mark.slow
 def test_replay_summary_and_compare(bag, replays, tmp_path, capsys):
     path, rig_file = bag
     assert main(["compare", str(replays["auto"][0]), "--bag", str(path), "--rig", str(rig_file), "--plot",
@@ -88,6 +93,7 @@ def test_replay_summary_and_compare(bag, replays, tmp_path, capsys):
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
 
 
+@pytest.mark.slow
 def test_missing_topic_and_wrong_size(bag, tmp_path, capsys):
     path, rig_file = bag
     rig = yaml.safe_load(rig_file.read_text())
@@ -108,7 +114,7 @@ def test_missing_topic_and_wrong_size(bag, tmp_path, capsys):
 
 def test_replay_creates_the_output_folder(tmp_path):
     """The README's main command writes to out/ in a fresh clone, where out/ does not exist yet."""
-    from nrmpc_ros.frontend.evaluation import CsvWriter
+    from nrmpc_ros.frontend.estimates_csv import CsvWriter
 
     out = tmp_path / "new" / "dir" / "x.csv"
     w = CsvWriter(out)

@@ -33,6 +33,7 @@ def clean(tmp_path_factory):
     return stream_bag(tmp_path_factory)
 
 
+@pytest.mark.slow
 def test_a_bag_played_twice_gives_its_estimates_on_both_passes(clean, tmp_path, capsys):
     bag, rig, _ = clean
     once, _ = replay(bag, rig, tmp_path / "once.csv", capsys)
@@ -46,6 +47,7 @@ def test_a_bag_played_twice_gives_its_estimates_on_both_passes(clean, tmp_path, 
     assert "time jumps back: 1" in printed and "detected jump back in time" in printed
 
 
+@pytest.mark.slow
 def test_stamps_in_2038_and_nan_imu_samples_are_dropped_counted_and_change_nothing(clean, tmp_path, capsys):
     bag, rig, _ = clean
     injected = {"future": 0, "nan": 0}

@@ -90,10 +90,6 @@ def test_unreadable_and_invalid_yaml(tmp_path):
 
 # --- strict types, ROS names and topics, physical bounds -------------------------
 
-def _cam(i):
-    return lambda d: d["cameras"][i]
-
-
 BAD_VALUES = [
     # YAML booleans and strings are not numbers
     (lambda d: d["cameras"][0]["bar"].update(mass=True), "cameras[0].bar.mass", "got a boolean"),
@@ -229,3 +225,29 @@ def test_huge_rig_file_refused_before_reading(tmp_path):
         fh.truncate(50 * 1024 * 1024)  # sparse: instant, and reading it would show as time
     with pytest.raises(InputError, match=r"rig file is 50 MiB, more than the 1 MiB"):
         load_rig(path)
+
+
+def test_bar_damping_is_read_checked_and_written(tmp_path):
+    """docs/CONVENTIONS.md (The rig in motion): ``bar.damping`` is zeta_i in (0, 1), optional."""
+    d = _mutate(lambda d: d["cameras"][0]["bar"].update(damping=0.03))
+    rig = load_rig(write(tmp_path, d))
+    assert rig.cameras[0].damping == 0.03 and rig.cameras[1].damping is None
+    save_rig(rig, tmp_path / "out.yaml")
+    assert load_rig(tmp_path / "out.yaml").cameras[0].damping == 0.03
+    bad = _mutate(lambda d: d["cameras"][0]["bar"].update(damping=1.5))
+    with pytest.raises(InputError, match=r"cameras\[0\].bar.damping.*\(0, 1\)"):
+        load_rig(write(tmp_path, bad, "bad.yaml"))
+
+
+def test_with_bar_ei_sets_every_bar_with_a_tip_mass():
+    from dataclasses import replace
+
+    from nrmpc_ros.sim.synthetic import RigSpec, make_rig
+
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=0.5))
+    rig = replace(rig, cameras=(replace(rig.cameras[0], mass=0.0, EI=math.inf),) + rig.cameras[1:])
+    stiffer = rig.with_bar_ei(2.0)
+    assert [c.EI for c in stiffer.cameras] == [math.inf, 2.0, 2.0]
+    assert [c.mass for c in stiffer.cameras] == [c.mass for c in rig.cameras]
+    np.testing.assert_allclose(stiffer.compliance[1:], rig.compliance[1:] / 4.0)
+    assert not rig.with_bar_ei(math.inf).is_flexible

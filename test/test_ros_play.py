@@ -68,6 +68,7 @@ def test_bad_bags_are_one_clear_error_each(small_bag, tmp_path, capsys):
     assert code == 2 and "topic(s) /nope not in the bag" in err
 
 
+@pytest.mark.slow
 def test_a_good_bag_plays(small_bag, capsys, monkeypatch):
     monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(101, 200)))
     code, err = play([small_bag, "--rate", "100"], capsys)

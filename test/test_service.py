@@ -5,19 +5,21 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from rendered_bags import rig_file
 from test_feeder import TOPICS, image, imu
 
 from nrmpc_ros.core import load_rig
+from nrmpc_ros.frontend.drops import Drop
 from nrmpc_ros.frontend.feeder import FeederConfig, Work
 from nrmpc_ros.frontend.node_config import (
     NodeConfig,
 )
 from nrmpc_ros.frontend.pipeline import FrameSet, PipelineConfig
 from nrmpc_ros.frontend.runner import PipelineRunner
-from nrmpc_ros.frontend.service import OK, WARN, EstimatorService, WorkQueue
+from nrmpc_ros.frontend.service import ERROR, OK, WARN, EstimatorService, WorkQueue, image_change
 from nrmpc_ros.frontend.sync import StampSynchronizer
 
 
@@ -44,9 +46,59 @@ def service(rig, clock=None, imu_topic="/imu/data", **cfg):
 # --------------------------------------------------------------------------- the work queue and the service
 def test_the_work_queue_refuses_frame_sets_when_full_but_not_imu_samples():
     q = WorkQueue(max_frames=2)
-    assert [q.put(Work("frames", k)) for k in range(3)] == [True, True, False]
-    assert q.put(Work("imu", 1.0)) and q.put(Work("flush")) and q.frames() == 2
+    dropped = [q.put(Work("frames", k)) for k in range(3)]
+    assert dropped[:2] == [None, None] and dropped[2].stamp == 1, "equals: the first and the newest are kept"
+    assert q.put(Work("imu", 1.0)) is None and q.put(Work("flush")) is None and q.frames() == 2
     assert q.get(0.01).stamp == 0 and q.frames() == 1
+
+
+def test_a_full_work_queue_drops_the_frame_sets_of_moves_and_keeps_those_of_holds():
+    """Frame sets ranked by how much their images changed, a worker at half the input rate: the move is thinned
+    first, then the holds evenly, each keeping its first and last frames (its span)."""
+    q = WorkQueue(max_frames=4)
+    change = {k: (1.5 if k < 8 or k >= 16 else 30.0) for k in range(40)}  # hold 0-7, move 8-15, hold 16-39
+    dropped, kept = [], []
+    for k in range(40):
+        d = q.put(Work("frames", 0.1 * k), change[k])
+        dropped += [] if d is None else [round(d.stamp * 10)]
+        if k % 2:
+            kept.append(round(q.get(0.0).stamp * 10))
+    while (w := q.get(0.0)) is not None:
+        kept.append(round(w.stamp * 10))
+    assert sorted(dropped + kept) == list(range(40))
+    moves = [k for k in dropped if 8 <= k < 16]
+    assert moves and min(d for d in dropped if d >= 16) > max(moves), "holds lose frames only once no move waits"
+    assert {0, 7} <= set(kept) and len([k for k in kept if k < 8]) >= 6, "the first hold keeps its span"
+    assert 16 in kept and 39 in kept and len([k for k in kept if k >= 16]) >= 12, "the second keeps its span"
+
+
+def test_a_full_work_queue_keeps_both_ends_of_a_time_jump_back():
+    """A worker behind when the stamps jump back: the last set before the jump and the first after it end their
+    sequences' spans and are kept (the gap across the jump is no gap in time), with or without a restart item."""
+    for restart in (True, False):
+        q = WorkQueue(max_frames=4)
+        dropped = []
+        for k in range(6):
+            dropped.append(q.put(Work("frames", 8.0 + 0.1 * k), 1.5))
+        if restart:
+            assert q.put(Work("restart", data="time jumped back")) is None
+        for k in range(6):
+            dropped.append(q.put(Work("frames", 0.1 * k), 1.5))
+        dropped = [round(d.stamp * 10) for d in dropped if d is not None]
+        kept = []
+        while (w := q.get(0.0)) is not None:
+            kept += [round(w.stamp * 10)] if w.kind == "frames" else []
+        assert {85, 0, 5} <= set(kept), (restart, kept, dropped)
+
+
+def test_image_change_ranks_a_moved_image_above_a_still_one():
+    rng = np.random.default_rng(0)
+    scene = cv2.GaussianBlur(rng.integers(0, 255, (240, 320), dtype=np.uint8), (0, 0), 3)
+    still = np.clip(scene + rng.normal(0, 2, scene.shape), 0, 255).astype(np.uint8)
+    moved = np.roll(scene, 5, axis=1)
+    change0, small = image_change([None], [scene])
+    assert change0 == 0.0 and small[0].shape == (30, 40)
+    assert image_change(small, [still])[0] < image_change(small, [moved])[0]
 
 
 def feed_sets(s, stamps, now=None):
@@ -58,7 +110,7 @@ def feed_sets(s, stamps, now=None):
 def test_sets_arriving_while_the_estimator_is_busy_are_dropped_counted_and_logged(rig):
     s, _, logs = service(rig, imu_topic=None, work_queue_size=2)
     feed_sets(s, [100.0 + 0.1 * k for k in range(8)])  # no IMU: sets go to the queue at once
-    busy = s.drops.counts()[("worker", "frame set dropped while the estimator is busy")]
+    busy = s.drops.counts()[("worker", Drop.BUSY_FRAME_SET)]
     assert busy >= 4 and s.queue.frames() == 2
     assert sum("dropped while the estimator is busy" in line for _, line in logs) == 1, "logged once"
     while s.queue.frames():
@@ -128,7 +180,7 @@ def test_the_runner_keeps_statistics_and_sequence_numbers_over_restarts(rig):
     runner.run(Work("frames", 0.5, (FrameSet(0.5, imgs), 0.0)))  # an older stamp: fine in the new pipeline
     assert runner.stats.frames == 4
     runner.run(Work("frames", 0.6, (FrameSet(0.6, imgs[:2]), 0.0)))  # the pipeline refuses it: counted
-    assert runner.drops.by_reason()["bad frame set"] == 1
+    assert runner.drops.by_reason()[Drop.BAD_FRAME_SET] == 1
 
 
 def test_frame_grouping_reports_which_messages_it_dropped():
@@ -138,8 +190,161 @@ def test_frame_grouping_reports_which_messages_it_dropped():
         sync.add(1, k * 0.1, None)
     sync.take_dropped()
     sync.add(1, 0.85, None)
-    assert sync.take_dropped() == [(1, 0.85, "late")] and sync.take_dropped() == []
+    assert sync.take_dropped() == [(1, 0.85, Drop.FRAME_LATE)] and sync.take_dropped() == []
     assert sync.oldest == math.inf  # every set went out
     sync.add(0, 1.0, None)
     assert sync.oldest == pytest.approx(1.0)
     assert FeederConfig().imu_wait_s > FeederConfig().imu_lead_s
+
+
+def test_with_an_imu_every_frame_set_gives_the_cameras_poses_and_camera_poses_follow_their_rate(rig):
+    """docs/CONVENTIONS.md (The rig in motion): TF of every camera at every frame set, ~/camera_poses at most
+    camera_poses_rate_hz times per second of frame stamps."""
+    from nrmpc_ros.frontend.outputs import FrameNames, frame_pose_fields
+
+    poses = []
+    cfg = NodeConfig(rig_file=rig.source, camera_poses_rate_hz=4.0, work_queue_size=20)
+    s = EstimatorService(rig, cfg, PipelineConfig(), TOPICS, "/imu/data", lambda out: None,
+                         lambda level, line: None, Clock(), publish_poses=poses.append)
+    for k in range(300):
+        s.on_imu(imu(100.0 + 0.005 * k), None)
+    feed_sets(s, [100.0 + 0.1 * k for k in range(12)])
+    while s.work_once():
+        pass
+    while len(s.queue):
+        s.work_once()
+    assert len(poses) >= 10
+    assert all(p.poses.cameras.tolist() == [0, 1, 2, 3] for p in poses)
+    due = [float(p.poses.stamps[0]) for p in poses if p.camera_poses]
+    assert len(due) >= 2 and np.all(np.diff(due) >= 0.25 - 1e-9), "4 Hz by the frame stamps"
+    names = FrameNames("base_link", "origin", tuple(f"{c.name}_optical" for c in rig.cameras))
+    msgs = frame_pose_fields(poses[0], names, lambda t: (int(t), int(round((t % 1) * 1e9))))
+    tf = msgs["tf"]["transforms"]
+    assert [m["child_frame_id"] for m in tf] == list(names.cameras) and tf[0]["header"]["frame_id"] == "base_link"
+    assert ("cams" in msgs) == poses[0].camera_poses
+
+
+def test_stop_estimates_the_open_hold_only_when_it_fits_in_the_budget(rig):
+    """Shutdown: the frame sets waiting are dropped and counted; the open hold is estimated when the longest hold
+    estimate measured so far fits in the budget, and said so either way."""
+    for measured_ms, budget_s, said in ((1e4, 0.5, "open hold not estimated: would not fit in the 0.5 s"),
+                                        (None, 30.0, "open hold estimated at shutdown")):
+        s, _, _ = service(rig, imu_topic=None)
+        feed_sets(s, [100.0 + 0.1 * k for k in range(4)])
+        while s.queue.frames():
+            s.work_once()
+        assert s.runner.hold_open
+        feed_sets(s, [100.4, 100.5])  # waiting when the stop comes
+        if measured_ms is not None:
+            s.hold_ms.append(measured_ms)
+        s.start()
+        assert s.stop(budget_s).startswith(said)
+        assert s.runner.hold_open == (measured_ms is not None)
+        assert "frame set not processed at shutdown" in s.summary() or s.counts["processed frame sets"] == 6
+
+
+# --------------------------------------------------------------------------- the two workers on a rendered bag
+def _feed_bag(s, path, topics, imu_topic) -> None:
+    """Every message of the bag to the service, as the node's executor would hand them over (bag time as now)."""
+    from nrmpc_ros.bag.reader import BagReader
+
+    index = {t: i for i, t in enumerate(topics)}
+    with BagReader(path) as bag:
+        for topic, t_ns, msg in bag.messages(list(topics) + [imu_topic]):
+            if topic == imu_topic:
+                s.on_imu(msg, t_ns * 1e-9)
+            else:
+                s.on_image(index[topic], msg, t_ns * 1e-9)
+    s.feeder.end()
+
+
+def _replayed(path, rig, imu_topic) -> list:
+    from nrmpc_ros.bag.reader import BagReader
+    from nrmpc_ros.frontend.replay import replay_bag
+
+    with BagReader(path) as bag:
+        return [e for batch in replay_bag(bag, rig, PipelineRunner(rig, PipelineConfig()), imu_topic) for e in batch]
+
+
+def _same_estimates(got: list, want: list) -> None:
+    assert len(got) == len(want) >= 3
+    for a, b in zip(got, want):
+        assert (a.stamp, a.ref_stamp, a.sequence, a.hold_index) == (b.stamp, b.ref_stamp, b.sequence, b.hold_index)
+        assert np.array_equal(a.gravity, b.gravity) and np.array_equal(a.R_origin, b.R_origin)
+
+
+@pytest.mark.slow
+def test_frame_intake_goes_on_while_holds_wait_and_both_workers_give_the_replays_estimates(tmp_path_factory):
+    """The intake worker takes every frame set while the measured holds wait for the estimation worker (here: it
+    is not run until the input ended), and the estimates it then publishes are the replay's, bit for bit, over
+    a bag played twice (its stamps jump back: a restart between the passes)."""
+    from rendered_bags import CAMERAS, IMU, played_twice, stream_bag
+
+    path, rig_path, _ = stream_bag(tmp_path_factory)
+    twice = played_twice(path, tmp_path_factory.mktemp("twice") / "twice")
+    rig = load_rig(rig_path)
+    out = []
+    s = EstimatorService(rig, NodeConfig(rig_file=str(rig_path), work_queue_size=100000), PipelineConfig(), CAMERAS,
+                         IMU, out.append, lambda level, line: None, Clock())
+    _feed_bag(s, twice, CAMERAS, IMU)
+    sets = s.queue.frames()
+    while s.work_once():
+        pass
+    while len(s.queue):
+        s.work_once()
+    assert s.counts["processed frame sets"] == sets and not out, "no estimate ran: intake did not wait for one"
+    est = s.diagnostics()[2].values
+    assert est["holds waiting"] == s.holds.holds() >= 6 and est["frame sets waiting"] == 0
+    assert est["work waiting"] == len(s.holds) > 0 and s.runner.restarts == 1
+    while s.estimate_once() is not None:
+        pass
+    assert s.holds_waiting() == 0 and s.work_waiting() == 0
+    want = _replayed(twice, rig, IMU)
+    _same_estimates([o.estimate for o in out], want)
+    assert s.stats.estimates == len(want) and s.counts["estimates"] == len(want)
+    assert {e.sequence for e in want} == {0, 1}, "the restart numbers the second pass's sequence on"
+
+
+@pytest.mark.slow
+def test_the_two_worker_threads_give_the_replays_estimates_and_report_both_latencies(tmp_path_factory):
+    """Both workers running while the bag is handed over as fast as it can be: nothing is dropped (a queue large
+    enough), the estimates are the replay's, and the diagnostics give both latencies."""
+    import time
+
+    from rendered_bags import CAMERAS, IMU, stream_bag
+
+    path, rig_path, _ = stream_bag(tmp_path_factory)
+    rig = load_rig(rig_path)
+    out = []
+    s = EstimatorService(rig, NodeConfig(rig_file=str(rig_path), work_queue_size=100000), PipelineConfig(), CAMERAS,
+                         IMU, out.append, lambda level, line: None)
+    s.start()
+    try:
+        _feed_bag(s, path, CAMERAS, IMU)
+        deadline = time.monotonic() + 300.0
+        while s.work_waiting() and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        said = s.stop(5.0)
+    assert said == "no open hold"
+    _same_estimates([o.estimate for o in out], _replayed(path, rig, IMU))
+    est = s.diagnostics()[2].values
+    assert float(est["frame set latency p95 (ms)"]) > 0 and float(est["hold latency p95 (ms)"]) > 0
+    assert est["holds waiting"] == 0 and est["work waiting"] == 0
+
+
+def test_a_failing_hold_estimate_is_counted_and_the_estimation_worker_goes_on(rig):
+    """A bug in one hold's estimation (here: a measured hold without its measurement) is dropped as "estimation
+    failed", logged as an error and reported; the next item still runs."""
+    from nrmpc_ros.frontend.estimation import MeasuredHold, SequenceReset
+    from nrmpc_ros.frontend.runner import StageWork
+
+    s, _, logs = service(rig)
+    p = s.runner.pipeline
+    s.holds.put(StageWork(p, MeasuredHold(None, None, None, None)), 0.0)
+    s.holds.put(StageWork(p, SequenceReset()), 0.0)
+    assert s.estimate_once() == [] and s.holds_waiting() == 0 and len(s.holds) == 1, "a reset waits, no hold"
+    assert s.estimate_once() == [] and len(s.holds) == 0
+    assert s.drops.by_reason()[Drop.ESTIMATION_FAILED] == 1
+    assert any(level == "error" and "estimation failed" in line for level, line in logs)
+    assert s.diagnostics()[2].level == ERROR

@@ -5,7 +5,8 @@ import math
 
 import pytest
 
-from nrmpc_ros.frontend.stamps import StampGuard
+from nrmpc_ros.frontend.drops import Drop
+from nrmpc_ros.frontend.stamps import JumpPolicy, StampGuard
 
 IMU, CAM0, CAM1 = "imu", 0, 1
 
@@ -33,7 +34,7 @@ def test_a_stamp_far_ahead_of_the_clock_is_dropped_not_adopted():
     accepted, drops, _ = run(g, stream(100.0, 5, 0.1), now=100.5)
     assert len(accepted) == 15 and not drops
     v = g.check(CAM0, 2145916800.0, now=100.6)  # 2038
-    assert not v.accept and v.drops[0][0] == "stamp in the future" and "ahead of the clock" in v.drops[0][1]
+    assert not v.accept and v.drops[0][0] is Drop.STAMP_IN_FUTURE and "ahead of the clock" in v.drops[0][1]
     assert g.newest() == pytest.approx(100.4)  # the present did not move
     accepted, drops, _ = run(g, stream(100.5, 3, 0.1), now=100.8)
     assert len(accepted) == 9 and not drops
@@ -43,11 +44,11 @@ def test_a_stamp_far_ahead_of_the_clock_is_dropped_not_adopted():
 
 def test_non_finite_stamps_are_dropped():
     v = StampGuard().check(CAM0, math.nan)
-    assert not v.accept and v.drops[0][0] == "stamp not finite"
+    assert not v.accept and v.drops[0][0] is Drop.STAMP_NOT_FINITE
 
 
 def test_a_bag_played_again_is_one_jump_back_confirmed_by_a_second_input():
-    g = StampGuard(jump_back_s=1.0)
+    g = StampGuard(jumps=JumpPolicy(jump_back_s=1.0))
     run(g, stream(100.0, 30, 0.1))
     accepted, drops, jumps = run(g, stream(100.0, 3, 0.1))  # the same stamps again
     assert len(jumps) == 1 and not drops
@@ -60,7 +61,7 @@ def test_a_bag_played_again_is_one_jump_back_confirmed_by_a_second_input():
 
 
 def test_one_input_alone_confirms_with_several_messages():
-    g = StampGuard(jump_back_s=1.0, confirm=3)
+    g = StampGuard(jumps=JumpPolicy(jump_back_s=1.0, confirm=3))
     run(g, [(CAM0, 100.0 + 0.1 * k) for k in range(30)])
     _, _, jumps = run(g, [(CAM0, 50.0), (CAM0, 50.1)])
     assert not jumps
@@ -69,26 +70,39 @@ def test_one_input_alone_confirms_with_several_messages():
 
 
 def test_a_single_stale_stamp_is_a_glitch_and_dropped():
-    g = StampGuard(jump_back_s=1.0)
+    g = StampGuard(jumps=JumpPolicy(jump_back_s=1.0))
     run(g, stream(100.0, 30, 0.1))
     accepted, drops, jumps = run(g, [(CAM0, 95.0), (IMU, 103.0), (CAM0, 103.0), (CAM1, 103.0)])
-    assert not jumps and drops == ["stamp far in the past"]
+    assert not jumps and drops == [Drop.STAMP_FAR_PAST]
     assert accepted == [(IMU, 103.0), (CAM0, 103.0), (CAM1, 103.0)]
 
 
 def test_messages_from_before_the_jump_are_dropped_until_their_input_sends_the_new_time():
-    g = StampGuard(jump_back_s=1.0)
+    g = StampGuard(jumps=JumpPolicy(jump_back_s=1.0))
     run(g, stream(100.0, 30, 0.1))
     _, _, jumps = run(g, [(IMU, 100.0), (CAM0, 100.0)])
     assert jumps
     accepted, drops, _ = run(g, [(CAM1, 102.95), (IMU, 100.05), (CAM1, 100.0), (CAM1, 100.1)])
-    assert drops == ["from before a time jump back"]
+    assert drops == [Drop.BEFORE_JUMP_BACK]
     assert accepted == [(IMU, 100.05), (CAM1, 100.0), (CAM1, 100.1)]
+
+
+def test_messages_of_an_input_delivered_late_are_dropped_as_from_before_the_jump():
+    """The IMU's messages arrive 2 s late (a backlog) when the cameras jump back: its messages up to the cameras'
+    old time are from before the jump too, not a second jump."""
+    g = StampGuard(jumps=JumpPolicy(jump_back_s=1.0))
+    cameras = [(c, 100.0 + 0.1 * k) for k in range(30) for c in (CAM0, CAM1)]
+    run(g, cameras + [(IMU, 100.0 + 0.1 * k) for k in range(10)])
+    _, _, jumps = run(g, [(CAM0, 50.0), (CAM1, 50.0), (CAM0, 50.1), (CAM1, 50.1)])
+    assert len(jumps) == 1
+    accepted, drops, jumps = run(g, [(IMU, 101.0 + 0.1 * k) for k in range(20)] + [(IMU, 50.0), (IMU, 50.1)])
+    assert not jumps and drops == [Drop.BEFORE_JUMP_BACK] * 20
+    assert accepted == [(IMU, 50.0), (IMU, 50.1)]
 
 
 def test_an_input_that_fell_behind_rejoins_the_others():
     """A camera whose one bad stamp ran ahead of the others comes back to their time without a jump."""
-    g = StampGuard(jump_back_s=1.0)
+    g = StampGuard(jumps=JumpPolicy(jump_back_s=1.0))
     run(g, stream(100.0, 10, 0.1))
     assert g.check(CAM1, 103.0).accept  # ahead of the others, but not of the clock: taken
     accepted, drops, jumps = run(g, [(CAM1, 101.0), (IMU, 101.0), (CAM1, 101.1)])

@@ -5,7 +5,9 @@ import re
 import numpy as np
 import pytest
 
-from nrmpc_ros.frontend.sync import StampSynchronizer
+from nrmpc_ros.frontend.drops import Drop
+from nrmpc_ros.frontend.stamps import JumpPolicy
+from nrmpc_ros.frontend.sync import StampSynchronizer, SyncConfig
 
 
 def feed(sync, msgs):
@@ -101,7 +103,7 @@ def test_jitter_8ms_with_drops(rng, cams, rate, drop, splits):
     assert sum(sync.dropped.values()) == 0
     assert sync.periods == pytest.approx([1.0 / rate] * cams, rel=0.02)
     assert sync.tolerance == pytest.approx(0.45 / rate, rel=0.02)
-    fixed = StampSynchronizer(cams, 0.005, min_streams=cams)  # a fixed +-5 ms: complete sets only
+    fixed = StampSynchronizer(cams, 0.005, config=SyncConfig(min_streams=cams))  # fixed +-5 ms: complete sets
     kept = len(run(fixed, msgs))
     assert kept < (0.75 if cams == 4 else 0.95) * sync.complete
 
@@ -146,16 +148,16 @@ def test_one_silent_camera(rng):
     assert sync.partial == {2: 100} and sync.complete == 0
     assert sum(sync.dropped.values()) == 0
     assert "100 partial; missing: cam2 100" in sync.describe()
-    strict = StampSynchronizer(4, min_streams=4)  # complete sets only: everything is unmatched
-    assert run(strict, msgs) == [] and strict.dropped["unmatched"] == 300
+    strict = StampSynchronizer(4, config=SyncConfig(min_streams=4))  # complete sets only: everything is unmatched
+    assert run(strict, msgs) == [] and strict.dropped[Drop.FRAME_UNMATCHED] == 300
 
 
 def test_stream_stops_queues_stay_bounded_and_recovers():
-    sync = StampSynchronizer(3, 0.001, queue_size=4, min_streams=3)
+    sync = StampSynchronizer(3, 0.001, queue_size=4, config=SyncConfig(min_streams=3))
     sets = feed(sync, [(s, 0.1 * k) for k in range(50) for s in (0, 1)])  # stream 2 silent
     assert sets == []
     assert max(sync.queued) <= 4
-    assert sync.dropped["unmatched"] + sync.dropped["queue overflow"] + sum(sync.queued) == 100
+    assert sync.dropped[Drop.FRAME_UNMATCHED] + sync.dropped[Drop.FRAME_QUEUE_OVERFLOW] + sum(sync.queued) == 100
     sets = feed(sync, [(s, 5.0 + 0.1 * k) for k in range(3) for s in (0, 1, 2)])  # it comes back
     assert len(sets) == 3 and all(s.complete for s in sets)
 
@@ -183,7 +185,7 @@ def test_a_single_stamp_far_back_is_dropped():
     feed(sync, [(s, 10.0 + 0.1 * k) for k in range(10) for s in (0, 1)])
     assert feed(sync, [(0, 3.0), (1, 11.0)]) == []  # a glitch on stream 0, held apart
     sets = feed(sync, [(0, 11.0), (0, 11.1), (1, 11.1)])
-    assert sync.dropped["stamp far in the past"] == 1 and not sync.events
+    assert sync.dropped[Drop.FRAME_FAR_PAST] == 1 and not sync.events
     assert [s.stamps for s in sets] == [[11.0, 11.0], [11.1, 11.1]]
 
 
@@ -194,10 +196,20 @@ def test_a_stamp_far_in_the_future_is_dropped(rng):
     msgs[k_bad] = (s, 2.15e9, item)  # year 2038
     sync = StampSynchronizer(4)
     sets = run(sync, msgs)
-    assert sync.dropped == {"stamp far in the future": 1} and not sync.events
+    assert sync.dropped == {Drop.FRAME_FAR_FUTURE: 1} and not sync.events
     assert len(sets) == 60
     assert [k for k, x in enumerate(sets) if not x.complete] == [30] and sets[30].missing == [1]
     assert sync.tolerance == pytest.approx(0.045, rel=0.05)
+
+
+def test_one_stream_confirms_a_jump_after_the_policys_count():
+    for confirm in (1, 3):
+        sync = StampSynchronizer(2, jumps=JumpPolicy(confirm=confirm))
+        feed(sync, [(s, 10.0 + 0.1 * k) for k in range(10) for s in (0, 1)])
+        feed(sync, [(0, 500.0 + 0.1 * k) for k in range(confirm - 1)])
+        assert not sync.events, "held until the policy's count"
+        feed(sync, [(0, 500.0 + 0.1 * (confirm - 1))])
+        assert sync.events["time jump ahead"] == 1 and sum(sync.dropped.values()) == 0
 
 
 def test_a_confirmed_jump_ahead_is_adopted():
@@ -223,7 +235,7 @@ def test_describe_reports_tolerance_periods_and_drops(rng):
     assert tol and float(tol.group(1)) == pytest.approx(45.0, abs=0.5)
     periods = re.search(r"periods \(ms\): left ([0-9.]+), right ([0-9.]+)", line)
     assert periods and [float(p) for p in periods.groups()] == pytest.approx([100.0, 100.0], abs=1.0)
-    capped = StampSynchronizer(2, max_tolerance_s=0.02)
+    capped = StampSynchronizer(2, config=SyncConfig(max_tolerance_s=0.02))
     run(capped, msgs)
     assert capped.tolerance == 0.02
     assert "tolerance +-15.0 ms (start value)" in StampSynchronizer(3).describe()
@@ -232,28 +244,28 @@ def test_describe_reports_tolerance_periods_and_drops(rng):
 def test_multi_rate_streams_take_the_nearest_frame(rng):
     slow = 0.1 * np.arange(30) + rng.uniform(-0.003, 0.003, 30)
     fast = np.arange(90) / 30.0 + rng.uniform(-0.003, 0.003, 90)
-    sync = StampSynchronizer(2, min_streams=2)
+    sync = StampSynchronizer(2, config=SyncConfig(min_streams=2))
     sets = run(sync, interleave(rng, [slow, fast]))
     assert len(sets) == 30
     for x in sets:
         assert x.stamps[1] == fast[np.argmin(np.abs(fast - x.stamps[0]))]
-    assert sync.dropped["unmatched"] == 60
+    assert sync.dropped[Drop.FRAME_UNMATCHED] == 60
 
 
 def test_late_and_duplicate_messages_are_dropped():
     sync = StampSynchronizer(2, 0.001, 5)
     feed(sync, [(0, 1.0), (1, 1.0), (0, 2.0), (1, 2.0)])
     assert sync.emitted == 2
-    assert feed(sync, [(0, 1.5)]) == [] and sync.dropped["late"] == 1
-    assert feed(sync, [(1, 2.0)]) == [] and sync.dropped["late"] == 2
-    assert feed(sync, [(0, 3.0), (0, 3.0)]) == [] and sync.dropped["duplicate"] == 1
+    assert feed(sync, [(0, 1.5)]) == [] and sync.dropped[Drop.FRAME_LATE] == 1
+    assert feed(sync, [(1, 2.0)]) == [] and sync.dropped[Drop.FRAME_LATE] == 2
+    assert feed(sync, [(0, 3.0), (0, 3.0)]) == [] and sync.dropped[Drop.FRAME_DUPLICATE] == 1
 
 
 def test_picks_closest_of_a_faster_stream():
-    sync = StampSynchronizer(2, 0.02, 10, min_streams=2)
+    sync = StampSynchronizer(2, 0.02, 10, config=SyncConfig(min_streams=2))
     sets = feed(sync, [(1, 0.990), (1, 0.999), (1, 1.008), (0, 1.0)])
     assert len(sets) == 1 and sets[0].stamps == [1.0, 0.999]
-    assert sync.dropped["unmatched"] == 1
+    assert sync.dropped[Drop.FRAME_UNMATCHED] == 1
 
 
 def test_bad_arguments():
@@ -264,8 +276,8 @@ def test_bad_arguments():
     with pytest.raises(ValueError):
         StampSynchronizer(2, 0.01, 5).add(2, 0.0, None)
     with pytest.raises(ValueError, match="min_streams"):
-        StampSynchronizer(2, min_streams=3)
+        StampSynchronizer(2, config=SyncConfig(min_streams=3))
     with pytest.raises(ValueError, match="period_fraction"):
-        StampSynchronizer(2, period_fraction=0.5)
+        StampSynchronizer(2, config=SyncConfig(period_fraction=0.5))
     sync = StampSynchronizer(2)
-    assert sync.add(0, float("nan"), None) == [] and sync.dropped["stamp not finite"] == 1
+    assert sync.add(0, float("nan"), None) == [] and sync.dropped[Drop.FRAME_STAMP_NOT_FINITE] == 1

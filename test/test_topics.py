@@ -118,6 +118,7 @@ def rows(path):
         return [{k: v for k, v in r.items() if k != "time_ms"} for r in csv.DictReader(f)]
 
 
+@pytest.mark.slow
 def test_replay_of_a_compressed_bag_matches_the_raw_one(tmp_path, tmp_path_factory, capsys):
     bag, rig_path, _ = stream_bag(tmp_path_factory)
     rig = load_rig(rig_path)

@@ -6,19 +6,24 @@ import math
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from texture_views import CAM, F, H, W, make_texture, project, view
 
 from nrmpc_ros.cameras import pixels_to_bearings
 from nrmpc_ros.config import from_mapping
+from nrmpc_ros.core.rig import Camera
 from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.errors import InputError
 from nrmpc_ros.frontend.tracking import (
     Features,
+    HoldThinning,
     KltTracker,
     TrackingConfig,
     bucket,
     describe,
     match_features,
+    turn_pixels,
     verify_correspondences,
 )
 
@@ -126,6 +131,85 @@ def test_anchor_moves_tracks_to_the_subpixel_corner():
     _, uv0 = plain.positions()
     err0 = np.linalg.norm(uv0 - (np.round((uv0 - off) / sq) * sq + off), axis=1)
     assert np.median(err0[inner]) > 0.5  # the detector alone sits pixels away, on whole pixels
+
+
+def _fast_turn(texture):
+    """Frames of an abrupt turn: still, then up to 8 deg (65 px) per frame, still again; and each frame's turn
+    from the previous one (bearings f_k = R f_k-1), as the gyro and the bars give it."""
+    axis = np.array([0.2, 1.0, 0.1]) / np.linalg.norm([0.2, 1.0, 0.1])
+    angles = np.cumsum([0, 0, 0, 2, 5, 7, 8, 7, 4, 1, 0, 0, 0])
+    Rs = [exp_so3(axis * math.radians(a)) for a in angles]
+    return [view(texture, R) for R in Rs], Rs, [None] + [Rs[k].T @ Rs[k - 1] for k in range(1, len(Rs))]
+
+
+def test_the_cameras_turn_starts_klt_where_the_tracks_went(texture):
+    """Through an abrupt turn the start from the camera's turn (the IMU) needs no pyramid and few full
+    forward-backward passes, where the image-only prediction (the last frame's motion) misses at every change
+    of rate; both track every frame as accurately and keep as many tracks."""
+    imgs, Rs, turns = _fast_turn(texture)
+    result = {}
+    for use in (False, True):
+        trk = KltTracker(TrackingConfig(), CAM)
+        errs, kept = [], 0
+        for k, img in enumerate(imgs):
+            ids0, uv0 = trk.positions()
+            step = trk.track(img, turns[k] if use else None)
+            assert not step.lost
+            ids1, uv1 = trk.positions()
+            _, a, b = np.intersect1d(ids0, ids1, return_indices=True)
+            kept += len(a)
+            if k:
+                errs.append(np.linalg.norm(project(Rs[k - 1], Rs[k], uv0[a]) - uv1[b], axis=1))
+        err = np.concatenate(errs)
+        assert np.median(err) < 0.1 and np.percentile(err, 99) < 0.7
+        result[use] = (trk.stats, kept)
+    (plain, kept_plain), (imu, kept_imu) = result[False], result[True]
+    assert imu.turn_frames == len(imgs) - 1 and plain.turn_frames == 0
+    first = TrackingConfig().klt_levels  # the first frame pair has no measured deviation yet: all levels
+    assert imu.levels == first and plain.levels >= first + 5 * TrackingConfig().klt_levels
+    assert imu.full_pass_tracks < 0.3 * plain.full_pass_tracks
+    assert kept_imu >= 0.9 * kept_plain
+
+
+FISHEYE = Camera(name="fish", model="equidistant", intrinsics=(280.0, 281.0, 322.0, 238.0),
+                 distortion=(0.02, -0.01, 0.003, -0.001), resolution=(640, 480), position=np.zeros(3),
+                 rotation=np.eye(3))
+RADTAN = Camera(name="radtan", model="pinhole", intrinsics=(470.0, 468.0, 318.0, 241.0),
+                distortion=(-0.2, 0.05, 0.001, -0.0005), resolution=(640, 480), position=np.zeros(3),
+                rotation=np.eye(3))
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(st.sampled_from([CAM, FISHEYE, RADTAN]), st.lists(st.floats(-0.05, 0.05), min_size=3, max_size=3),
+       st.integers(0, 2**31 - 1))
+def test_turn_pixels_follow_the_bearings_through_the_camera_model(cam, phi, seed):
+    """A pixel turned by R lies on the turned bearing, and turning back by R^T returns it (every model)."""
+    rng = np.random.default_rng(seed)
+    uv = rng.uniform([80, 60], [560, 420], size=(20, 2))
+    R = exp_so3(np.array(phi))
+    out = turn_pixels(cam, R, uv)
+    f = pixels_to_bearings(cam, uv) @ R.T
+    np.testing.assert_allclose(pixels_to_bearings(cam, out), f, atol=1e-7)
+    np.testing.assert_allclose(turn_pixels(cam, R.T, out), uv, atol=1e-4)
+
+
+def test_hold_thinning_tracks_what_the_average_still_needs():
+    """A settled hold is thinned once its average reaches half the correspondence floor; then one frame per
+    quarter bar period is tracked, and none is skipped while the IMU says the rig moved."""
+    th = HoldThinning(0.03)
+    assert th.needed_frames(0.1) == 45  # (2 x 0.1 / 0.03)^2 = 44.4
+    assert th.needed_frames(0.005) == 1
+    period = 0.6
+
+    def skip(settled, since_last, still=True, noise=0.1):
+        return th.skip(10.0 + since_last, 10.0, settled, noise, period, 2.0, lambda: still)
+
+    assert not skip(44, 1 / 30) and skip(45, 1 / 30) and skip(45, 0.149)
+    assert not skip(45, 0.15)  # a quarter of the bar period since the last tracked frame: track this one
+    assert not skip(45, 1 / 30, still=False) and not skip(1000, 1 / 30, noise=math.nan)
+    assert th.skipped == 2
+    assert th.skip(10.2, 10.0, 45, 0.1, 0.0, 2.0, lambda: True) and not th.skip(10.25, 10.0, 45, 0.1, 0.0, 2.0,
+                                                                                lambda: True)  # rigid: measure_s/8
 
 
 def test_klt_drops_tracks_across_a_large_jump(texture):

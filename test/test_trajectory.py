@@ -14,7 +14,8 @@ from recordings import recording
 from nrmpc_ros.cli.main import main
 from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.errors import InputError
-from nrmpc_ros.frontend.evaluation import EstimateRow, Reference, read_csv
+from nrmpc_ros.frontend.estimates_csv import EstimateRow, read_csv
+from nrmpc_ros.frontend.reference import Reference
 from nrmpc_ros.frontend.trajectory import (
     absolute_errors,
     ground_truth_trajectory,
@@ -81,6 +82,7 @@ def _evo_rmse(tmp_path, *args) -> float:
     return float(re.search(r"rmse\s+([0-9.eE+-]+)", res.stdout).group(1))
 
 
+@pytest.mark.slow
 def test_evo_ape_on_the_replay_tum_files_agrees_with_replay(replayed, capsys):
     bag, rig_file, out = replayed
     est, gt = out / "est.txt", out / "gt.txt"
@@ -102,6 +104,7 @@ def test_evo_ape_on_the_replay_tum_files_agrees_with_replay(replayed, capsys):
     assert absolute_errors(traj, read_tum(gt))["position_rmse_m"] == pytest.approx(pos, abs=1e-4)
 
 
+@pytest.mark.slow
 def test_tum_gt_needs_tum_and_ground_truth(replayed, capsys):
     bag, rig_file, out = replayed
     assert main(["replay", str(bag), "--rig", str(rig_file), "--out", str(out / "x.csv"), "--tum-gt",

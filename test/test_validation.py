@@ -17,7 +17,7 @@ from recordings import recording
 from nrmpc_ros.cli.main import main
 from nrmpc_ros.core import save_matches
 from nrmpc_ros.core.matches import Matches
-from nrmpc_ros.frontend.evaluation import read_csv
+from nrmpc_ros.frontend.estimates_csv import read_csv
 
 
 def _run(argv, capsys):
@@ -42,6 +42,7 @@ def sim(tmp_path_factory):
     return d / "rig.yaml", d / "pair_000.npz"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("flag, value", [
     ("--sync-tolerance", "-1"), ("--sync-tolerance", "nan"), ("--sync-tolerance", "inf"), ("--queue-size", "0"),
     ("--seed", "-1"),
@@ -66,6 +67,7 @@ def test_other_flags_out_of_range(sim, tmp_path, capsys, argv, flag):
     assert code == 2 and f"argument {flag}: must be" in err
 
 
+@pytest.mark.slow
 def test_imu_topic_that_is_an_image_topic(bag, tmp_path, capsys):
     path, rig = bag
     code, _, err = _run(["replay", path, "--rig", rig, "--out", tmp_path / "x.csv", "--imu-topic",
@@ -73,6 +75,7 @@ def test_imu_topic_that_is_an_image_topic(bag, tmp_path, capsys):
     assert code == 2 and "error: --imu-topic: " in err and "sensor_msgs/msg/Image" in err and "Imu" in err
 
 
+@pytest.mark.slow
 def test_imu_topic_of_the_wrong_type(bag, tmp_path, capsys):
     """The rig file's IMU topic carries geometry_msgs/Vector3Stamped: the error names the rig file's imu.topic."""
     path, rig = bag
@@ -83,6 +86,7 @@ def test_imu_topic_of_the_wrong_type(bag, tmp_path, capsys):
     assert code == 2 and str(tmp_path / "x.csv") in err  # no CSV was written by the failed replay
 
 
+@pytest.mark.slow
 def test_ground_truth_of_another_type_is_ignored_with_a_warning(bag, tmp_path, capsys):
     """Ground truth is optional: a /ground_truth/gravity of type std_msgs/String is warned about and left out;
     the estimates are written as without it and compared with the IMU and the pose."""
@@ -95,6 +99,7 @@ def test_ground_truth_of_another_type_is_ignored_with_a_warning(bag, tmp_path, c
     assert len(read_csv(tmp_path / "x.csv")) == 2 and "gravity vs IMU" in out and "gravity vs ground truth" not in out
 
 
+@pytest.mark.slow
 def test_camera_info_topics(bag, tmp_path, capsys):
     path, rig = bag
     d = yaml.safe_load(rig.read_text())
@@ -110,6 +115,7 @@ def test_camera_info_topics(bag, tmp_path, capsys):
     assert "geometry_msgs/msg/PoseStamped" in err and "CameraInfo" in err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("text, key", [
     ("tracking: 5\n", "tracking"),
     ("min_matches: forty\n", "min_matches"),
@@ -130,6 +136,7 @@ def test_replay_config_errors_name_the_file_and_key(bag, tmp_path, capsys, text,
     assert "config:" not in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("payload, fragment", [
     (b"tracking: [\n", "not valid YAML"), (b"\x00\x01binary", "binary"), (b"[1, 2]\n", "must be a mapping"),
     ("tracking: {mode: caf\u00e9}\n".encode("latin-1"), "Latin-1"),
@@ -142,6 +149,7 @@ def test_replay_config_file_that_is_not_a_settings_mapping(bag, tmp_path, capsys
     assert code == 2 and f"error: {cfg}: " in err and fragment in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_compare_bad_csv_and_window(bag, tmp_path, capsys):
     path, rig = bag
     binary = tmp_path / "b.csv"

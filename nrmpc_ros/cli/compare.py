@@ -10,7 +10,11 @@ import sys
 from ..bag.reader import BagReader, bag_root
 from ..core import load_rig
 from ..errors import InputError
-from ..frontend.evaluation import evaluate, format_report, plot_errors, read_csv, read_reference
+from ..frontend.estimates_csv import read_csv
+from ..frontend.evaluation import evaluate
+from ..frontend.evaluation_report import format_report, plot_errors
+from ..frontend.imu_reference import WINDOW_S as IMU_WINDOW_S
+from ..frontend.reference import read_reference
 from ..frontend.topics import IMU_TYPE, bag_topic, check_topic_type
 from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
@@ -31,8 +35,8 @@ def register(sub):
     p.add_argument("--imu-topic", help="IMU topic (default: the rig file's imu.topic, else /imu/data; a relative "
                    "name lies in the root namespace; ignored if absent)")
     p.add_argument("--rig", help="rig file: its imu mount turns readings into body gravity (default: IMU = body)")
-    p.add_argument("--imu-window", type=positive_seconds, default=0.25,
-                   help="average still IMU samples within +- this (s)")
+    p.add_argument("--imu-window", type=positive_seconds, default=IMU_WINDOW_S,
+                   help="average the IMU samples the stillness test passes within +- this (s)")
     p.add_argument("--plot", metavar="OUT.png", help="write a PNG of the errors over time")
     add_trajectory_arguments(p, "the bag's /ground_truth/pose")
     p.add_argument("--json", metavar="OUT.json", help="write the statistics as JSON (null where a statistic has no "

@@ -20,7 +20,7 @@ from .common import flag_error
 # Subcommand modules, in the order `nrmpc --help` lists them.
 COMMANDS = [
     "solve", "solve_sequence", "demo", "simulate", "experiment", "observability", "bench", "import_kalibr",
-    "make_bag", "replay", "compare", "play", "calibrate_bars",
+    "make_bag", "replay", "report", "compare", "play", "calibrate_bars",
 ]
 
 

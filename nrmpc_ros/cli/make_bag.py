@@ -18,8 +18,8 @@ from pathlib import Path
 
 from ..bag.writer import ENCODINGS, STORAGES
 from ..core.rig import load_rig, save_rig
-from ..errors import InputError
-from ..render.bagmaker import BagOptions
+from ..errors import InputError, OptionError
+from ..render.bagmaker import EXPOSURE_OFFSET_GREY, BagOptions
 from ..render.sequence import CAPTURES, PROFILES, MotionOptions
 from ..safeio import atomic_directory, check_outputs
 from ..sim.scenarios import load_scenario_file
@@ -28,10 +28,11 @@ from .argtypes import seed
 
 MOTION_ALIASES = {"static": "holds", "continuous": "stream"}  # --motion: the older name of --capture
 VGA_WIDTH, VGA_FOCAL = 640, 470.0  # the default focal length belongs to 640 px wide images
+DEFAULT_EI = 0.2  # N m^2, the bars of rigs built from flags without --EI or --bar-hz
 
 _M, _B = MotionOptions(), BagOptions()  # the library's defaults, shown in --help
 DEFAULTS = {
-    "rig": None, "cameras": 4, "layout": None, "EI": 0.2, "mass": 0.1, "bar_length": 0.4, "focal": None,
+    "rig": None, "cameras": 4, "layout": None, "EI": None, "mass": 0.1, "bar_length": 0.4, "focal": None,
     "width": None, "height": None, "save_rig": None, "views": _M.views, "hold_seconds": _M.hold_seconds,
     "rate": _M.rate, "imu_rate": _M.imu_rate, "capture": _M.capture, "move_seconds": None,
     "min_move_seconds": _M.min_move_seconds, "speed": _M.speed, "move_profile": _M.move_profile,
@@ -41,6 +42,10 @@ DEFAULTS = {
     "imu_bias": _B.imu_bias, "gyro_bias": _B.gyro_bias, "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
     "supersample": _B.supersample, "out": None, "no_progress": False,
+    "imu_time_offset_ms": _B.imu_time_offset_ms, "camera_rates": None, "camera_phases_ms": None,
+    "hold_seconds_range": None, "snapshot_delay": None, "exposure_drift": _B.exposure_drift,
+    "exposure_period_s": _B.exposure_period_s, "creep_fraction": _M.creep_fraction,
+    "creep_deg_per_s": _M.creep_deg_per_s, "bar_hz": None,
 }
 _INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
 
@@ -54,6 +59,34 @@ def _resolution(text: str):
     return w, h
 
 
+def _floats(text) -> tuple:
+    """'10,15,30' (or a YAML list of numbers) -> (10.0, 15.0, 30.0): finite numbers."""
+    items = text if isinstance(text, (list, tuple)) else str(text).split(",")
+    try:
+        if any(isinstance(x, bool) for x in items):
+            raise ValueError
+        values = tuple(float(x) for x in items)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers such as 10,15,30, got {text!r}") from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, got {text!r}")
+    return values
+
+
+def _pair(text) -> tuple:
+    """'A,B' -> (A, B)."""
+    values = _floats(text)
+    if len(values) != 2:
+        raise argparse.ArgumentTypeError(f"expected two numbers A,B, got {text!r}")
+    return values
+
+
+def ei_for_frequency(hz: float, mass: float, bar_length: float) -> float:
+    """Flexural rigidity EI (N m^2) giving a tip-mass bar the natural frequency ``hz``:
+    f = sqrt(3 EI / (m L^3)) / (2 pi) (``nrmpc_ros.core.dynamics.bar_natural_frequencies``)."""
+    return (2.0 * math.pi * hz) ** 2 * mass * bar_length**3 / 3.0
+
+
 def register(sub):
     d = DEFAULTS
     p = sub.add_parser(
@@ -61,9 +94,11 @@ def register(sub):
         help="render a synthetic rosbag2 of a bending rig in a textured room",
         description="Holds the rig still at a sequence of attitudes (5-30 deg apart, tilted 10-40 deg) joined by "
                     "moves, renders every camera with its bent extrinsics and writes images (raw, or png/jpeg on "
-                    "<image_topic>/compressed), CameraInfo, a 200 Hz IMU (a = -g + noise + bias) and "
-                    "/ground_truth/{pose,gravity} at every trigger. Capture modes, move profiles, ringing bars, "
-                    "stamp jitter and frame drops make it look like a real recording.")
+                    "<image_topic>/compressed), CameraInfo, an IMU (a = -g + noise + bias, 200 Hz by default) "
+                    "and /ground_truth/{pose,gravity,angular_velocity} at every trigger. Capture modes, move "
+                    "profiles, ringing bars, per-camera rates, stamp jitter, frame drops, an IMU clock offset, "
+                    "holds of random length, creeping holds and exposure drift make it look like a user's "
+                    "recording (bags/README.md).")
     p.add_argument("--scenario", metavar="FILE.yaml",
                    help="options from a YAML mapping (keys = option names, e.g. hold-seconds: 2; a relative rig path "
                         "is relative to the file); flags override it")
@@ -72,7 +107,10 @@ def register(sub):
                      "then ignored")
     rig.add_argument("--cameras", type=int, help=f"number of cameras (default {d['cameras']})")
     rig.add_argument("--layout", choices=LAYOUTS, help="camera layout (default cross for 4 cameras, else ring)")
-    rig.add_argument("--EI", type=float, help=f"bar flexural rigidity N m^2 (default {d['EI']}; inf = rigid)")
+    rig.add_argument("--EI", type=float, help=f"bar flexural rigidity N m^2 (default {DEFAULT_EI}; inf = rigid)")
+    rig.add_argument("--bar-hz", type=float, metavar="HZ",
+                     help="set EI so that every bar's natural frequency sqrt(3 EI / (m L^3)) / (2 pi) is HZ "
+                          "(e.g. 1.5 soft, 8 stiff; instead of --EI; rigs built from flags)")
     rig.add_argument("--mass", type=float, help=f"tip mass kg (default {d['mass']})")
     rig.add_argument("--bar-length", type=float, help=f"bar length m (default {d['bar_length']})")
     rig.add_argument("--width", type=int, help="image width px of the cameras built from flags (default 640)")
@@ -88,6 +126,21 @@ def register(sub):
     mo.add_argument("--rate", "--stream-hz", dest="rate", type=float,
                     help=f"camera frames per second; holds and moves last whole frame periods (default {d['rate']:g})")
     mo.add_argument("--imu-rate", type=float, help=f"IMU samples per second (default {d['imu_rate']:g})")
+    mo.add_argument("--camera-rates", type=_floats, metavar="R0,R1,...",
+                    help="frames per second of each camera, one per camera, e.g. 10,15,30 (default: all at --rate; "
+                         "holds and moves still last whole --rate periods)")
+    mo.add_argument("--camera-phases-ms", type=_floats, metavar="P0,P1,...",
+                    help="each camera's trigger phase in ms, one per camera, each below its frame period (default 0)")
+    mo.add_argument("--hold-seconds-range", type=_pair, metavar="A,B",
+                    help="each hold lasts a random time in [A, B] s (instead of --hold-seconds)")
+    mo.add_argument("--snapshot-delay", type=float, metavar="S",
+                    help="--capture snapshot: each camera's one image per hold is taken S s after the stop (plus "
+                         "its phase) (default: on the hold's last frame)")
+    mo.add_argument("--creep-fraction", type=float, metavar="F",
+                    help="share of the holds after the first that creep: the body turns slowly through the whole "
+                         "hold, so it is not still (/ground_truth/angular_velocity is non-zero there) (default 0)")
+    mo.add_argument("--creep-deg-per-s", type=float,
+                    help=f"rotation rate of a creeping hold, deg/s (default {d['creep_deg_per_s']:g})")
     mo.add_argument("--capture", choices=CAPTURES,
                     help="holds: frames at --rate while still; snapshot: one synchronised frame per camera at the end "
                          "of each hold; stream: frames at --rate throughout (default holds)")
@@ -111,7 +164,8 @@ def register(sub):
                     help=f"m, half-size of the position cube (default {d['max_translation']:g})")
     mo.add_argument("--damping", type=float, metavar="ZETA",
                     help="bars ring after each move with this damping ratio in (0, 1), e.g. 0.03, at their natural "
-                         "frequency sqrt(3 EI / (m L^3)) / (2 pi) (default: none, quasi-static bending)")
+                         "frequency sqrt(3 EI / (m L^3)) / (2 pi); a rig file's bar.damping wins for its bar "
+                         "(default: the rig file's, else none: quasi-static bending)")
     se = p.add_argument_group("sensors and output")
     se.add_argument("--seed", type=seed, help="seed of everything random (default 0)")
     se.add_argument("--image-noise", type=float, help=f"pixel noise std, grey levels (default {d['image_noise']:g})")
@@ -119,6 +173,16 @@ def register(sub):
     se.add_argument("--gyro-noise", type=float, help=f"gyro noise std rad/s (default {d['gyro_noise']:g})")
     se.add_argument("--imu-bias", type=float, help=f"accelerometer bias norm m/s^2 (default {d['imu_bias']:g})")
     se.add_argument("--gyro-bias", type=float, help=f"gyro bias norm rad/s (default {d['gyro_bias']:g})")
+    se.add_argument("--imu-time-offset-ms", type=float, metavar="MS",
+                    help="the IMU's stamps are its true sample times + MS (a constant clock offset to the cameras; "
+                         "default 0)")
+    se.add_argument("--exposure-drift", type=float, metavar="A",
+                    help="auto-exposure drift: each camera's grey levels become gain I + offset, the gain drifting "
+                         f"slowly within 1 +- A and the offset within +- {EXPOSURE_OFFSET_GREY:g} A grey levels, "
+                         "in [0, 0.5] (default 0)")
+    se.add_argument("--exposure-period-s", type=float, metavar="S",
+                    help=f"typical period of the exposure drift, s; each camera's is 0.7-1.3 x this "
+                         f"(default {d['exposure_period_s']:g})")
     se.add_argument("--no-imu", action="store_true", help="write no IMU topic (and --save-rig writes no imu block)")
     se.add_argument("--jitter-ms", type=float,
                     help="each camera's stamp is off the trigger by a uniform random amount within +-J ms (default 0)")
@@ -163,6 +227,11 @@ def _coerce(action, value, source: str, key: str):
             raise bad("needs a value")
         return None
     kind = action.type
+    if kind in (_floats, _pair) and isinstance(value, (list, tuple)):
+        try:
+            return kind(list(value))
+        except argparse.ArgumentTypeError as exc:
+            raise bad(str(exc)) from None
     if kind is _resolution and isinstance(value, (list, tuple)):
         if len(value) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
             raise bad(f"expected [width, height] in pixels, got {value!r}")
@@ -227,8 +296,20 @@ def rig_from_options(o: dict):
         if o["width"] is not None or o["height"] is not None:
             raise InputError("--resolution/--width/--height", "only for rigs built from flags; the rig file "
                                                               "fixes each camera's resolution")
+        if o["bar_hz"] is not None:
+            raise InputError("--bar-hz", "only for rigs built from flags; the rig file fixes each bar's EI")
         rig = load_rig(o["rig"])
         return replace(rig, imu=None) if o["no_imu"] else rig
+    if o["bar_hz"] is not None:
+        if o["EI"] is not None:
+            raise InputError("--bar-hz", "sets EI; give --bar-hz or --EI, not both")
+        if not (0 < o["bar_hz"] < math.inf):
+            raise InputError("--bar-hz", f"must be a finite frequency > 0 Hz, got {o['bar_hz']!r}")
+        if not (0 < o["mass"] < math.inf and 0 < o["bar_length"] < math.inf):
+            raise InputError("--bar-hz", "needs a tip mass (--mass) > 0 and a bar length > 0 to ring")
+        o = {**o, "EI": ei_for_frequency(o["bar_hz"], o["mass"], o["bar_length"])}
+    elif o["EI"] is None:
+        o = {**o, "EI": DEFAULT_EI}
     checks = [("--bar-length", 0 < o["bar_length"] < math.inf), ("--mass", 0 <= o["mass"] < math.inf),
               ("--EI", o["EI"] > 0), ("--width", o["width"] is None or o["width"] >= 2),
               ("--height", o["height"] is None or o["height"] >= 2),
@@ -244,8 +325,10 @@ def rig_from_options(o: dict):
                        bar_length=o["bar_length"], mass=o["mass"], EI=o["EI"], focal=focal,
                        resolution=(int(width), int(height)))
         return make_rig(spec, imu=not o["no_imu"])
+    except OptionError as exc:  # the spec names its field
+        raise InputError("--cameras" if exc.field == "num_cameras" else "--layout", exc.message) from None
     except ValueError as exc:
-        raise InputError("--cameras" if "camera" in str(exc) else "--layout", str(exc)) from None
+        raise InputError("--layout", str(exc)) from None
 
 
 def bag_options(o: dict):
@@ -255,13 +338,16 @@ def bag_options(o: dict):
         min_tilt=o["min_tilt"], max_tilt=o["max_tilt"], min_step=o["min_step"], max_step=o["max_step"],
         max_translation=o["max_translation"], speed=o["speed"], min_move_seconds=o["min_move_seconds"],
         move_seconds=o["move_seconds"], move_profile=o["move_profile"], accel_fraction=o["accel_fraction"],
-        capture=o["capture"],
+        capture=o["capture"], hold_seconds_range=o["hold_seconds_range"], snapshot_delay=o["snapshot_delay"],
+        camera_rates=o["camera_rates"], camera_phases_ms=o["camera_phases_ms"], creep_fraction=o["creep_fraction"],
+        creep_deg_per_s=o["creep_deg_per_s"],
     )
     return BagOptions(motion=motion, seed=o["seed"], encoding=o["encoding"], jpeg_quality=o["jpeg_quality"],
                       storage=o["storage"], image_noise=o["image_noise"], imu_noise=o["imu_noise"],
                       gyro_noise=o["gyro_noise"], imu_bias=o["imu_bias"], gyro_bias=o["gyro_bias"],
                       imu=not o["no_imu"], damping=o["damping"], jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
-                      supersample=o["supersample"])
+                      supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
+                      exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"])
 
 
 def _check_outputs(o: dict, scenario) -> None:
@@ -282,22 +368,28 @@ def run(args) -> int:
     rig = rig_from_options(o)
     opts = bag_options(o)
     opts.validate()
+    opts.motion.validate_cameras(rig.num_cameras)
     _check_outputs(o, getattr(args, "scenario", None))
     with atomic_directory(o["out"], flag="--out") as work:  # readers see no bag or a complete one
         summary = make_bag(rig, work, opts, progress=not o["no_progress"])
     if o["save_rig"]:
+        if opts.damping is not None:  # the rig the bag was rendered with: every flexible bar rang with a damping
+            rig = replace(rig, cameras=tuple(replace(c, damping=opts.damping) if c.damping is None and c.is_flexible
+                                             else c for c in rig.cameras))
         save_rig(rig, o["save_rig"], header="rig written by nrmpc make-bag", flag="--save-rig")
     traj = summary["trajectory"]
     tilts = [math.degrees(math.acos(max(-1.0, min(1.0, float(R[2, 2]))))) for R in traj.R]
-    print(f"wrote {o['out']}: {summary['views']} holds, {summary['frames']} triggers ({opts.motion.capture}) x "
-          f"{rig.num_cameras} cameras, {summary['dropped']} frames dropped, {summary['duration_s']:.1f} s, "
+    print(f"wrote {o['out']}: {summary['views']} holds, {summary['frames']} triggers ({opts.motion.capture}), "
+          f"{summary['images']} images of {rig.num_cameras} cameras, {summary['dropped']} frames dropped, "
+          f"{summary['duration_s']:.1f} s, "
           f"tilts {min(tilts):.0f}-{max(tilts):.0f} deg", file=sys.stderr)
-    if opts.damping is not None:
+    if summary["holds"][0]["settled"] is not None:  # the bars ring (--damping or the rig file's bar.damping)
         settle = max([h["settled"] - h["start"] for h in summary["holds"][1:] if h["settled"] is not None],
                      default=0.0)
-        hold = summary["holds"][0]["end"] - summary["holds"][0]["start"]
+        hold = min(h["end"] - h["start"] for h in summary["holds"])
         freqs = ", ".join(f"{f:.2f}" for f in summary["bar_frequencies_hz"])
-        late = f" (longer than the {hold:g} s holds: the bars still ring when they end)" if settle > hold else ""
+        late = (f" (longer than the shortest hold, {hold:g} s: the bars still ring when they end)"
+                if settle > hold else "")
         print(f"  bars ring at {freqs} Hz; ringing below 1e-3 after {settle:.1f} s of each hold{late}",
               file=sys.stderr)
     for topic, n in sorted(summary["counts"].items()):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from contextlib import nullcontext
 
 import numpy as np
 
@@ -13,9 +14,14 @@ from ..config import from_mapping, load_mapping
 from ..core import load_rig
 from ..errors import InputError
 from ..frontend.droplog import DropLog
-from ..frontend.evaluation import CsvWriter, batch_rows, evaluate, format_report, read_reference, row_from_estimate
+from ..frontend.drops import sorted_counts
+from ..frontend.estimates_csv import CsvWriter, batch_rows, row_from_estimate
+from ..frontend.evaluation import evaluate
+from ..frontend.evaluation_report import format_report
+from ..frontend.extrinsics import NO_IMU_NOTE, ExtrinsicsCsv, hold_poses, imu_mount_warning
 from ..frontend.feeder import FeederConfig
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
+from ..frontend.reference import read_reference
 from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
 from ..frontend.runner import PipelineRunner
 from ..frontend.topics import bag_image_topics
@@ -38,7 +44,20 @@ def register(sub):
     p.add_argument("--out", required=True, help="output CSV: one row per hold as the node publishes it")
     p.add_argument("--batch", metavar="BATCH.csv", help="also write the joint solution of all holds at once "
                    "(each hold relative to the one before it)")
+    p.add_argument("--extrinsics", metavar="OUT.csv",
+                   help="also write every camera's pose in the body frame at each image's stamp, from the bars' "
+                        "dynamics driven by the IMU (docs/CONVENTIONS.md, The rig in motion), one row per image and "
+                        "camera, with the accelerometer bias of the whole recording from the first sample on "
+                        "(source smoothed); without an IMU one row per camera and hold (the static model at the "
+                        "hold's gravity)")
+    p.add_argument("--extrinsics-causal", metavar="OUT.csv",
+                   help="also write the same poses as the node publishes them: each with the accelerometer bias "
+                        "known at that image (source imu; needs the IMU)")
     add_trajectory_arguments(p, "the bag's /ground_truth/pose")
+    p.add_argument("--report", metavar="OUT.html", help="also write the recording's report: one self-contained HTML "
+                   "page (holds, settling, gravity against the IMU with its 2-std band, refusals by reason)")
+    p.add_argument("--calibrate-bars", action="store_true", help="with --report: also calibrate the bars' compliance "
+                   "from the holds (needs the IMU; as nrmpc calibrate-bars) and show it in the report")
     p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig: tracking, holds, imu, zupt, "
                    "sequence, ...)")
     p.add_argument("--imu-topic", help="IMU topic (default: the rig file's imu.topic)")
@@ -56,7 +75,7 @@ def register(sub):
 
 def check_tum_flags(args, bag) -> None:
     """--tum-gt needs --tum (the holds and origins it is written at) and ground truth in the bag."""
-    from ..frontend.evaluation import GT_POSE_TOPIC
+    from ..frontend.reference import GT_POSE_TOPIC
 
     if args.tum_gt and not args.tum:
         raise InputError("--tum-gt", "needs --tum: the ground truth is written at the estimated holds")
@@ -82,11 +101,25 @@ def input_config(args) -> FeederConfig:
     try:
         return from_mapping(FeederConfig, d, "flags")
     except InputError as exc:
-        raise InputError(flags.get(exc.field, "flags"), str(exc).split(": ", 2)[-1]) from None
+        raise InputError(flags.get(exc.field, "flags"), exc.message) from None
+
+
+def _calibration(rig, runner) -> str:
+    """The bar calibration over the replay's sequences of holds (nrmpc_ros/calibration.py), or why it could not
+    run, as the report shows it."""
+    from ..calibration import calibrate_sequences, describe
+    from ..errors import EstimationError
+
+    try:
+        return describe(calibrate_sequences(rig, runner.sequences()), rig)
+    except EstimationError as exc:
+        return f"could not run: {exc}"
 
 
 def run(args) -> int:
-    check_outputs({"--out": args.out, "--batch": args.batch, "--tum": args.tum, "--tum-gt": args.tum_gt},
+    check_outputs({"--out": args.out, "--batch": args.batch, "--tum": args.tum, "--tum-gt": args.tum_gt,
+                   "--extrinsics": args.extrinsics, "--extrinsics-causal": args.extrinsics_causal,
+                   "--report": getattr(args, "report", None)},
                   {"BAG": bag_root(args.bag), "--rig": args.rig, "--config": args.config})
     rig = load_rig(args.rig)
     cfg = load_config(args.config, args.seed)
@@ -103,15 +136,37 @@ def run(args) -> int:
         image_topics = bag_image_topics(bag, rig, note)
         imu_topic = resolve_imu_topic(bag, rig, args.imu_topic, use_imu=not args.no_imu, warn=warn)
         check_camera_info(bag, rig, warn)
-        runner = PipelineRunner(rig, cfg, method=args.method, drops=DropLog(math.inf))  # counts, first ones warned
+        extrinsics = ExtrinsicsCsv(args.extrinsics, rig) if args.extrinsics else None
+        by_hold = extrinsics is not None and imu_topic is None
+        if args.extrinsics_causal and imu_topic is None:
+            raise InputError("--extrinsics-causal", f"needs the IMU ({NO_IMU_NOTE})")
+        causal = ExtrinsicsCsv(args.extrinsics_causal, rig, "--extrinsics-causal") if args.extrinsics_causal \
+            else None
+        if by_hold:
+            print(f"extrinsics: {NO_IMU_NOTE}")
+        elif extrinsics is not None and imu_mount_warning(rig):
+            warn(imu_mount_warning(rig))
+        runner = PipelineRunner(rig, cfg, method=args.method, drops=DropLog(math.inf),  # counts, first ones warned
+                                on_poses=causal.write if causal is not None else None)
+        if extrinsics is not None and not by_hold and runner.pipeline.extrinsics is not None:
+            runner.pipeline.extrinsics.keep_samples = True  # for the smoothed rows after the run
+        if getattr(args, "report", None):
+            runner.pipeline.hold_log = []  # every closed hold, for the report
+            runner.pipeline.sequence.keep_history = bool(getattr(args, "calibrate_bars", False))
         replay = BagReplay(bag, rig, runner, imu_topic, input_config(args), warn, image_topics)
         rows = []
-        with CsvWriter(args.out, "--out") as writer:  # becomes --out only when the whole run succeeds
+        with CsvWriter(args.out, "--out") as writer, extrinsics or nullcontext(), causal or nullcontext():
+            # --out and the others appear only on success
             for estimates in replay.run(progress=not args.no_progress):
                 for est in estimates:
                     row = row_from_estimate(est)
                     writer.write(row)
                     rows.append(row)
+                    if by_hold:
+                        extrinsics.write(hold_poses(rig, est.stamp, est.gravity))
+            if extrinsics is not None and not by_hold and runner.pipeline.extrinsics is not None:
+                for poses in runner.pipeline.extrinsics.smoothed():  # the final bias from the first sample on
+                    extrinsics.write(poses)
             ref = read_reference(bag, imu_topic, warn)
             batch = []
             if args.batch:
@@ -121,11 +176,12 @@ def run(args) -> int:
                     for row in batch:
                         bw.write(row)
     elapsed = time.perf_counter() - t_start
-    ev = evaluate(rows, ref, rig)
+    zupt = runner.pipeline.config.zupt  # the IMU reference uses the stillness test as configured for the holds
+    ev = evaluate(rows, ref, rig, zupt=zupt)
     st = runner.stats
     print(format_report(ev, per_estimate=not args.quiet))
     if batch:
-        evb = evaluate(batch, ref, rig)
+        evb = evaluate(batch, ref, rig, zupt=zupt)
         gb = evb.stats("gravity_vs_gt_deg")
         gi = evb.stats("gravity_vs_imu_deg")
         parts = [f"vs ground truth median {gb['median']:.3f} deg (n={gb['n']})" if gb["n"] else "",
@@ -136,16 +192,21 @@ def run(args) -> int:
     print(describe_trajectories(seqs))
     d = st.as_dict()
     print(f"frames {st.frames}, holds {st.holds}, estimates {st.estimates} "
-          f"({', '.join(f'{m}: {n}' for m, n in sorted(st.methods.items())) or 'none'}), sequences {st.sequences}")
+          f"({', '.join(f'{m}: {n}' for m, n in sorted(st.methods.items())) or 'none'}), sequences {st.sequences}"
+          + (f" ({st.merges} merged back, {st.bridges} bridged by the gyro)" if st.merges or st.bridges else ""))
     if st.holds:
         print(f"holds: median settle {d['median_settle_s']:.2f} s after the stop (slowest bar period "
               f"{runner.pipeline.bar_period_s:.3f} s), residual motion {d['median_residual_px']:.3f} px, track noise "
               f"{d['median_noise_px']:.3f} px per frame -> {d['median_averaged_noise_px']:.3f} px averaged over "
               f"{np.median(st.settled_frames):.0f} settled frames"
-              + (f"; {st.ringing_holds} of {st.holds} still ringing at their end (averaged over whole bar periods)"
-                 if st.ringing_holds else ""))
+              + (f"; {st.ringing_holds} of {st.holds} measured at the fitted rest of their ringing"
+                 if st.ringing_holds else "")
+              + (f"; {st.penalized_holds} carried residual ringing as extra noise (median "
+                 f"{d['median_ringing_px']:.3f} px; from "
+                 f"{', '.join(f'{k} {v}' for k, v in sorted(st.ringing_sources.items()))})"
+                 if st.penalized_holds else ""))
     if st.dropped:
-        print("not estimated: " + "; ".join(f"{k}: {v}" for k, v in sorted(st.dropped.items())))
+        print("not estimated: " + "; ".join(f"{k.message}: {v}" for k, v in sorted_counts(st.dropped)))
     if not st.holds:
         print(runner.pipeline.no_hold_report() or "no hold found: no frame set reached the pipeline")
     print(f"inputs dropped: {replay.drops.summary()}")
@@ -156,5 +217,32 @@ def run(args) -> int:
     times = [r.time_ms for r in rows]
     if times:
         print(f"hold time (linking + estimation): median {np.median(times):.0f} ms; wall time {elapsed:.1f} s")
-    print(f"wrote {len(rows)} estimates to {args.out}")
+    if imu_topic is not None:
+        clock = runner.pipeline.imu_clock.estimate()
+        print("IMU clock against the cameras (gyro rate vs image motion): " + (
+            f"add {1e3 * clock.offset_s:+.1f} ms to the IMU stamps (correlation {clock.correlation:.2f} over "
+            f"{clock.frames} frames; imu_time_offset_s applied: {1e3 * cfg.imu_time_offset_s:+.1f} ms)"
+            if clock else "not measurable (no move both show)"))
+    if extrinsics is not None:
+        cost = f", {1e3 * runner.poses_s / runner.poses_sets:.3f} ms per frame set" if runner.poses_sets else ""
+        print(f"wrote {extrinsics.rows} camera poses to {args.extrinsics} "
+              f"({'holds, static model' if by_hold else 'every image, bars driven by the IMU'}{cost})")
+        bias = runner.pipeline.extrinsics.bias_estimate if runner.pipeline.extrinsics is not None else None
+        if not by_hold and bias is not None:
+            print(f"  with the final accelerometer bias "
+                  f"{np.array2string(bias.bias_ms2, precision=4)} +- {np.array2string(bias.std_ms2, precision=4)} "
+                  f"m/s^2 (IMU frame, {bias.holds} holds, {bias.with_gravity} with vision gravity) from the start")
+    if causal is not None:
+        print(f"wrote {causal.rows} camera poses to {args.extrinsics_causal} (as the node publishes them: the "
+              f"accelerometer bias known at each image)")
+    if not getattr(args, "scratch_out", False):  # nrmpc report's CSV is a temporary file
+        print(f"wrote {len(rows)} estimates to {args.out}")
+    if getattr(args, "report", None):
+        from ..report import collect, write_report
+
+        t_report = time.perf_counter()
+        calibration = _calibration(rig, runner) if getattr(args, "calibrate_bars", False) else None
+        size = write_report(collect(str(args.bag), runner, replay.drops.counts(), ref, ev, calibration), args.report,
+                            "--report")
+        print(f"wrote the report {args.report} ({size / 1e6:.2f} MB in {time.perf_counter() - t_report:.2f} s)")
     return 0

@@ -1,6 +1,6 @@
 """Robust bundle adjustment over a sequence of static views with the bending model.
 
-The refinement of docs/CONVENTIONS.md ("Refinement" and "Sequences"): over K
+The refinement of docs/CONVENTIONS.md (Estimators, "Refinement"; "Sequences"): over K
 views of one rig, the unknowns are the poses (R_k, t_k) of the free views
 (view k -> view 0, ``p_0 = R_k p_k + t_k``; view 0 is the identity), ONE
 gravity g_0 in view 0's body frame (2 d.o.f., |g| fixed; view k sees
@@ -24,18 +24,19 @@ the gravity and the compliances.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .deformation import deformation_jacobians
-from .lm import LinearSystem, LMOptions, SchurStructure, inv3, levenberg_marquardt
+from .lm import LinearSystem, LMOptions, LMStats, SchurStructure, group_sum, inv3, levenberg_marquardt
 from .loss import HuberLoss
 from .rig import Rig
 from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
 
-POSE_DIM = 6  # dr (3, right perturbation of R_k), dt (3, metres)
+POSE_DIM = 6  # dr (3, left perturbation Exp(dr) R_k, in view 0's frame), dt (3, metres)
 GRAVITY_DIM = 2  # tangent angles of g_0 (rad)
 BIAS_DIM = 3  # constant tilt of the measured gravity directions (unit-vector units ~ rad)
 
@@ -55,6 +56,7 @@ class Observations:
     num_views: int
     num_points: int
     view_sequence: np.ndarray | None = None  # (K,) sequence of each view (None: one sequence)
+    scale: np.ndarray | None = None  # (N,) each observation's noise std over the nominal one (None: all 1)
 
     def __len__(self) -> int:
         return len(self.view)
@@ -73,20 +75,23 @@ class Observations:
         views = np.cumsum([0] + [p.num_views for p in parts])
         points = np.cumsum([0] + [p.num_points for p in parts])
         seqs = np.cumsum([0] + [p.num_sequences for p in parts])
+        scale = None if all(p.scale is None for p in parts) else \
+            np.concatenate([np.ones(len(p)) if p.scale is None else p.scale for p in parts])
         return cls(np.concatenate([p.view + v for p, v in zip(parts, views)]),
                    np.concatenate([p.cam for p in parts]),
                    np.concatenate([p.point + q for p, q in zip(parts, points)]),
                    np.concatenate([p.f for p in parts]), int(views[-1]), int(points[-1]),
-                   np.concatenate([p.sequence_of_view + s for p, s in zip(parts, seqs)]))
+                   np.concatenate([p.sequence_of_view + s for p, s in zip(parts, seqs)]), scale)
 
     @classmethod
-    def from_arrays(cls, view, cam, track, f, num_views: int | None = None):
-        """Observations with landmark ids ``track`` (any integers) made dense; returns (obs, ids (P,))."""
+    def from_arrays(cls, view, cam, track, f, num_views: int | None = None, scale=None):
+        """Observations with landmark ids ``track`` (any integers) made dense; returns (obs, ids (P,)).
+        ``scale`` (N,): each observation's noise std over the nominal one (None: all 1)."""
         view = np.asarray(view, dtype=np.int64)
         ids, point = np.unique(np.asarray(track, dtype=np.int64), return_inverse=True)
         K = int(view.max()) + 1 if num_views is None else int(num_views)
         return cls(view, np.asarray(cam, dtype=np.int64), point.astype(np.int64), normalize(np.asarray(f, float)),
-                   K, len(ids)), ids
+                   K, len(ids), None, None if scale is None else np.asarray(scale, dtype=float)), ids
 
     @classmethod
     def two_view(cls, f1, f2, cam) -> Observations:
@@ -103,7 +108,7 @@ class Observations:
         idx = np.flatnonzero(keep) if keep.dtype == bool else keep
         used, point = np.unique(self.point[idx], return_inverse=True)
         return Observations(self.view[idx], self.cam[idx], point.astype(np.int64), self.f[idx], self.num_views,
-                            len(used), self.view_sequence), used
+                            len(used), self.view_sequence, None if self.scale is None else self.scale[idx]), used
 
 
 @dataclass
@@ -285,10 +290,30 @@ def robust_sigma(e: np.ndarray, num_points: int, num_params: int = 0, floor: flo
     n_res = e.size
     dof = max(n_res - 3 * num_points - num_params, 1)
     s0 = max(1.4826 * float(np.median(np.abs(e))), floor)
-    r = np.sqrt(np.einsum("ni,ni->n", e, e)) / s0
-    w = np.where(r <= huber_k, 1.0, huber_k / np.maximum(r, 1e-300))
-    s = s0 * math.sqrt(float(np.sum(w * r * r)) / max(float(np.sum(w)), 1e-300) / 2.0)  # per component
+    r2 = np.einsum("ni,ni->n", e, e) / (s0 * s0)
+    w = HuberLoss(huber_k).weight(r2)
+    s = s0 * math.sqrt(float(np.sum(w * r2)) / max(float(np.sum(w)), 1e-300) / 2.0)  # per component
     return max(s * math.sqrt(n_res / dof), floor)
+
+
+def camera_noise_factors(e: np.ndarray, cam: np.ndarray, num_cameras: int, huber_k: float = 3.0) -> np.ndarray:
+    """Each camera's angular noise relative to all cameras' (M,), from the residuals e (N, 2) of a solve
+    (rad; observation i from camera cam[i]): the square roots of the a posteriori variance factors per
+    camera. One noise for all cameras would weigh a fisheye's observations (fewer pixels per radian) or a
+    blurrier camera's as much as the sharpest's, and publish a covariance that fits none of them. The same
+    robust scale as :func:`robust_sigma` (Huber-weighted RMS); 1 for cameras with fewer than 10
+    observations (too few to tell)."""
+    e = np.asarray(e, float).reshape(-1, 2)
+    cam = np.asarray(cam, np.int64)
+    out = np.ones(int(num_cameras))
+    if len(e) < 10:
+        return out
+    s_all = robust_sigma(e, 0, 0, huber_k=huber_k)
+    for c in np.unique(cam):  # cameras, not observations: a handful of iterations
+        m = cam == c
+        if m.sum() >= 10:
+            out[c] = robust_sigma(e[m], 0, 0, huber_k=huber_k) / s_all
+    return out
 
 
 @dataclass
@@ -307,19 +332,43 @@ class _ViewModel:
 SIGMA_TOLERANCE = 0.2  # relative change of the robust noise estimate that is adopted (and delays convergence)
 
 
+class BundleWorkspace:
+    """What one bundle adjustment reuses between evaluations, each entry keyed by the state (and rig) it was
+    computed for: states are values (a step makes a new one; nothing modifies one in place).
+
+    ``views``: the bent cameras of the last state evaluated (a trial state's cost and its linearisation once
+    accepted share them); ``rig``: the rig at the last state's compliances; ``linearization``: residuals,
+    Jacobians and landmark chart of the last linearised state (a new noise scale re-weights them, the step
+    from that state retracts in its chart); ``trial``: the residuals of the last cost() (re-fitting that
+    state's landmarks starts from them). One workspace per adjustment (:func:`adjust_bundle` makes it); the
+    problems of one adjustment at different noise scales share it.
+    """
+
+    def __init__(self):
+        self.views = None  # (state, rig, _ViewModel)
+        self.rig = None  # (state, rig with the state's compliances)
+        self.linearization = None  # (state, rig, e (rad), Jc, dX, chart)
+        self.trial = None  # (state, rig, e (rad))
+
+
 class SequenceBundleProblem:
     """Residuals, Jacobians and normal equations of the joint bundle adjustment (the LM problem of :mod:`.lm`).
 
-    ``sigma`` (rad) scales residuals; ``reestimate_sigma`` re-estimates it robustly after every accepted
-    step and adopts it when it moved by more than ``SIGMA_TOLERANCE`` (the Huber zone follows the shrinking
-    residuals, and the run converges only at a noise scale that fits them).
+    ``sigma`` (rad) is the noise scale of the cost: residuals are divided by it and the Huber zone is
+    ``huber_k`` of it. It is fixed for the problem's life; :meth:`with_sigma` gives the same problem at
+    another scale (how :func:`adjust_bundle` re-estimates the noise between LM runs). ``workspace``: where
+    evaluations are reused (a new :class:`BundleWorkspace` by default). ``camera_scale`` (M,):
+    each camera's noise relative to sigma (its a posteriori variance factor's square root, see
+    :func:`camera_noise_factors`; default all 1): camera i's residuals are scaled by sigma * camera_scale[i].
     """
 
     def __init__(self, rig: Rig, obs: Observations, layout: ParameterLayout, sigma: float, huber_k: float = 3.0,
                  priors: GravityPriors | None = None, gravity_information: GravityInformation | None = None,
-                 compliance_groups: np.ndarray | None = None, reestimate_sigma: bool = False):
+                 compliance_groups: np.ndarray | None = None, workspace: BundleWorkspace | None = None,
+                 camera_scale: np.ndarray | None = None):
         self.rig, self.obs, self.layout = rig, obs, layout
-        self.sigma = float(sigma)
+        self._sigma = float(sigma)
+        self.scale = np.ones(len(obs)) if camera_scale is None else np.asarray(camera_scale, float)[obs.cam]
         self.loss = HuberLoss(huber_k)
         self.priors = priors
         self.gravity_information = gravity_information
@@ -333,14 +382,18 @@ class SequenceBundleProblem:
         self._anchor = self._anchors()
         self._vc = obs.view * self.M + obs.cam
         self._single = obs.num_sequences == 1
-        self._view_cache = None  # (state, rig, _ViewModel) of the last evaluation
-        self._rig_cache = None  # (state, rig with its compliances)
-        self._reestimate = reestimate_sigma
-        self._accepted = 0
-        self._chart = None  # (state, chart) of the last linearisation
-        self._last_residuals = None  # (state, residuals in rad) of the last linearisation
-        self._trial = None  # (state, rig, residuals in rad) of the last cost(): re-fitting its landmarks reuses them
-        self._linearization = None  # (state, rig, e, Jc, dX, chart): a change of sigma re-weights, not re-evaluates
+        self.workspace = BundleWorkspace() if workspace is None else workspace
+
+    @property
+    def sigma(self) -> float:
+        """The noise scale (rad) of the cost."""
+        return self._sigma
+
+    def with_sigma(self, sigma: float) -> SequenceBundleProblem:
+        """The same problem at the noise scale ``sigma`` (rad), sharing the structure and the workspace."""
+        other = copy.copy(self)
+        other._sigma = float(sigma)
+        return other
 
     # -- model -------------------------------------------------------------
     def _anchors(self) -> np.ndarray:
@@ -355,19 +408,20 @@ class SequenceBundleProblem:
         """The rig with the state's compliances (the given rig when there are none)."""
         if state.compliance is None:
             return self.rig
-        if self._rig_cache is not None and self._rig_cache[0] is state:
-            return self._rig_cache[1]
+        hit = self.workspace.rig
+        if hit is not None and hit[0] is state:
+            return hit[1]
         k = self.rig.compliance.copy()
         on = self.groups >= 0
         k[on] = np.maximum(state.compliance[self.groups[on]], 1e-15)
         rig = self.rig.with_compliance(k)
-        self._rig_cache = (state, rig)
+        self.workspace.rig = (state, rig)
         return rig
 
     def _views(self, state: BundleState, rig: Rig) -> _ViewModel:
         """The bent cameras of every (view, camera) in view 0's frame with the model's derivatives (the last
         result is reused: a trial state's cost and its linearisation once accepted share it)."""
-        hit = self._view_cache
+        hit = self.workspace.views
         if hit is not None and hit[1] is rig and _same_camera_block(hit[0], state):
             return hit[2]
         g0 = state.origin_gravity() if state.gravity is not None else np.tile([0.0, 0.0, -self.gm], (len(state.R), 1))
@@ -389,7 +443,7 @@ class SequenceBundleProblem:
             b = (L**3 / 3.0)[:, None] * (gb - np.sum(u * gb, axis=-1, keepdims=True) * u)
             vm.compliance = (np.einsum("kij,kmj->kmi", state.R, Ab).reshape(-1, 3),
                              np.einsum("kij,kmj->kmi", state.R, b).reshape(-1, 3))
-        self._view_cache = (state, rig, vm)
+        self.workspace.views = (state, rig, vm)
         return vm
 
     def predicted_bearings(self, state: BundleState) -> np.ndarray:
@@ -400,8 +454,13 @@ class SequenceBundleProblem:
         return normalize(np.einsum("nji,nj->ni", vm.Q[self._vc], d))
 
     def residuals(self, state: BundleState, rig: Rig | None = None) -> np.ndarray:
-        """Angular residuals (N, 2), rad."""
-        return self._evaluate(state, rig or self.model_rig(state), jacobians=False)[0]
+        """Angular residuals (N, 2), rad, divided by each observation's ``obs.scale`` (those of the last
+        linearisation when it was at ``state``)."""
+        rig = rig or self.model_rig(state)
+        hit = self.workspace.linearization
+        if hit is not None and hit[0] is state and hit[1] is rig:
+            return hit[2]
+        return self._evaluate(state, rig, jacobians=False)[0]
 
     def jacobians(self, state: BundleState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Residuals e (N, 2), their Jacobian on each observation's local columns ``structure.cols`` (N, 2, L)
@@ -410,7 +469,8 @@ class SequenceBundleProblem:
 
     def _evaluate(self, state: BundleState, rig: Rig, jacobians: bool = True, camera: bool = True):
         """Residuals e (N, 2) and, if asked, the local camera Jacobian (N, 2, L) (None unless ``camera``) and
-        de/dX (N, 2, 3).
+        de/dX (N, 2, 3). With ``obs.scale`` all three are divided by each observation's scale (whitened to the
+        nominal noise): a noisier observation weighs less in the fit, the noise estimate and the covariance.
 
         With z = X - t_k and d = X - c (c the bent camera centre) in view 0's frame, p = Q^T d in the camera
         (Q = R_k W_i(g_k)). Rotations are perturbed on the left (R_k <- Exp(dr) R_k), so every derivative is
@@ -427,9 +487,12 @@ class SequenceBundleProblem:
         inv_r = 1.0 / np.maximum(np.sqrt(np.einsum("ni,ni->n", p, p)), 1e-300)
         n = p * inv_r[:, None]
         e = np.einsum("nij,nj->ni", self.Tt, n)
+        w = None if o.scale is None else 1.0 / o.scale
         if not jacobians:
-            return e, None, None
+            return (e if w is None else e * w[:, None]), None, None
         A = (self.Tt - e[:, :, None] * n[:, None, :]) * inv_r[:, None, None]  # de/dp (N, 2, 3)
+        if w is not None:
+            e, A = e * w[:, None], A * w[:, None, None]
         dX = np.einsum("nij,nkj->nik", A, Qn)  # de/dX = A Q^T
         if not camera:
             return e, None, dX
@@ -506,6 +569,10 @@ class SequenceBundleProblem:
         return np.concatenate(rows), np.concatenate(jacs)
 
     # -- LM interface ------------------------------------------------------
+    def _noise(self) -> np.ndarray:
+        """(N, 1) angular noise std of each observation (rad): sigma times its camera's scale."""
+        return (self.sigma * self.scale)[:, None]
+
     def _robust(self, e_sigma: np.ndarray):
         r2 = np.einsum("ni,ni->n", e_sigma, e_sigma)
         return self.loss.loss(r2), self.loss.weight(r2)
@@ -513,8 +580,8 @@ class SequenceBundleProblem:
     def cost(self, state: BundleState) -> float:
         rig = self.model_rig(state)
         e = self.residuals(state, rig)
-        self._trial = (state, rig, e)
-        c, _ = self._robust(e / self.sigma)
+        self.workspace.trial = (state, rig, e)
+        c, _ = self._robust(e / self._noise())
         total = float(c.sum())
         r, _ = self.prior_terms(state)
         if r is not None:
@@ -523,18 +590,17 @@ class SequenceBundleProblem:
 
     def linearize(self, state: BundleState) -> LinearSystem:
         rig = self.model_rig(state)
-        hit = self._linearization
-        if hit is not None and hit[0] is state and hit[1] is rig:  # the same state with a new sigma (rescale)
+        ws = self.workspace
+        hit = ws.linearization
+        if hit is not None and hit[0] is state and hit[1] is rig:  # the same state at another noise scale
             e, Jc, dX, chart = hit[2:]
         else:
             e, Jc, dX = self._evaluate(state, rig)
             chart = self.chart(state, rig)
-            self._linearization = (state, rig, e, Jc, dX, chart)
-        self._last_residuals = (state, e)
-        self._chart = (state, chart)
-        e = e / self.sigma
+            ws.linearization = (state, rig, e, Jc, dX, chart)
+        e = e / self._noise()
         c, wts = self._robust(e)
-        sw = (np.sqrt(wts) / self.sigma)[:, None]
+        sw = np.sqrt(wts)[:, None] / self._noise()
         system = self.structure.accumulate(Jc * sw[:, :, None], e * np.sqrt(wts)[:, None],
                                            (dX @ chart.M[self.obs.point]) * sw[:, :, None])
         system.cost = float(c.sum())
@@ -564,24 +630,19 @@ class SequenceBundleProblem:
             bias = bias + dc[lay.bias]
         P = state.points
         if dp is not None:
-            chart = self._chart[1] if self._chart is not None and self._chart[0] is state else \
-                self.chart(state, self.model_rig(state))
+            hit = self.workspace.linearization
+            chart = hit[5] if hit is not None and hit[0] is state else self.chart(state, self.model_rig(state))
             P = chart.retract(dp)
         return BundleState(R, t, g, P, comp, bias, state.view_sequence)
 
-    def rescale(self, state: BundleState) -> bool:
-        """Re-estimate sigma from the residuals at ``state`` (robustly); adopt it when it moved by more than
-        ``SIGMA_TOLERANCE``, so the run only converges at a noise scale that fits its residuals."""
-        if not self._reestimate:
-            return False
-        self._accepted += 1
-        e = self._last_residuals[1] if self._last_residuals and self._last_residuals[0] is state else \
-            self.residuals(state)
-        new = robust_sigma(e, self.obs.num_points, self.layout.size)
-        if self._accepted == 1 or abs(new / self.sigma - 1.0) > SIGMA_TOLERANCE:
-            self.sigma = new
-            return True
-        return False
+    def unwhitened(self, e: np.ndarray) -> np.ndarray:
+        """Residuals (N, 2) on the nominal noise scale, from which sigma is estimated: times each
+        observation's ``obs.scale`` and divided by its camera's ``camera_scale``. The extra noise an
+        ``obs.scale`` stands for (a hold's residual ringing: a bias of its cameras that the view's pose
+        largely absorbs) need not show in the residuals, so whitened residuals would shrink sigma and
+        cancel the penalty; the residuals as measured keep it."""
+        e = e if self.obs.scale is None else e * self.obs.scale[:, None]
+        return e / self.scale[:, None]
 
     # -- points alone ------------------------------------------------------
     def triangulate(self, state: BundleState, rig: Rig | None = None) -> np.ndarray:
@@ -593,8 +654,8 @@ class SequenceBundleProblem:
         origin = vm.c[self._vc]
         d = np.einsum("nij,nj->ni", vm.Q[self._vc], o.f)  # Q f: the ray in view 0's frame
         Pm = np.eye(3) - d[:, :, None] * d[:, None, :]
-        A = _group_sum(o.point, Pm, o.num_points)
-        b = _group_sum(o.point, np.einsum("nij,nj->ni", Pm, origin), o.num_points)
+        A = group_sum(o.point, Pm, o.num_points)
+        b = group_sum(o.point, np.einsum("nij,nj->ni", Pm, origin), o.num_points)
         X = np.einsum("pij,pj->pi", inv3(A, 1e-12), b)
         ev_min = _smallest_eigenvalue(A)
         depth = np.einsum("ni,ni->n", X[o.point] - origin, d)
@@ -609,14 +670,14 @@ class SequenceBundleProblem:
                     ) -> np.ndarray:
         """Robust cost of each landmark's observations (P,) (from the state's ``residuals`` when given)."""
         e = self.residuals(state, rig or self.model_rig(state)) if residuals is None else residuals
-        c, _ = self._robust(e / self.sigma)
+        c, _ = self._robust(e / self._noise())
         return np.bincount(self.obs.point, weights=c, minlength=self.obs.num_points)
 
     def refit_points(self, state: BundleState, iterations: int = 1):
         """Gauss-Newton on each landmark alone for a fixed camera block (independent 3x3 systems); a landmark
         stuck far off first restarts from triangulation. Returns (state, cost)."""
         rig = self.model_rig(state)
-        trial = self._trial
+        trial = self.workspace.trial
         c0 = self.point_costs(state, rig, trial[2] if trial and trial[0] is state and trial[1] is rig else None)
         tri = replace(state, points=self.triangulate(state, rig))
         c_tri = self.point_costs(tri, rig)
@@ -626,12 +687,12 @@ class SequenceBundleProblem:
         for _ in range(iterations):
             e, _, dX = self._evaluate(state, rig, camera=False)
             chart = self.chart(state, rig)
-            e = e / self.sigma
+            e = e / self._noise()
             _, wts = self._robust(e)
             sw = np.sqrt(wts)[:, None]
-            Jp = (dX @ chart.M[self.obs.point]) * (sw / self.sigma)[:, :, None]
-            H = _group_sum(self.obs.point, np.swapaxes(Jp, 1, 2) @ Jp, self.obs.num_points)
-            b = -_group_sum(self.obs.point, np.einsum("nki,nk->ni", Jp, e * sw), self.obs.num_points)
+            Jp = (dX @ chart.M[self.obs.point]) * (sw / self._noise())[:, :, None]
+            H = group_sum(self.obs.point, np.swapaxes(Jp, 1, 2) @ Jp, self.obs.num_points)
+            b = -group_sum(self.obs.point, np.einsum("nki,nk->ni", Jp, e * sw), self.obs.num_points)
             new = replace(state, points=chart.retract(np.einsum("pij,pj->pi", inv3(H, 1e-12), b)))
             cn = self.point_costs(new, rig)
             better = cn < c0
@@ -676,13 +737,6 @@ def _smallest_eigenvalue(A: np.ndarray) -> np.ndarray:
     return np.where(p > 0, q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q)
 
 
-def _group_sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    shape = values.shape[1:]
-    k = int(np.prod(shape))
-    flat = (index[:, None] * k + np.arange(k)).reshape(-1)
-    return np.bincount(flat, weights=values.reshape(-1), minlength=n * k).reshape((n,) + shape)
-
-
 def _sqrt_psd(A: np.ndarray) -> np.ndarray:
     """C with C^T C = A for a symmetric positive semi-definite A."""
     ev, V = np.linalg.eigh(0.5 * (A + A.T))
@@ -695,16 +749,31 @@ def _sqrt_psd(A: np.ndarray) -> np.ndarray:
 
 @dataclass
 class BundleResult:
-    """The refined state with its statistics and the covariance of the camera block (``layout``)."""
+    """The refined state with the optimiser's statistics and the covariance of the camera block (``layout``).
+
+    ``stats``: what the Levenberg-Marquardt did over the whole adjustment (steps tried and accepted, the cost
+    at the start -- at the starting noise scale -- and at the end, why it stopped); None where no adjustment
+    ran (information at a given state)."""
 
     state: BundleState
     layout: ParameterLayout
-    cost: float
-    iterations: int
-    sigma_rad: float  # robust estimate of the angular noise (rad)
+    sigma_rad: float  # the noise scale of the final cost (rad): given, or the robust estimate it settled at
     information: np.ndarray  # (nc, nc), rad / m units, 1/sigma^2 included
     covariance: np.ndarray  # inverse of information (inf where not observable)
-    stop: str = ""
+    stats: LMStats | None = None
+
+    @property
+    def cost(self) -> float:
+        """Final cost (chi^2 / 2 at ``sigma_rad``; 0 where no adjustment ran)."""
+        return 0.0 if self.stats is None else self.stats.cost
+
+    @property
+    def iterations(self) -> int:
+        return 0 if self.stats is None else self.stats.iterations
+
+    @property
+    def stop(self) -> str:
+        return "" if self.stats is None else self.stats.stop
 
     @property
     def R(self) -> np.ndarray:
@@ -806,7 +875,7 @@ def adjust_bundle(rig: Rig, obs: Observations, R, t, gravity=None, points=None, 
                   optimize_gravity: bool = True, priors: GravityPriors | None = None,
                   gravity_information: GravityInformation | None = None, compliance_groups=None,
                   compliance=None, bias=None, huber_k: float = 3.0, sigma_rad: float | None = None,
-                  max_iterations: int = 30, tol: float = 1e-6) -> BundleResult:
+                  max_iterations: int = 30, tol: float = 1e-6, camera_scale=None) -> BundleResult:
     """Robust joint bundle adjustment of the views' poses, one gravity, the landmarks (and compliances).
 
     R (K, 3, 3), t (K, 3): starting poses of view k in view 0 (view 0 is kept as given: the identity for a
@@ -817,6 +886,8 @@ def adjust_bundle(rig: Rig, obs: Observations, R, t, gravity=None, points=None, 
     robustly at the start and re-estimated as the fit settles. ``compliance_groups`` (M,) camera -> bar
     group (-1: not estimated) with starting ``compliance`` per group estimates bar compliances too.
     ``priors.bias_sigma_rad`` estimates a constant tilt of the measured gravity; ``bias`` starts it.
+    ``camera_scale`` (M,): each camera's angular noise relative to sigma (:func:`camera_noise_factors` of an
+    earlier solve; default all 1); the returned ``sigma_rad`` is that of a camera of scale 1.
     """
     K = obs.num_views
     R = np.array(R, dtype=float).reshape(K, 3, 3)
@@ -842,20 +913,131 @@ def adjust_bundle(rig: Rig, obs: Observations, R, t, gravity=None, points=None, 
                         None if groups is None else np.asarray(compliance, dtype=float).copy(),
                         (np.zeros(3) if bias is None else np.asarray(bias, float).copy()) if use_bias else None,
                         obs.view_sequence)
-    fixed_sigma = sigma_rad is not None
     prob = SequenceBundleProblem(rig, obs, layout, 1.0 if sigma_rad is None else sigma_rad, huber_k,
                                  priors if optimize_gravity else None,
                                  gravity_information if optimize_gravity else None, groups,
-                                 reestimate_sigma=not fixed_sigma)
-    state.points = prob.triangulate(state) if points is None else np.array(points, dtype=float)
-    if not fixed_sigma:  # start at the noise level of the start, re-estimate it once the fit has settled
-        prob.sigma = robust_sigma(prob.residuals(state), obs.num_points, layout.size)
-    state, system, stats = levenberg_marquardt(prob, state, LMOptions(max_iterations=int(max_iterations),
-                                                                      relative_tolerance=tol))
+                                 workspace=BundleWorkspace(), camera_scale=camera_scale)
+    state = replace(state, points=prob.triangulate(state) if points is None else np.array(points, dtype=float))
+    opts = LMOptions(max_iterations=int(max_iterations), relative_tolerance=tol)
+    if sigma_rad is None:  # start at the noise level of the start, re-estimate it as the fit settles
+        prob = prob.with_sigma(robust_sigma(prob.unwhitened(prob.residuals(state)), obs.num_points, layout.size))
+        state, system, stats, prob = _minimize_reestimating_sigma(prob, state, opts)
+    else:
+        state, system, stats = levenberg_marquardt(prob, state, opts)
     info = system.information()  # residuals were scaled by 1/sigma: this is the Fisher information
-    return BundleResult(state=state, layout=layout, cost=stats.cost, iterations=stats.iterations,
-                        sigma_rad=float(prob.sigma), information=info, covariance=covariance_from_information(info),
-                        stop=stats.stop)
+    return BundleResult(state=state, layout=layout, sigma_rad=float(prob.sigma), information=info,
+                        covariance=covariance_from_information(info), stats=stats)
+
+
+def _minimize_reestimating_sigma(prob: SequenceBundleProblem, state: BundleState, options: LMOptions):
+    """Levenberg-Marquardt whose noise scale follows the residuals: an outer loop of LM runs of one accepted
+    step each at a fixed scale; after each, sigma is re-estimated robustly (:func:`robust_sigma`) from the
+    residuals there and adopted after the first step and whenever it moved by more than ``SIGMA_TOLERANCE``
+    (the Huber zone follows the shrinking residuals; the fit converges only at a scale that fits them). A run
+    resumes from the normal equations and the damping the previous one ended with, so the steps are those of
+    one run. Returns (state, LinearSystem there, LMStats of all runs, the problem at the final scale)."""
+    one_step = replace(options, max_accepted=1)
+    system = damping = initial = None
+    iterations = accepted = 0
+    while True:
+        state, system, st = levenberg_marquardt(prob, state, replace(one_step, max_iterations=options.max_iterations
+                                                                     - iterations), system=system, damping=damping)
+        initial = st.initial_cost if initial is None else initial
+        iterations, accepted, damping, stop = iterations + st.iterations, accepted + st.accepted, st.damping, st.stop
+        if st.accepted:
+            new = robust_sigma(prob.unwhitened(prob.residuals(state)), prob.obs.num_points, prob.layout.size)
+            if accepted == 1 or abs(new / prob.sigma - 1.0) > SIGMA_TOLERANCE:
+                prob = prob.with_sigma(new)
+                system = prob.linearize(state)
+                stop = "max accepted"  # the cost changed meaning: the next step judges convergence
+        if stop != "max accepted":
+            break
+        if iterations >= options.max_iterations:
+            stop = "max iterations"
+            break
+    return state, system, LMStats(iterations=iterations, accepted=accepted, initial_cost=initial, cost=system.cost,
+                                  stop=stop, damping=damping), prob
+
+
+def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cluster: np.ndarray,
+                              huber_k: float = 3.0, priors: GravityPriors | None = None,
+                              gravity_information: GravityInformation | None = None) -> np.ndarray:
+    """The camera block's covariance of the adjustment ``res`` on ``obs`` that also holds when the errors within
+    a cluster of observations (``cluster`` (N,), e.g. one camera of one hold) are correlated: the larger, in
+    every direction, of the model's covariance and the jackknife over clusters (docs/PIPELINE.md, "The joint
+    estimate over the sequence", step 6). ``priors`` and ``gravity_information``: those the adjustment ran
+    with (they stay in every leave-one-out solve).
+
+    The model's covariance assumes every observation's error independent. A correspondence bias shared by a
+    hold's camera is not (it is the same in every frame and shifts that camera's landmarks alike), and on a
+    rig that observes a component of gravity weakly the model's std can then be several times below the
+    error. Leaving cluster c out moves the estimate by (H - H_c)^-1 s_c (one Gauss-Newton step from the
+    solution: H the information, s_c and H_c the cluster's score and information, landmarks eliminated); the
+    spread of those moves, times (G - 1) / G over G clusters, is the jackknife covariance, whatever the
+    correlation within a cluster. A cluster whose removal leaves the problem singular counts with its
+    infinitesimal move C s_c."""
+    C = res.covariance
+    nc = C.shape[0]
+    cluster = np.asarray(cluster, np.int64)
+    if nc == 0 or len(obs) != len(cluster) or not np.all(np.isfinite(C)):
+        return C
+    _, cl = np.unique(cluster, return_inverse=True)
+    G = int(cl.max()) + 1 if len(cl) else 0
+    if G < 3:
+        return C
+    lay, state = res.layout, res.state
+    prob = SequenceBundleProblem(rig, obs, lay, res.sigma_rad, huber_k, priors if lay.gravity is not None else None,
+                                 gravity_information if lay.gravity is not None else None)
+    mrig = prob.model_rig(state)
+    e, Jc, dX = prob._evaluate(state, mrig)
+    Jp = dX @ prob.chart(state, mrig).M[obs.point]
+    e = e / prob._noise()
+    _, wts = prob._robust(e)
+    sw = np.sqrt(wts)[:, None] / prob._noise()
+    Jc, Jp, e = Jc * sw[:, :, None], Jp * sw[:, :, None], e * np.sqrt(wts)[:, None]
+    N, _, L = Jc.shape
+    n1 = nc + 1
+    cols = prob.structure.cols
+    # every observation's Jacobian on the whole camera block (N, 2, nc), the spare column collecting none
+    Jfull = np.zeros((N, 2, n1))
+    np.add.at(Jfull, (np.arange(N)[:, None, None], np.arange(2)[None, :, None], cols[:, None, :]), Jc)
+    Jfull = Jfull[:, :, :nc]
+    JpT = np.swapaxes(Jp, 1, 2)
+    P = obs.num_points
+    Hpp = np.zeros((P, 3, 3))
+    np.add.at(Hpp, obs.point, JpT @ Jp)
+    Hpp += 1e-12 * np.eye(3) * np.maximum(np.trace(Hpp, axis1=1, axis2=2), 1e-300)[:, None, None]
+    Hpc = np.zeros((P, 3, nc))
+    np.add.at(Hpc, obs.point, JpT @ Jfull)
+    # with the landmark eliminated, an observation also moves the camera block through its landmark
+    Jr = Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point]
+    s_obs = np.einsum("nrc,nr->nc", Jr, e)
+    S = np.zeros((G, nc))
+    np.add.at(S, cl, s_obs)
+    Hc = np.zeros((G, nc, nc))
+    np.add.at(Hc, cl, np.swapaxes(Jr, 1, 2) @ Jr)
+    H = res.information
+    moves = np.empty((G, nc))
+    for c in range(G):  # clusters (holds x cameras), not observations
+        A = H - Hc[c]
+        try:
+            ev = np.linalg.eigvalsh(0.5 * (A + A.T))
+            if ev.min() <= 1e-9 * max(ev.max(), 1e-300):
+                raise np.linalg.LinAlgError
+            moves[c] = np.linalg.solve(A, S[c])
+        except np.linalg.LinAlgError:
+            moves[c] = C @ S[c]
+    d = moves - moves.mean(axis=0)
+    jack = d.T @ d * ((G - 1.0) / G)
+    # the larger of the two in every direction: in the model's whitened coordinates, eigenvalues below 1 raised
+    try:
+        Lc = np.linalg.cholesky(0.5 * (C + C.T))
+    except np.linalg.LinAlgError:
+        return C
+    Li = np.linalg.inv(Lc)
+    A = Li @ jack @ Li.T
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    return Lc @ ((V * np.maximum(w, 1.0)) @ V.T) @ Lc.T
 
 
 def condense_gravity(rig: Rig, obs: Observations, state: BundleState, sigma_rad: float,
@@ -915,7 +1097,7 @@ def two_view_priors(g1, g2, sigma_rad: float) -> GravityPriors:
     return GravityPriors(np.stack([np.asarray(g1, float), np.asarray(g2, float)]), np.full(2, float(sigma_rad)))
 
 
-__all__ = ["BundleResult", "BundleState", "GravityInformation", "GravityPriors", "InverseDepthChart",
+__all__ = ["BundleResult", "BundleState", "BundleWorkspace", "GravityInformation", "GravityPriors", "InverseDepthChart",
            "Observations", "ParameterLayout", "SequenceBundleProblem", "TwoViewResult", "adjust_bundle",
            "condense_gravity", "covariance_from_information", "gravity_covariance", "inv3", "refine_two_view",
-           "robust_sigma", "two_view_priors"]
+           "robust_sigma", "two_view_priors", "camera_noise_factors", "cluster_robust_covariance"]

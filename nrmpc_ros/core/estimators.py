@@ -34,6 +34,13 @@ from .rig import Rig
 from .so3 import angle_between, fibonacci_sphere, normalize
 
 METHODS = ("6pt-nonbending", "6pt-bending", "4pt-bending")
+
+
+def pair_method(method: str, has_gravity: bool) -> str:
+    """The estimator for one pair of a sequence estimated with ``method``: 4pt-bending needs gravity measured in
+    both views, and a pair without it falls back to 6pt-bending (vision only); other methods are kept."""
+    return "6pt-bending" if method == "4pt-bending" and not has_gravity else method
+
 INLIER_CHANGE_SHARE = 0.01  # the refinement is repeated while the inlier set changes by more than this share
 SCORE_POINTS = 50  # correspondences scoring the full pose of each gravity hypothesis (parallel bars)
 START_TOL = 1e-3  # relative cost decrease that ends a start's bundle adjustment (starts are only compared)
@@ -159,14 +166,6 @@ class EstimateInfo:
             elif name in _ARRAY_FIELDS and value is not None:
                 values[name] = np.asarray(value, dtype=float)
         return cls(**values)
-
-    def get(self, key: str, default: Any = None) -> Any:
-        """Backward compatibility with the dict ``info`` was: the field ``key`` (typed: arrays, not lists),
-        or ``default`` where it holds its default. New code reads the attributes; a key that is no field
-        raises KeyError."""
-        if key not in self.__dataclass_fields__:
-            raise KeyError(f"{key!r} is not an estimate diagnostic")
-        return dict(self._recorded()).get(key, default)
 
 
 @dataclass
@@ -633,4 +632,4 @@ def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int 
                     time_s=elapsed, info=info)
 
 
-__all__ = ["METHODS", "Estimate", "EstimateInfo", "EstimatorOptions", "estimate"]
+__all__ = ["METHODS", "Estimate", "EstimateInfo", "EstimatorOptions", "estimate", "pair_method"]

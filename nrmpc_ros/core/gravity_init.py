@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from .deformation import bend_rotation_vectors, deformed_extrinsics, rays
+from .epipolar import essential_matrix, in_front
 from .loss import msac_score
 from .matches import Matches
 from .residuals import two_view_angular_errors
@@ -77,23 +78,19 @@ def camera_rotations(m: Matches, num_cameras: int, threshold_rad: float, seed: i
     """Relative rotation of each camera (maps its view-2 frame into its view-1 frame) and inlier masks.
 
     Returns (cams, Rc, counts, inlier_mask) for the cameras where a 5-point
-    essential matrix (OpenCV RANSAC) was found with enough inliers. (USAC is
-    several times cheaper, but on a rendered fisheye-rig bag its essential
-    matrices put some narrow cameras 8-15 deg off where RANSAC's did not.)
+    essential matrix (:func:`~nrmpc_ros.core.epipolar.essential_matrix`) was found with enough inliers.
     """
     cams, rots, counts = [], [], []
     inlier = np.zeros(len(m), dtype=bool)
     cv2.setRNGSeed(int(seed))
     for j in range(num_cameras):
-        idx = np.flatnonzero((m.cam == j) & (m.f1[:, 2] > 0.05) & (m.f2[:, 2] > 0.05))
+        idx = np.flatnonzero((m.cam == j) & in_front(m.f1, m.f2))
         if len(idx) < MIN_POINTS_PER_CAMERA:
             continue
-        p1 = m.f1[idx, :2] / m.f1[idx, 2:3]
-        p2 = m.f2[idx, :2] / m.f2[idx, 2:3]
-        E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=threshold_rad)
-        if E is None or E.shape != (3, 3) or mask is None:
+        found = essential_matrix(m.f1[idx], m.f2[idx], threshold_rad)
+        if found is None or found[0].shape != (3, 3):
             continue
-        ok = mask.ravel().astype(bool)
+        E, ok, p1, p2 = found
         if ok.sum() < MIN_POINTS_PER_CAMERA:
             continue
         # the decomposition with the points in front: a spread sample of the inliers decides it

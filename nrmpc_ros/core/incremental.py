@@ -5,16 +5,20 @@ time (camera, landmark id, bearing, optionally measured gravity) and returns
 that view's pose in the sequence origin (view 0) and its gravity from the
 joint solution (docs/PIPELINE.md, "The joint estimate over the sequence"):
 
-1. The new view is paired with the newest earlier view that shares enough
-   landmarks (seen by two cameras at least). While the sequence is young it
+1. The new view is paired with an earlier view that shares enough landmarks
+   (seen by two cameras at least): the newest few first, then any older view
+   of the sequence, most shared landmarks first. While the sequence is young it
    is estimated with the two-view estimator of the method and its pose in
    the origin follows by chaining; later it is placed by resection on the
-   landmarks the window's earlier views triangulate (:mod:`.resection`; the
+   landmarks earlier views triangulate (:mod:`.resection`; the
    two-view estimator only where too few of them fit).
 2. Gravity: the first pair's gravity candidates (its own and the basins it
    left open) are compared by the joint cost; while the sequence is young,
    or when a new pair's gravity contradicts the joint one beyond that pair's
    own noise, the joint gravity competes again with the pair's candidates.
+   Candidates whose joint cost is within the noise of the winner's are
+   rivals: their spread enters the published std until the views tell them
+   apart; on parallel bars a young vision-only sequence publishes no gravity.
 3. The newest ``window`` views are adjusted jointly (robust bundle adjustment
    with inlier classification, :func:`.sequence.refine_sequence`; after a
    resection from the inliers so far, the rest of the window being adjusted
@@ -28,19 +32,30 @@ joint solution (docs/PIPELINE.md, "The joint estimate over the sequence"):
 
 :meth:`IncrementalSequence.batch` adjusts all views of the sequence at once
 from the incremental result. A view that shares too few landmarks with the
-views before it starts a new sequence (its gravity is unknown again).
+views before it starts a new sequence (:class:`NewSequence`; its gravity is
+unknown again unless :meth:`IncrementalSequence.bridge` carries it over); a
+later view that shares enough with a view of the sequence the break ended
+merges the two in the earlier origin (docs/PIPELINE.md, "Merging sequences").
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from enum import Enum
 
 import numpy as np
 
-from .bundle import BundleState, GravityInformation, GravityPriors, Observations, condense_gravity
-from .estimators import estimate
+from .bundle import (
+    BundleState,
+    GravityInformation,
+    GravityPriors,
+    Observations,
+    condense_gravity,
+    covariance_from_information,
+)
+from .estimators import estimate, pair_method
 from .matches import Matches
 from .rig import Rig
 from .sequence import (
@@ -54,10 +69,61 @@ from .sequence import (
     resect_on_landmarks,
     triangulated,
 )
-from .so3 import angle_between, normalize
+from .so3 import angle_between, normalize, tangent_basis
 from .tracks import Tracks
 
 RECONSIDER_SIGMAS = 3.0  # a pair's gravity contradicts the joint one beyond this many of its own stds only
+PARALLEL_COS = 0.99  # bars whose axes are this close to (anti)parallel observe gravity as one bar (paper, 3.3)
+
+
+def parallel_bars(rig: Rig) -> bool:
+    """Whether every flexible bar of the rig lies along one axis (e.g. two cameras at the ends of one bar): its
+    bending then says nothing of gravity's axial component, and a few views leave two basins (paper, section
+    3.3) that their joint cost does not reliably tell apart (docs/PIPELINE.md, "Gravity of a young sequence")."""
+    u, _, cr = rig.bar_coefficients
+    u = u[cr > 0]
+    return len(u) > 0 and bool(np.all(np.abs(u @ u[0]) >= PARALLEL_COS))
+
+
+def gravity_inflation(res) -> float:
+    """How much the published covariance of the origin's gravity exceeds the model's (the information of the
+    solve's independent-error model), as the largest ratio of variances in any direction (>= 1): 1 where the
+    covariance is the model's, more where the cluster-robust one (:func:`.bundle.cluster_robust_covariance`)
+    found errors shared within holds' cameras."""
+    lay = res.layout
+    if lay.gravity is None or res.state.gravity is None:
+        return 1.0
+    g = lay.gravity_of(0)
+    model = covariance_from_information(res.information)
+    Cm, Cr = model[g, g], res.covariance[g, g]
+    if not (np.all(np.isfinite(Cm)) and np.all(np.isfinite(Cr))):
+        return 1.0
+    try:
+        Li = np.linalg.inv(np.linalg.cholesky(0.5 * (Cm + Cm.T)))
+    except np.linalg.LinAlgError:
+        return 1.0
+    return max(1.0, float(np.linalg.eigvalsh(Li @ Cr @ Li.T).max()))
+
+
+class StartReason(Enum):
+    """Why a view is the origin of a sequence (its gravity is unknown again); the value is the phrase shown."""
+
+    FIRST_VIEW = "first view"  # the first view after construction or a reset
+    NO_SHARED_LANDMARKS = "too few landmarks shared"  # no earlier view shares enough landmarks from two cameras
+    PAIR_FAILED = "no pair estimate"  # views share enough landmarks but every two-view estimate failed
+
+
+@dataclass(frozen=True)
+class NewSequence:
+    """:meth:`IncrementalSequence.add_view`'s result for a view that starts a sequence: the sequence number,
+    the reason and, for the user, what each earlier view shared or why its pair failed."""
+
+    sequence: int
+    reason: StartReason
+    detail: str = ""
+
+    def __str__(self) -> str:
+        return f"view starts sequence {self.sequence} ({self.reason.value}{': ' if self.detail else ''}{self.detail})"
 
 
 @dataclass
@@ -79,6 +145,8 @@ class ViewEstimate:
     num_inliers: int
     window: int  # views adjusted in this solve
     time_s: float
+    merged: int | None = None  # an earlier sequence this view linked to, merged into this one (its origin kept)
+    merged_views: int = 0  # views that sequence brought: this sequence's earlier views moved up by as many
 
 
 @dataclass
@@ -91,6 +159,7 @@ class SequenceRecord:
     t: np.ndarray
     gravity: np.ndarray | None
     measured_sigma: np.ndarray
+    noise_scale: np.ndarray | None = None  # (K,) each view's bearing noise over the nominal one (None: all 1)
 
 
 @dataclass
@@ -110,22 +179,45 @@ class _Sequence:
     condensed: GravityInformation | None = None
     retired: set = field(default_factory=set)  # landmark ids folded into ``condensed``
     inlier: list = field(default_factory=list)  # per view (n,) bool
+    noise_scale: list = field(default_factory=list)  # per view: its observations' noise std over the nominal one
+    rivals: list = field(default_factory=list)  # origin gravities of basins whose joint cost is within the noise
+    carried: GravityInformation | None = None  # the gravity a gyro-bridged break carried over (a prior on g_0)
+
+    def information(self) -> GravityInformation | None:
+        """Every prior on the origin's gravity: condensed from retired landmarks, and carried over a break."""
+        if self.carried is None:
+            return self.condensed
+        return self.carried.combined(self.condensed)
 
     @property
     def num_views(self) -> int:
         return len(self.view)
+
+    def scales(self) -> np.ndarray | None:
+        """Per observation (in the order of :meth:`arrays`): its view's noise scale; None when all are 1."""
+        if all(x == 1.0 for x in self.noise_scale):
+            return None
+        return np.repeat(np.asarray(self.noise_scale, float), [len(v) for v in self.view])
 
     def arrays(self):
         return (np.concatenate(self.view), np.concatenate(self.cam), np.concatenate(self.track),
                 np.concatenate(self.f), np.concatenate(self.inlier))
 
 
+def _rotated(info: GravityInformation | None, M: np.ndarray) -> GravityInformation | None:
+    """Gravity information re-expressed in another origin (x' = M x)."""
+    if info is None:
+        return None
+    d = normalize(M @ info.direction)
+    T = tangent_basis(d).T @ M @ tangent_basis(info.direction)
+    return GravityInformation(d, T @ info.information @ T.T)
+
+
 class IncrementalSequence:
     """Views in, joint poses and gravity out; see the module docstring."""
 
     def __init__(self, rig: Rig, method: str = "6pt-bending", options: SequenceOptions | dict | None = None,
-                 window: int = 10, seed: int = 0, young_views: int = 5, reconsider_deg: float = 3.0,
-                 keep_history: bool = False):
+                 window: int = 10, seed: int = 0, keep_history: bool = False):
         self.rig = rig
         self.method = method
         self.options = options if isinstance(options, SequenceOptions) else SequenceOptions.from_dict(options)
@@ -133,33 +225,73 @@ class IncrementalSequence:
             raise ValueError(f"window must be at least 2 views, got {window}")
         self.window = int(window)
         self.seed = int(seed)
-        self.young_views = int(young_views)  # the joint gravity competes with each new pair's candidates until then
-        self.reconsider_rad = math.radians(reconsider_deg)  # ... and whenever a pair disagrees by more than this
+        self.young_views = self.options.young_views  # the joint gravity competes with each pair's until then
+        self.reconsider_rad = math.radians(self.options.reconsider_deg)  # ... and when a pair disagrees this much
         self.model_rig = rig.as_rigid() if method == "6pt-nonbending" else rig
         self.with_gravity = method != "6pt-nonbending" and rig.is_flexible
+        self.parallel_bars = parallel_bars(rig)  # vision only: a young sequence publishes no gravity yet
         focal = float(np.mean([c.focal_px for c in rig.cameras]))
         self.threshold = self.options.estimator.threshold_px / focal
         self._pair_options = self.options.pair_estimator()
         self._noise_rad = self.threshold / 2.0  # angular noise of the latest solve (condenses retired landmarks)
+        # the latest solve's gravity variance, cluster-robust over model (>= 1): what retired landmarks condense
+        # to is a model information and is deflated by it (docs/PIPELINE.md, "The joint estimate over the
+        # sequence", step 6)
+        self._gravity_inflation = 1.0
+        from scipy.special import chdtri  # the chi-square quantile without importing scipy.stats (seconds)
+
+        # a rival basin: its joint cost exceeds the best one's by less than this (chi^2, 2 dof of the direction)
+        self._ambiguity_chi2 = float(chdtri(2, self.options.ambiguity_significance))
         self._sequences = 0
         self.seq = _Sequence(0)
         self.keep_history = keep_history  # keep finished sequences (the bar calibration wants them all)
         self.history: list = []
+        self._broken: list = []  # the latest sequences a break ended: a later view may link and merge them
+        self._last_gravity = None  # (view, its gravity in its body frame, its std) as last published
+        self._carry = None  # what the sequence a break ended passes to the next one (see bridge)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
-        """Start a new sequence: the next view is its origin (with ``keep_history`` the old one is kept)."""
+        """Start a new sequence: the next view is its origin (with ``keep_history`` the old one is kept). A
+        reset on request merges with nothing before it."""
+        self._new_sequence()
+        self._broken.clear()
+
+    def _new_sequence(self) -> None:
         if self.keep_history and self.seq.num_views >= 2:
             self.history.append(self.seq)
         self._sequences += 1
         self.seq = _Sequence(self._sequences)
+        self._carry = None
+        self._last_gravity = None
+
+    def bridge(self, rotation, sigma_rad: float) -> bool:
+        """Carry the gravity of the sequence a break just ended into the new one (whose only view is the hold
+        after the break), given the rotation of the rig between the two holds (``rotation`` maps the new
+        hold's body frame into the previous hold's, p_prev = R p_new, e.g. the gyro integrated over the move)
+        and its angular std (rad): g_0 of the new sequence starts at R^T g_prev and enters every solve as a
+        prior with the two stds combined (docs/PIPELINE.md, "Bridging a break"). Vision only (measured
+        gravity needs no bridge); False where there is nothing to carry."""
+        s = self.seq
+        if not self.with_gravity or s.num_views != 1 or self._carry is None or self._priors(1) is not None:
+            return False
+        g_prev, sigma_prev = self._carry
+        sigma = math.hypot(sigma_prev, float(sigma_rad))
+        if not math.isfinite(sigma) or sigma <= 0.0:
+            return False
+        g0 = np.asarray(rotation, float).T @ g_prev
+        s.gravity = g0
+        s.carried = GravityInformation(normalize(g0), np.eye(2) / sigma ** 2)
+        self._carry = None
+        return True
 
     def sequences(self) -> list:
         """Every sequence of two views or more so far (with ``keep_history``; else the current one): a
         :class:`SequenceRecord` each."""
         seqs = self.history + ([self.seq] if self.seq.num_views >= 2 else [])
         return [SequenceRecord(self._tracks_of(s), np.array(s.R[: s.num_views]), np.array(s.t[: s.num_views]),
-                               s.gravity, np.array(s.measured_sigma)) for s in seqs if len(s.R) >= s.num_views]
+                               s.gravity, np.array(s.measured_sigma), np.array(s.noise_scale, dtype=float))
+                for s in seqs if len(s.R) >= s.num_views]
 
     @property
     def num_views(self) -> int:
@@ -182,10 +314,26 @@ class IncrementalSequence:
         Rr, tr = s.R[reference], s.t[reference]
         return Rr.T @ s.R[view], Rr.T @ (s.t[view] - tr)
 
+    @property
+    def noise_rad(self) -> float:
+        """Angular std of one bearing as the latest joint solve measured it (rad): the nominal noise a view's
+        ``noise_scale`` multiplies."""
+        return float(self._noise_rad)
+
+    def noise_scale(self, extra_sigma_rad: float) -> float:
+        """The ``noise_scale`` of a view whose bearings carry ``extra_sigma_rad`` of noise on top of the
+        nominal one: sqrt(1 + (extra / nominal)^2)."""
+        if not (extra_sigma_rad > 0 and math.isfinite(extra_sigma_rad)):
+            return 1.0
+        return math.hypot(1.0, extra_sigma_rad / max(self.noise_rad, 1e-12))
+
     # ----------------------------------------------------------------- views
-    def add_view(self, cam, track, f, measured_gravity=None, measured_sigma_rad: float | None = None):
-        """Add the next view's observations; returns its :class:`ViewEstimate`, or a str saying why there is
-        none (the origin of a sequence, or a view that starts a new one)."""
+    def add_view(self, cam, track, f, measured_gravity=None, measured_sigma_rad: float | None = None,
+                 noise_scale: float = 1.0) -> ViewEstimate | NewSequence:
+        """Add the next view's observations; returns its :class:`ViewEstimate`, or :class:`NewSequence` for a
+        view that is the origin of a sequence (the first one, or one no earlier view links to).
+        ``noise_scale`` (>= 1): the view's bearing noise std over the nominal one (a hold measured while
+        its bars may still ring): its observations weigh 1 / noise_scale^2 in every joint solve."""
         t0 = time.perf_counter()
         cam = np.asarray(cam, dtype=np.int64)
         track = np.asarray(track, dtype=np.int64)
@@ -201,10 +349,11 @@ class IncrementalSequence:
         s.measured.append(g)
         s.measured_sigma.append(sg)
         s.inlier.append(np.ones(len(cam), bool))
+        s.noise_scale.append(max(float(noise_scale), 1.0) if math.isfinite(noise_scale) else 1.0)
         if k == 0:
             s.R.append(np.eye(3))
             s.t.append(np.zeros(3))
-            return "the first view of a sequence is its origin"
+            return NewSequence(s.number, StartReason.FIRST_VIEW)
         placed = self._resect(k)
         warm = placed is not None
         if warm:
@@ -213,17 +362,87 @@ class IncrementalSequence:
             s.t.append(t)
         else:
             paired = self._pair(k)
-            if isinstance(paired, str):
+            if isinstance(paired, tuple) and isinstance(paired[0], StartReason):
                 self._restart_from_last()
-                return f"new sequence: {paired}"
+                return NewSequence(self.seq.number, *paired)
             j, pm, est = paired
             s.R.append(s.R[j] @ est.R)
             s.t.append(s.R[j] @ est.t + s.t[j])
             if self.with_gravity:
                 self._update_gravity(k, j, est)
+        merged = self._merge(k)
+        if merged is not None:
+            k, j = k + merged[1], j + merged[1]
+            warm = False
         res, first = self._solve_window(k, warm)
         self._retire(first + 1)
-        return self._estimate(k, j, pm, res, first, time.perf_counter() - t0)
+        out = self._estimate(k, j, pm, res, first, time.perf_counter() - t0)
+        if merged is not None:
+            out.merged, out.merged_views = merged
+        return out
+
+    # ----------------------------------------------------------------- merges
+    def _merge(self, k: int):
+        """Merge the current sequence into an earlier one that a break ended, where view k shares enough
+        landmarks with one of its views (docs/PIPELINE.md, "Merging sequences"): the current sequence's views
+        are re-expressed in that sequence's origin from the two-view estimate of the pair, the two gravities
+        (and rival basins) compete by the joint cost, condensed gravity information is rotated and summed.
+        Returns (the earlier sequence's number, its number of views) or None."""
+        s = self.seq
+        opts = self.options
+        key = s.cam[k] * (1 << 40) + s.track[k]
+        for p in reversed(self._broken):
+            view, cam, track = (np.concatenate(x) for x in (p.view, p.cam, p.track))
+            hit = np.isin(cam * (1 << 40) + track, key)
+            ncam = self.rig.num_cameras
+            per_cam = np.bincount(view[hit] * ncam + cam[hit], minlength=p.num_views * ncam).reshape(-1, ncam)
+            shared = per_cam.sum(axis=1)
+            ok = (shared >= opts.min_pair_matches) & (np.count_nonzero(per_cam, axis=1) >= 2)
+            for j in np.argsort(-shared, kind="stable")[: opts.max_pair_gap]:
+                if not ok[j]:
+                    break
+                ia, ib = np.intersect1d(p.cam[j] * (1 << 40) + p.track[j], key, return_indices=True)[1:]
+                has_g = np.all(np.isfinite(p.measured[j])) and np.all(np.isfinite(s.measured[k]))
+                pm = pair_method(self.method, has_g)
+                m = Matches(p.f[j][ia], s.f[k][ib], p.cam[j][ia], p.measured[j] if has_g else None,
+                            s.measured[k] if has_g else None, source=f"sequence {p.number} view {j}, view {k}")
+                est = estimate(self.model_rig, m, method=pm, seed=self.seed + k, options=self._pair_options)
+                if est.success:
+                    n = p.num_views
+                    self._join(p, int(j), k, est)
+                    return p.number, n
+        return None
+
+    def _join(self, p: _Sequence, j: int, k: int, est) -> None:
+        """The current sequence appended to ``p`` (view k placed from p's view j by ``est``), and current."""
+        s = self.seq
+        M = p.R[j] @ est.R @ s.R[k].T  # current origin -> p's origin
+        c = p.R[j] @ est.t + p.t[j] - M @ s.t[k]
+        n = p.num_views
+        for i in range(s.num_views):
+            p.view.append(s.view[i] + n)
+            p.cam.append(s.cam[i])
+            p.track.append(s.track[i])
+            p.f.append(s.f[i])
+            p.measured.append(s.measured[i])
+            p.measured_sigma.append(s.measured_sigma[i])
+            p.noise_scale.append(s.noise_scale[i])
+            p.inlier.append(s.inlier[i])
+            p.R.append(M @ s.R[i])
+            p.t.append(M @ s.t[i] + c)
+        p.retired |= s.retired  # a gravity s carried over its break is dropped: p's own views say it again
+        p.condensed = _rotated(s.condensed, M) if p.condensed is None else \
+            p.condensed.combined(_rotated(s.condensed, M))
+        self._broken = [b for b in self._broken if b is not p]
+        self.history = [h for h in self.history if h is not p]
+        self.seq = p
+        if not self.with_gravity:
+            return
+        cands = [(g, math.inf) for g in [p.gravity] + p.rivals if g is not None]
+        cands += [(M @ g, math.inf) for g in [s.gravity] + s.rivals if g is not None]
+        if not cands:
+            return
+        self._choose_gravity(p, cands, p.num_views - 1)
 
     def _shared(self, j: int, k: int):
         """Observation indices (in views j and k) of the landmarks both see with the same camera."""
@@ -234,19 +453,35 @@ class IncrementalSequence:
         return ia, ib
 
     def _links(self, k: int):
-        """The earlier views view k may be paired with, newest first: (j, shared observation indices in j and
-        in k, pair method) of those that share enough landmarks from two cameras, or a str why none does."""
+        """The earlier views view k may be paired with: (j, shared observation indices in j and in k, pair
+        method) of those that share enough landmarks from two cameras; the newest ``max_pair_gap`` views first
+        (newest first), then any older view of the sequence, most shared landmarks first (docs/PIPELINE.md,
+        "The joint estimate over the sequence"). Or a str why none does."""
         s = self.seq
-        why, out = [], []
-        for j in range(k - 1, max(-1, k - 1 - self.options.max_pair_gap), -1):
-            ia, ib = self._shared(j, k)
-            cams = len(np.unique(s.cam[j][ia]))
-            if len(ia) < self.options.min_pair_matches or cams < 2:
-                why.append(f"view {j}: {len(ia)} shared landmarks from {cams} camera(s)")
+        opts = self.options
+        # landmarks shared with view k, per earlier view and camera, counted at once
+        view, cam, track = (np.concatenate(x[:k]) for x in (s.view, s.cam, s.track))
+        hit = np.isin(cam * (1 << 40) + track, s.cam[k] * (1 << 40) + s.track[k])
+        ncam = self.rig.num_cameras
+        per_cam = np.bincount(view[hit] * ncam + cam[hit], minlength=k * ncam).reshape(k, ncam)
+        shared = per_cam.sum(axis=1)
+        cams = np.count_nonzero(per_cam, axis=1)
+        ok = (shared >= opts.min_pair_matches) & (cams >= 2)
+        recent = np.arange(k - 1, max(-1, k - 1 - opts.max_pair_gap), -1)
+        older = np.arange(k - 1 - opts.max_pair_gap, -1, -1)
+        older = older[np.argsort(-shared[older], kind="stable")]
+        out = []
+        for j in np.concatenate([recent, older]).astype(int):
+            if not ok[j]:
                 continue
+            ia, ib = self._shared(j, k)
             has_g = np.all(np.isfinite(s.measured[j])) and np.all(np.isfinite(s.measured[k]))
-            out.append((j, ia, ib, self.method if self.method != "4pt-bending" or has_g else "6pt-bending"))
-        return out or "; ".join(why) or "no earlier view"
+            out.append((int(j), ia, ib, pair_method(self.method, has_g)))
+        if out:
+            return out
+        best = np.argsort(-shared, kind="stable")[:3]
+        return "; ".join(f"view {j}: {shared[j]} shared landmarks from {cams[j]} camera(s)" for j in best) or \
+            "no earlier view"
 
     def _resect(self, k: int):
         """(reference view, method, (R, t)) of view k placed by resection on the landmarks the earlier views
@@ -257,14 +492,15 @@ class IncrementalSequence:
         opts = self.options
         if not opts.resect_views or k < self.young_views or (self.with_gravity and s.gravity is None):
             return None
+        if s.rivals:
+            return None  # gravity still ambiguous: each new pair's candidates compete (_update_gravity)
         links = self._links(k)
         if isinstance(links, str):
             return None
         j, _, _, pm = links[0]
         view, cam, track, f, inl = s.arrays()
-        known = (view < k) & (view > k - self.window) & inl & np.isin(track, s.track[k])
-        if s.retired:
-            known &= ~np.isin(track, np.fromiter(s.retired, np.int64))
+        # every earlier view's landmarks (fixed poses outside the window): a view may return to an old place
+        known = (view < k) & inl & np.isin(track, s.track[k])
         placed = resect_on_landmarks(self.model_rig, (view[known], cam[known], track[known], f[known]), s.R[:k],
                                      s.t[:k], s.gravity if self.with_gravity else None,
                                      (s.cam[k], s.track[k], s.f[k]), (s.R[j], s.t[j]), self.threshold,
@@ -279,13 +515,14 @@ class IncrementalSequence:
         return j, pm, (res.R, res.t)
 
     def _pair(self, k: int):
-        """(reference view, method, two-view estimate) of view k, or why none."""
+        """(reference view, method, two-view estimate) of view k, or (StartReason, detail) why none. At most
+        ``max_pair_gap`` pairs are estimated, in the order of :meth:`_links`."""
         s = self.seq
         links = self._links(k)
         if isinstance(links, str):
-            return links
+            return StartReason.NO_SHARED_LANDMARKS, links
         why = []
-        for j, ia, ib, pm in links:
+        for j, ia, ib, pm in links[: self.options.max_pair_gap]:
             has_g = np.all(np.isfinite(s.measured[j])) and np.all(np.isfinite(s.measured[k]))
             m = Matches(s.f[j][ia], s.f[k][ib], s.cam[j][ia], s.measured[j] if has_g else None,
                         s.measured[k] if has_g else None, source=f"views {j}, {k}")
@@ -293,15 +530,21 @@ class IncrementalSequence:
             if est.success:
                 return j, pm, est
             why.append(f"view {j}: {est.info.reason or 'estimation failed'}")
-        return "; ".join(why) or "no earlier view"
+        return StartReason.PAIR_FAILED, "; ".join(why)
 
     def _restart_from_last(self) -> None:
         """The newest view cannot be linked: it becomes the origin of a new sequence."""
         s = self.seq
-        last = (s.cam.pop(), s.track.pop(), s.f.pop(), s.measured.pop(), s.measured_sigma.pop())
+        last = (s.cam.pop(), s.track.pop(), s.f.pop(), s.measured.pop(), s.measured_sigma.pop(), s.noise_scale.pop())
         s.view.pop()
         s.inlier.pop()
-        self.reset()
+        if s.num_views >= 2 and len(s.R) >= s.num_views and self.options.merge_sequences > 0:
+            self._broken = (self._broken + [s])[-self.options.merge_sequences:]
+        carry = None
+        if self._last_gravity is not None and self._last_gravity[0] == s.num_views - 1:
+            carry = self._last_gravity[1:]  # the previous view's own gravity, in its body frame
+        self._new_sequence()
+        self._carry = carry
         n = self.seq
         n.view.append(np.zeros(len(last[0]), np.int64))
         n.cam.append(last[0])
@@ -309,6 +552,7 @@ class IncrementalSequence:
         n.f.append(last[2])
         n.measured.append(last[3])
         n.measured_sigma.append(last[4])
+        n.noise_scale.append(last[5])
         n.inlier.append(np.ones(len(last[0]), bool))
         n.R.append(np.eye(3))
         n.t.append(np.zeros(3))
@@ -334,27 +578,47 @@ class IncrementalSequence:
         if self.method == "4pt-bending":
             cands += [(s.R[i] @ s.measured[i], 0.0) for i in (j, k) if np.all(np.isfinite(s.measured[i]))]
         if s.gravity is not None:
-            young = k < self.young_views
-            # a pair contradicts the joint gravity by more than reconsider_deg and its own noise allows
+            young = k < self.young_views or bool(s.rivals)
+            # a pair contradicts the joint gravity by more than options.reconsider_deg and its own noise allows
             sigma = est.info.gravity_sigma_rad or 0.0
             if not young and angle_between(cands[0][0], s.gravity) < max(self.reconsider_rad,
                                                                          RECONSIDER_SIGMAS * sigma):
                 return
-            cands = [(s.gravity, math.inf)] + cands
+            cands = [(s.gravity, math.inf)] + [(g, math.inf) for g in s.rivals] + cands
+        self._choose_gravity(s, cands, k)
+
+    def _choose_gravity(self, s: _Sequence, cands: list, k: int) -> None:
+        """The joint gravity of sequence ``s`` (its window ending at view k) chosen among the candidates by the
+        joint cost, the window's free views taking the winner's poses; candidates within the noise of it stay as
+        rivals. Every candidate is adjusted: a basin left unadjusted could not be judged a rival."""
         opts = self.options
         distinct = distinct_candidates(cands, math.radians(opts.candidate_separation_deg), opts.max_candidates)
-        first = max(0, k + 1 - self.window)
-        obs, _, free = self._window_problem(k, first)
-        R, t = np.array(s.R), np.array(s.t)
-        rng = np.random.default_rng(self.seed + k)
-        chosen, _ = choose_gravity(self.model_rig, obs, R, t, distinct, self._priors(k + 1), self.threshold, opts,
-                                   rng, free_views=free, gravity_information=s.condensed)
+        obs, _, free = self._window_problem(k, max(0, k + 1 - self.window))
+        scores = []
+        chosen, _ = choose_gravity(self.model_rig, obs, np.array(s.R), np.array(s.t), distinct, self._priors(k + 1),
+                                   self.threshold,
+                                   replace(opts, refined_candidates=max(opts.refined_candidates, len(distinct))),
+                                   np.random.default_rng(self.seed + k), free_views=free,
+                                   gravity_information=s.information(), scores=scores)
         if isinstance(chosen, np.ndarray):
             s.gravity = chosen
         else:
             s.gravity = chosen.gravity
             for i in free:
                 s.R[i], s.t[i] = chosen.R[i], chosen.t[i]
+        s.rivals = self._rivals(s.gravity, scores)
+
+    def _rivals(self, gravity: np.ndarray, scores: list) -> list:
+        """The candidates' origin gravities whose joint cost is within the noise of the best one's and that lie
+        apart from the chosen gravity: basins the views so far cannot tell apart (docs/PIPELINE.md, "Gravity
+        of a young sequence"). Costs in chi^2 units: MSAC score over the noise variance (half the inlier threshold)."""
+        if len(scores) < 2:
+            return []
+        chi2 = np.array([sc for _, sc in scores]) / self._noise_rad ** 2
+        sep = math.radians(self.options.candidate_separation_deg)
+        within = chi2 <= chi2.min() + self._ambiguity_chi2
+        return [np.asarray(g, float) for (g, _), w in zip(scores, within)
+                if w and angle_between(g, gravity) > sep]
 
     # ---------------------------------------------------------------- solves
     def _window_problem(self, k: int, first: int):
@@ -362,11 +626,15 @@ class IncrementalSequence:
         window sees (minus retired ones), and the free views."""
         s = self.seq
         view, cam, track, f, _ = s.arrays()
+        sc = s.scales()
+        # a retired landmark stays out even where a later view sees it again: what its older observations say
+        # about gravity is in the condensed prior already (such a view is placed by resection on it)
         live = np.unique(track[view >= first])
         keep = np.isin(track, live)
         if s.retired:
             keep &= ~np.isin(track, np.fromiter(s.retired, np.int64))
-        obs, _ = Observations.from_arrays(view[keep], cam[keep], track[keep], f[keep], k + 1)
+        obs, _ = Observations.from_arrays(view[keep], cam[keep], track[keep], f[keep], k + 1,
+                                          None if sc is None else sc[keep])
         free = np.arange(max(first, 1), k + 1)
         if first > 0 and not np.any(view[keep] < first):
             free = free[1:]  # nothing older ties the window to the origin: its first view holds the gauge
@@ -383,10 +651,11 @@ class IncrementalSequence:
             before = np.bincount(obs.point, weights=obs.view < k, minlength=obs.num_points)
             start = np.concatenate(s.inlier)[idx] | (before[obs.point] < 2)
         res, inl = refine_sequence(self.model_rig, obs, np.array(s.R), np.array(s.t), s.gravity, self.threshold,
-                                   priors=self._priors(k + 1), gravity_information=s.condensed, free_views=free,
+                                   priors=self._priors(k + 1), gravity_information=s.information(), free_views=free,
                                    max_iterations=self.options.max_iterations, rounds=self.options.window_rounds,
                                    huber_k=self.options.estimator.huber_k, inliers=start,
-                                   min_rounds=1 if warm else 2, tol=self.options.relative_tolerance)
+                                   min_rounds=1 if warm else 2, tol=self.options.relative_tolerance,
+                                   camera_noise=self.options.camera_noise)
         st = res.state
         for i in free:
             s.R[i], s.t[i] = st.R[i], st.t[i]
@@ -410,7 +679,9 @@ class IncrementalSequence:
             old &= ~np.isin(track, np.fromiter(s.retired, np.int64))
         if not old.any():
             return
-        obs, _ = Observations.from_arrays(view[old], cam[old], track[old], f[old], s.num_views)
+        sc = s.scales()
+        obs, _ = Observations.from_arrays(view[old], cam[old], track[old], f[old], s.num_views,
+                                          None if sc is None else sc[old])
         seen_twice = np.bincount(obs.point, minlength=obs.num_points) >= 2
         if seen_twice.any():
             obs, _ = obs.subset(seen_twice[obs.point])
@@ -418,18 +689,40 @@ class IncrementalSequence:
             state, _ = triangulated(self.model_rig, obs, state)
             info = condense_gravity(self.model_rig, obs, state, self._noise_rad, self.options.estimator.huber_k)
             if info is not None:
+                info = GravityInformation(info.direction, info.information / self._gravity_inflation)
                 s.condensed = info.combined(s.condensed)
         s.retired.update(int(x) for x in np.unique(track[old]))
+
+    def gravity_resolved(self, k: int) -> bool:
+        """Whether view k of the current sequence publishes its gravity: always with measured gravity or bars
+        along more than one axis; vision only on parallel bars once the sequence is no longer young."""
+        return (k >= self.young_views or not self.parallel_bars or self._priors(k + 1) is not None
+                or self.seq.carried is not None)
+
+    def ambiguity_rad(self) -> float:
+        """Largest angle (rad) between the current sequence's gravity and a rival basin's (0 when resolved)."""
+        s = self.seq
+        if s.gravity is None or not s.rivals:
+            return 0.0
+        return max(float(angle_between(g, s.gravity)) for g in s.rivals)
 
     def _estimate(self, k, j, pm, res, first, elapsed) -> ViewEstimate:
         s = self.seq
         self._noise_rad = res.sigma_rad
+        self._gravity_inflation = gravity_inflation(res)
         g = cov = None
         sigma = math.inf
-        if self.with_gravity and s.gravity is not None:
+        if self.with_gravity and s.gravity is not None and self.gravity_resolved(k):
             g = s.R[k].T @ s.gravity
-            sigma = res.gravity_sigma_rad(k)
+            # the local std knows one basin only: the spread to rival basins enters it (docs/PIPELINE.md)
+            spread = self.ambiguity_rad()
+            sigma = math.hypot(res.gravity_sigma_rad(k), spread)
             cov = res.gravity_covariance(k)
+            if spread > 0.0 and np.all(np.isfinite(cov)):
+                u = normalize(g)
+                cov = cov + spread ** 2 * float(g @ g) * (np.eye(3) - np.outer(u, u))
+        if g is not None:
+            self._last_gravity = (k, g, sigma)
         n = len(s.cam[k])
         return ViewEstimate(sequence=s.number, view=k, reference=j, method=pm, R=s.R[k].copy(), t=s.t[k].copy(),
                             gravity=g, gravity_sigma_rad=sigma, cov_gravity=cov,
@@ -446,7 +739,7 @@ class IncrementalSequence:
         if K < 2 or len(s.R) < K:
             return SequenceEstimate(method=self.method, success=False, reason="fewer than two linked views")
         view, cam, track, f, _ = s.arrays()
-        obs, _ = Observations.from_arrays(view, cam, track, f, K)
+        obs, _ = Observations.from_arrays(view, cam, track, f, K, s.scales())
         seen = (np.bincount(obs.point, minlength=obs.num_points) >= 2)[obs.point]
         obs, _ = obs.subset(seen)
         refine = dict(priors=self._priors(K), max_iterations=self.options.max_iterations,
@@ -471,4 +764,4 @@ class IncrementalSequence:
                                 reason=reason, bundle=res, link_repairs=repairs)
 
 
-__all__ = ["IncrementalSequence", "SequenceRecord", "ViewEstimate"]
+__all__ = ["IncrementalSequence", "NewSequence", "SequenceRecord", "StartReason", "ViewEstimate", "parallel_bars"]

@@ -6,7 +6,7 @@ touching one point and a few camera columns. The normal equations are
 accumulated per observation (:class:`SchurStructure`), the points are
 eliminated by a Schur complement of 3x3 blocks, so an iteration costs
 O(observations x track length) and never forms a matrix of points x points
-(docs/ARCHITECTURE.md, "Robust core").
+(docs/ARCHITECTURE.md, "The estimation core").
 
 A problem plugs in with four methods (PoseLib's pattern of writing the loop
 once)::
@@ -16,12 +16,13 @@ once)::
     step(state, dc, dp) -> state          # apply a camera step dc and point steps dp (P, 3)
     refit_points(state) -> (state, cost)  # optional: re-fit points alone after a failed step
 
-and optionally ``rescale(state) -> bool``, called after each accepted step
-(once the state is linearised), which may change the noise scale of the cost
-(returns True when it did: the state is linearised again and the convergence
-test waits for the next step). Nothing is kept between
-calls: :func:`levenberg_marquardt` returns the final state, the normal
-equations there (for covariances) and its statistics.
+The cost's meaning (its noise scale, its weights) is fixed for one run; a
+caller that re-estimates the noise does so between runs (the bundle
+adjustment runs one accepted step at a time while it does,
+``LMOptions.max_accepted``, and resumes with the normal equations and the
+damping the previous run ended with). Nothing is kept between calls:
+:func:`levenberg_marquardt` returns the final state, the normal equations
+there (for covariances) and its statistics whole (:class:`LMStats`).
 """
 
 from __future__ import annotations
@@ -144,8 +145,8 @@ class SchurStructure:
             return LinearSystem(cost=0.0, Hcc=Hcc, bc=bc)
         JpT = np.swapaxes(Jp, 1, 2)
         P = self.num_points
-        Hpp = _sum_by(self.point, JpT @ Jp, P)
-        bp = -_sum_by(self.point, np.einsum("nkr,nr->nk", JpT, e), P)
+        Hpp = group_sum(self.point, JpT @ Jp, P)
+        bp = -group_sum(self.point, np.einsum("nkr,nr->nk", JpT, e), P)
         W = JcT @ Jp  # (N, L, 3) coupling of each observation's camera columns with its point
         return LinearSystem(cost=0.0, Hcc=Hcc, bc=bc, Hpp=Hpp, bp=bp, W=W, structure=self)
 
@@ -189,7 +190,7 @@ class SchurStructure:
             rhs = system.bp - np.einsum("pci,c->pi", system.Hcp, dc)
         else:
             dce = np.append(dc, 0.0)[self.cols]  # (N, L), zero for non-existing columns
-            rhs = system.bp - _sum_by(self.point, np.einsum("nlk,nl->nk", system.W, dce), self.num_points)
+            rhs = system.bp - group_sum(self.point, np.einsum("nlk,nl->nk", system.W, dce), self.num_points)
         return np.einsum("pij,pj->pi", Hpp_inv, rhs)
 
     def reduced_information(self, system: LinearSystem) -> np.ndarray:
@@ -199,7 +200,7 @@ class SchurStructure:
         return S - 1e-12 * np.eye(self.nc)
 
 
-def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+def group_sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     """Sum of ``values`` (N, ...) grouped by ``index`` (N,) into (n, ...)."""
     shape = values.shape[1:]
     k = int(np.prod(shape)) if shape else 1
@@ -261,21 +262,29 @@ class LMOptions:
     initial_damping: float = 1e-4  # lambda relative to the diagonal
     damping_factor: float = 10.0  # lambda is multiplied / divided by this on a rejected / accepted step
     max_damping: float = 1e8  # give up beyond this
+    max_accepted: int | None = None  # stop after this many accepted steps (None: no limit)
 
 
 @dataclass
 class LMStats:
-    """What one run did."""
+    """What one run did: steps tried and accepted, the cost at the start and at the end, why it stopped and
+    the damping it ended with (to resume from)."""
 
     iterations: int
     accepted: int
     initial_cost: float
     cost: float
-    stop: str  # converged | max iterations | damping | minimum
+    stop: str  # converged | max iterations | max accepted | damping | minimum
+    damping: float = 0.0
 
 
-def levenberg_marquardt(problem, state, options: LMOptions | None = None):
+def levenberg_marquardt(problem, state, options: LMOptions | None = None, *, system: LinearSystem | None = None,
+                        damping: float | None = None):
     """Minimise problem's cost from ``state``; returns (state, LinearSystem at that state, LMStats).
+
+    ``system``: the problem's normal equations at ``state`` when the caller has them (else linearised here);
+    ``damping``: the damping to start from (default ``options.initial_damping``, which stays the floor a
+    rejected step raises it to).
 
     Converged when a step decreases the cost by less than ``cost_tolerance`` (or ``relative_tolerance`` of
     it), or by less than ``creep_tolerance`` while the camera step's predicted decrease is below
@@ -283,11 +292,10 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None):
     by rounding ends the run at the minimum.
     """
     opts = options or LMOptions()
-    lam = opts.initial_damping
-    system = problem.linearize(state)
+    lam = opts.initial_damping if damping is None else float(damping)
+    system = problem.linearize(state) if system is None else system
     cost = initial = system.cost
     refit = getattr(problem, "refit_points", None)
-    rescale = getattr(problem, "rescale", None)
     it = accepted = 0
     stop = "max iterations"
     while it < opts.max_iterations:
@@ -315,14 +323,15 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None):
         accepted += 1
         lam = max(lam / opts.damping_factor, 1e-9)
         system = problem.linearize(state)
-        if rescale is not None and rescale(state):
-            converged = False  # the cost changed meaning: judge the next step
-            system = problem.linearize(state)
         cost = system.cost
         if converged:
             stop = "converged"
             break
-    return state, system, LMStats(iterations=it, accepted=accepted, initial_cost=initial, cost=cost, stop=stop)
+        if opts.max_accepted is not None and accepted >= opts.max_accepted:
+            stop = "max accepted"
+            break
+    return state, system, LMStats(iterations=it, accepted=accepted, initial_cost=initial, cost=cost, stop=stop,
+                                  damping=lam)
 
 
-__all__ = ["LMOptions", "LMStats", "LinearSystem", "SchurStructure", "inv3", "levenberg_marquardt"]
+__all__ = ["LMOptions", "LMStats", "LinearSystem", "SchurStructure", "group_sum", "inv3", "levenberg_marquardt"]

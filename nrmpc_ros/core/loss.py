@@ -7,9 +7,9 @@ units of the noise sigma or in rad^2, as the caller decides), PoseLib-style:
 - ``weight(r2)``: the iteratively-reweighted-least-squares weight
   rho'(r2) * 2, i.e. the factor that multiplies J^T J and J^T r.
 
-``HuberLoss`` is the refinement's loss (docs/CONVENTIONS.md, "Refinement");
-``TruncatedLoss`` is the MSAC score that RANSAC and the comparison of starts
-use: min(r2, threshold^2) summed over all correspondences (``msac_score``).
+``HuberLoss`` is the refinement's loss (docs/CONVENTIONS.md, Estimators,
+"Refinement"); ``msac_score`` is the MSAC score that RANSAC and the comparison
+of starts use: min(e^2, threshold^2) summed over all correspondences.
 """
 
 from __future__ import annotations
@@ -37,21 +37,6 @@ class HuberLoss:
         return np.divide(self.delta, r, out=np.ones_like(r), where=r > self.delta)
 
 
-class TruncatedLoss:
-    """MSAC: min(r2, threshold^2); inliers (r2 < threshold^2) weigh 1, outliers 0."""
-
-    def __init__(self, threshold: float):
-        if not threshold > 0:
-            raise ValueError(f"threshold must be > 0, got {threshold}")
-        self.threshold = float(threshold)
-
-    def loss(self, r2: np.ndarray) -> np.ndarray:
-        return np.minimum(np.asarray(r2, dtype=float), self.threshold**2)
-
-    def weight(self, r2: np.ndarray) -> np.ndarray:
-        return (np.asarray(r2, dtype=float) < self.threshold**2).astype(float)
-
-
 def msac_score(errors: np.ndarray, threshold: float, axis=None) -> np.ndarray | float:
     """Sum of min(e^2, threshold^2) of angular errors ``errors`` (rad) along ``axis`` (all by default)."""
     e = np.asarray(errors, dtype=float)
@@ -59,4 +44,4 @@ def msac_score(errors: np.ndarray, threshold: float, axis=None) -> np.ndarray | 
     return float(s) if axis is None else s
 
 
-__all__ = ["HuberLoss", "TruncatedLoss", "msac_score"]
+__all__ = ["HuberLoss", "msac_score"]

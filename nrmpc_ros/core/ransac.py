@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .loss import msac_score
+
 
 @dataclass
 class RansacOptions:
@@ -63,7 +65,6 @@ def ransac(problem, options: RansacOptions, rng: np.random.Generator,
            groups: np.ndarray | None = None) -> RansacResult | None:
     """Run the robust loop; returns None when no hypothesis was ever generated."""
     n = problem.num_data
-    thr2 = options.threshold**2
     best = None
     best_cost = math.inf
     needed = math.inf
@@ -76,12 +77,12 @@ def ransac(problem, options: RansacOptions, rng: np.random.Generator,
         models = problem.generate(draw_sample(rng, n, problem.sample_size, groups))
         if models and subset is not None:
             sub_err = problem.errors(models, subset)
-            sub_cost = np.minimum(sub_err * sub_err, thr2).sum(axis=1) * (n / len(subset))
+            sub_cost = msac_score(sub_err, options.threshold, axis=1) * (n / len(subset))
             k = int(np.argmin(sub_cost))
             models = [models[k]] if sub_cost[k] < 1.5 * best_cost else []
         if models:
             errs = problem.errors(models)
-            costs = np.minimum(errs * errs, thr2).sum(axis=1)
+            costs = msac_score(errs, options.threshold, axis=1)
             k = int(np.argmin(costs))
             if costs[k] < best_cost:
                 model, err, cost = models[k], errs[k], float(costs[k])
@@ -89,7 +90,7 @@ def ransac(problem, options: RansacOptions, rng: np.random.Generator,
                     lo = problem.local_optimize(model, err < options.threshold)
                     if lo is not None:
                         lo_err = problem.errors([lo])[0]
-                        lo_cost = float(np.minimum(lo_err * lo_err, thr2).sum())
+                        lo_cost = msac_score(lo_err, options.threshold)
                         if lo_cost < cost:
                             model, err, cost = lo, lo_err, lo_cost
                 best, best_cost = (model, err), cost

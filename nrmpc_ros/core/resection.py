@@ -19,10 +19,10 @@ import numpy as np
 import poselib
 
 from .deformation import deformed_extrinsics
+from .epipolar import MIN_BEARING_Z  # bearings further off axis are left out (normalised coordinates)
 from .rig import Rig
 
 BENDING_UPDATES = 5  # re-bendings at the pose found (each moves the pose by the bending change: a few suffice)
-MIN_DEPTH = 0.05  # bearings with z below this (more than ~87 deg off the optical axis) are left out
 MIN_SAMPLES = 20  # RANSAC samples at least (the stopping rule ends it early at a high inlier ratio)
 _UNIT_CAMERA = {"model": "SIMPLE_PINHOLE", "width": 0, "height": 0, "params": [1.0, 0.0, 0.0]}
 
@@ -76,7 +76,7 @@ def resect_view(rig: Rig, points, f, cam, R_guess, t_guess, gravity0=None, thres
     f = np.asarray(f, float)
     cam = np.asarray(cam, np.int64)
     points = np.asarray(points, float)
-    use = (f[:, 2] > MIN_DEPTH) & np.all(np.isfinite(points), axis=1)
+    use = (f[:, 2] > MIN_BEARING_Z) & np.all(np.isfinite(points), axis=1)
     if np.count_nonzero(use) < 4:
         return None
     x = f[:, :2] / np.where(use, f[:, 2], 1.0)[:, None]

@@ -44,7 +44,7 @@ _CAMERA_KEYS = {
     "name", "image_topic", "info_topic", "model", "intrinsics", "distortion",
     "resolution", "position", "rotation_xyzw", "bar",
 }
-_BAR_KEYS = {"mass", "EI"}
+_BAR_KEYS = {"mass", "EI", "damping", "frequency_hz"}  # damping, frequency_hz: section 13 (read by the dynamics)
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,7 @@ class Camera:
     rotation: np.ndarray  # V_i: camera -> body
     mass: float = 0.0  # tip mass m_i (kg)
     EI: float = math.inf  # flexural rigidity (N m^2)
+    damping: float | None = None  # damping ratio zeta_i of the bar's first bending mode; None: unknown
     image_topic: str = ""
     info_topic: str = ""
 
@@ -156,6 +157,10 @@ class Rig:
             cams.append(replace(c, mass=mass if k > 0 else c.mass, EI=ei))
         return replace(self, cameras=tuple(cams))
 
+    def with_bar_ei(self, EI: float) -> Rig:
+        """The rig with every bar that has a tip mass set to flexural rigidity EI (N m^2); inf = rigid."""
+        return replace(self, cameras=tuple(replace(c, EI=float(EI)) if c.mass > 0 else c for c in self.cameras))
+
     def to_dict(self) -> dict:
         """The rig as the docs/CONVENTIONS.md (Files) mapping (round-trips through load_rig)."""
         out = {"body_frame": self.body_frame, "gravity_magnitude": float(self.gravity_magnitude)}
@@ -181,6 +186,8 @@ class Rig:
                 d["info_topic"] = c.info_topic
             if c.mass > 0 or math.isfinite(c.EI):
                 d["bar"] = {"mass": float(c.mass), "EI": float(c.EI)}
+                if c.damping is not None:
+                    d["bar"]["damping"] = float(c.damping)
             cams.append(d)
         out["cameras"] = cams
         return out
@@ -367,6 +374,17 @@ def _bar(src, p, name, bar, pos, gm) -> tuple[float, float]:
     return mass, ei
 
 
+def _damping(src, p, bar) -> float | None:
+    """The bar's damping ratio zeta_i (docs/CONVENTIONS.md, "The rig in motion"): in (0, 1), or None if absent."""
+    if bar.get("damping") is None:
+        return None
+    zeta = _number(src, f"{p}.bar.damping", bar["damping"])
+    if not 0.0 < zeta < 1.0:
+        raise InputError(src, f"damping ratio must be in (0, 1) (an under-damped bar rings), got {zeta}",
+                         f"{p}.bar.damping")
+    return zeta
+
+
 def _intrinsics(src, p, d, model):
     intr = _vector(src, f"{p}.intrinsics", d["intrinsics"], length=4)
     for j, axis in enumerate(("fx", "fy")):
@@ -400,14 +418,15 @@ def _parse_camera(src, i, d, gm) -> Camera:
         raise InputError(src, f"|position| = {math.hypot(*pos):.3g} m is beyond the plausible "
                               f"{MAX_POSITION_M:g} m from the body centre", f"{p}.position")
     rot = _rotation(src, f"{p}.rotation_xyzw", d["rotation_xyzw"])
-    mass, ei = 0.0, math.inf
+    mass, ei, damping = 0.0, math.inf, None
     if d.get("bar") is not None:
         mass, ei = _bar(src, p, name, d["bar"], pos, gm)
+        damping = _damping(src, p, d["bar"])
     image_topic = _ros_topic(src, f"{p}.image_topic", d.get("image_topic", f"/{name}/image_raw"))
     info_topic = _ros_topic(src, f"{p}.info_topic", d.get("info_topic", _default_info_topic(image_topic)))
     return Camera(
         name=name, model=model, intrinsics=tuple(intr), distortion=tuple(dist), resolution=tuple(int(x) for x in res),
-        position=pos, rotation=rot, mass=mass, EI=ei, image_topic=image_topic, info_topic=info_topic,
+        position=pos, rotation=rot, mass=mass, EI=ei, damping=damping, image_topic=image_topic, info_topic=info_topic,
     )
 
 

@@ -45,12 +45,14 @@ from .bundle import (
     ParameterLayout,
     SequenceBundleProblem,
     adjust_bundle,
+    camera_noise_factors,
+    cluster_robust_covariance,
 )
-from .estimators import METHODS, EstimatorOptions, estimate
+from .estimators import METHODS, EstimatorOptions, estimate, pair_method
 from .loss import msac_score
 from .resection import resect_view
 from .rig import Rig
-from .so3 import angle_between
+from .so3 import angle_between, normalize, tangent_basis
 from .tracks import Tracks
 
 RIGID_REASON = "the rig has no flexible bar (every EI is inf or mass 0), so gravity is unobservable from vision"
@@ -67,6 +69,8 @@ class SequenceOptions:
     relative_tolerance: float = option(1e-4, "a joint adjustment stops once a step gains less than this share "
                                        "of the cost", lo=0.0, hi=1.0)
     inlier_rounds: int = option(4, "joint adjustments while the inlier set still changes", lo=1, hi=100)
+    camera_noise: bool = option(True, "view by view, the last joint adjustment weighs each hold's camera by its "
+                                "own noise (a posteriori variance factor, with the correspondence-bias floor)")
     candidate_iterations: int = option(8, "short joint adjustment of each gravity candidate", lo=1, hi=10000)
     candidate_tracks: int = option(300, "tracks (random subset) those short adjustments use", lo=8, hi=10000000)
     candidate_separation_deg: float = option(3.0, "gravity candidates closer than this (deg) are one", lo=0.0,
@@ -99,6 +103,20 @@ class SequenceOptions:
     link_retention: float = option(0.5, "a link between consecutive views is broken when the share of their "
                                    "common landmarks kept as inliers is below this fraction of the median link's",
                                    lo=0.0, hi=1.0)
+    young_views: int = option(5, "view by view: a sequence is young for this many views: the joint gravity "
+                              "competes with each new pair's candidates, and vision only on parallel bars no "
+                              "gravity is published yet (its first pairs' basins are not told apart reliably, "
+                              "docs/PIPELINE.md)", lo=1, hi=1000)
+    reconsider_deg: float = option(3.0, "view by view: past its young views, a sequence's joint gravity is chosen "
+                                   "again among the candidates when a new pair's gravity differs from it by more "
+                                   "than this (deg) and by more than 3 of the pair's own stds", lo=0.0, hi=180.0)
+    merge_sequences: int = option(4, "view by view: sequences a break ended that are kept so that a later view "
+                                  "linking to one of them merges it with the current sequence (0: no merges)",
+                                  lo=0, hi=1000)
+    ambiguity_significance: float = option(0.01, "view by view: a gravity basin whose joint cost exceeds the "
+                                           "best one's by less than the chi^2 (2 dof) quantile at 1 - this is a "
+                                           "rival: its spread enters the published std until the views tell them "
+                                           "apart", lo=0.0, hi=0.5, lo_open=True)
     window_rounds: int = option(2, "view by view: joint adjustments of the window while its inliers change",
                                 lo=1, hi=100)
 
@@ -186,7 +204,7 @@ def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, s
             if len(m) < opts.min_pair_matches or cams < 2:
                 why.append(f"view {j}: {len(m)} shared tracks from {cams} camera(s)")
                 continue
-            pm = method if method != "4pt-bending" or m.has_gravity else "6pt-bending"
+            pm = pair_method(method, m.has_gravity)
             est = estimate(rig, m, method=pm, seed=seed + k, options=pair_opts)
             if not est.success:
                 why.append(f"view {j}: {est.info.reason or 'estimation failed'}")
@@ -298,6 +316,79 @@ def _observations(tracks: Tracks):
     return obs, np.flatnonzero(keep)
 
 
+# What remains of a landmark's correspondence bias between holds after patch alignment (px, median over the
+# rendered rooms' landmarks, pinhole and fisheye, 5-30 deg of viewpoint change: 0.025-0.035 px, docs/RESULTS.md,
+# scripts/bench_correspondence.py). It is the same in every frame of a hold, so the residuals of one solve
+# cannot show it against the averaged noise: it enters every camera's noise as a floor of this many pixels.
+CORRESPONDENCE_BIAS_FLOOR_PX = 0.03
+
+
+def camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, huber_k: float,
+                       bias_floor_px: float = CORRESPONDENCE_BIAS_FLOOR_PX) -> np.ndarray:
+    """Each camera's angular noise relative to ``res.sigma_rad`` (M,): its a posteriori variance factor from
+    the residuals of the solve ``res`` on ``obs`` (:func:`~nrmpc_ros.core.bundle.camera_noise_factors`), with
+    the correspondence-bias floor ``bias_floor_px`` / focal length added in quadrature."""
+    _, prob = triangulated(rig, obs, res.state)
+    factors = camera_noise_factors(prob.residuals(res.state), obs.cam, rig.num_cameras, huber_k)
+    focal = np.array([c.focal_px for c in rig.cameras])
+    floor = bias_floor_px / focal / max(res.sigma_rad, 1e-12)
+    return np.sqrt(factors**2 + floor**2)
+
+
+def hold_camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, huber_k: float,
+                            bias_floor_px: float = CORRESPONDENCE_BIAS_FLOOR_PX) -> np.ndarray:
+    """Each observation's angular noise relative to ``res.sigma_rad`` (N,): the a posteriori variance factor of
+    its (hold, camera) from the residuals of the solve ``res`` on ``obs``, with the correspondence-bias floor
+    ``bias_floor_px`` / focal length added in quadrature (docs/PIPELINE.md, "The joint estimate over the
+    sequence", step 5).
+
+    The correspondences' remaining bias is the same in every frame of a hold and differs between holds and
+    cameras (the viewpoint change to the landmark's reference patch, the settling of that hold's bars): one
+    hold's camera can carry residuals ten times another's. One factor per camera would weigh a clean hold as
+    much as a biased one and let the biased hold pull gravity, most of all on a rig that observes one of
+    gravity's components weakly (two cameras on one bar). A (hold, camera) with fewer than 10 observations
+    keeps the factor 1 (too few to tell)."""
+    _, prob = triangulated(rig, obs, res.state)
+    M = rig.num_cameras
+    group = obs.view * M + obs.cam
+    factors = camera_noise_factors(prob.residuals(res.state), group, obs.num_views * M, huber_k)
+    focal = np.array([c.focal_px for c in rig.cameras])[obs.cam]
+    floor = bias_floor_px / focal / max(res.sigma_rad, 1e-12)
+    return np.sqrt(factors[group] ** 2 + floor**2)
+
+
+# Significance of the test of the measured gravities against the joint solution (chi-square, upper tail).
+IMU_CONSISTENCY_SIGNIFICANCE = 0.01
+
+
+def measured_gravity_excess(priors: GravityPriors | None, state: BundleState) -> float:
+    """How much the measured (IMU) gravities disagree with the joint solution beyond their own stds: the
+    chi-square of their residuals (2 per active prior, the estimated constant tilt included) over its
+    degrees of freedom when it exceeds the test at ``IMU_CONSISTENCY_SIGNIFICANCE``, else 1.
+
+    The IMU's std comes from its measured noise; vision's from residuals that cannot show the
+    correspondences' remaining bias. When the two disagree by more than their stds allow, the vision term
+    is the optimistic one: its noise is inflated by this factor's square root, so the fusion follows the
+    evidence and is not pulled off a sound IMU by an overconfident vision term."""
+    if priors is None or state.gravity is None:
+        return 1.0
+    from scipy.special import chdtri  # the chi-square quantile without importing scipy.stats (seconds)
+
+    active = np.flatnonzero(priors.active)
+    if len(active) == 0:
+        return 1.0
+    origins = normalize(state.origin_gravity())
+    b = state.bias if state.bias is not None else np.zeros(3)
+    total = 0.0
+    for k in active:  # the views of the window, not observations
+        r = tangent_basis(priors.directions[k]).T @ (state.R[k].T @ origins[k] + b) / priors.sigma_rad[k]
+        total += float(r @ r)
+    dof = 2 * len(active)
+    if total <= chdtri(dof, IMU_CONSISTENCY_SIGNIFICANCE):
+        return 1.0
+    return total / dof
+
+
 def triangulated(rig: Rig, obs: Observations, state: BundleState) -> tuple[BundleState, SequenceBundleProblem]:
     """The state with every landmark of obs triangulated, and a problem that evaluates it."""
     prob = SequenceBundleProblem(rig, obs, ParameterLayout(obs.num_views, [], False), 1.0)
@@ -310,12 +401,14 @@ def _errors(prob: SequenceBundleProblem, state: BundleState) -> np.ndarray:
 
 
 def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: SequenceOptions, rng, *, free_views=None,
-                   gravity_information: GravityInformation | None = None):
+                   gravity_information: GravityInformation | None = None, scores: list | None = None):
     """The candidate g_0 whose short joint adjustment has the best MSAC score over all observations (plus the
     prior terms); returns (the candidate itself when there is only one, else the winner's BundleState, count).
 
     Every candidate is first scored at the chained poses (landmarks triangulated, no adjustment); the best
-    ``refined_candidates`` of them get the short adjustment on a subset of the tracks.
+    ``refined_candidates`` of them get the short adjustment on a subset of the tracks. ``scores``, when given,
+    receives (g_0, MSAC score in rad^2) of every candidate: after its adjustment where it had one, else at the
+    chained poses (an upper bound of what an adjustment would reach); it stays empty for a single candidate.
     """
     if len(candidates) == 1:
         return candidates[0], 1
@@ -323,7 +416,10 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
     for g0 in candidates:
         st, prob = triangulated(rig, obs, BundleState(R, t, g0, np.zeros((obs.num_points, 3))))
         quick.append(msac_score(_errors(prob, st), threshold))
-    keep = [candidates[i] for i in np.argsort(quick)[: opts.refined_candidates]]
+    order = np.argsort(quick)
+    keep = [candidates[i] for i in order[: opts.refined_candidates]]
+    if scores is not None:
+        scores.extend((candidates[i], quick[i]) for i in order[opts.refined_candidates:])
     pts = np.arange(obs.num_points)
     if len(pts) > opts.candidate_tracks:
         pts = np.sort(rng.choice(pts, size=opts.candidate_tracks, replace=False))
@@ -335,6 +431,8 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
                             sigma_rad=threshold / 2.0, tol=1e-3)
         st, prob = triangulated(rig, obs, res.state)
         score = msac_score(_errors(prob, st), threshold)
+        if scores is not None:
+            scores.append((np.asarray(res.state.gravity, float).reshape(-1, 3)[0], score))
         if score < best_score:
             best, best_score = res.state, score
     return best, len(candidates)
@@ -343,13 +441,17 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
 def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float, *, priors=None,
                     gravity_information: GravityInformation | None = None, points=None, free_views=None,
                     max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0,
-                    inliers=None, min_rounds: int = 2, tol: float = 1e-6):
+                    inliers=None, min_rounds: int = 2, tol: float = 1e-6, camera_noise: bool = False):
     """Robust joint adjustment: classify observations as inliers (angular error below ``threshold``, rad,
     ``start_factor`` times that at the start, where the poses are only roughly right, and within the given
     ``inliers`` mask, for a start that is already adjusted and classified), adjust on the inliers, re-classify every
     observation and repeat (at least ``min_rounds`` times, each round from landmarks triangulated at the
     poses so far) while the inlier set changes by more than 1 %; ``tol``: relative cost decrease that ends an
-    adjustment. Returns
+    adjustment. ``camera_noise``: a last adjustment weighs each hold's camera by its own noise
+    (:func:`hold_camera_noise_scale` of the solve so far, at that solve's sigma, kept fixed), so its covariance
+    carries each (hold, camera)'s a posteriori variance factor and the correspondence-bias floor; with measured
+    gravity priors that disagree with the solve beyond their stds, vision's noise is inflated by the excess
+    (:func:`measured_gravity_excess`). Returns
     (BundleResult on the inliers, inlier mask over obs)."""
     state = BundleState(np.asarray(R, float), np.asarray(t, float), gravity,
                         np.zeros((obs.num_points, 3)) if points is None else np.asarray(points, float),
@@ -376,6 +478,19 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
         inl = new
         if r + 1 >= min_rounds and changed <= max(2, 0.01 * np.count_nonzero(inl)):
             break  # a rough start always gets a second round: from landmarks triangulated at the refined poses
+    if camera_noise and res is not None:  # on the observations of the last adjustment (its landmarks)
+        st = res.state
+        scale = hold_camera_noise_scale(rig, sub, res, huber_k) * math.sqrt(measured_gravity_excess(priors, st))
+        sub = replace(sub, scale=scale if sub.scale is None else sub.scale * scale)
+        weighed = adjust_bundle(rig, sub, st.R, st.t, st.gravity, st.points, priors=priors,
+                                gravity_information=gravity_information, free_views=free_views,
+                                max_iterations=max(10, max_iterations // 3), huber_k=huber_k, tol=tol,
+                                sigma_rad=res.sigma_rad, bias=st.bias)
+        if np.all(np.isfinite(weighed.covariance)) or not np.all(np.isfinite(res.covariance)):
+            res = weighed  # (a weighing that leaves the information singular keeps the solve before it)
+            # errors shared within a hold's camera: the covariance holds for them too (cluster-robust)
+            res = replace(res, covariance=cluster_robust_covariance(
+                rig, sub, res, sub.view * rig.num_cameras + sub.cam, huber_k, priors, gravity_information))
     return res, inl
 
 
@@ -435,7 +550,7 @@ def _relinked(rig: Rig, tracks: Tracks, obs: Observations, state: BundleState, k
         m = tracks.pair(k - 1, k)
         if len(m) < opts.min_pair_matches:
             return None
-        pm = method if method != "4pt-bending" or m.has_gravity else "6pt-bending"
+        pm = pair_method(method, m.has_gravity)
         hint = None if g0 is None or pm != "6pt-bending" else state.R[k - 1].T @ g0
         est = estimate(rig, m, method=pm, seed=seed, options=opts.pair_estimator(), gravity_hint=hint)
         if not est.success:

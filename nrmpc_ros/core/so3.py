@@ -1,7 +1,7 @@
 """Rotations and unit vectors: small vectorised helpers (no state, no ROS).
 
 All functions accept batches with leading dimensions; angles are in radians,
-quaternions are (x, y, z, w) as in ROS messages (docs/CONVENTIONS.md (Files)).
+quaternions are (x, y, z, w) as in ROS messages (docs/CONVENTIONS.md (Frames)).
 """
 
 from __future__ import annotations

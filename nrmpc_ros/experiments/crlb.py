@@ -21,7 +21,7 @@ estimator's median error divided by the median bound is ~1 when efficient.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -71,7 +71,8 @@ def fisher_information(rig: Rig, P, cam, R, t, g, sigma_rad: float, gravity_prio
     """8x8 Fisher information of (dr, t, dg) with the points eliminated (Schur complement).
 
     ``gravity_prior_sigma`` (rad) adds measured gravity in both views as a
-    prior of that angular std (docs/CONVENTIONS.md (Estimators, Gravity measurements)pt-bending); inf = vision only.
+    prior of that angular std (as 4pt-bending does, docs/CONVENTIONS.md (Estimators, Gravity measurements)); inf =
+    vision only.
     """
     P = np.asarray(P, dtype=float)
     cam = np.asarray(cam)
@@ -187,8 +188,8 @@ def _bound_result(rig, obs, state, sigma_rad, priors=None) -> BundleResult:
     layout = ParameterLayout(obs.num_views, free, True)
     prob = SequenceBundleProblem(rig, obs, layout, float(sigma_rad), huber_k=1e6, priors=priors)
     info = prob.linearize(state).information()
-    return BundleResult(state=state, layout=layout, cost=0.0, iterations=0, sigma_rad=float(sigma_rad),
-                        information=info, covariance=covariance_from_information(info))
+    return BundleResult(state=state, layout=layout, sigma_rad=float(sigma_rad), information=info,
+                        covariance=covariance_from_information(info))
 
 
 def sequence_bound(problem, sigma_rad: float, gravity_prior_sigma: float = math.inf) -> SequenceBound:
@@ -221,11 +222,5 @@ def sequence_bound(problem, sigma_rad: float, gravity_prior_sigma: float = math.
     return SequenceBound(joint=jcov, pairwise=pair)
 
 
-def set_bar_ei(rig: Rig, EI: float) -> Rig:
-    """The rig with every bar that has a tip mass set to flexural rigidity EI (N m^2); inf = rigid."""
-    cams = tuple(replace(c, EI=float(EI)) if c.mass > 0 else c for c in rig.cameras)
-    return replace(rig, cameras=cams)
-
-
 __all__ = ["Bound", "KINDS", "SequenceBound", "angle_samples", "bound_from_information", "fisher_information",
-           "noise_free_bearings", "problem_bound", "sequence_bound", "set_bar_ei", "summarize_bounds"]
+           "noise_free_bearings", "problem_bound", "sequence_bound", "summarize_bounds"]

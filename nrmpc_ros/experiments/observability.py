@@ -25,7 +25,7 @@ from ..core.rig import Rig
 from ..core.tracks import Tracks
 from ..sim.sequence import SequenceProblem, SequenceScenario, make_sequence
 from ..sim.synthetic import Scenario, make_problem, make_rig
-from .crlb import KINDS, Bound, problem_bound, sequence_bound, set_bar_ei, summarize_bounds
+from .crlb import KINDS, Bound, problem_bound, sequence_bound, summarize_bounds
 from .runner import task_seed
 
 
@@ -52,7 +52,7 @@ def observability(rig: Rig, scenario: Scenario, samples: int = 30, seed: int = 0
 def rig_at_ei(rig: Rig | None, scenario: Scenario, EI: float) -> Rig:
     """The custom rig with every massive bar at EI, or the scenario's simulated rig built with EI."""
     if rig is not None:
-        return set_bar_ei(rig, EI)
+        return rig.with_bar_ei(EI)
     return make_rig(replace(scenario.rig, EI=float(EI)))
 
 

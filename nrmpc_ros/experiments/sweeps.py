@@ -25,7 +25,6 @@ from ..core.rig import Rig
 from ..errors import InputError, OptionError
 from ..safeio import atomic_write, check_output
 from ..sim.synthetic import RigSpec, Scenario, default_layout
-from .crlb import set_bar_ei
 from .runner import ERROR_KINDS, Task, execute, summarize, task_seed
 
 
@@ -107,7 +106,7 @@ def make_tasks(exp: Experiment, cameras: int, runs: int, seed: int, axes: dict |
             sc = _cell_scenario(base, params)
             rig_d = None
             if rig is not None:
-                rig_d = (set_bar_ei(rig, params["EI"]) if "EI" in params else rig).to_dict()
+                rig_d = (rig.with_bar_ei(params["EI"]) if "EI" in params else rig).to_dict()
             tasks.append(Task(cell=i, params={"cameras": cameras, **params}, scenario=sc.to_dict(), run=r, seed=s,
                               methods=methods, rig=rig_d, options=options))
     return tasks, cells

@@ -1,8 +1,9 @@
 """Every dropped input counted by where it came from and why, and log lines that say so without flooding.
 
 A drop is (source, reason, message): the topic (or "pipeline", "worker"),
-a short reason that names the kind ("stamp in the future", "NaN or inf", ...)
-and a message with the numbers of this occurrence. The first drop of each
+the reason, a :class:`~nrmpc_ros.frontend.drops.Drop` (its message names the
+kind: "stamp in the future", ...), and a message with the numbers of this
+occurrence. The first drop of each
 (source, reason) is logged with its message; later ones are counted and
 logged as one line per ``every_s`` seconds ("12 more ... in the last 10 s"),
 also when the burst has ended (:meth:`DropLog.due`, from a timer); with
@@ -17,6 +18,8 @@ import threading
 import time
 from collections import Counter
 from dataclasses import dataclass
+
+from .drops import Drop, sorted_counts
 
 
 @dataclass
@@ -36,7 +39,7 @@ class DropLog:
         self._kinds: dict = {}
         self._lock = threading.Lock()
 
-    def drop(self, source: str, reason: str, message: str, count: int = 1) -> str | None:
+    def drop(self, source: str, reason: Drop, message: str, count: int = 1) -> str | None:
         """Count ``count`` drops; returns the line to log now, or None (counted for a later line)."""
         now = self.clock()
         with self._lock:
@@ -59,19 +62,19 @@ class DropLog:
                     if k.unreported and now - k.last_log >= self.every_s]
 
     @staticmethod
-    def _line(source: str, reason: str, k: _Kind, now: float) -> str:
-        line = f"{source}: {k.unreported} more dropped ({reason}) in the last {now - k.last_log:.0f} s, " \
+    def _line(source: str, reason: Drop, k: _Kind, now: float) -> str:
+        line = f"{source}: {k.unreported} more dropped ({reason.message}) in the last {now - k.last_log:.0f} s, " \
                f"{k.total} in all; the newest: {k.message}"
         k.unreported, k.last_log = 0, now
         return line
 
     def counts(self) -> dict:
-        """(source, reason) -> number of drops."""
+        """(source, Drop) -> number of drops."""
         with self._lock:
             return {key: k.total for key, k in self._kinds.items()}
 
     def by_reason(self) -> Counter:
-        """reason -> number of drops over all sources."""
+        """Drop -> number of drops over all sources."""
         out = Counter()
         for (_, reason), n in self.counts().items():
             out[reason] += n
@@ -82,8 +85,8 @@ class DropLog:
 
     def summary(self) -> str:
         """One line: every (source, reason) with its count, or "nothing dropped"."""
-        items = sorted(self.counts().items())
-        return "; ".join(f"{source}: {reason} {n}" for (source, reason), n in items) or "nothing dropped"
+        items = sorted_counts(self.counts())
+        return "; ".join(f"{source}: {reason.message} {n}" for (source, reason), n in items) or "nothing dropped"
 
 
 __all__ = ["DropLog"]

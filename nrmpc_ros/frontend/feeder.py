@@ -44,12 +44,16 @@ from ..config import check, option
 from ..core.rig import Rig
 from ..errors import InputError
 from .droplog import DropLog
+from .drops import Drop
 from .images import decode_image
 from .pipeline import FrameSet
-from .stamps import StampGuard
-from .sync import StampSynchronizer
+from .stamps import JumpPolicy, StampGuard
+from .sync import StampSynchronizer, SyncConfig
 
 IMU = "imu"  # stream id of the IMU in the stamp guard (cameras are 0..M-1)
+HELD_QUEUES = 4  # a candidate jump back holds up to this many frame queues of messages: every camera's and the
+# IMU's messages of the new time wait there until a second input (or jump_confirm of one) confirms it
+STAMPS_KEPT = 4096  # frame stamps remembered as received (sec, nanosec): far more than the sets waiting
 
 
 @dataclass
@@ -63,11 +67,14 @@ class FeederConfig:
     max_future_s: float = option(10.0, "a stamp more than this ahead of the clock (the node's clock; the "
                                  "recording time in nrmpc replay) is dropped (s); .inf: no test", lo=0.0,
                                  lo_open=True)
-    jump_back_s: float = option(1.0, "a stamp this far behind the newest of its input is a jump back in time "
-                                "once a second input or jump_confirm of its messages show it (s)", lo=0.0,
-                                hi=3600.0, lo_open=True)
-    jump_confirm: int = option(3, "messages of one input that confirm a jump back in time when no other input "
-                               "talks", lo=1, hi=1000)
+    jump_back_s: float = option(JumpPolicy.jump_back_s, "a stamp this far behind the newest of its input is a "
+                                "jump back in time once a second input or jump_confirm of its messages show it "
+                                "(s)", lo=0.0, hi=3600.0, lo_open=True)
+    jump_confirm: int = option(JumpPolicy.confirm, "messages of one input that confirm a jump of its clock when no "
+                               "other input talks (the stamp checks' jumps back and the frame grouping's)", lo=1,
+                               hi=1000)
+    grouping: SyncConfig = option(SyncConfig(), "the frame grouping by stamp: how its tolerance follows the frame "
+                                  "rate, when a partial frame set leaves, when a stamp is a jump")
     imu_lead_s: float = option(0.0, "a frame set goes to the pipeline after the IMU samples stamped before this "
                                "long after its stamp (s); 0: before its stamp, so a frame taken just before the rig "
                                "moves (a snapshot at the end of its hold) is judged by the samples before it",
@@ -77,6 +84,10 @@ class FeederConfig:
 
     def __post_init__(self):
         check(self, "input config")
+
+    def jump_policy(self) -> JumpPolicy:
+        """When held stamps are a jump of the clock: one policy for the stamp checks and the frame grouping."""
+        return JumpPolicy(self.jump_back_s, self.jump_confirm)
 
 
 class Work(NamedTuple):
@@ -104,7 +115,7 @@ class Feeder:
         self.log = log or (lambda level, line: None)
         self.clock = clock
         c = self.config
-        self.guard = StampGuard(c.max_future_s, c.jump_back_s, c.jump_confirm, max_held=4 * c.queue_size)
+        self.guard = StampGuard(c.max_future_s, c.jump_policy(), max_held=HELD_QUEUES * c.queue_size)
         self.events = Counter()  # "time jumps back", "frame sets", "imu samples", "images"
         self._stamps: OrderedDict = OrderedDict()  # frame stamp (s) -> (sec, nanosec) as received
         self._new_epoch()
@@ -112,6 +123,7 @@ class Feeder:
     def _new_epoch(self) -> None:
         c = self.config
         self.sync = StampSynchronizer(self.rig.num_cameras, c.sync_tolerance_s or None, c.queue_size,
+                                      config=c.grouping, jumps=c.jump_policy(),
                                       names=[cam.name for cam in self.rig.cameras])
         self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
         self._imu: deque = deque()  # (stamp, accel, gyro, covariances or None)
@@ -126,22 +138,22 @@ class Feeder:
         try:
             img = decode_image(msg, topic)
         except InputError as exc:
-            self._drop(topic, "image not decoded", str(exc))
+            self._drop(topic, Drop.IMAGE_NOT_DECODED, str(exc))
             return
         except Exception as exc:  # a broken message must not stop the input
-            self._drop(topic, "image not decoded", f"{topic}: cannot decode the image ({type(exc).__name__}: {exc})")
+            self._drop(topic, Drop.IMAGE_NOT_DECODED, f"{topic}: cannot decode the image ({type(exc).__name__}: {exc})")
             return
         cam = self.rig.cameras[index]
         w, h = cam.resolution
         if img.shape != (h, w):
-            self._drop(topic, "wrong image size", f"{topic}: image is {img.shape[1]}x{img.shape[0]}, the rig file "
-                                                  f"{self.rig.source} says {w}x{h} for camera {cam.name!r}")
+            self._drop(topic, Drop.WRONG_IMAGE_SIZE, f"{topic}: image is {img.shape[1]}x{img.shape[0]}, the rig "
+                                                     f"file {self.rig.source} says {w}x{h} for camera {cam.name!r}")
             return
         st = msg.header.stamp
         sec, nsec = int(st.sec), int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
         stamp = sec + 1e-9 * nsec
         self._stamps[stamp] = (sec, nsec)
-        while len(self._stamps) > 4096:
+        while len(self._stamps) > STAMPS_KEPT:
             self._stamps.popitem(last=False)
         self._checked(index, stamp, img, now)
 
@@ -161,14 +173,14 @@ class Feeder:
         a = np.asarray(accel, dtype=float).reshape(-1)
         w = np.asarray(gyro, dtype=float).reshape(-1)
         if a.shape != (3,) or w.shape != (3,):
-            self._drop(topic, "IMU sample of the wrong shape", f"{topic}: IMU sample with {a.size} acceleration and "
-                                                               f"{w.size} rate values (3 each expected)")
+            self._drop(topic, Drop.IMU_WRONG_SHAPE, f"{topic}: IMU sample with {a.size} acceleration and "
+                                                    f"{w.size} rate values (3 each expected)")
         elif not (np.all(np.isfinite(a)) and np.all(np.isfinite(w))):
-            self._drop(topic, "IMU sample with NaN or inf", f"{topic}: IMU sample at {stamp:.3f} s has NaN or inf "
-                                                            f"values (acceleration {a.tolist()}, rate {w.tolist()})")
+            self._drop(topic, Drop.IMU_NOT_FINITE, f"{topic}: IMU sample at {stamp:.3f} s has NaN or inf "
+                                                   f"values (acceleration {a.tolist()}, rate {w.tolist()})")
         elif not np.any(a):
-            self._drop(topic, "IMU sample with zero acceleration", f"{topic}: IMU sample at {stamp:.3f} s reads "
-                                                                   "zero acceleration (no accelerometer?)")
+            self._drop(topic, Drop.IMU_ZERO_ACCEL, f"{topic}: IMU sample at {stamp:.3f} s reads "
+                                                   "zero acceleration (no accelerometer?)")
         else:
             self._checked(IMU, float(stamp), (a, w, covariance), now)
 
@@ -220,7 +232,7 @@ class Feeder:
     def _accept(self, stream, stamp: float, payload) -> None:
         if stream == IMU:
             if stamp <= self._imu_newest:
-                self._drop(self._name(IMU), "IMU sample out of order", f"{self._name(IMU)}: IMU sample at "
+                self._drop(self._name(IMU), Drop.IMU_OUT_OF_ORDER, f"{self._name(IMU)}: IMU sample at "
                            f"{stamp:.6f} s is not newer than the last one ({self._imu_newest:.6f} s)")
                 return
             self._imu_newest = stamp
@@ -233,12 +245,12 @@ class Feeder:
     def _emit_sets(self, sets: list) -> None:
         for stream, stamp, reason in self.sync.take_dropped():
             topic = self.topics[stream]
-            self._drop(topic, f"frame {reason}", f"{topic}: frame at {stamp:.6f} s dropped by the frame grouping "
-                                                 f"({reason}; {self.sync.describe()})")
+            self._drop(topic, reason, f"{topic}: frame at {stamp:.6f} s dropped by the frame grouping "
+                                      f"({reason.label}; {self.sync.describe()})")
         arrival = self.clock()
         for s in sets:
             self.events["frame sets"] += 1
-            self._frames.append((FrameSet(s.stamp, list(s.items)), arrival))
+            self._frames.append((FrameSet(s.stamp, list(s.items), list(s.stamps)), arrival))
 
     def _frontier(self) -> float:
         """No frame set to come is older than this (s): the sets waiting, the frames grouped, the cameras that
@@ -271,7 +283,7 @@ class Feeder:
         s, *data = self._imu.popleft()
         self.sink(Work("imu", s, tuple(data)))
 
-    def _drop(self, source: str, reason: str, message: str) -> None:
+    def _drop(self, source: str, reason: Drop, message: str) -> None:
         line = self.drops.drop(source, reason, message)
         if line:
             self.log("warn", line)

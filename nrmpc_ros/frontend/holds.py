@@ -3,25 +3,26 @@
 A :class:`HoldRecorder` collects, camera by camera, the track positions of
 every frame of one hold (tracked from the hold's anchor frame, see
 :class:`~nrmpc_ros.frontend.tracking.KltTracker`). :meth:`HoldRecorder.measure`
-then keeps only the settled part:
+then decides which frames to use and how much to trust them:
 
-- the bars ring after the rig stops: the settled part starts at least
-  ``settle_periods`` periods of the slowest bar (sqrt(3 EI / (m L^3)) / (2 pi),
-  from the rig file) after the hold started, and
-- every camera's image offset from the hold's rest position (the median over
-  the later frames of the median track displacement from the anchor) is at
-  most ``max(settle_px, settle_noise x its frame-to-frame noise)``; the
-  longest run of such frames is the settled part;
-- bars that still ring when the hold ends (lightly damped bars, short holds)
-  give no such frames: then the settled part is the last frames spanning a
-  whole number of periods of the slowest bar, over which the ringing averages
-  out (``Hold.ringing``; such a hold is measured when it ends, as the ringing
-  decays).
+- each camera's image offset after the stop (the median track displacement
+  from the anchor) is fitted with its bar's damped response
+  (:mod:`.ringing`, started at the rig file's sqrt(3 EI / (m L^3)) / (2 pi));
+- frames where the fitted ringing is predicted below the noise
+  (``max(settle_px, settle_noise x the offset's noise)``) and the offset is
+  at rest are settled: their longest run is averaged;
+- bars that ring through the hold: the frames the damped response explains
+  are used at its rest position (the fitted oscillation removed from every
+  track of the camera, ``Hold.ringing``); too few frames to fit: all of them,
+  with their spread as the residual ringing;
+- a hold with one frame (a snapshot) carries the ringing its stop may have
+  left, from the IMU's deceleration (or a default load) decayed at the bar's
+  damping; without an IMU it is taken as settled.
 
-Each track's positions over the settled frames are averaged: the hold's
-measurement noise falls with the number of frames. A hold with one frame (a
-snapshot) is settled when the IMU says the rig was still for the settle time
-before it, and taken as settled without an IMU.
+The ringing a hold may still carry is ``Hold.ringing_px`` (with its source):
+the pipeline turns it into extra bearing noise for the joint estimate.
+Only what is physically unusable is refused, by a typed rule
+(:class:`Refusal`) with its numbers.
 """
 
 from __future__ import annotations
@@ -29,17 +30,57 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 
 from ..config import check, option
 from ..core.dynamics import bar_natural_frequencies
 from ..core.rig import Rig
+from .ringing import RingingFit, fit_damped_response
+
+MIN_FIT_FRAMES = 8  # the damped response has 8 parameters per camera (rest, cos, sin per axis; frequency, damping)
+# for 2 numbers per frame: 8 frames leave as many degrees of freedom for its noise as it has parameters
+
+
+class Refusal(Enum):
+    """Why a hold gives no measurement: only what is physically unusable (:meth:`HoldRecorder.measure`)."""
+
+    NO_FRAMES = "no frames"
+    NO_TRACKS = "no camera had enough tracks"
+    NOT_STILL = "the image never settled (the rig moved)"
+    TRACKS_LOST = "too few tracks lasted through the settled frames"
+
+
+@dataclass(frozen=True)
+class HoldRefusal:
+    """A refused hold: the rule (counted by the pipeline) and the numbers behind it."""
+
+    rule: Refusal
+    detail: str
+
+    def __str__(self) -> str:
+        return f"{self.rule.value}: {self.detail}" if self.detail else self.rule.value
+
+    def __contains__(self, text: str) -> bool:
+        return text in str(self)
+
+
+class RingingSource(Enum):
+    """Where a hold's expected residual ringing comes from (:attr:`Hold.ringing_px`)."""
+
+    SETTLED = "settled"  # the fitted ringing (or the image itself) is below the noise in the frames used
+    FIT = "fit"  # the damped response fitted to the hold's image offsets (rest position of the fit)
+    SPREAD = "spread"  # too few frames to fit the ringing: the offsets' own spread about their mean
+    IMU = "imu"  # a snapshot: the stop's deceleration measured by the IMU, decayed at the bar's damping
+    DEFAULT = "default"  # a snapshot whose stop the IMU did not see: holds.stop_load_m_s2, decayed
+    RIGID = "rigid"  # no flexible bar: nothing rings
+    UNKNOWN = "unknown"  # a snapshot without an IMU: nothing says when the rig stopped
 
 
 @dataclass
 class HoldConfig:
-    """When frames belong to a hold, and which of them are settled (pixels of each camera's image)."""
+    """When frames belong to a hold, how far their bars may still ring (pixels of each camera's image)."""
 
     still_step_px: float = option(0.3, "without an IMU a hold starts when the median image motion between two "
                                   "frames is at most this (px)", lo=0.0, hi=100.0, lo_open=True)
@@ -47,13 +88,16 @@ class HoldConfig:
                                     "the hold's first frame (deg, through each camera's focal length): ringing "
                                     "bars oscillate inside it, the moves between holds leave it", lo=0.0, hi=90.0,
                                     lo_open=True)
-    settle_px: float = option(0.2, "a frame is settled when its image offset from the hold's rest position is "
-                              "below this (px) or below settle_noise times the offset's noise; what remains of "
-                              "the ringing averages out over the settled frames", lo=0.0, hi=100.0, lo_open=True)
+    settle_px: float = option(0.2, "the ringing is settled where the damped response predicts less than this "
+                              "(px) or less than settle_noise times the image offset's noise; a frame deviating "
+                              "from the rest position by more is not at rest", lo=0.0, hi=100.0, lo_open=True)
     settle_noise: float = option(4.0, "see settle_px (in units of the offset's frame-to-frame noise)", lo=0.0,
                                  hi=1000.0, lo_open=True)
-    settle_periods: float = option(2.0, "the settled part starts at least this many periods of the slowest bar "
-                                   "after the hold starts", lo=0.0, hi=1000.0)
+    damping: float = option(0.02, "damping ratio assumed for bars whose rig file gives none (a light damping: the "
+                            "ringing is assumed to last long, so its expected residual is conservative)",
+                            lo=0.0, hi=0.99, lo_open=True)
+    stop_load_m_s2: float = option(3.0, "a snapshot whose stop the IMU did not see is assumed to have stopped "
+                                   "with this change of load (m/s^2) setting its bars ringing", lo=0.0, hi=100.0)
     lone_gap_s: float = option(1.0, "a frame with no other frame within this (s), or lone_periods frame periods, "
                                "is a snapshot: a hold of its own", lo=0.0, hi=3600.0, lo_open=True)
     lone_periods: float = option(3.0, "see lone_gap_s", lo=0.0, hi=1000.0)
@@ -67,6 +111,45 @@ class HoldConfig:
 
     def __post_init__(self):
         check(self, "hold config")
+
+
+@dataclass
+class BarRinging:
+    """What the hold logic knows of the bars' ringing: the slowest bar's frequency (Hz, inf: rigid) and damping
+    ratio (the rig file's, an identified one, or ``holds.damping``), and each camera's image offset per unit of
+    load (px per m/s^2: the bar's tip rotation per load through the focal length)."""
+
+    freq_hz: float
+    zeta: float
+    px_per_load: np.ndarray  # (M,)
+    camera_freq_hz: np.ndarray | None = None  # (M,) each camera's own bar (inf: rigid); None: all at freq_hz
+
+    @classmethod
+    def of(cls, rig: Rig, cfg: HoldConfig | None = None) -> BarRinging:
+        cfg = cfg or HoldConfig()
+        f = bar_natural_frequencies(rig)
+        flex = np.isfinite(f) & (f > 0)
+        zs = [getattr(c, "damping", None) for c, fl in zip(rig.cameras, flex) if fl]
+        zs = [z for z in zs if z is not None and 0 < z < 1]
+        zeta = min(zs) if zs else cfg.damping  # the slowest decay rules the settling
+        cr_ux = rig.bar_derivatives[1]  # (M, 3, 3): bend rotation per unit load
+        px = np.array([np.linalg.norm(cr_ux[i], 2) * c.focal_px for i, c in enumerate(rig.cameras)])
+        return cls(float(f[flex].min()) if flex.any() else math.inf, float(zeta), px, np.where(flex, f, math.inf))
+
+    def camera_freq(self, i: int) -> float:
+        """Camera i's bar frequency (Hz): its ringing in the image is at its own bar's frequency."""
+        return self.freq_hz if self.camera_freq_hz is None else float(self.camera_freq_hz[i])
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.freq_hz if math.isfinite(self.freq_hz) and self.freq_hz > 0 else 0.0
+
+    def envelope(self, amplitude_px: float, tau) -> np.ndarray:
+        """The ringing envelope (px) at times tau after a stop that started it at ``amplitude_px``."""
+        tau = np.maximum(np.asarray(tau, dtype=float), 0.0)
+        if not self.period_s:
+            return np.zeros_like(tau)
+        return amplitude_px * np.exp(-self.zeta * 2.0 * math.pi * self.freq_hz * tau)
 
 
 def slowest_bar_period(rig: Rig) -> float:
@@ -88,6 +171,19 @@ class CameraHold:
 
 
 @dataclass
+class SettlingSeries:
+    """How a hold settled: per frame (stamps ``t``, s) each camera's image offset from its rest position (px, the
+    median track displacement from the anchor frame minus its median over the frames after the settle time;
+    NaN where the camera had no tracks), the threshold a settled frame stays under (px) and the time from which
+    frames count (the start of the settled part)."""
+
+    t: np.ndarray  # (F,)
+    offset_px: np.ndarray  # (F, M) rig camera order
+    threshold_px: float
+    settle_after: float
+
+
+@dataclass
 class Hold:
     """A measured hold (times in seconds)."""
 
@@ -102,7 +198,13 @@ class Hold:
     cameras: list  # CameraHold or None, rig camera order
     snapshot: bool = False  # a single frame
     anchor_images: list = field(default_factory=list)  # per camera: the anchor frame (descriptors)
-    ringing: bool = False  # the bars still rang at the end: averaged over whole periods of the slowest bar
+    ringing: bool = False  # the bars still rang at the end: measured at the fitted rest position
+    settling: SettlingSeries | None = None  # every camera's image offset over the hold's frames (None: a snapshot)
+    ringing_px: float = 0.0  # the residual ringing the measurement may carry (px, largest camera): extra noise
+    ringing_source: RingingSource = RingingSource.SETTLED
+    trace_t: np.ndarray | None = None  # (F,) stamps of the hold's frames
+    trace: np.ndarray | None = None  # (F, M, 2) each camera's image offset from its anchor (NaN: no camera)
+    fit: list = field(default_factory=list)  # per camera: the RingingFit of its offsets, or None
 
     @property
     def settle_s(self) -> float:
@@ -156,58 +258,114 @@ class HoldRecorder:
             X[f, ia] = uv[ib]
         return a_ids, a_uv, X
 
-    def measure(self, cfg: HoldConfig, bar_period_s: float, imu_still_since: float | None = None):
-        """(Hold, "") of the settled frames, or (None, why not)."""
+    def measure(self, cfg: HoldConfig, bar_period_s: float, imu_still_since: float | None = None,
+                bars: BarRinging | None = None, stop_amplitude_px: float | None = None):
+        """(Hold, None) of the hold's frames, or (None, :class:`HoldRefusal`).
+
+        ``bars`` (default: the slowest bar at ``bar_period_s``, damping ``cfg.damping``) predicts the ringing;
+        ``stop_amplitude_px``: the image ringing the stop set off (from the IMU's deceleration), for snapshots.
+        """
+        if bars is None:
+            f = 1.0 / bar_period_s if bar_period_s > 0 else math.inf
+            bars = BarRinging(f, cfg.damping, np.zeros(len(self.anchors)))
         with warnings.catch_warnings():  # frames without a camera, tracks lost: all-NaN medians are expected
             warnings.simplefilter("ignore", RuntimeWarning)
-            return self._measure(cfg, bar_period_s, imu_still_since)
+            return self._measure(cfg, bars, imu_still_since, stop_amplitude_px)
 
-    def _measure(self, cfg: HoldConfig, bar_period_s: float, imu_still_since: float | None):
+    def _measure(self, cfg: HoldConfig, bars: BarRinging, imu_still_since: float | None,
+                 stop_amplitude_px: float | None):
         F = len(self.stamps)
         if F == 0:
-            return None, "no frames"
+            return None, HoldRefusal(Refusal.NO_FRAMES, "")
         t = np.array(self.stamps)
         M = len(self.anchors)
         cams = [i for i in range(M) if self.anchors[i] is not None and len(self.anchors[i][0]) >= cfg.min_tracks]
         if not cams:
-            return None, "no camera had enough tracks"
+            return None, HoldRefusal(Refusal.NO_TRACKS, f"fewer than {cfg.min_tracks} in every camera")
         start = self.start if imu_still_since is None else min(self.start, imu_still_since)
-        settle_after = start + cfg.settle_periods * bar_period_s
+        tau = t - start
         tracks = {i: self._camera_tracks(i) for i in cams}
-        ringing = False
+        ringing, fits = False, [None] * M
+        trace = np.full((F, M, 2), np.nan)
+        correction = np.zeros((F, M, 2))  # the fitted ringing removed from every track of a camera
+        settling = None
         if F == 1:
-            if imu_still_since is not None and t[0] < settle_after:
-                return None, (f"snapshot {t[0] - start:.2f} s after the stop, before the bars settle "
-                              f"({cfg.settle_periods:g} periods of {bar_period_s:.3f} s)")
             settled = np.ones(1, bool)
             residual = 0.0
+            if not bars.period_s:
+                ringing_px, source = 0.0, RingingSource.RIGID
+            elif imu_still_since is None:
+                ringing_px, source = 0.0, RingingSource.UNKNOWN
+            else:
+                source = RingingSource.IMU if stop_amplitude_px is not None else RingingSource.DEFAULT
+                a0 = stop_amplitude_px if stop_amplitude_px is not None else \
+                    cfg.stop_load_m_s2 * float(np.max(bars.px_per_load, initial=0.0))
+                ringing_px = float(bars.envelope(a0, tau[0]))
         else:
             shifts = [tracks[i][2] - tracks[i][1][None] for i in cams]  # (F, n, 2) per camera
             offsets = np.stack([np.nanmedian(d, axis=1) for d in shifts], axis=1)  # (F, cams, 2)
-            late = t >= settle_after
-            if not late.any():
-                return None, (f"ended {t[-1] - start:.2f} s after the stop, before the bars settle "
-                              f"({cfg.settle_periods:g} periods of {bar_period_s:.3f} s)")
-            rest = np.nanmedian(offsets[late], axis=0)  # (cams, 2)
-            thr = max(cfg.settle_px, cfg.settle_noise * _offset_noise(shifts, offsets))
+            trace[:, cams] = offsets
+            noise = _offset_noise(shifts, offsets)
+            thr = max(cfg.settle_px, cfg.settle_noise * noise)
+            after = tau >= 0
+            env = np.zeros(F)  # predicted ringing per frame (largest camera)
+            model = np.zeros_like(offsets)  # fitted ringing (without the rest offset)
+            rest = np.nanmedian(offsets[after][len(offsets[after]) // 2:], axis=0)  # (cams, 2): the later half
+            fitted = False
+            span = float(tau[after][-1] - tau[after][0]) if after.sum() > 1 else 0.0
+            if bars.period_s and after.sum() >= MIN_FIT_FRAMES and span >= bars.period_s:  # a period pins the rest
+                for k, i in enumerate(cams):
+                    fit = fit_damped_response([(tau, offsets[:, k])], bars.camera_freq(i), None)
+                    if fit is None or not _explains(fit, offsets[after, k], noise):
+                        continue
+                    fits[i] = fit
+                    model[:, k] = fit.oscillation(0, tau)
+                    env = np.maximum(env, fit.amplitude(0, tau))
+                    rest[k] = fit.rest[0]
+                    fitted = True
             dev = np.nanmax(np.linalg.norm(offsets - rest[None], axis=2), axis=1)
-            settled = late & (dev <= thr)
-            need = min(cfg.min_settled_frames, int(late.sum()))
-            if settled.any():
-                settled = _longest_run(settled)
-            if settled.sum() < need:
-                settled = _whole_periods(t, late, bar_period_s, need)
-                if settled is None:
-                    return None, (f"never settled: image offset from the rest position {np.nanmin(dev[late]):.3f} "
-                                  f"px at best, threshold {thr:.3f} px, and less than one bar period "
-                                  f"({bar_period_s:.3f} s) of {need} frames or more to average the ringing over")
-                ringing = True
+            at_rest = after & (env <= thr) & (dev <= thr)
+            need = min(cfg.min_settled_frames, int(after.sum()))
+            settled = _longest_run(at_rest) if at_rest.any() else at_rest
+            if settled.sum() >= max(need, 1):
+                source = RingingSource.SETTLED if bars.period_s else RingingSource.RIGID
+                ringing_px = float(np.sqrt(np.mean(env[settled] ** 2)))
+            elif fitted:
+                # the bars ring through the frames: every frame whose offset the damped response explains is
+                # used at the fitted rest position (the ringing removed from every track of its camera)
+                dev_model = np.nanmax(np.linalg.norm(offsets - rest[None] - model, axis=2), axis=1)
+                settled = _longest_run(after & (dev_model <= thr))
+                if settled.sum() < need:
+                    return None, HoldRefusal(Refusal.NOT_STILL, (
+                        f"the damped response explains no {need} frames in a row within {thr:.3f} px"))
+                for k, i in enumerate(cams):
+                    correction[:, i] = model[:, k]
+                ringing, source = True, RingingSource.FIT
+                extra = [fits[i].rest_std[0] ** 2 - (fits[i].residual_rms ** 2) / max(int(settled.sum()), 1)
+                         for i in cams if fits[i] is not None]
+                ringing_px = float(math.sqrt(max(max(extra, default=0.0), 0.0)))
+                dev = dev_model
+            elif bars.period_s and np.nanmax(dev[after], initial=0.0) <= _radius_px(cfg, bars) \
+                    and (imu_still_since is not None or _oscillates(tau[after], offsets[after], bars.period_s)):
+                # too few frames (or less than a period) to fit the ringing: all of them, trusted as far as their
+                # own spread allows
+                settled = after.copy()
+                ringing, source = True, RingingSource.SPREAD
+                ringing_px = float(np.sqrt(np.nanmean(dev[settled] ** 2)))
+            else:
+                return None, HoldRefusal(Refusal.NOT_STILL, (
+                    f"image offset from the rest position {np.nanmin(dev[after]) if after.any() else math.nan:.3f}"
+                    f" px at best, threshold {thr:.3f} px, and no damped response of the bar "
+                    f"({bars.freq_hz:.3g} Hz) explains the offsets"))
             residual = float(np.sqrt(np.nanmean(dev[settled] ** 2)))
+            per_camera = np.full((F, M), np.nan)
+            per_camera[:, cams] = np.linalg.norm(offsets - rest[None], axis=2)
+            settling = SettlingSeries(t, per_camera, float(thr), float(t[np.flatnonzero(settled)[0]]))
         idx = np.flatnonzero(settled)
         cam_holds = [None] * M
         for i in cams:
             a_ids, a_uv, X = tracks[i]
-            Xs = X[idx]
+            Xs = X[idx] - correction[idx, i][:, None, :]
             present = np.isfinite(Xs[:, :, 0])
             frames = int(np.count_nonzero(present.any(axis=1)))
             if frames == 0:
@@ -222,20 +380,52 @@ class HoldRecorder:
             noise = math.sqrt(float(dev2.sum() / dof.sum())) if dof.sum() > 0 else math.nan
             cam_holds[i] = CameraHold(a_ids[keep], mean, a_uv[keep], frames, noise)
         if all(c is None for c in cam_holds):
-            return None, f"fewer than {cfg.min_tracks} tracks lasted through the settled frames in every camera"
+            return None, HoldRefusal(Refusal.TRACKS_LOST, f"fewer than {cfg.min_tracks} tracks in every camera")
         mid = idx[len(idx) // 2]
         return Hold(start=start, end=float(t[-1]), settled_start=float(t[idx[0]]), settled_end=float(t[idx[-1]]),
                     stamp=float(t[mid]), frames=F, settled_frames=len(idx), residual_px=residual,
-                    cameras=cam_holds, snapshot=F == 1, anchor_images=self.anchor_images, ringing=ringing), ""
+                    cameras=cam_holds, snapshot=F == 1, anchor_images=self.anchor_images, ringing=ringing,
+                    ringing_px=ringing_px, ringing_source=source, trace_t=t, trace=trace, fit=fits,
+                    settling=settling), None
 
-    def settled_duration(self, cfg: HoldConfig, bar_period_s: float, imu_still_since: float | None = None) -> float:
+    def settled_duration(self, cfg: HoldConfig, bar_period_s: float, imu_still_since: float | None = None,
+                         bars: BarRinging | None = None) -> float:
         """How long the settled part lasts so far (s); 0 when nothing is settled yet."""
         if len(self.stamps) < 2:
             return 0.0
-        hold, _ = self.measure(cfg, bar_period_s, imu_still_since)
+        hold, _ = self.measure(cfg, bar_period_s, imu_still_since, bars)
         if hold is None or hold.ringing:  # ringing decays: such a hold is measured when it ends
             return 0.0
         return hold.settled_end - hold.settled_start
+
+
+def _radius_px(cfg: HoldConfig, bars: BarRinging) -> float:
+    """Largest image offset a ringing bar plausibly gives (px): the ringing a stop of ``stop_load_m_s2`` sets
+    off, at least 1 px; unbounded when the bars' image offset per load is not known."""
+    px = float(np.max(bars.px_per_load, initial=0.0))
+    return max(cfg.stop_load_m_s2 * px, 1.0) if px > 0 else math.inf
+
+
+def _oscillates(tau: np.ndarray, offsets: np.ndarray, period_s: float) -> bool:
+    """Without an IMU, too few frames to fit the ringing: they show a ringing (not a slow move) when they span
+    a bar period and a straight line through them drifts less than twice their spread about their mean (a
+    ramp drifts 3.5 times its spread, an oscillation over a period or more less than 1.5 times)."""
+    span = float(tau[-1] - tau[0]) if len(tau) > 1 else 0.0
+    if span < period_s:
+        return False
+    x = tau - tau.mean()
+    y = offsets - np.nanmean(offsets, axis=0)
+    slope = np.nansum(x[:, None, None] * y, axis=0) / max(float(x @ x), 1e-300)  # (cams, 2)
+    drift = float(np.nanmax(np.abs(slope))) * span
+    spread = float(np.sqrt(np.nanmean(y ** 2)))
+    return drift <= 2.0 * spread
+
+
+def _explains(fit: RingingFit, offsets: np.ndarray, noise: float) -> bool:
+    """The damped response explains a camera's offsets: its residual is at the offsets' noise (or a small
+    fraction of the ringing it removed), not a motion the model cannot follow."""
+    spread = float(np.sqrt(np.nanmean(np.sum((offsets - np.nanmean(offsets, axis=0)) ** 2, axis=1))))
+    return fit.residual_rms <= max(3.0 * noise, 0.1 * spread)
 
 
 def _offset_noise(shifts: list, offsets: np.ndarray) -> float:
@@ -252,34 +442,18 @@ def _offset_noise(shifts: list, offsets: np.ndarray) -> float:
     return max(out) if out else 0.0
 
 
-def _whole_periods(t: np.ndarray, late: np.ndarray, period_s: float, need: int) -> np.ndarray | None:
-    """The last frames of a hold that span a whole number of periods of the slowest bar (as a mask of the
-    frames), or None when the late frames span less than one period or hold fewer than ``need``.
-
-    Bars that still ring when the hold ends oscillate about their rest position; the mean over whole periods
-    of the oscillation is that rest position (up to the decay within the window and the sampling), so the
-    averaged tracks measure the settled hold.
-    """
-    if not period_s > 0:
-        return None
-    tl = t[late]
-    dt = float(np.median(np.diff(tl))) if len(tl) > 1 else 0.0
-    periods = math.floor((tl[-1] - tl[0] + dt) / period_s + 1e-9)
-    if periods < 1:
-        return None
-    window = late & (t > tl[-1] + dt - periods * period_s - 1e-9 * max(dt, 1.0))
-    return window if window.sum() >= need else None
-
-
 def _longest_run(mask: np.ndarray) -> np.ndarray:
-    """The longest run of True in mask (the first when tied), as a mask."""
+    """The longest run of True in mask (the first when tied), as a mask (all False when there is none)."""
     m = np.concatenate([[False], mask, [False]]).astype(np.int8)
     d = np.diff(m)
     starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-    k = int(np.argmax(ends - starts))
     out = np.zeros(len(mask), bool)
+    if not len(starts):
+        return out
+    k = int(np.argmax(ends - starts))
     out[starts[k]:ends[k]] = True
     return out
 
 
-__all__ = ["CameraHold", "Hold", "HoldConfig", "HoldRecorder", "slowest_bar_period"]
+__all__ = ["BarRinging", "CameraHold", "Hold", "HoldConfig", "HoldRecorder", "HoldRefusal", "Refusal", "RingingSource",
+           "SettlingSeries", "slowest_bar_period"]

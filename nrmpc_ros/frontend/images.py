@@ -1,4 +1,8 @@
-"""sensor_msgs/Image and CompressedImage -> 2-D uint8 grey images (rosbags and rclpy objects alike)."""
+"""sensor_msgs/Image and CompressedImage -> 2-D uint8 grey images (rosbags and rclpy objects alike).
+
+Message buffers are read where they are (``np.frombuffer``: a mono8 image with rows of its own width is a view
+of the message, not a copy); each image is decoded once, by the feeder (docs/PIPELINE.md, "Performance notes").
+"""
 
 from __future__ import annotations
 
@@ -70,10 +74,17 @@ def decode_raw(msg, source: str, depth_bits: int | None = None) -> np.ndarray:
     return to_uint8(img, depth_bits)
 
 
+JPEG_MAGIC = b"\xff\xd8"
+
+
 def decode_compressed(msg, source: str) -> np.ndarray:
-    """A sensor_msgs/CompressedImage (jpeg, png, ...) -> 2-D uint8."""
+    """A sensor_msgs/CompressedImage (jpeg, png, ...) -> 2-D uint8; the message's buffer is read in place.
+
+    A JPEG is decoded straight to grey (libjpeg then skips the colour planes); other formats as they are (a
+    16-bit PNG keeps its depth for :func:`to_uint8`)."""
     buf = _bytes(msg.data)
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
+    jpeg = buf[:2].tobytes() == JPEG_MAGIC
+    img = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE if jpeg else cv2.IMREAD_UNCHANGED) if buf.size else None
     if img is None:
         raise InputError(source, f"cannot decode compressed image (format {str(msg.format)!r}, {buf.size} bytes)",
                          "data")

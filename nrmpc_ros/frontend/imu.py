@@ -2,9 +2,12 @@
 measurements).
 
 Samples are kept in time order for ``capacity_s`` seconds. NaN/inf samples and
-samples older than the newest one are rejected and counted; gaps longer than
-``gap_s`` are counted and reported by :meth:`ImuBuffer.gravity` when they fall
-inside the window. Nothing here raises on bad samples.
+samples older than the newest one are rejected and counted. The IMU's sample
+period is measured from the stream (:attr:`ImuBuffer.period_s`, the median step
+of recent samples): every age and window here is in those periods, so one
+setting serves IMUs from 50 to 1000 Hz. Steps longer than ``gap_periods``
+periods are gaps, counted and reported by :meth:`ImuBuffer.gravity` when they
+fall inside the window. Nothing here raises on bad samples.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 
@@ -26,16 +30,46 @@ class ImuConfig:
     """IMU samples: how long they are kept and when a hold's averaged accelerometer is usable."""
 
     max_age_s: float = option(0.1, "a hold uses the IMU only when its newest sample in the hold is at most this "
-                              "far from the hold's end (s)", lo=0.0, hi=60.0, lo_open=True)
+                              "far from the hold's end (s), and never less than gap_periods sample periods",
+                              lo=0.0, hi=60.0, lo_open=True)
     capacity_s: float = option(60.0, "IMU history kept (s)", lo=1.0, hi=3600.0)
-    gap_s: float = option(0.05, "a step between samples larger than this (s) is a gap", lo=0.0, hi=60.0,
-                          lo_open=True)
-    pad_s: float = option(0.05, "a hold of one frame uses the samples of this long a window before it (s)",
-                          lo=0.0, hi=60.0, lo_open=True)
+    gap_periods: float = option(5.0, "a step between samples longer than this many sample periods (measured from "
+                                "the stream) is a gap", lo=1.0, hi=1000.0)
+    pad_s: float = option(0.05, "a hold of one frame uses the samples of this long a window before it (s), and "
+                          "never fewer than min_samples sample periods", lo=0.0, hi=60.0, lo_open=True)
     min_samples: int = option(3, "samples a hold's averaged accelerometer needs", lo=1, hi=100000)
 
     def __post_init__(self):
         check(self, "imu config")
+
+
+class ImuReject(Enum):
+    """Why :meth:`ImuBuffer.add` rejected a sample; the value is the phrase shown."""
+
+    WRONG_SHAPE = "wrong shape"
+    NOT_FINITE = "NaN or inf"
+    OUT_OF_ORDER = "out of order"
+
+
+class ImuRefusal(Enum):
+    """Why :meth:`ImuBuffer.gravity` gives no gravity for a window; the value is the phrase shown."""
+
+    NO_IMU_BLOCK = "the rig file has no imu block"
+    NO_SAMPLES = "no IMU samples"
+    FEW_SAMPLES = "too few IMU samples in the window"
+    STALE = "newest IMU sample older than the view"
+    BAD_MEAN = "averaged accelerometer not usable"
+
+
+@dataclass(frozen=True)
+class ImuGravityRefusal:
+    """No gravity from a window: the rule (counted by the pipeline) and the numbers behind it (shown)."""
+
+    rule: ImuRefusal
+    detail: str = ""
+
+    def __str__(self) -> str:
+        return self.detail or self.rule.value
 
 
 @dataclass
@@ -86,32 +120,33 @@ class ImuBuffer:
         self._i0 = self._n = 0  # live rows of _buf
         self._pending: list = []  # (t, ax, ay, az, wx, wy, wz) appended since the last consolidation
         self._gaps: list = []
-        self.stats = Counter()
+        self.stats = Counter()  # "samples", "gaps" and an ImuReject per rejected sample
         self.last_stamp = -math.inf
+        self.period_s = math.nan  # median sample period of the stream (s), measured at each consolidation
 
-    def add(self, stamp: float, accel, gyro=None) -> str | None:
-        """Store one sample; returns None, or the reason it was rejected (also counted in ``stats``)."""
+    def add(self, stamp: float, accel, gyro=None) -> ImuReject | None:
+        """Store one sample; returns None, or the reason it was rejected (also counted in ``stats``, by reason)."""
         stamp = float(stamp)
         a = _vec3(accel)
         w = _ZERO3 if gyro is None else _vec3(gyro)
         reason = None
         if a is None or w is None:
-            reason = "wrong shape"
+            reason = ImuReject.WRONG_SHAPE
         elif not (math.isfinite(stamp) and all(map(math.isfinite, a + w))):
-            reason = "NaN or inf"
+            reason = ImuReject.NOT_FINITE
         elif stamp <= self.last_stamp:
-            reason = "out of order"
+            reason = ImuReject.OUT_OF_ORDER
         if reason:
-            self.stats[f"rejected: {reason}"] += 1
+            self.stats[reason] += 1
             return reason
-        if self.last_stamp > -math.inf and stamp - self.last_stamp > self.config.gap_s:
+        if self.last_stamp > -math.inf and stamp - self.last_stamp > self.config.gap_periods * self.period_s:
             self.stats["gaps"] += 1
             self._gaps.append((self.last_stamp, stamp))
         self.last_stamp = stamp
         self.stats["samples"] += 1
         self._pending.append((stamp, *a, *w))
-        if len(self._pending) >= 256:
-            self._consolidate()
+        if len(self._pending) >= 256 or (self.period_s != self.period_s and len(self._pending) >= 16):
+            self._consolidate()  # (the first 16 samples give the period the gap test needs)
         return None
 
     def _consolidate(self) -> None:
@@ -120,6 +155,10 @@ class ImuBuffer:
         if self._pending:
             block = np.array(self._pending, dtype=float)
             self._pending.clear()
+            live = self._buf[max(self._i0, self._n - 256):self._n, 0]
+            steps = np.diff(np.concatenate([live, block[:, 0]]))
+            if len(steps) >= 8:  # the median step of the newest samples: a gap or a late sample does not move it
+                self.period_s = float(np.median(steps))
             self._i0 += int(np.searchsorted(self._buf[self._i0:self._n, 0], keep_from))
             if self._n + len(block) > len(self._buf):  # compact to the front, growing when over half full
                 live = self._n - self._i0
@@ -144,8 +183,9 @@ class ImuBuffer:
 
     @property
     def gaps(self) -> list[tuple[float, float]]:
-        """The input gaps longer than ``gap_s`` as (last stamp before, first stamp after), oldest first; a gap
-        is forgotten once the sample after it leaves the history kept (``stats["gaps"]`` still counts it)."""
+        """The input gaps longer than ``gap_periods`` sample periods as (last stamp before, first stamp after),
+        oldest first; a gap is forgotten once the sample after it leaves the history kept (``stats["gaps"]``
+        still counts it)."""
         self._consolidate()
         return list(self._gaps)
 
@@ -158,30 +198,47 @@ class ImuBuffer:
         rows = self._buf[i:j].copy()
         return rows[:, 0], rows[:, 1:4], rows[:, 4:7]
 
+    def _periods(self, n: float) -> float:
+        """n sample periods (s); 0 while the period is not known."""
+        return n * self.period_s if self.period_s > 0 else 0.0
+
+    @property
+    def max_age_s(self) -> float:
+        """How old the newest sample may be (s): ``max_age_s``, at least ``gap_periods`` sample periods."""
+        return max(self.config.max_age_s, self._periods(self.config.gap_periods))
+
+    @property
+    def pad_s(self) -> float:
+        """The window before a one-frame hold (s): ``pad_s``, at least ``min_samples`` sample periods."""
+        return max(self.config.pad_s, self._periods(self.config.min_samples))
+
     def has_recent(self, stamp: float) -> bool:
-        """True when a sample lies within max_age_s of ``stamp``."""
-        t, _, _ = self.window(stamp - self.config.max_age_s, stamp + self.config.max_age_s)
+        """True when a sample lies within :attr:`max_age_s` of ``stamp``."""
+        age = self.max_age_s
+        t, _, _ = self.window(stamp - age, stamp + age)
         return len(t) > 0
 
     def gravity(self, t0: float, t1: float):
-        """(ImuGravity, None) from samples in [t0, t1] (at least pad_s long), or (None, reason) without IMU."""
+        """(ImuGravity, None) from samples in [t0, t1] (at least pad_s long), or (None, ImuGravityRefusal)."""
         cfg = self.config
         if self.rig is None or self.rig.imu is None:
-            return None, "the rig file has no imu block"
-        t, a, w = self.window(min(t0, t1 - cfg.pad_s), t1)
+            return None, ImuGravityRefusal(ImuRefusal.NO_IMU_BLOCK)
+        t, a, w = self.window(min(t0, t1 - self.pad_s), t1)
         if len(t) < cfg.min_samples:
             ts = self._t
             if len(ts) == 0:
-                return None, "no IMU samples"
+                return None, ImuGravityRefusal(ImuRefusal.NO_SAMPLES)
             dt = t1 - ts[np.searchsorted(ts, t1, side="right") - 1] if ts[0] <= t1 else math.nan
-            return None, f"{len(t)} IMU samples in the window (need {cfg.min_samples}; newest is {dt:.3f} s old)"
-        if t1 - t[-1] > cfg.max_age_s:
-            return None, f"newest IMU sample is {t1 - t[-1]:.3f} s older than the view (max_age_s {cfg.max_age_s})"
+            return None, ImuGravityRefusal(ImuRefusal.FEW_SAMPLES, f"{len(t)} IMU samples in the window (need "
+                                           f"{cfg.min_samples}; newest is {dt:.3f} s old)")
+        if t1 - t[-1] > self.max_age_s:
+            return None, ImuGravityRefusal(ImuRefusal.STALE, f"newest IMU sample is {t1 - t[-1]:.3f} s older than "
+                                           f"the view (max age {self.max_age_s:.3f} s)")
         mean = a.mean(axis=0)
         try:
             g = gravity_from_accelerometer(self.rig, mean)
         except InputError as exc:
-            return None, str(exc)
+            return None, ImuGravityRefusal(ImuRefusal.BAD_MEAN, str(exc))
         gaps = [gp for gp in self._gaps if gp[1] > t[0] and gp[0] < t1]
         return ImuGravity(g, mean, len(t), float(t[0]), float(t1), float(np.sqrt(np.mean(np.var(a, axis=0)))),
                           float(np.max(np.linalg.norm(w, axis=1))), gaps), None

@@ -9,30 +9,55 @@ landmark id of its partner. Every link between the two holds, from either
 source, must fit one essential matrix of that camera (the camera moves
 rigidly between two holds even though its bar bends): a track that does
 not gets a new landmark id. Landmarks are per camera.
+
+Where the previous hold links few of a camera's tracks (the rig moved far,
+or came back near an older view), the tracks still without a partner are
+matched against the camera's older holds too: a bounded store keeps every
+hold's landmark ids, bearings and descriptors (``tracking.link_store_holds``),
+the older holds with the most descriptor matches (a cheap count, no
+geometry) are verified with the camera's essential matrix as above
+(``tracking.link_older_candidates``), and verified tracks take over those
+landmarks (docs/PIPELINE.md, "Landmarks across holds").
+
+A track's own position in a hold is a corner found again in that hold's
+anchor frame; it would define the landmark by a different patch in every
+hold. So a landmark's position in every hold after its first is where its
+reference patch (taken in the first hold that saw it) aligns with the hold's
+anchor frame (:mod:`.patch_align`), plus the track's settled offset from the
+anchor; a link whose alignment fails starts a new landmark, referenced here
+(docs/PIPELINE.md, "Patch alignment").
 """
 
 from __future__ import annotations
 
-from collections import Counter
-from dataclasses import dataclass
+from collections import Counter, deque
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..cameras import pixels_to_bearings
 from ..core.rig import Rig
 from .holds import Hold
+from .patch_align import PatchAlignConfig, ReferencePatches, align, neighbour_affine, reference_patches, tangent_frames
 from .tracking import Features, TrackingConfig, describe, match_features, verify_correspondences
 
 
 @dataclass
 class _CameraHistory:
-    """A camera's latest hold: landmark ids, averaged pixels, bearings and descriptors."""
+    """A camera's latest hold: landmark ids, averaged pixels, bearings and descriptors; the landmarks'
+    positions in the hold's anchor frame and their reference patches (None without alignment). A reference
+    patch is sampled from the anchor image (kept here) only once its landmark is linked in a later hold:
+    most tracks are never linked, and sampling their patches would cost as much as the alignment."""
 
     landmark: np.ndarray
     uv: np.ndarray
     f: np.ndarray
     desc: np.ndarray | None
     valid: np.ndarray
+    anchor_uv: np.ndarray | None = None
+    ref: ReferencePatches | None = None
+    image: np.ndarray | None = None  # the anchor image (float32) the unsampled reference patches come from
+    unsampled: np.ndarray | None = None  # (N,) bool: reference patch not sampled yet
 
 
 @dataclass
@@ -48,14 +73,17 @@ class HoldObservations:
 class HoldLinker:
     """Assigns landmark ids to the tracks of successive holds (see the module docstring)."""
 
-    def __init__(self, rig: Rig, cfg: TrackingConfig):
+    def __init__(self, rig: Rig, cfg: TrackingConfig, align_cfg: PatchAlignConfig | None = None):
         self.rig = rig
         self.cfg = cfg
+        self.align_cfg = PatchAlignConfig() if align_cfg is None else align_cfg
         self.reset()
 
     def reset(self) -> None:
         self._alias = [{} for _ in self.rig.cameras]  # per camera: tracker id -> landmark id
         self._history: list = [None] * self.rig.num_cameras
+        # per camera: the holds before the previous one, oldest first (only those with descriptors)
+        self._older = [deque(maxlen=max(self.cfg.link_store_holds, 1)) for _ in self.rig.cameras]
         self._next = 0
 
     def _new_ids(self, n: int) -> np.ndarray:
@@ -81,15 +109,63 @@ class HoldLinker:
             prev = self._history[i]
             if prev is not None:
                 lm = self._link_to(prev, cam, lm, f, ch.uv, desc, valid, links)
+                if self.cfg.mode != "klt" and desc is not None and self._older[i]:
+                    lm = self._link_older(self._older[i], prev, cam, lm, f, ch.uv, desc, valid, links)
             lm = _unique_per_hold(lm, self._new_ids)
+            uv, anchor_uv, ref, image, unsampled = ch.uv, ch.anchor_uv, None, None, None
+            if img is not None and self.align_cfg.enabled:
+                image = np.asarray(img, np.float32)
+                lm, uv, anchor_uv, ref, unsampled = self._align(prev, cam, image, lm, ch.uv, ch.anchor_uv, links)
+                f = pixels_to_bearings(cam, uv)
             alias.update(zip(ch.ids.tolist(), lm.tolist()))
-            self._history[i] = _CameraHistory(lm, ch.uv, f, desc, valid)
+            if prev is not None and prev.desc is not None and self.cfg.link_store_holds > 0:
+                # the store matches descriptors only
+                self._older[i].append(replace(prev, ref=None, image=None, unsampled=None))
+            self._history[i] = _CameraHistory(lm, uv, f, desc, valid, anchor_uv, ref, image, unsampled)
             cams.append(np.full(len(lm), i, np.int64))
             lms.append(lm)
             fs.append(f)
         if not cams:
             return HoldObservations(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), links)
         return HoldObservations(np.concatenate(cams), np.concatenate(lms), np.concatenate(fs), links)
+
+    def _align(self, prev: _CameraHistory | None, cam, image, lm, uv, anchor_uv, links: Counter) -> tuple:
+        """(landmark ids, positions, anchor-frame positions, reference patches, which of those are still to be
+        sampled from ``image``) of a camera's hold once every linked landmark's reference patch is aligned with
+        the anchor frame ``image`` (float32); a failed alignment breaks the link (new landmark). Landmarks first
+        seen here take their reference patch from here (sampled when a later hold links them)."""
+        acfg = self.align_cfg
+        uv, anchor_uv, lm = uv.copy(), anchor_uv.copy(), lm.copy()
+        n = len(lm)
+        ref = ReferencePatches(np.zeros((n, (2 * acfg.half_size_px + 1) ** 2), np.float32),
+                               np.zeros((n, (2 * acfg.half_size_px + 1) ** 2), bool),
+                               np.broadcast_to(np.eye(2), (n, 2, 2)).copy())
+        ic = np.zeros(0, np.int64)
+        if prev is not None and prev.ref is not None:
+            _, ip, ic = np.intersect1d(prev.landmark, lm, assume_unique=True, return_indices=True)
+        fresh = np.ones(n, bool)  # the landmarks that take their reference patch from this hold
+        if len(ic):
+            todo = ip[prev.unsampled[ip]]
+            if len(todo):  # reference patches of landmarks first linked now, from their first hold's image
+                new = reference_patches(cam, prev.image, prev.anchor_uv[todo], acfg)
+                prev.ref.values[todo] = new.values
+                prev.ref.valid[todo] = new.valid
+                prev.unsampled[todo] = False
+            tf_prev, tf_cur = tangent_frames(cam, prev.anchor_uv[ip]), tangent_frames(cam, anchor_uv[ic])
+            start = neighbour_affine(tf_prev.f, tf_cur.f, tf_prev, tf_cur, acfg.neighbours) @ prev.ref.affine[ip]
+            res = align(cam, image, prev.ref.take(ip), anchor_uv[ic], start, acfg)
+            good, bad = ic[res.ok], ic[~res.ok]
+            settled = uv[good] - anchor_uv[good]  # the track's settled offset from the anchor frame
+            anchor_uv[good] = res.uv[res.ok]
+            uv[good] = anchor_uv[good] + settled
+            ref.values[good] = prev.ref.values[ip[res.ok]]
+            ref.valid[good] = prev.ref.valid[ip[res.ok]]
+            ref.affine[good] = res.affine[res.ok]
+            fresh[good] = False
+            lm[bad] = self._new_ids(len(bad))  # a failed alignment starts a landmark referenced here
+            links["aligned"] += len(good)
+            links["alignment failed"] += len(bad)
+        return lm, uv, anchor_uv, ref, fresh
 
     def _link_to(self, prev: _CameraHistory, cam, lm, f, uv, desc, valid, links: Counter) -> np.ndarray:
         """Landmark ids of this hold's tracks after verifying and completing the links to the previous hold."""
@@ -121,6 +197,39 @@ class HoldLinker:
         links["klt"] += int(np.count_nonzero(ok & ~by_desc))
         links["descriptor"] += int(np.count_nonzero(good_desc))
         links["rejected"] += int(np.count_nonzero(~ok))
+        return out
+
+    def _link_older(self, older, prev: _CameraHistory, cam, lm, f, uv, desc, valid, links: Counter) -> np.ndarray:
+        """Landmark ids after linking the tracks the previous hold left without a partner to the camera's older
+        holds (see the module docstring); unchanged while the previous hold links enough of them."""
+        cfg = self.cfg
+        linked = np.isin(lm, prev.landmark)
+        if np.count_nonzero(linked) >= cfg.min_klt_links:
+            return lm
+        free = np.flatnonzero(valid & ~linked)
+        if len(free) < cfg.min_matches_per_camera:
+            return lm
+        mine = Features(uv[free], desc[free])
+        counts = []
+        for old in older:  # cheap: descriptor matches only, per stored hold
+            pv = np.flatnonzero(old.valid & ~np.isin(old.landmark, lm))
+            n = len(match_features(Features(old.uv[pv], old.desc[pv]), mine, cfg)[0]) if len(pv) >= 2 else 0
+            counts.append(n)
+        order = np.argsort(-np.asarray(counts), kind="stable")[: cfg.link_older_candidates]
+        out = lm.copy()
+        for h in order:
+            if counts[h] < cfg.min_matches_per_camera or len(free) < cfg.min_matches_per_camera:
+                break
+            old = older[int(h)]
+            pv = np.flatnonzero(old.valid & ~np.isin(old.landmark, out))
+            ia, ib = match_features(Features(old.uv[pv], old.desc[pv]), Features(uv[free], desc[free]), cfg)
+            if len(ia) < cfg.min_matches_per_camera:
+                continue
+            ok = verify_correspondences(cam, old.f[pv[ia]], f[free[ib]], cfg)
+            out[free[ib[ok]]] = old.landmark[pv[ia[ok]]]
+            links["older"] += int(np.count_nonzero(ok))
+            links["rejected"] += int(np.count_nonzero(~ok))
+            free = np.setdiff1d(free, free[ib[ok]])
         return out
 
 

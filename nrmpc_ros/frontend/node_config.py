@@ -53,7 +53,14 @@ class NodeConfig:
     origin_frame: str = option("", "frame_id of ~/pose: the sequence origin (the first hold's body frame, level "
                                "once gravity is known); empty: <body_frame>_origin")
     camera_frame_suffix: str = option("_optical", "TF frame of camera NAME: NAME + this suffix (OpenCV axes)")
-    publish_tf: bool = option(True, "publish body -> camera frames (bent extrinsics) on /tf for every hold")
+    publish_tf: bool = option(True, "publish body -> camera frames (bent extrinsics) on /tf for every hold and, "
+                              "with an IMU, for every frame set (the bars' dynamics)")
+    camera_poses_rate_hz: float = option(10.0, "with an IMU, ~/camera_poses from the bars' dynamics at most this "
+                                         "often (Hz, by frame-set stamps); 0: only with each hold's estimate",
+                                         lo=0.0, hi=1000.0)
+    markers_bend_scale: float = option(1.0, "~/markers draws the bars bent as at this many times the estimated "
+                                       "gravity (the bending model is linear in it): above 1 makes millimetres of "
+                                       "bending visible at the rig's scale; 1: as estimated", lo=1.0, hi=10000.0)
     input: FeederConfig = option(FeederConfig(), "stamps, frame grouping and IMU order")
 
 
@@ -188,16 +195,23 @@ def imu_topic(rig: Rig, config: NodeConfig) -> tuple:
     return (config.imu_topic or rig.imu.topic) if config.use_imu else None, None
 
 
-def transport(topic: str, how: str, graph: dict, resolve) -> tuple:
-    """(topic to subscribe, compressed?) for a rig file's image ``topic`` with ``image_transport`` ``how``, the
-    graph's topics and types, and the node's ``resolve(name, only_expand=False)`` (expansion and remapping).
+def transport_topics(topic: str, resolve) -> tuple:
+    """(raw topic, compressed topic) of a rig file's image ``topic`` for the node's ``resolve(name,
+    only_expand=False)`` (expansion and remapping).
 
     The compressed topic follows the image topic (a remap of ``cam0/image_raw`` moves both, as image_transport
     does) unless ``<topic>/compressed`` is remapped itself."""
     base, comp = resolve(topic), compressed_topic(topic)
-    compressed = resolve(comp) if resolve(comp) != resolve(comp, only_expand=True) else compressed_topic(base)
+    return base, resolve(comp) if resolve(comp) != resolve(comp, only_expand=True) else compressed_topic(base)
+
+
+def transport(topic: str, how: str, publishers: dict, resolve) -> tuple:
+    """(topic to subscribe, compressed?) for a rig file's image ``topic`` with ``image_transport`` ``how``, the
+    message types *published* per topic (:func:`transport_topics` names the topics that matter; subscriptions,
+    the node's own among them, say nothing about what a camera sends) and the node's ``resolve``."""
+    base, compressed = transport_topics(topic, resolve)
     if how == "auto":
-        return choose_transport(base, graph, compressed)
+        return choose_transport(base, publishers, compressed)
     return (compressed, True) if how == "compressed" else (base, False)
 
 

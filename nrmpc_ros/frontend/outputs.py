@@ -19,6 +19,10 @@
 - **Camera poses**: every camera's bent extrinsics at that gravity,
   ``deformed_extrinsics(rig, g)``: position (m) and orientation
   (camera -> body) in the body frame; canonical ones without gravity.
+- **Camera poses at every frame set** (with an IMU): the bars' state driven
+  by the IMU (:mod:`.extrinsics`) gives each camera's pose at its image
+  stamp: TF body -> camera at every frame set, ``~/camera_poses`` at most
+  ``camera_poses_rate_hz`` times per second (:func:`frame_pose_fields`).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from ..core.attitude import leveling_rotation, roll_pitch_from_gravity, tangent_
 from ..core.deformation import deformed_extrinsics
 from ..core.rig import Rig
 from ..core.so3 import matrix_to_quat_xyzw
+from .extrinsics import CameraPoses
 from .pipeline import HoldEstimate
 
 # What the node publishes, by the keys of message_fields: message type and topic.
@@ -183,6 +188,35 @@ def message_fields(out: HoldOutput, names: FrameNames, ros_stamp) -> dict:
     return msgs
 
 
+@dataclass
+class FramePosesOutput:
+    """The cameras' poses of one frame set, from the IMU-driven bars (docs/CONVENTIONS.md, "The rig in motion"):
+    TF body -> each camera present, at its image stamp; ``camera_poses``: also ``~/camera_poses`` (every camera,
+    rig order, at the set's first stamp), when the set is complete and the rate allows it."""
+
+    poses: CameraPoses
+    camera_poses: bool
+
+
+def frame_pose_fields(out: FramePosesOutput, names: FrameNames, ros_stamp) -> dict:
+    """Messages of one frame set's camera poses, by output: "tf" (tf2_msgs/TFMessage) and, when
+    ``out.camera_poses``, "cams" (PoseArray); ``ros_stamp`` as in :func:`message_fields`."""
+    p = out.poses
+    q = matrix_to_quat_xyzw(p.rotations).reshape(-1, 4)
+    cams = [_pose(t, qi) for t, qi in zip(p.positions, q)]
+
+    def header(stamp: float) -> dict:
+        sec, nsec = ros_stamp(float(stamp))
+        return {"stamp": {"sec": int(sec), "nanosec": int(nsec)}, "frame_id": names.body}
+
+    msgs = {"tf": {"transforms": [{"header": header(t), "child_frame_id": names.cameras[int(i)],
+                                   "transform": {"translation": c["position"], "rotation": c["orientation"]}}
+                                  for t, i, c in zip(p.stamps, p.cameras, cams)]}}
+    if out.camera_poses:
+        msgs["cams"] = {"header": header(p.stamps[0]), "poses": cams}
+    return msgs
+
+
 def fill_message(msg, fields: dict):
     """Set a ROS message's fields from nested values (as :func:`message_fields` gives them); a list of mappings
     becomes a sequence of sub-messages of the field's type."""
@@ -198,5 +232,6 @@ def fill_message(msg, fields: dict):
     return msg
 
 
-__all__ = ["OUTPUTS", "FrameNames", "HoldOutput", "UNKNOWN_VARIANCE", "YAW_VARIANCE", "attitude", "fill_message",
+__all__ = ["OUTPUTS", "FrameNames", "FramePosesOutput", "HoldOutput", "UNKNOWN_VARIANCE", "YAW_VARIANCE", "attitude",
+           "fill_message", "frame_pose_fields",
            "hold_frame", "hold_output", "message_fields", "origin_pose", "ros_pose_covariance"]

@@ -18,9 +18,9 @@ pose and gravity.
 
 from __future__ import annotations
 
+import enum
 import math
-import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -28,18 +28,24 @@ import numpy as np
 from ..cameras import check_image_size
 from ..config import check, from_mapping, option
 from ..core import METHODS
-from ..core.incremental import IncrementalSequence, ViewEstimate
+from ..core.incremental import IncrementalSequence
 from ..core.rig import Rig
-from ..core.sequence import SequenceOptions
+from ..core.sequence import CORRESPONDENCE_BIAS_FLOOR_PX, SequenceOptions
 from ..errors import InputError
-from .holds import Hold, HoldConfig, HoldRecorder, slowest_bar_period
-from .imu import ImuBuffer, ImuConfig, ImuGravity
+from .drops import Drop, sorted_counts
+from .estimation import HoldEstimate, HoldEstimator, MeasuredHold, SequenceReset
+from .extrinsics import CameraPoses, FrameExtrinsics
+from .gyro import CameraTurns, rotation_between
+from .holds import BarRinging, Hold, HoldConfig, HoldRecorder, Refusal, slowest_bar_period
+from .imu import ImuBuffer, ImuConfig, ImuGravity, _vec3
+from .imu_clock import ImuClockEstimator
 from .linking import HoldLinker
-from .tracking import KltTracker, TrackingConfig
+from .motion import Motion, MotionKind
+from .patch_align import PatchAlignConfig
+from .tracking import HoldThinning, KltTracker, TrackingConfig
 from .zupt import ZuptConfig, ZuptDetector
 
 PIPELINE_METHODS = ("auto",) + METHODS
-_MOTION_KINDS = ("the IMU says the rig moved", "tracks lost", "image moved", "image left the hold")
 
 
 @dataclass
@@ -47,6 +53,8 @@ class PipelineConfig:
     """All front-end settings; nested blocks have their own defaults."""
 
     tracking: TrackingConfig = option(TrackingConfig(), "feature tracking and matching")
+    patch_align: PatchAlignConfig = option(PatchAlignConfig(), "landmarks' positions in later holds from their "
+                                           "reference patch (docs/PIPELINE.md, Patch alignment)")
     holds: HoldConfig = option(HoldConfig(), "holds: when frames belong to one, which are settled")
     imu: ImuConfig = option(ImuConfig(), "IMU samples and a hold's averaged accelerometer")
     zupt: ZuptConfig = option(ZuptConfig(), "the IMU stillness test")
@@ -58,6 +66,8 @@ class PipelineConfig:
     imu_bias_sigma_deg: float = option(0.3, "prior std of the accelerometer's constant tilt (bias) estimated "
                                        "jointly (deg); 0: no such tilt", lo=0.0, hi=90.0)
     seed: int = option(0, "RANSAC seed", lo=0, hi=2**63 - 1)
+    imu_time_offset_s: float = option(0.0, "added to every IMU stamp before the bars' state is propagated from "
+                                      "it: the IMU's clock against the cameras' (s)", lo=-1.0, hi=1.0)
 
     def __post_init__(self):
         check(self, "pipeline config")
@@ -78,45 +88,67 @@ class FrameSet:
 
     stamp: float
     images: list
+    stamps: list | None = None  # each camera's own stamp (None: the set's stamp)
+
+
+class RigState(enum.Enum):
+    """What the rig is doing as the pipeline sees it after its latest frame set (docs/PIPELINE.md)."""
+
+    WAITING = "waiting"  # no frame set yet
+    MOVING = "moving"  # no hold open: the rig moves (or a hold just ended)
+    SETTLING = "settling"  # a hold is open and no part of it has settled yet (its bars may still ring)
+    MEASURING = "measuring"  # a hold is open past the settle time: its frames are being collected
+    ESTIMATED = "estimated"  # the open hold has been estimated already (a long hold stays open until a move)
+
+
+@dataclass(frozen=True)
+class RigStatus:
+    """The rig's state, the index its open hold gets in the current sequence (None: no hold open) and the stamp
+    of the latest frame set (s)."""
+
+    state: RigState
+    hold: int | None
+    stamp: float
+
+    def describe(self) -> str:
+        """One line for a person: "moving", "settling", "measuring hold 3", "hold 3 estimated"."""
+        if self.state is RigState.MEASURING:
+            return f"measuring hold {self.hold}"
+        if self.state is RigState.ESTIMATED:
+            return f"hold {self.hold} estimated"
+        return self.state.value
 
 
 @dataclass
-class HoldEstimate:
-    """The estimate of one hold: its pose relative to the reference hold (p_ref = R p + t) and in the
-    sequence origin, its gravity (current body frame) from the joint solution, and how the hold was measured."""
+class HoldAttempt:
+    """One hold the pipeline closed, as ``Pipeline.hold_log`` keeps it: when it started (the stop) and ended, its
+    measurement (None: refused, ``why`` says by which rule), its index in its sequence (None: not added) and its
+    estimate (None for a sequence's first hold, the origin, and for holds that were not estimated)."""
 
-    stamp: float  # a frame inside the hold's settled part
-    ref_stamp: float  # the same of the reference hold (the one it was paired with)
-    method: str
-    R: np.ndarray
-    t: np.ndarray
-    gravity: np.ndarray | None  # m/s^2, this hold's body frame
-    gravity_sigma_deg: float
-    cov_gravity: np.ndarray | None
-    num_inliers: int
-    num_observations: int
-    time_ms: float
-    origin_stamp: float  # the sequence's first hold: the origin frame
-    R_origin: np.ndarray  # pose in the origin (p_origin = R_origin p + t_origin)
-    t_origin: np.ndarray
-    cov_pose: np.ndarray  # (6, 6): rotation (body frame) and translation (origin frame)
-    sequence: int
-    hold_index: int
-    hold: Hold
-    imu_gravity: np.ndarray | None = None  # this hold's averaged accelerometer gravity (body frame)
-    links: Counter = field(default_factory=Counter)
-    window: int = 0
+    start: float
+    end: float
+    frames: int
+    hold: Hold | None
+    why: str = ""
+    sequence: int | None = None
+    index: int | None = None
+    estimate: HoldEstimate | None = None
 
 
 @dataclass
 class PipelineStats:
     frames: int = 0
     holds: int = 0  # holds measured
-    ringing_holds: int = 0  # of which the bars still rang at the end (averaged over whole bar periods)
+    ringing_holds: int = 0  # of which the bars still rang in the frames used (measured at the fitted rest)
+    penalized_holds: int = 0  # holds whose residual ringing raised their noise (noise_scale > 1)
+    ringing_px: list = field(default_factory=list)  # per measured hold: its expected residual ringing
+    ringing_sources: Counter = field(default_factory=Counter)  # where that expectation came from
     estimates: int = 0
     sequences: int = 0
+    merges: int = 0  # sequences a later hold linked to an earlier one, merged into it
+    bridges: int = 0  # breaks the gyro bridged (the new sequence's gravity carried over)
     methods: Counter = field(default_factory=Counter)
-    dropped: Counter = field(default_factory=Counter)  # reason -> count (frames, holds, IMU samples)
+    dropped: Counter = field(default_factory=Counter)  # Drop -> count (frames, holds, IMU samples)
     settle_s: list = field(default_factory=list)  # per measured hold
     residual_px: list = field(default_factory=list)
     noise_px: list = field(default_factory=list)  # one frame's track position noise
@@ -129,8 +161,11 @@ class PipelineStats:
             return float(np.median(v)) if v else math.nan
 
         return {"frames": self.frames, "holds": self.holds, "ringing_holds": self.ringing_holds,
+                "penalized_holds": self.penalized_holds, "median_ringing_px": med(self.ringing_px),
+                "ringing_sources": dict(self.ringing_sources),
                 "estimates": self.estimates,
-                "sequences": self.sequences, "methods": dict(self.methods), "dropped": dict(self.dropped),
+                "sequences": self.sequences, "merges": self.merges, "bridges": self.bridges,
+                "methods": dict(self.methods), "dropped": {k.message: n for k, n in sorted_counts(self.dropped)},
                 "median_settle_s": med(self.settle_s), "median_residual_px": med(self.residual_px),
                 "median_noise_px": med(self.noise_px), "median_averaged_noise_px": med(self.averaged_noise_px)}
 
@@ -148,29 +183,73 @@ class Pipeline:
         self.imu = ImuBuffer(rig, self.config.imu)
         self.zupt = ZuptDetector(self.config.zupt, buffer=self.imu)
         self.bar_period_s = slowest_bar_period(rig)
+        # the bars' state from the IMU: every camera's extrinsics at any frame set (docs/PIPELINE.md)
+        # the accelerometer's bias: prior std and floor are the configured tilts at the rig's gravity
+        def ms2(deg):
+            return rig.gravity_magnitude * math.tan(math.radians(deg))
+
+        self.extrinsics = FrameExtrinsics(rig, self.config.imu_time_offset_s,
+                                          bias_prior_ms2=ms2(self.config.imu_bias_sigma_deg),
+                                          floor_ms2=ms2(self.config.imu_gravity_floor_deg)) if rig.imu else None
+        self.imu_clock = ImuClockEstimator(rig)  # the IMU's clock against the cameras', from the moves
+        self.bars = BarRinging.of(rig, self.config.holds)  # frequency, damping, image offset per load
+        self.measured_holds: list | None = None  # a list keeps every measured hold (the bars' ringing, offline)
         self.stats = PipelineStats()
         seq_method = "4pt-bending" if method == "auto" else method
         self.sequence = IncrementalSequence(rig, seq_method, self.config.sequence_options(), self.config.window,
                                             seed=self.config.seed)
-        self.linker = HoldLinker(rig, self.config.tracking)
-        self.trackers = [KltTracker(self.config.tracking) for _ in rig.cameras]
+        self.linker = HoldLinker(rig, self.config.tracking, self.config.patch_align)
+        # the estimation stage (docs/PIPELINE.md, "Two stages"): it owns the sequence and the linker; a hold's
+        # gravity reaches the accelerometer's bias through an inbox the intake empties before it next uses the
+        # bars' state (the node runs the stage in another thread)
+        self._gravity_inbox: deque = deque()
+        self.estimator = HoldEstimator(rig, self.sequence, self.linker, self.stats, method == "4pt-bending",
+                                       self._gravity_inbox.append if self.extrinsics is not None else None)
+        self.handoff: list | None = None  # None: a measured hold is estimated at once; a list: it is appended
+        self._handed = 0  # measured holds handed to the estimation stage
+        self.trackers = [KltTracker(self.config.tracking, cam) for cam in rig.cameras]
+        # each camera's turn between frame sets (gyro and bars): where KLT starts through a move
+        self.turns = CameraTurns(self.imu, rig.imu, self.extrinsics, rig.num_cameras, self.config.imu_time_offset_s)
+        self.thinning = HoldThinning(CORRESPONDENCE_BIAS_FLOOR_PX)  # frames of a settled hold left untracked
         self._hold: HoldRecorder | None = None
-        self._hold_stamps: list = []  # stamp of every hold of the current sequence
+        self._last_hold: Hold | None = None  # the latest hold given to the sequence (a gyro bridge starts there)
         self._periods: list = []  # recent intervals between frame sets (s)
         self.last_stamp = -math.inf
         self._last_check = -math.inf  # when an open hold's settled part was last measured
-        self._last_motion: dict = {}  # kind of motion -> the latest frame's reason, with its numbers
+        self._settled_s = 0.0  # how long the open hold's settled part lasted when last measured (s)
+        self._last_motion: dict = {}  # Drop of a frame not at rest -> the latest such Motion, with its numbers
+        self.hold_log: list | None = None  # a list: a HoldAttempt is appended for every hold closed (nrmpc report)
 
     # ------------------------------------------------------------------ input
     def add_imu(self, stamp: float, accel, gyro=None, covariance=None) -> None:
         """One IMU sample (specific force m/s^2, angular rate rad/s, IMU frame) and, optionally, its message's
         (linear_acceleration_covariance, angular_velocity_covariance); bad samples are counted."""
         if self.rig.imu is None:
-            self.stats.dropped["imu sample ignored: rig file has no imu block"] += 1
+            self.stats.dropped[Drop.IMU_IGNORED] += 1
             return
         reason = self.zupt.add(stamp, accel, gyro, covariance)
         if reason:
-            self.stats.dropped[f"imu sample: {reason}"] += 1
+            self.stats.dropped[Drop.imu_sample(reason)] += 1
+        else:  # accepted: three finite numbers each, in whatever container
+            self._observe_gravity()
+            a, w = _vec3(accel), None if gyro is None else _vec3(gyro)
+            self.extrinsics.add_imu(stamp, a, (0.0, 0.0, 0.0) if w is None else w)
+            if w is not None:
+                self.imu_clock.add_imu(stamp, w, a)
+
+    def camera_poses(self, frames: FrameSet) -> CameraPoses | None:
+        """Each camera's extrinsics (body frame) at its image stamp in ``frames``, from the bars' state; None
+        without an IMU or before its first samples (then only the static extrinsics of holds are known)."""
+        if self.extrinsics is None:
+            return None
+        self._observe_gravity()
+        present = [img is not None for img in frames.images]
+        return self.extrinsics.at(frames.stamp, frames.stamps, present)
+
+    def _observe_gravity(self) -> None:
+        """The holds estimated since the last call tell the bars' state the accelerometer's bias."""
+        while self._gravity_inbox:
+            self.extrinsics.observe_sequence(*self._gravity_inbox.popleft())
 
     def _check(self, frames: FrameSet) -> list:
         src = f"frame set at {frames.stamp!r}"
@@ -197,6 +276,19 @@ class Pipeline:
             raise InputError(src, "no camera has an image", "images")
         return out
 
+    def _thin(self, stamp: float) -> bool:
+        """Whether this frame set goes untracked (:class:`.tracking.HoldThinning`): a hold is open, its settled
+        part (at the last check) has the frames its averaging needs at the per-frame noise of the latest
+        measured holds, and the IMU says the rig stayed still since the last frame set."""
+        h = self._hold
+        if h is None or self._settled_s <= 0.0 or not self._periods or not self.stats.noise_px or \
+                self.rig.imu is None or not len(self.imu):
+            return False
+        noise = max(self.stats.noise_px[-3:])
+        frames = self._settled_s / float(np.median(self._periods)) + 1.0
+        return self.thinning.skip(stamp, h.stamps[-1], frames, noise, self.bar_period_s, self.config.holds.measure_s,
+                                  lambda: self.zupt.is_still(self.last_stamp, stamp) is True)
+
     def _lone_gap(self) -> float:
         """Frames further apart than this do not belong to one stream (s)."""
         p = float(np.median(self._periods)) if self._periods else 0.0
@@ -211,16 +303,29 @@ class Pipeline:
         images = self._check(frames)
         stamp = float(frames.stamp)
         if stamp <= self.last_stamp:
-            self.stats.dropped["frame set out of order"] += 1
+            self.stats.dropped[Drop.FRAME_SET_OUT_OF_ORDER] += 1
             return []
         gap = stamp - self.last_stamp
         self.stats.frames += 1
-        steps = [None if img is None else trk.track(img) for trk, img in zip(self.trackers, images)]
+        if self._thin(stamp):  # a settled, still hold with the frames its averaging needs
+            self._periods = (self._periods + [gap])[-20:]
+            self.last_stamp = stamp
+            return self._measure_early(stamp)
+        turns = self.turns.advance(stamp, [img is not None for img in images], self._lone_gap()) \
+            if self.config.tracking.imu_prediction else [None] * len(images)
+        steps = [None if img is None else trk.track(img, turn)
+                 for trk, img, turn in zip(self.trackers, images, turns)]
         lone_gap = self._lone_gap()
+        if gap <= lone_gap:  # the images' rotation rate over this frame interval, for the IMU clock
+            rates = [math.nan if s is None else s.motion_px / cam.focal_px / gap
+                     for s, cam in zip(steps, self.rig.cameras)]
+            self.imu_clock.add_frame(self.last_stamp, stamp, rates)
         out = []
         lost = any(s is not None and s.lost for s in steps)
-        settling = self._hold is not None and stamp - self._hold.start < self._settle_window()
-        if lost and settling and gap <= lone_gap:
+        settling = self._settling(stamp)
+        imu_moved = settling and lost and self.rig.imu is not None and len(self.imu) and \
+            self.zupt.is_still(self.last_stamp, stamp) is False
+        if lost and settling and gap <= lone_gap and not imu_moved:
             self._reanchor(stamp, images)  # the bars ring too far for the tracks: anchor again, keep the stop
             self._periods = (self._periods + [gap])[-20:]
         elif gap > lone_gap or lost:
@@ -235,7 +340,7 @@ class Pipeline:
             still, why = self._still(self.last_stamp, stamp, steps)
             if self._hold is not None and still:
                 self._record(stamp, images)
-            elif self._hold is not None and why.endswith("from its first frame)") and settling:
+            elif self._hold is not None and why.kind is MotionKind.LEFT_HOLD and settling:
                 # the image left the hold before the bars could have settled: ringing, not a move (a move this
                 # soon after a stop could not give a settled hold anyway). Anchor again, keep the stop time.
                 self._reanchor(stamp, images)
@@ -253,6 +358,11 @@ class Pipeline:
         out += self._measure_early(stamp)
         return out
 
+    @property
+    def open_hold(self) -> HoldRecorder | None:
+        """The hold being recorded (None between holds)."""
+        return self._hold
+
     def flush(self) -> list:
         """Close the open hold (end of a bag, or the cameras stopped)."""
         return self._close()
@@ -260,13 +370,39 @@ class Pipeline:
     def reset(self) -> None:
         """Start a new sequence (the next hold is its origin)."""
         self._discard()
-        self.sequence.reset()
-        self.linker.reset()
-        self._hold_stamps = []
+        self._last_hold = None
+        self._hand_over(SequenceReset())
+
+    def _hand_over(self, item) -> list:
+        """An item for the estimation stage: run at once (returns its estimates) or appended to ``handoff``."""
+        if self.handoff is None:
+            return self.estimator.run(item)
+        self.handoff.append(item)
+        return []
+
+    def take_handoff(self) -> list:
+        """The items handed to the estimation stage since the last call (``handoff`` a list), in order."""
+        items, self.handoff[:] = list(self.handoff), []
+        return items
+
+    def status(self) -> RigStatus:
+        """The rig's state after the latest frame set (changes only with frame sets, flushes and resets)."""
+        h = self._hold
+        if h is None:
+            state = RigState.WAITING if not self.stats.frames else RigState.MOVING
+        elif h.measured:
+            state = RigState.ESTIMATED
+        elif self._settled_s <= 0.0:  # no settled part yet when the hold was last measured
+            state = RigState.SETTLING
+        else:
+            state = RigState.MEASURING
+        waiting = self._handed - self.estimator.consumed  # holds handed over and not estimated yet count as added
+        hold = None if h is None else self.sequence.num_views + waiting - int(h.measured)
+        return RigStatus(state, hold, float(self.last_stamp))
 
     # ------------------------------------------------------------------ holds
-    def _still(self, t0: float, t1: float, steps: list):
-        """Whether the rig was at rest between two frames, and why not.
+    def _still(self, t0: float, t1: float, steps: list) -> tuple:
+        """Whether the rig was at rest between two frames, and why not (a :class:`.motion.Motion`, else None).
 
         With an IMU sample in between, the IMU decides (the bars may ring while the body is still); the images
         only say that the tracks were lost. Without one, a hold starts when the image barely moved between
@@ -274,22 +410,22 @@ class Pipeline:
         """
         imu = self.zupt.is_still(t0, t1) if self.rig.imu is not None and len(self.imu) else None
         if imu is False:
-            return False, "the IMU says the rig moved"
+            return False, Motion(MotionKind.IMU_MOVED)
         cfg = self.config.holds
         for i, s in enumerate(steps):
             if s is None:
                 continue
             name = self.rig.cameras[i].name
             if s.lost:
-                return False, f"{name}: tracks lost"
+                return False, Motion(MotionKind.TRACKS_LOST, name)
             if imu is True:
                 continue
             if self._hold is None and math.isfinite(s.motion_px) and s.motion_px > cfg.still_step_px:
-                return False, f"{name}: image moved {s.motion_px:.2f} px"
+                return False, Motion(MotionKind.IMAGE_MOVED, name, s.motion_px)
             radius = math.radians(cfg.hold_radius_deg) * self.rig.cameras[i].focal_px
             if self._hold is not None and math.isfinite(s.offset_px) and s.offset_px > radius:
-                return False, f"{name}: image left the hold ({s.offset_px:.1f} px from its first frame)"
-        return True, ""
+                return False, Motion(MotionKind.LEFT_HOLD, name, s.offset_px)
+        return True, None
 
     def _open(self, stamp: float, images: list, snapshot: bool) -> None:
         anchors, anchor_images = [], []
@@ -305,12 +441,13 @@ class Pipeline:
         self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot)
         self._record(stamp, images)
         self._last_check = stamp
+        self._settled_s = 0.0
 
-    def _moving(self, why: str) -> None:
-        """Count a frame that is not at rest by kind of reason (the numbers of the latest one are kept)."""
-        kind = next((k for k in _MOTION_KINDS if k in why), why)
-        self.stats.dropped[f"frame not at rest ({kind})"] += 1
-        self._last_motion[kind] = why
+    def _moving(self, why: Motion) -> None:
+        """Count a frame that is not at rest by kind of motion (the latest one of each kind is kept)."""
+        drop = Drop.not_at_rest(why.kind)
+        self.stats.dropped[drop] += 1
+        self._last_motion[drop] = why
 
     def no_hold_report(self) -> str:
         """Why no hold was found (empty once one was): what judged the frames moving, with the numbers."""
@@ -318,10 +455,9 @@ class Pipeline:
         if st.holds or not st.frames:
             return ""
         lines = [f"no hold found in {st.frames} frame sets"]
-        moving = {k: v for k, v in st.dropped.items() if k.startswith("frame not at rest")}
+        moving = {k: v for k, v in st.dropped.items() if k in self._last_motion}
         for k, n in sorted(moving.items(), key=lambda kv: -kv[1]):
-            kind = k[len("frame not at rest ("):-1]
-            lines.append(f"  {n} frame sets not at rest: {self._last_motion.get(kind, kind)} (the latest)")
+            lines.append(f"  {n} frame sets not at rest: {self._last_motion[k]} (the latest)")
         noise = self.zupt.noise if self.rig.imu is not None and len(self.imu) else None
         if noise is not None:
             z = self.config.zupt
@@ -334,16 +470,38 @@ class Pipeline:
         if self.rig.imu is None or not len(self.imu):
             lines.append(f"  without an IMU a hold starts where the image moves at most "
                          f"{self.config.holds.still_step_px:g} px between two frames")
-        for k, n in sorted(st.dropped.items()):
-            if k.startswith("hold not used"):
-                lines.append(f"  {n} holds too short or unsettled: {k[len('hold not used: '):]}")
+        for rule in sorted(Refusal, key=lambda r: r.value):
+            n = st.dropped[Drop.hold_refused(rule)]
+            if n:
+                lines.append(f"  {n} holds too short or unsettled: {rule.value}")
         if st.frames < 2:
             lines.append("  a single frame set: a hold of one frame needs the IMU still before it, or no IMU")
         return "\n".join(lines)
 
     def _settle_window(self) -> float:
-        """How long after a stop the bars may still ring (s)."""
-        return self.config.holds.settle_periods * self.bar_period_s
+        """How long after a stop the bars may ring beyond the hold's radius (s): until the ringing a stop of
+        ``holds.stop_load_m_s2`` sets off decays below ``holds.hold_radius_deg`` at the bars' damping (at least
+        one period: the first swing)."""
+        b, cfg = self.bars, self.config.holds
+        if not b.period_s:
+            return 0.0
+        a0 = cfg.stop_load_m_s2 * float(np.max(b.px_per_load, initial=0.0))
+        radius = math.radians(cfg.hold_radius_deg) * min(c.focal_px for c in self.rig.cameras)
+        decay = math.log(a0 / radius) / (b.zeta * 2.0 * math.pi * b.freq_hz) if a0 > radius else 0.0
+        return max(decay, b.period_s)
+
+    def _settling(self, stamp: float) -> bool:
+        """Whether the open hold's bars may still ring beyond its radius at ``stamp`` (then lost tracks or an
+        image leaving the hold re-anchor it instead of ending it): within ``_settle_window`` of the stop and, judged
+        by the images alone, while its frames since the anchor span less than a bar period. Frames kept inside
+        the radius over a period saw the ringing through its swing, and its envelope only decays: the image
+        leaving the radius later is a move (the light default damping may stretch the window past a hold)."""
+        h = self._hold
+        if h is None or stamp - h.start >= self._settle_window():
+            return False
+        if self.rig.imu is not None and len(self.imu):
+            return True  # the IMU tells a move from ringing
+        return len(h) < 2 or h.stamps[-1] - h.stamps[0] < self.bar_period_s
 
     def _reanchor(self, stamp: float, images: list) -> None:
         """The open hold starts again from this frame (new anchor) but keeps the time the rig stopped."""
@@ -376,7 +534,8 @@ class Pipeline:
         if h is None or h.measured or len(h) < 2 or stamp - self._last_check < 0.25 * cfg.measure_s:
             return []
         self._last_check = stamp
-        if h.settled_duration(cfg, self.bar_period_s, self._imu_still_since(h)) < cfg.measure_s:
+        self._settled_s = h.settled_duration(cfg, self.bar_period_s, self._imu_still_since(h), self.bars)
+        if self._settled_s < cfg.measure_s:
             return []
         out = self._estimate_hold(h)
         h.measured = True
@@ -389,50 +548,72 @@ class Pipeline:
             return []
         if h.snapshot and len(h) == 1 and self.rig.imu is not None and len(self.imu):
             t = h.stamps[0]  # a snapshot is taken at the end of its hold: the IMU must be still before it
-            if self.zupt.is_still(t - max(self.config.imu.pad_s, self.config.zupt.window_s), t) is False:
-                self.stats.dropped["snapshot while the IMU says the rig moved"] += 1
+            if self.zupt.is_still(t - max(self.imu.pad_s, self.config.zupt.window_s), t) is False:
+                self.stats.dropped[Drop.SNAPSHOT_MOVED] += 1
                 return []
         return self._estimate_hold(h)
 
+    def _stop_amplitude_px(self, rec: HoldRecorder, since: float | None) -> float | None:
+        """The image ringing a snapshot's stop set off (px, largest camera): the IMU's largest change of
+        specific force over the bar period before the still onset, times each camera's offset per load."""
+        if since is None or len(rec) != 1 or not self.bars.period_s:
+            return None
+        t, a, _ = self.imu.window(since - 2.0 * self.bars.period_s, rec.stamps[0])
+        still = t >= since
+        if still.sum() < 1 or (~still).sum() < 1:
+            return None
+        load = float(np.max(np.linalg.norm(a[~still] - a[still].mean(axis=0), axis=1)))
+        return load * float(np.max(self.bars.px_per_load, initial=0.0))
+
     def _estimate_hold(self, rec: HoldRecorder) -> list:
-        hold, why = rec.measure(self.config.holds, self.bar_period_s, self._imu_still_since(rec))
+        """Measure a closed (or long enough) hold and hand it to the estimation stage with what it needs of
+        the IMU; returns the estimates when the stage runs at once."""
+        since = self._imu_still_since(rec)
+        hold, why = rec.measure(self.config.holds, self.bar_period_s, since, self.bars,
+                                self._stop_amplitude_px(rec, since))
+        attempt = HoldAttempt(rec.start, rec.stamps[-1] if len(rec) else rec.start, len(rec), hold,
+                              str(why) if why is not None else "")
+        if self.hold_log is not None:
+            self.hold_log.append(attempt)
         if hold is None:
-            self.stats.dropped[f"hold not used: {why.split(':')[0]}"] += 1
-            self.last_hold_problem = why
+            self.stats.dropped[Drop.hold_refused(why.rule)] += 1
             return []
+        if self.measured_holds is not None:
+            self.measured_holds.append(hold)
         st = self.stats
         st.holds += 1
         st.ringing_holds += hold.ringing
+        st.ringing_px.append(hold.ringing_px)
+        st.ringing_sources[hold.ringing_source.value] += 1
         st.settle_s.append(hold.settle_s)
         st.residual_px.append(hold.residual_px)
         st.noise_px.append(hold.noise_px)
         st.averaged_noise_px.append(hold.averaged_noise_px)
         st.settled_frames.append(hold.settled_frames)
-        t0 = time.perf_counter()
-        obs = self.linker.link(hold)
         imu = self._imu_gravity(hold)
-        if imu is None and self.method == "4pt-bending":  # forced: no silent fall back to 6pt-bending
-            st.dropped["hold without IMU gravity (4pt-bending forced)"] += 1
-            return []
-        g = sigma = None
+        if imu is not None and self.extrinsics is not None:  # every still hold tells the accelerometer's bias
+            self.extrinsics.observe_still(hold.stamp, imu.accel_mean, imu.accel_std, imu.num_samples)
+        sigma = None
         if imu is not None:
-            g = imu.gravity
             white = imu.accel_std / (self.rig.gravity_magnitude * math.sqrt(max(imu.num_samples, 1)))
             sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg))
-        out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, sigma)
-        k = self.sequence.num_views - 1
-        if k == 0:
-            self._hold_stamps = [hold.stamp]
-            if self.sequence.seq.number + 1 > st.sequences:
-                st.sequences = self.sequence.seq.number + 1
-            if isinstance(out, str) and out.startswith("new sequence"):
-                st.dropped["hold starts a new sequence (too few landmarks shared)"] += 1
-            return []
-        self._hold_stamps.append(hold.stamp)
-        if isinstance(out, str):
-            st.dropped[f"hold not estimated: {out}"] += 1
-            return []
-        return [self._hold_estimate(out, hold, imu, obs.links, time.perf_counter() - t0)]
+        refused = imu is None and self.method == "4pt-bending"  # the stage links it, then refuses it
+        turn = None if refused or self._last_hold is None else self._gyro_rotation(self._last_hold, hold)
+        if not refused:
+            self._last_hold = hold
+        self._handed += 1
+        return self._hand_over(MeasuredHold(hold, imu, sigma, turn, attempt if self.hold_log is not None else None))
+
+    def _gyro_rotation(self, before: Hold, after: Hold):
+        """(R, std rad) of the body's rotation from hold ``after`` into hold ``before`` from the gyro
+        (:func:`.gyro.rotation_between`); None without an IMU or its samples over the move."""
+        if self.rig.imu is None or not len(self.imu):
+            return None
+        t0 = before.settled_end
+        still = (t0 - self.config.imu.pad_s if before.snapshot else before.settled_start, t0)
+        move = (t0, after.settled_end if after.snapshot else after.settled_start)
+        turn = rotation_between(self.imu, self.rig.imu, still, move, self.config.imu.max_age_s)
+        return None if turn is None else (turn.R, turn.sigma_rad)
 
     def _imu_gravity(self, hold: Hold) -> ImuGravity | None:
         if self.rig.imu is None or not len(self.imu):
@@ -440,38 +621,17 @@ class Pipeline:
         t0, t1 = hold.settled_start, hold.settled_end
         if hold.snapshot:
             since = self.zupt.still_since(t1)
-            t0 = t1 - self.config.imu.pad_s if since is None else max(since, t1 - 1.0)
+            t0 = t1 - self.imu.pad_s if since is None else max(since, t1 - self.config.holds.measure_s)
         imu, why = self.imu.gravity(t0, t1)
         if imu is None:
-            self.stats.dropped[f"hold without IMU gravity: {why.split(' (')[0]}"] += 1
+            self.stats.dropped[Drop.no_imu_gravity(why.rule)] += 1
         return imu
-
-    def _hold_estimate(self, v: ViewEstimate, hold: Hold, imu, links, elapsed_s: float) -> HoldEstimate:
-        st = self.stats
-        st.estimates += 1
-        st.methods[v.method] += 1
-        R, t = self.sequence.relative_pose(v.view, v.reference)
-        return HoldEstimate(
-            stamp=hold.stamp, ref_stamp=self._hold_stamps[v.reference], method=v.method, R=R, t=t,
-            gravity=v.gravity, gravity_sigma_deg=math.degrees(v.gravity_sigma_rad), cov_gravity=v.cov_gravity,
-            num_inliers=v.num_inliers, num_observations=v.num_observations, time_ms=1000.0 * elapsed_s,
-            origin_stamp=self._hold_stamps[0], R_origin=v.R, t_origin=v.t, cov_pose=v.cov_pose,
-            sequence=v.sequence, hold_index=v.view, hold=hold, imu_gravity=None if imu is None else imu.gravity,
-            links=links, window=v.window)
 
     # ------------------------------------------------------------------ batch
     def batch(self) -> list:
         """Every hold of the current sequence estimated jointly at once: (stamp, R_origin, t_origin, gravity,
         gravity_sigma_deg) per hold, origin first; empty with fewer than two holds."""
-        est = self.sequence.batch()
-        if not est.success:
-            return []
-        out = []
-        for k, stamp in enumerate(self._hold_stamps[: len(est.R)]):
-            g = None if est.gravity is None else est.gravity[k]
-            s = math.nan if est.gravity_sigma_rad is None else math.degrees(est.gravity_sigma_rad[k])
-            out.append((stamp, est.R[k], est.t[k], g, s))
-        return out
+        return self.estimator.batch()
 
-
-__all__ = ["FrameSet", "HoldEstimate", "PIPELINE_METHODS", "Pipeline", "PipelineConfig", "PipelineStats"]
+__all__ = ["FrameSet", "HoldAttempt", "HoldEstimate", "PIPELINE_METHODS", "Pipeline", "PipelineConfig",
+           "PipelineStats", "RigState", "RigStatus"]

@@ -22,6 +22,7 @@ from ..core.rig import Rig
 from ..errors import InputError
 from .camera_info import camera_info_mismatch
 from .droplog import DropLog
+from .drops import sorted_counts
 from .feeder import Feeder, FeederConfig
 from .pipeline import Pipeline, PipelineConfig
 from .runner import PipelineRunner
@@ -149,20 +150,23 @@ def replay_bag(bag: BagReader, rig: Rig, pipe: Pipeline | PipelineRunner, imu_to
 
 
 def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_topic: str | None = None,
-                      warn: Callable = _stderr_warn, progress: bool = False, stats: dict | None = None) -> list:
+                      warn: Callable = _stderr_warn, progress: bool = False, stats: dict | None = None,
+                      holds: list | None = None) -> list:
     """The sequences of holds a bag holds, with the IMU's gravity of every hold (for
     :func:`nrmpc_ros.calibration.calibrate_sequences`): one ``SequenceRecord`` per sequence.
 
     ``bag`` is a path or an open :class:`BagReader`. The poses and gravity start the calibration; the rig's bar
     values may be wrong (what the holds and their tracks are does not depend on them). Raises
-    :class:`InputError` when the bag or rig has no IMU, or no sequence of two holds has IMU gravity.
+    :class:`InputError` when the bag or rig has no IMU, or no sequence of two holds has IMU gravity. ``holds``:
+    a list that receives every measured :class:`~nrmpc_ros.frontend.holds.Hold` (their ringing traces).
     """
     if not isinstance(bag, BagReader):
         with BagReader(bag) as reader:
-            return collect_sequences(reader, rig, config, imu_topic, warn, progress, stats)
+            return collect_sequences(reader, rig, config, imu_topic, warn, progress, stats, holds)
     topic = resolve_imu_topic(bag, rig, imu_topic, required=True, warn=warn)
     pipe = Pipeline(rig, config, method="4pt-bending")
     pipe.sequence.keep_history = True
+    pipe.measured_holds = holds
     runner = PipelineRunner.around(pipe, drops=DropLog(math.inf))
     for _ in replay_bag(bag, rig, runner, topic, warn=warn, progress=progress):
         pass
@@ -171,7 +175,7 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
         stats.update(st.as_dict())
     seqs = [s for s in runner.sequences() if s.tracks.g_meas is not None and s.gravity is not None]
     if not seqs:
-        dropped = "; ".join(f"{k}: {v}" for k, v in sorted(st.dropped.items())) or "nothing dropped"
+        dropped = "; ".join(f"{k.message}: {v}" for k, v in sorted_counts(st.dropped)) or "nothing dropped"
         why = runner.pipeline.no_hold_report()
         raise InputError(bag.source, f"no sequence of holds with IMU gravity on {topic!r} ({st.frames} frame "
                          f"sets, {st.holds} holds, {st.estimates} estimates; dropped: {dropped})"

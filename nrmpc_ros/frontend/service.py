@@ -5,65 +5,144 @@ into calls of :class:`EstimatorService` and its outputs into messages; its
 settings are :mod:`nrmpc_ros.frontend.node_config`. Here:
 
 - inputs: a :class:`~nrmpc_ros.frontend.feeder.Feeder` (the same input policy
-  as ``nrmpc replay``) hands work to a bounded queue; frame sets arriving
-  while it is full are dropped and counted;
-- the worker thread runs the queue through a
-  :class:`~nrmpc_ros.frontend.runner.PipelineRunner` and hands a
-  :class:`~nrmpc_ros.frontend.outputs.HoldOutput` per hold estimate to
-  ``publish``;
+  as ``nrmpc replay``) hands work to a bounded queue (:class:`WorkQueue`); when
+  it is full the waiting frame set whose images changed most is dropped and
+  counted (moves are thinned, holds kept), which bounds the latency;
+- two worker threads (docs/ARCHITECTURE.md, "The node's two workers"): the
+  intake worker runs the queue through the intake of a
+  :class:`~nrmpc_ros.frontend.runner.PipelineRunner` (tracking, holds, a
+  hold's measurement) and hands each measured hold to the estimation worker
+  (:class:`HoldQueue`, in order, never dropped), which links and estimates it
+  and hands a :class:`~nrmpc_ros.frontend.outputs.HoldOutput` per hold
+  estimate to ``publish``: frame sets never wait behind a hold's estimate;
+- the rig's state (:class:`~nrmpc_ros.frontend.pipeline.RigStatus`) goes to
+  ``publish_status`` after every estimate and whenever it changes;
 - reports: camera liveness, rate-limited drop logs, the diagnostics per part
-  (cameras, IMU, estimation) and the shutdown summary.
+  (cameras, IMU, estimation: :mod:`.diagnostics`) and the shutdown summary;
+- shutdown within a budget (:meth:`EstimatorService.stop`): the frame sets
+  waiting are dropped and counted, the item in progress is abandoned when it
+  does not end in time, the measured holds waiting are estimated until the
+  deadline, and the open hold is estimated only when its estimate, judged by
+  the longest hold estimate measured so far and the holds ahead of it, fits in
+  what is left of the budget; the line returned says which (README, "The ROS 2
+  node", Drops and logs).
 """
 
 from __future__ import annotations
 
-import statistics
+import math
 import threading
 import time
 from collections import Counter, deque
-from dataclasses import dataclass
+
+import cv2
+import numpy as np
 
 from ..core.rig import Rig
 from .camera_info import camera_info_mismatch
+from .diagnostics import ERROR, OK, WARN, ServiceDiagnostics, Status
 from .droplog import DropLog
+from .drops import Drop
+from .extrinsics import NO_IMU_NOTE, imu_mount_warning
 from .feeder import Feeder, Work
 from .liveness import CameraWatch
 from .node_config import NodeConfig
-from .outputs import FrameNames, HoldOutput, hold_output
-from .pipeline import PIPELINE_METHODS, PipelineConfig
+from .outputs import FrameNames, FramePosesOutput, HoldOutput, hold_output
+from .pipeline import PIPELINE_METHODS, PipelineConfig, RigState
 from .runner import PipelineRunner
 
-OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
+SHUTDOWN_S = 2.0  # SIGINT or SIGTERM to the end of the process: what launch files and test harnesses wait for
+
+
+def image_change(previous, images) -> tuple:
+    """How much a frame set's images changed since the camera's previous ones: the largest over the cameras of
+    the mean absolute grey-level difference on every 8th pixel of every 8th row (a few microseconds per image),
+    and the subsampled images to compare the next set with. Used only to rank waiting frame sets (more change:
+    more motion), never as a threshold; a camera without a previous image ranks its set first to keep."""
+    small = [None if img is None else np.ascontiguousarray(img[::8, ::8]) for img in images]
+    change = 0.0
+    for a, b in zip(previous, small):
+        if a is not None and b is not None and a.shape == b.shape:
+            change = max(change, float(cv2.absdiff(a, b).mean()))
+    return change, small
+
+
+SEQUENCE_ENDS = ("flush", "restart", "reset")  # work kinds that end the open hold (restart, reset: the sequence)
 
 
 class WorkQueue:
-    """Work for the worker thread: ``put`` never blocks; a frame set is refused while ``max_frames`` wait."""
+    """Work for the worker thread: ``put`` never blocks; at most ``max_frames`` frame sets wait.
+
+    When a frame set arrives while ``max_frames`` wait, one of them (or the new one) is dropped, chosen by
+    :meth:`_victim`: frames taken while the rig moves go first, the frames of a hold, whose images barely
+    change, last and evenly, so a busy estimator thins the moves and keeps the holds with their span, and the
+    frame sets waiting (the latency) stay bounded. IMU samples and other work are never dropped (below
+    ``max_items``)."""
 
     def __init__(self, max_frames: int, max_items: int = 200000):
         self.max_frames = int(max_frames)
         self.max_items = int(max_items)
-        self._items: deque = deque()
+        self._items: deque = deque()  # (Work, image change)
+        self._last_stamp = -math.inf  # of the last frame set taken by the worker
         self._frames = 0
         self._cv = threading.Condition()
 
-    def put(self, work: Work) -> bool:
+    def put(self, work: Work, change: float = 0.0):
+        """Queue ``work``; returns None, or the frame set dropped to make room (``work`` itself when it ranks
+        last; any work when ``max_items`` wait)."""
         with self._cv:
             frames = work.kind == "frames"
-            if (frames and self._frames >= self.max_frames) or len(self._items) >= self.max_items:
-                return False
-            self._items.append(work)
+            if len(self._items) >= self.max_items:
+                return work
+            dropped = None
+            self._items.append((work, change))
+            if frames and self._frames >= self.max_frames:
+                at = self._victim()
+                dropped = self._items[at][0]
+                del self._items[at]
+                self._frames -= 1
             self._frames += frames
             self._cv.notify()
-            return True
+            return dropped
+
+    def _victim(self) -> int:
+        """Index of the frame set to drop: the largest image change, on a doubling scale (so the noise between
+        two still frames does not decide); among equals the one whose neighbours lie closest in time, so a
+        hold is thinned evenly and keeps its span (the newest is kept: it extends the span). A time jump back
+        or a reset between two frame sets starts a new sequence: the sets on either side of it are the ends of
+        their sequences' spans and are kept like the newest (a gap across sequences is no gap in time)."""
+        sets, ends, start = [], set(), True  # ends: indices in sets of a sequence's first or last set
+        for k, (w, c) in enumerate(self._items):
+            if w.kind in SEQUENCE_ENDS:
+                start = True
+                if sets:
+                    ends.add(len(sets) - 1)
+            elif w.kind == "frames":
+                if start or (sets and w.stamp <= sets[-1][1]):
+                    ends.update({len(sets), len(sets) - 1} if sets else {0})
+                start = False
+                sets.append((k, w.stamp, c))
+        stamps = [t for _, t, _ in sets]
+        best, at = None, sets[-1][0]
+        for j, (k, _, c) in enumerate(sets[:-1]):
+            gap = math.inf if j in ends else stamps[j + 1] - (stamps[j - 1] if j else self._last_stamp)
+            key = (math.floor(math.log2(1.0 + c)), -gap)
+            if best is None or key > best:
+                best, at = key, k
+        newest = (math.floor(math.log2(1.0 + sets[-1][2])), -math.inf)
+        return sets[-1][0] if best is None or newest > best else at
 
     def get(self, timeout: float):
         with self._cv:
-            if not self._items:
-                self._cv.wait(timeout)
-            if not self._items:
+            item = _wait_pop(self._cv, self._items, timeout)
+            if item is None:
                 return None
-            work = self._items.popleft()
-            self._frames -= work.kind == "frames"
+            work, _ = item
+            if work.kind == "frames":
+                self._frames -= 1
+                self._last_stamp = work.stamp
+            elif work.kind in SEQUENCE_ENDS:
+                self._last_stamp = -math.inf
             return work
 
     def frames(self) -> int:
@@ -74,19 +153,53 @@ class WorkQueue:
         with self._cv:
             return len(self._items)
 
-
-@dataclass
-class Status:
-    """One diagnostic_msgs/DiagnosticStatus: part name, level (OK / WARN / ERROR), message, key-values."""
-
-    name: str
-    level: int
-    message: str
-    values: dict
+    def clear(self) -> int:
+        """Remove everything waiting; returns how many frame sets were among it."""
+        with self._cv:
+            frames, self._frames = self._frames, 0
+            self._items.clear()
+            return frames
 
 
-def _median(values) -> str:
-    return f"{statistics.median(values):.1f}" if values else ""
+def _wait_pop(cv: threading.Condition, items: deque, timeout: float):
+    """The oldest of ``items`` (``cv`` held), waiting up to ``timeout`` s for one; None if none came."""
+    if not items:
+        cv.wait(timeout)
+    return items.popleft() if items else None
+
+
+class HoldQueue:
+    """Work for the estimation worker: measured holds and the markers around them, in order; nothing is ever
+    dropped (a hold is a few averaged tracks, and frame sets are thinned before they reach the intake)."""
+
+    def __init__(self):
+        self._items: deque = deque()  # (StageWork, arrival clock of the frame set that completed it)
+        self._holds = 0
+        self._cv = threading.Condition()
+
+    def put(self, work, arrival: float) -> None:
+        with self._cv:
+            self._items.append((work, arrival))
+            self._holds += work.is_hold
+            self._cv.notify()
+
+    def get(self, timeout: float):
+        """The oldest (work, arrival), or None when nothing came within ``timeout`` s."""
+        with self._cv:
+            item = _wait_pop(self._cv, self._items, timeout)
+            if item is None:
+                return None
+            work, arrival = item
+            self._holds -= work.is_hold
+            return work, arrival
+
+    def holds(self) -> int:
+        with self._cv:
+            return self._holds
+
+    def __len__(self) -> int:
+        with self._cv:
+            return len(self._items)
 
 
 class EstimatorService:
@@ -98,14 +211,25 @@ class EstimatorService:
     """
 
     def __init__(self, rig: Rig, config: NodeConfig, pipeline_config: PipelineConfig, camera_topics: list,
-                 imu_topic: str | None, publish, log, clock=time.monotonic):
+                 imu_topic: str | None, publish, log, clock=time.monotonic, publish_poses=None, publish_status=None):
         self.rig, self.config = rig, config
         self.camera_topics, self.imu_topic = list(camera_topics), imu_topic
         self.publish, self.log, self.clock = publish, log, clock
+        self.publish_poses = publish_poses  # FramePosesOutput of every frame set (with an IMU), worker thread
+        self._poses_stamp = -float("inf")  # stamp of the last ~/camera_poses from the bars' dynamics
+        self.publish_status = publish_status  # (RigStatus, last HoldOutput or None): on estimates and state changes
+        self._status = None  # the RigStatus last handed to publish_status
         self.drops = DropLog(config.log_every_s, clock)
         self.queue = WorkQueue(config.work_queue_size)
+        self.holds = HoldQueue()  # measured holds for the estimation worker
         self.feeder = Feeder(rig, config.input, self._put, self.drops, self.camera_topics, imu_topic, log, clock)
-        self.runner = PipelineRunner(rig, pipeline_config, config.method, self.drops, catch=True, log=log)
+        self.runner = PipelineRunner(rig, pipeline_config, config.method, self.drops, catch=True, log=log,
+                                     on_poses=self._on_poses if publish_poses is not None else None,
+                                     deferred=True)
+        if imu_topic is None:
+            log("info", NO_IMU_NOTE)
+        elif imu_mount_warning(rig):
+            log("warn", imu_mount_warning(rig))
         self.stats = self.runner.stats  # a copy the worker renews after each work item (the timer reads it)
         self.watch = CameraWatch(self.camera_topics, config.camera_timeout_s)
         self.frames = FrameNames(rig.body_frame, config.origin_frame or f"{rig.body_frame}_origin",
@@ -113,16 +237,23 @@ class EstimatorService:
         self.received: Counter = Counter()
         self.camera_info: dict = {}  # camera index -> "agrees with the rig file" or what differs
         self.counts: Counter = Counter()
-        self.latency_ms: deque = deque(maxlen=500)
-        self.process_ms: deque = deque(maxlen=500)
+        self.latency_ms: deque = deque(maxlen=500)  # arrival of the frame set that completed a hold to its output
+        self.process_ms: deque = deque(maxlen=500)  # the intake's processing time per frame set
+        self.set_latency_ms: deque = deque(maxlen=1000)  # arrival of a frame set to the end of its intake
+        self.hold_ms: deque = deque(maxlen=50)  # the estimation stage's time per hold estimated
         self.last: HoldOutput | None = None
         self._holds: dict = {}  # sequence -> {stamp: hold index} (reference frame names)
         self._lock = threading.Lock()
-        self._stop = threading.Event()
+        self._stop = threading.Event()  # the intake worker stops
+        self._drain = threading.Event()  # the estimation worker stops once no hold waits
+        self._halt = threading.Event()  # the estimation worker stops after its item
+        self._status_lock = threading.Lock()  # both workers hand the rig's state over
         self._thread: threading.Thread | None = None
-        self._running = False  # the worker is on a work item
-        self._reported: dict = {}  # part -> drop count at the last diagnostics
-        self._rates: dict = {}  # topic -> (count, clock) at the last diagnostics
+        self._estimator: threading.Thread | None = None
+        self._running = False  # the intake worker is on a work item
+        self._estimating = False  # the estimation worker is on a hold
+        self.reports = ServiceDiagnostics(self)
+        self._small: list = [None] * rig.num_cameras  # the last frame set's images, subsampled (image_change)
 
     # ------------------------------------------------------------------ inputs (the node's executor thread)
     def on_image(self, index: int, msg, now: float | None) -> None:
@@ -142,8 +273,8 @@ class EstimatorService:
         try:
             fn(*args)
         except Exception as exc:  # noqa: BLE001 - the node must outlive it
-            line = self.drops.drop(source, "input failed", f"{source}: handling a message failed: "
-                                                           f"{type(exc).__name__}: {exc}")
+            line = self.drops.drop(source, Drop.INPUT_FAILED, f"{source}: handling a message failed: "
+                                                              f"{type(exc).__name__}: {exc}")
             if line:
                 self.log("error", line)
 
@@ -182,45 +313,119 @@ class EstimatorService:
             self.log("warn", line)
 
     def _put(self, work: Work) -> None:
-        if not self.queue.put(work):
-            what = "frame set" if work.kind == "frames" else f"{work.kind} item"
-            line = self.drops.drop("worker", f"{what} dropped while the estimator is busy",
-                                   f"{what} at {work.stamp:.3f} s dropped while the estimator is busy: "
-                                   f"{self.queue.frames()} frame sets wait (work_queue_size "
-                                   f"{self.config.work_queue_size})")
+        change = 0.0
+        if work.kind == "frames":
+            change, self._small = image_change(self._small, work.data[0].images)
+        elif work.kind in SEQUENCE_ENDS:  # the next set is compared with nothing: it starts a sequence
+            self._small = [None] * self.rig.num_cameras
+        dropped = self.queue.put(work, change)
+        if dropped is not None:
+            what = "frame set" if dropped.kind == "frames" else f"{dropped.kind} item"
+            line = self.drops.drop("worker", Drop.busy(dropped.kind),
+                                   f"{what} at {dropped.stamp:.3f} s dropped while the estimator is busy (of "
+                                   f"the {self.queue.frames() + 1} waiting, the one whose images changed most: "
+                                   f"holds are kept, moves thinned; work_queue_size {self.config.work_queue_size})")
             if line:
                 self.log("warn", line)
 
-    # ------------------------------------------------------------------ worker thread
+    # ------------------------------------------------------------------ worker threads
     def start(self) -> None:
-        self._thread = threading.Thread(target=self._work_loop, name="nrmpc-estimator", daemon=True)
+        """Start the intake worker (frame sets: tracking, holds) and the estimation worker (measured holds)."""
+        self._thread = threading.Thread(target=self._work_loop, name="nrmpc-intake", daemon=True)
+        self._estimator = threading.Thread(target=self._estimate_loop, name="nrmpc-estimator", daemon=True)
         self._thread.start()
+        self._estimator.start()
 
-    def stop(self, timeout: float = 5.0) -> None:
+    def holds_waiting(self) -> int:
+        """Measured holds handed to the estimation worker and not published yet."""
+        return self.holds.holds() + self._estimating
+
+    def work_waiting(self) -> int:
+        """Work items of either worker not done yet (0: everything that came in is processed)."""
+        return len(self.queue) + self._running + len(self.holds) + self._estimating
+
+    def stop(self, budget_s: float = SHUTDOWN_S) -> str:
+        """Stop both workers within ``budget_s`` seconds; returns what became of the work in progress, the holds
+        waiting and the open hold (one line for the shutdown summary).
+
+        The frame sets waiting are dropped and counted ("not processed at shutdown"); the intake finishes its
+        item if it can within the budget, else that item is abandoned (the threads are daemons: they end with
+        the process). The open hold is then measured and handed to the estimation worker only when the longest
+        hold estimate measured so far, times the holds still ahead of it, fits in what is left; without a
+        measurement it is tried. The estimation worker goes on with the holds waiting until the deadline.
+        """
+        end = time.monotonic() + budget_s
         self._stop.set()
+        waiting = self.queue.clear()
+        if waiting:
+            self.drops.drop("worker", Drop.SHUTDOWN,
+                            f"{waiting} frame sets not processed at shutdown", count=waiting)
+        line = self._stop_intake(end, budget_s)
+        self._drain.set()
+        estimator = self._estimator
+        if estimator is None or not estimator.is_alive():  # never started: its work is done here, as bounded
+            estimator = threading.Thread(target=self._estimate_loop, name="nrmpc-shutdown-estimate", daemon=True)
+            estimator.start()
+        estimator.join(max(0.0, end - time.monotonic()))
+        self._halt.set()
+        if not self.holds_waiting():
+            return line or "open hold estimated at shutdown"
+        return ((line or "open hold abandoned: its estimate did not end in time") +
+                f"; {self.holds_waiting()} measured holds (with the one in progress) were not estimated within the "
+                f"{budget_s:g} s of the shutdown")
+
+    def _stop_intake(self, end: float, budget_s: float) -> str:
         if self._thread is not None and self._thread.is_alive():
-            self._thread.join(timeout)
+            self._thread.join(max(0.0, end - time.monotonic()))
+            if self._thread.is_alive():
+                return (f"the frame set in progress was abandoned: it did not end within the {budget_s:g} s "
+                        "of the shutdown")
+        if not self.runner.hold_open:
+            return "no open hold"
+        ahead = self.holds_waiting() + 1
+        left, need = end - time.monotonic(), ahead * 1e-3 * max(self.hold_ms, default=0.0)
+        if need > left:
+            return (f"open hold not estimated: would not fit in the {budget_s:g} s of the shutdown (hold "
+                    f"estimates took up to {1e3 * need / ahead:.0f} ms, {ahead - 1} holds waited ahead of it, "
+                    f"{max(0.0, 1e3 * left):.0f} ms were left)")
+        self.queue.put(Work("flush"))
+        flush = threading.Thread(target=self.work_once, name="nrmpc-shutdown-flush", daemon=True)
+        flush.start()
+        flush.join(max(0.0, end - time.monotonic()))
+        if flush.is_alive():
+            return f"open hold abandoned: its measurement did not end within the {budget_s:g} s of the shutdown"
+        return ""  # handed to the estimation worker: estimated if it ends in time
 
     def _work_loop(self) -> None:
         while not self._stop.is_set():
             self.work_once(0.1)
 
+    def _estimate_loop(self) -> None:
+        while not self._halt.is_set():
+            if self.estimate_once(0.05) is None and self._drain.is_set() and not len(self.holds):
+                return
+
     def work_once(self, timeout: float = 0.0) -> list:
-        """Run one work item (waiting up to ``timeout`` s for one); publish and return its outputs."""
+        """Run one work item of the intake (waiting up to ``timeout`` s for one): the measured holds it made go
+        to the estimation worker; returns the outputs it published itself (none: estimates come from
+        :meth:`estimate_once`)."""
         work = self.queue.get(timeout)
         if work is None:
             return []
         self._running = True
+        outputs = []
         try:
             if work.kind == "method":
                 self.runner.restart(f"method {work.data}", work.data)
-                return []
-            t0 = time.perf_counter()
-            estimates = self.runner.run(work)
-            elapsed_ms = 1e3 * (time.perf_counter() - t0)
-            outputs = [self._output(est) for est in estimates]
-            for out in outputs:
-                self.publish(out)
+            else:
+                t0 = time.perf_counter()
+                outputs = [self._output(est) for est in self.runner.run(work)]
+                elapsed_ms = 1e3 * (time.perf_counter() - t0)
+                for out in outputs:
+                    self._publish(self.publish, out)
+            arrival = work.data[1] if work.kind == "frames" else self.clock()
+            for item in self.runner.take_stage_work():
+                self.holds.put(item, arrival)
         finally:
             self._running = False
         stats = self.runner.stats
@@ -229,12 +434,75 @@ class EstimatorService:
             if work.kind == "frames":
                 self.counts["processed frame sets"] += 1
                 self.process_ms.append(elapsed_ms)
-                if outputs:
-                    self.latency_ms.append(1e3 * (self.clock() - work.data[1]))
-            self.counts["estimates"] += len(outputs)
-            if outputs:
-                self.last = outputs[-1]
+                self.set_latency_ms.append(1e3 * (self.clock() - work.data[1]))
+            self._outputs(outputs, work.data[1] if work.kind == "frames" else None)
+        self._status_changed(outputs)
         return outputs
+
+    def estimate_once(self, timeout: float = 0.0) -> list | None:
+        """Run one item of the estimation worker (waiting up to ``timeout`` s for one); publish and return its
+        outputs (None: nothing waited)."""
+        got = self.holds.get(timeout)
+        if got is None:
+            return None
+        work, arrival = got
+        self._estimating = work.is_hold
+        try:
+            t0 = time.perf_counter()
+            outputs = [self._output(est) for est in self.runner.estimate(work)]
+            elapsed_ms = 1e3 * (time.perf_counter() - t0)
+            for out in outputs:
+                self._publish(self.publish, out)
+        finally:
+            self._estimating = False
+        stats = self.runner.stats
+        with self._lock:
+            self.stats = stats
+            self._outputs(outputs, arrival)
+            if outputs:
+                self.hold_ms.append(elapsed_ms)
+        self._status_changed(outputs)  # after the estimate's latency is taken: the markers do not add to it
+        return outputs
+
+    def _outputs(self, outputs: list, arrival: float | None) -> None:
+        """Count published estimates and their latency (under ``_lock``)."""
+        self.counts["estimates"] += len(outputs)
+        if outputs:
+            self.last = outputs[-1]
+            if arrival is not None:
+                self.latency_ms.append(1e3 * (self.clock() - arrival))
+
+    def _on_poses(self, poses) -> None:
+        """The cameras' poses of a frame set (bars driven by the IMU) to ``publish_poses``; ~/camera_poses is
+        rate-limited by the frame stamps (``camera_poses_rate_hz``) and needs every camera."""
+        rate = self.config.camera_poses_rate_hz
+        stamp = float(poses.stamps[0])
+        due = rate > 0 and len(poses.cameras) == self.rig.num_cameras and \
+            (stamp - self._poses_stamp >= 1.0 / rate or stamp < self._poses_stamp)
+        if due:
+            self._poses_stamp = stamp
+        self._publish(self.publish_poses, FramePosesOutput(poses, due))
+
+    def _status_changed(self, outputs: list) -> None:
+        """Hand the rig's state to ``publish_status`` after an estimate or when it changed (not per frame)."""
+        if self.publish_status is None:
+            return
+        with self._status_lock:
+            status = self.runner.pipeline.status()
+            if status.state is RigState.WAITING:  # no frame set yet (a fresh pipeline): nothing to show
+                return
+            if outputs or status.state != getattr(self._status, "state", None) or status.hold != self._status.hold:
+                self._status = status
+                self._publish(self.publish_status, status, outputs[-1] if outputs else self.last)
+
+    def _publish(self, publish, *args) -> None:
+        """Publish, unless the service stops: an estimate abandoned at shutdown may end after the node's
+        context is gone, and must not fail then."""
+        try:
+            publish(*args)
+        except Exception:  # noqa: BLE001 - a publisher destroyed at shutdown
+            if not self._stop.is_set():
+                raise
 
     def _output(self, est) -> HoldOutput:
         holds = self._holds.setdefault(est.sequence, {est.origin_stamp: 0})
@@ -243,120 +511,19 @@ class EstimatorService:
             del self._holds[min(self._holds)]
         return hold_output(est, self.rig, self.frames, holds.get(est.ref_stamp))
 
-    # ------------------------------------------------------------------ reports
-    def _rate(self, topic: str, now: float) -> float:
-        n = self.received[topic]
-        n0, t0 = self._rates.get(topic, (n, now))
-        self._rates[topic] = (n, now)
-        return (n - n0) / (now - t0) if now > t0 else 0.0
-
-    def _drops_of(self, sources) -> tuple:
-        counts = {k: v for k, v in self.drops.counts().items() if k[0] in sources}
-        return sum(counts.values()), {f"dropped: {s}: {r}": n for (s, r), n in sorted(counts.items())}
-
-    def _new_drops(self, part: str, total: int) -> int:
-        new = total - self._reported.get(part, 0)
-        self._reported[part] = total
-        return new
-
+    # ------------------------------------------------------------------ reports (frontend/diagnostics.py)
     def diagnostics(self) -> list:
-        """One :class:`Status` per part: cameras, IMU, estimation (called by the node's timer)."""
-        now = self.clock()
-        return [self._camera_status(now), self._imu_status(now), self._estimation_status()]
+        """One :class:`~nrmpc_ros.frontend.diagnostics.Status` per part: cameras, IMU, estimation (called by the
+        node's timer)."""
+        return self.reports.statuses()
 
     def diagnostic_fields(self, node_name: str) -> dict:
         """:meth:`diagnostics` as the fields of a diagnostic_msgs/DiagnosticArray (one status per part, named
         ``<node name>: <part>``, hardware_id the body frame)."""
-        return {"status": [{"level": bytes([s.level]), "name": f"{node_name}: {s.name}", "message": s.message,
-                            "hardware_id": self.rig.body_frame,
-                            "values": [{"key": k, "value": str(v)} for k, v in s.values.items()]}
-                           for s in self.diagnostics()]}
-
-    def _camera_status(self, now: float) -> Status:
-        values = {}
-        for i, topic in enumerate(self.camera_topics):
-            values[f"{topic}: images"] = self.received[topic]
-            values[f"{topic}: rate (Hz)"] = f"{self._rate(topic, now):.2f}"
-            values[f"{topic}: state"] = "input ended" if self.watch.ended is not None else self.watch.state[i]
-            values[f"{topic}: camera_info"] = self.camera_info.get(i, "none received")
-        total, dropped = self._drops_of(set(self.camera_topics))
-        values.update(dropped)
-        values["frame sets"] = self.feeder.events["frame sets"]
-        values["frame grouping"] = self.feeder.sync.describe()
-        new = self._new_drops("cameras", total)
-        silent = self.watch.silent()
-        if silent:
-            level, message = WARN, f"no images from {', '.join(silent)}"
-        elif new:
-            level, message = WARN, f"{new} images dropped in the last period (see dropped: *)"
-        elif self.watch.ended is not None:
-            level, message = OK, f"the input ended {now - self.watch.ended:.0f} s ago"
-        elif self.watch.first_any is None:
-            level, message = OK, "waiting for the first images"
-        else:
-            level, message = OK, f"{len(self.camera_topics)} cameras publishing"
-        return Status("cameras", level, message, values)
-
-    def _imu_status(self, now: float) -> Status:
-        if self.imu_topic is None:
-            why = "the rig file has no imu block" if self.rig.imu is None else "use_imu is false"
-            return Status("IMU", OK, f"no IMU ({why}): vision only", {})
-        topic = self.imu_topic
-        total, dropped = self._drops_of({topic})
-        values = {"topic": topic, "samples": self.received[topic], "rate (Hz)": f"{self._rate(topic, now):.2f}",
-                  **dropped}
-        new = self._new_drops("imu", total)
-        if new:
-            level, message = WARN, f"{new} IMU samples dropped in the last period (see dropped: *)"
-        elif not self.received[topic] and self.watch.first_any is not None:
-            level, message = WARN, f"no IMU sample on {topic} yet while the cameras publish"
-        else:
-            level, message = OK, f"{self.received[topic]} samples"
-        return Status("IMU", level, message, values)
-
-    def _estimation_status(self) -> Status:
-        with self._lock:
-            counts, last, st = dict(self.counts), self.last, self.stats
-            latency, process = list(self.latency_ms), list(self.process_ms)
-        values = {"method": self.config.method, "frame sets processed": counts.get("processed frame sets", 0),
-                  "frame sets waiting": self.queue.frames(), "work waiting": len(self.queue) + self._running,
-                  "holds": st.holds,
-                  "estimates": counts.get("estimates", 0), "time jumps back": self.feeder.events["time jumps back"],
-                  "resets": counts.get("resets", 0), "latency median (ms)": _median(latency),
-                  "processing median (ms)": _median(process)}
-        values.update({f"methods: {m}": n for m, n in sorted(st.methods.items())})
-        values.update({f"not estimated: {k}": n for k, n in sorted(st.dropped.items())})
-        inputs = set(self.camera_topics) | {self.imu_topic}
-        total, dropped = self._drops_of({s for s, _ in self.drops.counts()} - inputs)
-        values.update(dropped)
-        if last is not None:
-            e = last.estimate
-            values.update({"last: stamp": f"{e.stamp:.6f}", "last: sequence": e.sequence, "last: hold": e.hold_index,
-                           "last: method": e.method, "last: gravity sigma (deg)": f"{e.gravity_sigma_deg:.3f}",
-                           "last: inliers": e.num_inliers})
-        failed = sum(n for (s, r), n in self.drops.counts().items() if r == "estimation failed")
-        if self._new_drops("failed", failed):
-            level, message = ERROR, "estimation failed (see dropped: pipeline: *)"
-        elif self._new_drops("estimation", total):
-            level, message = WARN, "frame sets dropped in the last period (see dropped: *)"
-        elif last is not None:
-            e = last.estimate
-            level, message = OK, (f"sequence {e.sequence}, hold {e.hold_index}: {e.method}, gravity +-"
-                                  f"{e.gravity_sigma_deg:.2f} deg")
-        else:
-            level, message = OK, "waiting for holds"
-        return Status("estimation", level, message, values)
+        return self.reports.fields(node_name)
 
     def summary(self) -> str:
         """The shutdown summary: what came in, what was estimated, every drop by reason."""
-        with self._lock:
-            counts, latency, st = dict(self.counts), list(self.latency_ms), self.stats
-        images = sum(self.received[t] for t in self.camera_topics)
-        imu = self.received[self.imu_topic] if self.imu_topic else 0
-        return (f"{images} images, {imu} IMU samples; {self.feeder.events['frame sets']} frame sets, "
-                f"{counts.get('processed frame sets', 0)} processed; {st.holds} holds, "
-                f"{counts.get('estimates', 0)} estimates; {self.feeder.events['time jumps back']} time jumps back; "
-                f"median latency {_median(latency) or 'n/a'} ms; dropped: {self.drops.summary()}")
+        return self.reports.summary()
 
-
-__all__ = ["ERROR", "EstimatorService", "OK", "Status", "WARN", "WorkQueue"]
+__all__ = ["ERROR", "EstimatorService", "HoldQueue", "OK", "Status", "WARN", "WorkQueue"]

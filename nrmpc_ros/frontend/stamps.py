@@ -23,12 +23,51 @@ The policy (README, "The ROS 2 node", Time), per input stream (a camera, the IMU
 The caller resets what depends on time (synchronizer, IMU buffer, holds)
 when :meth:`StampGuard.check` returns a :class:`Jump`, then handles the
 messages the jump holds, oldest first.
+
+When a held stamp is confirmed as a jump is one policy, :class:`JumpPolicy`,
+shared with the frame grouping (:class:`~nrmpc_ros.frontend.sync.StampSynchronizer`
+holds smaller jumps, in frame periods, the same way); the feeder builds it
+from its settings (``FeederConfig.jump_policy``).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
+from .drops import Drop
+
+
+@dataclass
+class HeldJump:
+    """Messages held apart because their stamps jump far from their streams' time, until the jump is confirmed
+    or dropped; each message is a tuple whose first item is its stream."""
+
+    messages: list
+    others_talked: bool = False  # another stream sent a stamp consistent with the old time meanwhile
+
+    @property
+    def streams(self) -> set:
+        return {m[0] for m in self.messages}
+
+    def count(self, stream) -> int:
+        """Messages of ``stream`` held."""
+        return sum(m[0] == stream for m in self.messages)
+
+
+@dataclass(frozen=True)
+class JumpPolicy:
+    """When held stamps are a jump of the clock (module docstring, "Back"): a second stream shows the same jump,
+    or ``confirm`` messages of one stream do while no other stream talks of the old time. ``jump_back_s`` is how
+    far behind its stream's newest a stamp must be for the stamp guard to hold it (s). These defaults are the
+    input settings' (``FeederConfig.jump_back_s``, ``jump_confirm``)."""
+
+    jump_back_s: float = 1.0
+    confirm: int = 3
+
+    def confirmed(self, held: HeldJump, stream) -> bool:
+        """Whether the messages held, the newest of ``stream``, confirm the jump."""
+        return bool(held.streams - {stream}) or (held.count(stream) >= self.confirm and not held.others_talked)
 
 
 @dataclass
@@ -47,7 +86,7 @@ class Jump:
 
 @dataclass
 class Verdict:
-    """What to do with one message: handle it (``accept``), count ``drops`` ((reason, message) each), and, on a
+    """What to do with one message: handle it (``accept``), count ``drops`` ((Drop, message) each), and, on a
     ``jump``, reset and handle its held messages instead."""
 
     accept: bool
@@ -56,13 +95,8 @@ class Verdict:
 
 
 @dataclass
-class _Pending:
-    messages: list  # (stream, stamp, payload, old newest of the stream)
-    others_talked: bool = False
-
-    @property
-    def streams(self) -> set:
-        return {m[0] for m in self.messages}
+class _Pending(HeldJump):
+    """Held messages: (stream, stamp, payload, old newest of the stream) each."""
 
     @property
     def latest(self) -> float:
@@ -70,16 +104,18 @@ class _Pending:
 
 
 class StampGuard:
-    """The stamp policy of the module docstring; ``max_held`` bounds the messages held for a candidate jump."""
+    """The stamp policy of the module docstring; ``jumps`` when held stamps are a jump back, ``max_held`` bounds
+    the messages held for a candidate jump."""
 
-    def __init__(self, max_future_s: float = 10.0, jump_back_s: float = 1.0, confirm: int = 3, max_held: int = 64):
+    def __init__(self, max_future_s: float = 10.0, jumps: JumpPolicy | None = None, max_held: int = 64):
         self.max_future_s = float(max_future_s)
-        self.jump_back_s = float(jump_back_s)
-        self.confirm = int(confirm)
+        self.policy = jumps or JumpPolicy()
+        self.jump_back_s = float(self.policy.jump_back_s)
         self.max_held = int(max_held)
         self.jumps = 0
         self._newest: dict = {}  # stream -> newest accepted stamp
         self._before: dict = {}  # stream -> its newest stamp before the last jump back (until it sends the new time)
+        self._old_time = -math.inf  # the newest stamp of any stream before the last jump back
         self._pending: _Pending | None = None
 
     def newest(self, stream=None) -> float:
@@ -91,11 +127,11 @@ class StampGuard:
     def check(self, stream, stamp: float, payload=None, now: float | None = None) -> Verdict:
         """The verdict on one message of ``stream`` stamped ``stamp`` (s); ``now`` is the present (s) or None."""
         if not math.isfinite(stamp):
-            return Verdict(False, [("stamp not finite", f"stamp {stamp!r} is not a finite number")])
+            return Verdict(False, [(Drop.STAMP_NOT_FINITE, f"stamp {stamp!r} is not a finite number")])
         if now is not None and stamp > now + self.max_future_s:
-            return Verdict(False, [("stamp in the future", f"stamp {stamp:.3f} s is {stamp - now:.3f} s ahead of "
-                                                           f"the clock ({now:.3f} s; max_future_s "
-                                                           f"{self.max_future_s:g})")])
+            return Verdict(False, [(Drop.STAMP_IN_FUTURE, f"stamp {stamp:.3f} s is {stamp - now:.3f} s ahead of "
+                                                            f"the clock ({now:.3f} s; max_future_s "
+                                                            f"{self.max_future_s:g})")])
         own = self._newest.get(stream, -math.inf)
         if stamp < own - self.jump_back_s and not self._rejoins(stream, stamp):
             return self._hold(stream, stamp, payload, own)
@@ -120,10 +156,12 @@ class StampGuard:
         old = self._before.get(stream)
         if old is None or stream in self._newest:
             return None
+        # an input delivered late (a backlog) still has messages up to the old time of the fastest input
+        old = max(old, self._old_time)
         new_time = self.newest()
         if stamp > new_time + self.jump_back_s and stamp <= old + self.jump_back_s:
-            return ("from before a time jump back", f"stamp {stamp:.3f} s is from before the jump back in time "
-                                                    f"(the new time is {new_time:.3f} s)")
+            return (Drop.BEFORE_JUMP_BACK, f"stamp {stamp:.3f} s is from before the jump back in time "
+                                            f"(the new time is {new_time:.3f} s)")
         return None
 
     def _hold(self, stream, stamp: float, payload, own: float) -> Verdict:
@@ -135,8 +173,7 @@ class StampGuard:
         if p is None:
             p = self._pending = _Pending([])
         p.messages.append((stream, stamp, payload, own))
-        mine = sum(m[0] == stream for m in p.messages)
-        if len(p.streams) >= 2 or (mine >= self.confirm and not p.others_talked):
+        if self.policy.confirmed(p, stream):
             return Verdict(False, drops, self._adopt())
         if len(p.messages) > self.max_held:
             drops.append(self._dropped(p.messages.pop(0)))
@@ -144,8 +181,8 @@ class StampGuard:
 
     @staticmethod
     def _dropped(m) -> tuple:
-        return ("stamp far in the past", f"stamp {m[1]:.3f} s is {m[3] - m[1]:.3f} s behind the newest of its "
-                                         "input and no other input confirmed a jump back in time")
+        return (Drop.STAMP_FAR_PAST, f"stamp {m[1]:.3f} s is {m[3] - m[1]:.3f} s behind the newest of its "
+                                      "input and no other input confirmed a jump back in time")
 
     def _drop_pending(self) -> list:
         out = [self._dropped(m) for m in self._pending.messages]
@@ -156,6 +193,7 @@ class StampGuard:
         p, self._pending = self._pending, None
         first = p.messages[0]
         self._before = {**self._newest, **self._before}
+        self._old_time = max(self._newest.values(), default=-math.inf)
         self._newest = {}
         for stream, stamp, _, _ in p.messages:
             self._newest[stream] = max(self._newest.get(stream, -math.inf), stamp)
@@ -165,7 +203,7 @@ class StampGuard:
 
     def reset(self) -> None:
         """Forget every stream's time (a new start)."""
-        self._newest, self._before, self._pending = {}, {}, None
+        self._newest, self._before, self._pending, self._old_time = {}, {}, None, -math.inf
 
 
-__all__ = ["Jump", "StampGuard", "Verdict"]
+__all__ = ["HeldJump", "Jump", "JumpPolicy", "StampGuard", "Verdict"]

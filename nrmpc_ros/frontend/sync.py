@@ -43,7 +43,7 @@ Policy:
   clock jump, a corrupt stamp such as year 2038), is held apart (once the
   periods are known; before, nothing is a jump). It is adopted
   when another stream's message confirms the new time (or, with no other
-  stream talking, ``confirm`` messages of its own stream do); else it is
+  stream talking, ``jumps.confirm`` messages of its own stream do: the stamp guard's policy); else it is
   dropped ("stamp far in the past" / "stamp far in the future") as soon as its
   stream sends a stamp consistent with the old time. Adopting a jump back
   emits the queued sets of the old time (as :meth:`flush` does), clears the
@@ -66,6 +66,11 @@ from collections import Counter, deque
 from dataclasses import dataclass, field
 from statistics import median
 
+from ..config import check, option
+from ..errors import OptionError
+from .drops import Drop
+from .stamps import HeldJump, JumpPolicy
+
 
 @dataclass
 class SyncedSet:
@@ -87,60 +92,80 @@ class SyncedSet:
 
 
 @dataclass
-class _Pending:
-    """Messages held apart because their stamps jump far from their streams' time."""
+class SyncConfig:
+    """How the frame grouping follows the cameras (module docstring); the input settings' ``grouping`` block."""
 
-    kind: str  # "back" or "ahead"
-    latest: float
-    threshold: float
-    messages: list  # (stream, stamp, item) in arrival order
-    others_talked: bool = False  # another stream sent a stamp consistent with the old time meanwhile
+    period_fraction: float = option(0.45, "the stamp tolerance derived from the frame rate is this fraction of the "
+                                    "smallest camera frame period (below 0.5: a window holds one frame of a "
+                                    "regular camera)", lo=0.0, hi=0.5, lo_open=True)
+    initial_tolerance_s: float = option(0.015, "the tolerance until a frame period is known (s; 0.45 periods of a "
+                                        "30 Hz camera)", lo=0.0, hi=10.0, lo_open=True)
+    max_tolerance_s: float = option(math.inf, "cap of the tolerance derived from the frame rate (s); .inf: none",
+                                    lo=0.0, lo_open=True)
+    min_streams: int = option(1, "cameras a frame set needs (1: partial sets of any size; the number of "
+                              "cameras: complete sets only)", lo=1, hi=1000)
+    wait_periods: float = option(4.0, "a partial set leaves once the cameras in it moved this many frame periods "
+                                 "past it (a silent camera)", lo=0.0, hi=1000.0, lo_open=True)
+    gap_periods: float = option(3.0, "frame intervals longer than this many periods (pauses between snapshots) "
+                                "are left out of the period estimate", lo=1.0, hi=1000.0)
+    jump_periods: float = option(5.0, "a stamp this many frame periods behind its camera's newest, or ahead of "
+                                 "every camera's, is held as a jump of the clock (confirmed as input.jump_confirm "
+                                 "says)", lo=1.0, hi=1e6)
+    period_window: int = option(30, "inter-frame intervals a camera's frame period is estimated from", lo=3,
+                                hi=100000)
 
-    @property
-    def streams(self) -> set:
-        return {m[0] for m in self.messages}
+    def __post_init__(self):
+        check(self, "frame grouping config")
+
+
+@dataclass
+class _Pending(HeldJump):
+    """Messages held apart because their stamps jump far from their streams' time: (stream, stamp, item) each."""
+
+    kind: str = "back"  # "back" or "ahead"
+    latest: float = math.nan
+    threshold: float = 0.0
 
 
 class StampSynchronizer:
     """Groups messages of ``num_streams`` streams by stamp (see the module docstring for the policy).
 
-    ``dropped`` counts dropped messages by reason; :meth:`take_dropped` says which they were.
+    ``dropped`` counts dropped messages by reason (:class:`~nrmpc_ros.frontend.drops.Drop`); :meth:`take_dropped`
+    says which they were.
 
     ``tolerance_s`` None (default): derived from the estimated frame periods;
-    a number: fixed (seconds). ``names`` label the streams in :meth:`describe`.
+    a number: fixed (seconds). ``config`` how the tolerance follows the cameras, ``jumps`` when held stamps are
+    a jump (the stamp guard's policy). ``names`` label the streams in :meth:`describe`.
     """
 
     RECENT = 1000  # dropped messages remembered for take_dropped
+    MIN_INTERVALS = 3  # a period needs this many intervals: their median outvotes one spanning a dropped frame
 
     def __init__(self, num_streams: int, tolerance_s: float | None = None, queue_size: int = 10, *,
-                 max_tolerance_s: float | None = None, period_fraction: float = 0.45,
-                 initial_tolerance_s: float = 0.015, min_streams: int = 1, wait_periods: float = 4.0,
-                 gap_periods: float = 3.0, jump_periods: float = 5.0, confirm: int = 3, period_window: int = 30,
-                 names=None):
+                 config: SyncConfig | None = None, jumps: JumpPolicy | None = None, names=None):
+        cfg = config or SyncConfig()
         if num_streams < 1:
             raise ValueError("num_streams must be >= 1")
         if tolerance_s is not None and not tolerance_s >= 0:
             raise ValueError("tolerance_s must be >= 0 (or None: derived from the frame periods)")
         if queue_size < 1:
             raise ValueError("queue_size must be >= 1")
-        if max_tolerance_s is not None and not max_tolerance_s > 0:
-            raise ValueError("max_tolerance_s must be > 0")
-        if not 0 < period_fraction < 0.5:
-            raise ValueError("period_fraction must be in (0, 0.5)")
-        if not 1 <= min_streams <= num_streams:
-            raise ValueError(f"min_streams must be in 1..{num_streams}")
+        if not cfg.period_fraction < 0.5:
+            raise OptionError("frame grouping config", "period_fraction", "must be in (0, 0.5)")
+        if not 1 <= cfg.min_streams <= num_streams:
+            raise OptionError("frame grouping config", "min_streams", f"must be in 1..{num_streams} (the cameras)")
         self.num_streams = int(num_streams)
         self.fixed_tolerance = None if tolerance_s is None else float(tolerance_s)
         self.queue_size = int(queue_size)
-        self.max_tolerance_s = max_tolerance_s
-        self.period_fraction = float(period_fraction)
-        self.initial_tolerance_s = float(initial_tolerance_s)
-        self.min_streams = int(min_streams)
-        self.wait_periods = float(wait_periods)
-        self.gap_periods = float(gap_periods)
-        self.jump_periods = float(jump_periods)
-        self.confirm = int(confirm)
-        self.period_window = int(period_window)
+        self.max_tolerance_s = cfg.max_tolerance_s
+        self.period_fraction = cfg.period_fraction
+        self.initial_tolerance_s = cfg.initial_tolerance_s
+        self.min_streams = cfg.min_streams
+        self.wait_periods = cfg.wait_periods
+        self.gap_periods = cfg.gap_periods
+        self.jump_periods = cfg.jump_periods
+        self.policy = jumps or JumpPolicy()
+        self.period_window = cfg.period_window
         self.names = list(names) if names is not None else [f"stream {i}" for i in range(self.num_streams)]
         if len(self.names) != self.num_streams:
             raise ValueError(f"{len(self.names)} names for {self.num_streams} streams")
@@ -151,7 +176,7 @@ class StampSynchronizer:
         """Forget every message, period and count."""
         self._intervals = [deque(maxlen=self.period_window) for _ in range(self.num_streams)]
         self._period = [math.nan] * self.num_streams
-        self.dropped = Counter()  # reason -> messages
+        self.dropped = Counter()  # Drop -> messages
         self._recent = []  # (stream, stamp, reason) of the latest drops
         self.events = Counter()  # "time jump back" / "time jump ahead" -> count
         self.partial = Counter()  # stream index -> partial sets emitted without it
@@ -189,7 +214,7 @@ class StampSynchronizer:
             return self.fixed_tolerance
         known = [p for p in self._period if p > 0]
         tol = self.period_fraction * min(known) if known else self.initial_tolerance_s
-        return min(tol, self.max_tolerance_s) if self.max_tolerance_s is not None else tol
+        return min(tol, self.max_tolerance_s)
 
     def _stream_period(self, i: int) -> float:
         """Stream i's period, else the largest known one, else the start value's period."""
@@ -210,7 +235,7 @@ class StampSynchronizer:
             raise ValueError(f"stream index {stream} out of range (0..{self.num_streams - 1})")
         stamp = float(stamp)
         if not math.isfinite(stamp):
-            self._drop("stamp not finite", stream, stamp)
+            self._drop(Drop.FRAME_STAMP_NOT_FINITE, stream, stamp)
             return []
         kind, threshold = self._classify(stream, stamp)
         pend = self._pending
@@ -224,12 +249,10 @@ class StampSynchronizer:
             self._drop_pending()  # a different jump: the first one was not confirmed
             pend = None
         if pend is None:
-            self._pending = pend = _Pending(kind, stamp, threshold, [])
+            self._pending = pend = _Pending([], kind=kind, latest=stamp, threshold=threshold)
         pend.messages.append((stream, stamp, item))
         pend.latest = max(pend.latest, stamp)
-        others = pend.streams - {stream}
-        own = sum(m[0] == stream for m in pend.messages)
-        if others or (own >= self.confirm and not pend.others_talked):
+        if self.policy.confirmed(pend, stream):
             return self._adopt()
         if len(pend.messages) > self.queue_size:
             self._count_pending(pend.messages.pop(0))
@@ -246,17 +269,17 @@ class StampSynchronizer:
         return None, 0.0
 
     def _count_pending(self, msg) -> None:
-        reason = "stamp far in the past" if self._pending.kind == "back" else "stamp far in the future"
+        reason = Drop.FRAME_FAR_PAST if self._pending.kind == "back" else Drop.FRAME_FAR_FUTURE
         self._drop(reason, msg[0], msg[1])
 
-    def _drop(self, reason: str, stream: int, stamp: float) -> None:
+    def _drop(self, reason: Drop, stream: int, stamp: float) -> None:
         """Count one dropped message and remember which (see :meth:`take_dropped`)."""
         self.dropped[reason] += 1
         self._recent.append((stream, stamp, reason))
         del self._recent[:-self.RECENT]
 
     def take_dropped(self) -> list:
-        """(stream, stamp, reason) of the messages dropped since the last call (at most ``RECENT``), oldest first."""
+        """(stream, stamp, Drop) of the messages dropped since the last call (at most ``RECENT``), oldest first."""
         out, self._recent = self._recent, []
         return out
 
@@ -281,12 +304,12 @@ class StampSynchronizer:
 
     def _accept(self, i: int, stamp: float, item, jumped: bool = False) -> list:
         if stamp <= self._last[i]:
-            self._drop("late", i, stamp)
+            self._drop(Drop.FRAME_LATE, i, stamp)
             return []
         st, it = self._stamps[i], self._items[i]
         k = bisect.bisect_left(st, stamp)
         if k < len(st) and st[k] == stamp:
-            self._drop("duplicate", i, stamp)
+            self._drop(Drop.FRAME_DUPLICATE, i, stamp)
             return []
         if stamp > self._newest[i]:
             if self._newest[i] > -math.inf and not jumped:
@@ -297,7 +320,7 @@ class StampSynchronizer:
         if len(st) > self.queue_size:
             self._last[i] = st.pop(0)
             it.pop(0)
-            self._drop("queue overflow", i, self._last[i])
+            self._drop(Drop.FRAME_QUEUE_OVERFLOW, i, self._last[i])
         return self._match(final=False)
 
     def _add_interval(self, i: int, dt: float) -> None:
@@ -307,7 +330,7 @@ class StampSynchronizer:
             return
         iv = self._intervals[i]
         iv.append(dt)
-        if len(iv) >= 3:  # the median, refined by the mean over the window (a dropped frame spans 2 periods)
+        if len(iv) >= self.MIN_INTERVALS:  # the median, refined by the mean (a dropped frame spans 2 periods)
             m = median(iv)
             self._period[i] = sum(iv) / sum(max(1, round(d / m)) for d in iv)
 
@@ -371,13 +394,13 @@ class StampSynchronizer:
         for i, k in members.items():
             st, it = self._stamps[i], self._items[i]
             for t in st[:k]:
-                self._drop("unmatched", i, t)
+                self._drop(Drop.FRAME_UNMATCHED, i, t)
             picked[i] = (st[k], it[k])
             self._last[i] = st[k]
             del st[:k + 1], it[:k + 1]
         if len(picked) < self.min_streams:
             for i, (t, _) in picked.items():
-                self._drop("unmatched", i, t)
+                self._drop(Drop.FRAME_UNMATCHED, i, t)
             return []
         stamps = [picked[i][0] if i in picked else None for i in range(self.num_streams)]
         items = [picked[i][1] if i in picked else None for i in range(self.num_streams)]
@@ -397,7 +420,7 @@ class StampSynchronizer:
             miss = ", ".join(f"{self.names[i]} {n}" for i, n in sorted(self.partial.items()))
             parts[0] += f", {self.emitted - self.complete} partial; missing: {miss}"
         parts[0] += f"; {self.grouped} messages grouped)"
-        drops = "; ".join(f"{k} {v}" for k, v in sorted(self.dropped.items()))
+        drops = "; ".join(f"{k.label} {v}" for k, v in sorted(self.dropped.items(), key=lambda kv: kv[0].label))
         parts.append(f"dropped: {drops}" if drops else "nothing dropped")
         if self.events:
             parts.append(", ".join(f"{k}: {v}" for k, v in sorted(self.events.items())))

@@ -15,8 +15,10 @@ The other topics a bag is read for have one message type each (the
 type with one error naming the topic, before any message is decoded.
 
 For the node's ``image_transport: auto``, :func:`choose_transport` makes the
-same choice from the topic names and types it sees on the graph; with neither
-published yet it takes the raw topic (and waits for it).
+same choice from the types the graph's *publishers* send on each topic (a
+subscription, the node's own among them, says nothing about what a camera
+sends); with neither published yet it takes the raw topic, and the node looks
+again until images arrive, so it follows a camera started after it.
 
 Names: a rig file's topics may be relative (``cam0/image_raw``), so that
 ``-r __ns:=/rig1`` moves a node's inputs with its outputs. Offline there is
@@ -140,8 +142,8 @@ def bag_image_topics(bag, rig, warn=None) -> list:
 def choose_transport(topic: str, available: dict, compressed: str | None = None) -> tuple:
     """(topic to subscribe, compressed?) for ``image_transport: auto``.
 
-    ``available`` maps topic names to the type names published on them (as
-    rclpy's ``get_topic_names_and_types`` lists them). Raw images on ``topic``
+    ``available`` maps topic names to the type names their publishers send
+    (from rclpy's ``get_publishers_info_by_topic``). Raw images on ``topic``
     win; else CompressedImage on ``compressed`` (default ``topic + '/compressed'``);
     else CompressedImage on ``topic`` itself; with nothing there yet, the raw topic.
     """

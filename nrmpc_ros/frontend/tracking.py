@@ -23,13 +23,14 @@ import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from ..cameras import bearings_to_pixels, pixels_to_bearings
 from ..config import check, option
+from ..core.epipolar import essential_matrix, in_front
 from ..core.rig import Camera
 
 MODES = ("auto", "klt", "descriptors")
 DESCRIPTORS = ("orb", "sift")
 CORNER_DETECTORS = ("fast", "gftt")
-RANSAC_METHODS = ("usac", "ransac")
 
 
 @dataclass
@@ -54,6 +55,9 @@ class TrackingConfig:
     klt_levels: int = option(3, "Lucas-Kanade pyramid levels between holds", lo=0, hi=8)
     fb_threshold_px: float = option(0.7, "largest forward-backward round-trip error of a track (px)", lo=0.0,
                                     hi=10.0, lo_open=True)
+    imu_prediction: bool = option(True, "with an IMU on the body, each frame's KLT search starts where the gyro's "
+                                  "turn (and the bars' predicted bending, where it predicts better) takes the "
+                                  "tracks; false: from the images alone (docs/PIPELINE.md, Performance notes)")
     lost_fraction: float = option(0.25, "fewer tracks than this share survive a frame: they are lost (a jump) "
                                   "and start afresh", lo=0.0, hi=1.0, lo_open=True)
     corner_window_px: int = option(11, "sub-pixel corner search window at a hold's anchor (px)", lo=3, hi=31)
@@ -62,8 +66,6 @@ class TrackingConfig:
     descriptor: str = option("orb", "descriptors that link holds without surviving tracks: orb or sift",
                              choices=DESCRIPTORS)
     ratio: float = option(0.8, "Lowe's ratio test of descriptor matches", lo=0.0, hi=1.0, lo_open=True)
-    ransac: str = option("usac", "essential-matrix verification: usac (OpenCV USAC) or ransac",
-                         choices=RANSAC_METHODS)
     ransac_threshold_px: float = option(1.0, "essential-matrix verification threshold (Sampson distance, px)",
                                         lo=0.0, hi=20.0, lo_open=True)
     ransac_confidence: float = option(0.999, "essential-matrix RANSAC confidence", lo=0.5, hi=1.0, lo_open=True)
@@ -71,6 +73,11 @@ class TrackingConfig:
                                          lo=8, hi=10000)
     min_klt_links: int = option(40, "fewer verified KLT links of a camera to its previous hold: descriptors too",
                                 lo=0, hi=10000)
+    link_store_holds: int = option(200, "holds per camera whose descriptors are kept to link a new hold to an "
+                                   "older one (a return to an earlier view); 0: the previous hold only", lo=0,
+                                   hi=100000)
+    link_older_candidates: int = option(3, "older holds, most descriptor matches first, whose matches are "
+                                        "verified per camera when the previous hold links few", lo=1, hi=100)
 
     def __post_init__(self):
         check(self, "tracking config")
@@ -188,6 +195,87 @@ def _lk(img0, img1, p0, cfg: TrackingConfig, window: int | None = None, levels: 
     return p1, ok
 
 
+def _median(x: np.ndarray) -> np.ndarray:
+    """Median along the first axis by partial sort (np.median's overhead dominates for a few hundred values)."""
+    n = len(x)
+    if n % 2:
+        return np.partition(x, n // 2, axis=0)[n // 2]
+    part = np.partition(x, (n // 2 - 1, n // 2), axis=0)
+    return 0.5 * (part[n // 2 - 1] + part[n // 2])
+
+
+def _norm(d: np.ndarray) -> np.ndarray:
+    """Lengths of the rows of an (N, 2) array."""
+    return np.hypot(d[:, 0], d[:, 1])
+
+
+def _levels_for(step_px: float, window: int, most: int) -> int:
+    """Pyramid levels Lucas-Kanade needs for a displacement of ``step_px`` from its starting guess: one level
+    converges within about a quarter of its window, each level above it doubles that reach."""
+    reach = window / 4.0
+    return int(min(most, max(0, math.ceil(math.log2(max(step_px, 1e-6) / reach)))))
+
+
+def _lk_predicted(img0, img1, p0, guess, cfg: TrackingConfig, deviation_px: float,
+                  stats: TrackerStats | None = None):
+    """LK from ``img0`` (points ``p0``) into ``img1`` starting at the predicted positions ``guess``, with the
+    pyramid levels that the measured deviation of the last frame's motion from its prediction,
+    ``deviation_px``, needs (none in a still hold or a steady move) and no backward pass where the result is
+    plain.
+
+    Predictions: inside a hold the previous positions (tracked from the anchor), during a move the previous
+    positions plus each track's last frame-to-frame motion. A track is doubtful when LK failed or it lies
+    further from its prediction than half the round-trip tolerance (``fb_threshold_px``) beyond the common
+    deviation of all tracks; a track that moved as predicted from its previous, already checked, position
+    needs no round trip. Doubtful tracks go through the full forward-backward :func:`_lk` (all levels), so a
+    frame where the rig starts or stops moving is tracked as before. Where :func:`_lk` would accept a track
+    the same window converges to the same position, at a fraction of the cost: a small pyramid or none, and
+    one pass instead of two. ``stats``: where the levels of the first pass and the tracks given the full pass
+    are counted."""
+    if len(p0) == 0 or not math.isfinite(deviation_px):
+        if stats is not None:
+            stats.levels += int(cfg.klt_levels)
+            stats.full_pass_tracks += len(p0)
+        return _lk(img0, img1, p0, cfg, guess=guess)
+    w = int(cfg.klt_window)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+    p0 = np.ascontiguousarray(p0, np.float32)
+    guess = np.ascontiguousarray(guess, np.float32)
+    levels = _levels_for(2.0 * deviation_px, w, int(cfg.klt_levels))  # twice the last: the motion may change
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, guess.copy(), winSize=(w, w), maxLevel=levels,
+                                         criteria=crit, flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+    h, wd = img1.shape
+    ok = (st.ravel() == 1) & (p1[:, 0] >= 0) & (p1[:, 1] >= 0) & (p1[:, 0] <= wd - 1) & (p1[:, 1] <= h - 1)
+    off = p1 - guess
+    common = _median(off[ok]) if ok.any() else np.zeros(2, np.float32)
+    doubtful = ~ok | (_norm(off - common) > 0.5 * cfg.fb_threshold_px)
+    idx = np.flatnonzero(doubtful)
+    if stats is not None:
+        stats.levels += levels
+        stats.full_pass_tracks += len(idx)
+    if len(idx):
+        p1[idx], ok[idx] = _lk(img0, img1, p0[idx], cfg, guess=guess[idx])
+    return p1, ok
+
+
+def turn_pixels(cam: Camera, R: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Where the pixels ``uv`` (N, 2) of ``cam`` land when the camera turns by ``R`` (bearings f' = R f): the
+    infinite homography K R K^-1 through the camera's own model (distortion, fisheye), exact for points far
+    away and for a camera that only turns. NaN where a point turns behind the camera."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    if len(uv) == 0:
+        return uv.copy()
+    if cam.model == "pinhole" and not any(cam.distortion):  # K R K^-1 directly
+        fx, fy, cx, cy = cam.intrinsics
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        H = K @ np.asarray(R, float) @ np.linalg.inv(K)
+        p = uv @ H[:, :2].T + H[:, 2]
+        out = p[:, :2] / p[:, 2:]
+        out[p[:, 2] <= 1e-9] = np.nan
+        return out
+    return bearings_to_pixels(cam, pixels_to_bearings(cam, uv) @ np.asarray(R, float).T)
+
+
 class TrackStep(NamedTuple):
     """What one frame did to a camera's tracks: median motion since the previous frame (px, NaN when unknown),
     tracks alive, whether the tracks were lost (a jump: too few survived, all were dropped) and, inside a
@@ -197,6 +285,62 @@ class TrackStep(NamedTuple):
     tracks: int
     lost: bool
     offset_px: float = math.nan
+
+
+@dataclass
+class TrackerStats:
+    """The work a tracker did: frames tracked, of which started from the camera's turn (the IMU), the pyramid
+    levels of their first pass summed over frames, tracks that needed the full forward-backward pass, tracks
+    alive after each frame (summed), tracks the frames dropped (failed or rejected) and frames where the
+    tracks were lost (all dropped)."""
+
+    frames: int = 0
+    turn_frames: int = 0
+    levels: int = 0
+    full_pass_tracks: int = 0
+    tracks: int = 0
+    dropped_tracks: int = 0
+    lost: int = 0
+
+
+@dataclass
+class HoldThinning:
+    """Which frames of a settled, still hold are tracked: work in proportion to what the frames still tell.
+
+    A hold's landmark positions are averaged over its settled frames; the average's noise is one frame's
+    noise ``sigma`` over the square root of the frames, and on top of it every correspondence carries a bias
+    that no averaging removes (``floor_px``, :data:`~nrmpc_ros.core.sequence.CORRESPONDENCE_BIAS_FLOOR_PX`).
+    Once the averaged noise is at most half that floor -- ``(2 sigma / floor_px)^2`` settled frames, sigma
+    the per-frame noise the latest measured holds showed -- further frames lower the total
+    ``sqrt(sigma^2 / N + floor_px^2)`` by less than 12 %. From then on, while the IMU says the rig is still (a
+    cheap test on samples already there), a frame is tracked only when a quarter of the slowest bar's period
+    (the settle test still samples any ringing four times a period; an eighth of ``measure_s`` for rigid
+    bars) has passed since the last tracked one, so the settled part keeps growing in time and the images
+    still check the hold (docs/PIPELINE.md, "Performance notes"). Without an IMU every frame is tracked (the
+    images are the only stillness test then), and before the first hold has been measured (no noise known)."""
+
+    floor_px: float
+    skipped: int = 0  # frames not tracked
+
+    def needed_frames(self, noise_px: float) -> int:
+        """Settled frames whose average reaches half the floor at a per-frame noise of ``noise_px``."""
+        return max(1, math.ceil((2.0 * noise_px / self.floor_px) ** 2))
+
+    def skip(self, stamp: float, last_tracked: float, settled_frames: float, noise_px: float,
+             bar_period_s: float, measure_s: float, imu_still) -> bool:
+        """Whether the frame at ``stamp`` goes untracked: the settled part has ``settled_frames`` frames, one
+        frame's noise is ``noise_px``, the last frame tracked was at ``last_tracked``; ``imu_still()`` (asked
+        last: the rest is cheaper) says whether the IMU saw the rig still since the last frame."""
+        if not math.isfinite(noise_px) or settled_frames < self.needed_frames(noise_px):
+            return False
+        spacing = 0.25 * bar_period_s if bar_period_s > 0 else 0.125 * measure_s
+        if stamp - last_tracked >= spacing or not imu_still():
+            return False
+        self.skipped += 1
+        return True
+
+
+TURN_NEGLIGIBLE_PX = 0.01  # a turn that moves no pixel further than this leaves the predicted positions as they are
 
 
 class KltTracker:
@@ -209,17 +353,35 @@ class KltTracker:
     (:meth:`start_hold`) every frame is tracked from the hold's anchor frame,
     the template, starting from the previous positions:
     positions of one hold never drift from frame to frame, so averaging them
-    reduces the noise. No corners are added during a hold.
+    reduces the noise. No corners are added during a hold. The work per frame
+    follows the measured motion (:func:`_lk_predicted`): each frame starts from
+    the predicted positions with the pyramid the measured prediction error needs
+    and one pass; doubtful tracks get the full forward-backward pyramidal KLT
+    (docs/PIPELINE.md, "Performance notes").
+
+    Predicted positions: with the camera's turn since the last frame (``turn``
+    of :meth:`track`: the gyro and the bars' bending, :func:`.gyro.camera_turns`)
+    each track is turned by the infinite homography through the camera's model
+    (:func:`turn_pixels`), plus, during a move, what the last turn did not
+    explain of its last motion (the parallax of the rig's translation). Without
+    a turn: still in a hold, moving on as in the last frame during a move.
     """
 
-    def __init__(self, cfg: TrackingConfig):
+    def __init__(self, cfg: TrackingConfig, camera: Camera | None = None):
         self.cfg = cfg
+        self.camera = camera  # its model turns the predicted positions (None: no turn is used)
         self.prev = None  # last image
         self.uv = np.zeros((0, 2), np.float32)
         self.ids = np.zeros(0, np.int64)
         self._next_id = 0
         self._anchor = None  # (image, uv, ids) of the hold's first frame
+        self._in_anchor = np.zeros(0, np.int64)  # index in the anchor of each track (inside a hold)
         self.lost = 0  # frames where the tracks were lost and started afresh
+        self.flow = np.zeros((0, 2), np.float32)  # each track's motion between the last two frames (px)
+        self.rest = None  # (K, N, 2) px of the last motion each candidate turn did not explain (None: no turn then)
+        self.turn_deviation_px = np.zeros(0)  # (K,) running 95th-percentile deviation of each candidate turn (px)
+        self.deviation_px = math.nan  # 95th percentile of the tracks' distance from their predicted position (px)
+        self.stats = TrackerStats()
 
     @property
     def in_hold(self) -> bool:
@@ -237,35 +399,102 @@ class KltTracker:
             for u, v in self.uv.astype(int):
                 cv2.circle(mask, (int(u), int(v)), r, 0, -1)
         new = detect_corners(img, cfg, cfg.max_tracks - n, mask)
+        flow = np.median(self.flow, axis=0) if len(self.flow) else np.zeros(2, np.float32)
         self.uv = np.concatenate([self.uv, new])
         self.ids = np.concatenate([self.ids, self._next_id + np.arange(len(new))])
+        self.flow = np.concatenate([self.flow, np.broadcast_to(flow, new.shape)]).astype(np.float32)
+        if self.rest is not None:
+            rest = np.median(self.rest, axis=1) if self.rest.shape[1] else np.zeros((len(self.rest), 2))
+            fill = np.broadcast_to(rest[:, None, :], (len(self.rest), len(new), 2))
+            self.rest = np.concatenate([self.rest, fill], axis=1).astype(np.float32)
         self._next_id += len(new)
 
-    def track(self, img: np.ndarray) -> TrackStep:
-        """Follow the tracks into ``img``; outside a hold, top them up with new corners."""
+    def _turned(self, uv: np.ndarray, turn: np.ndarray | None) -> np.ndarray | None:
+        """``uv`` turned by the camera's ``turn`` (float32; NaN rows keep their position), or None without one;
+        ``uv`` itself when the turn moves no pixel by more than :data:`TURN_NEGLIGIBLE_PX`."""
+        if turn is None or self.camera is None:
+            return None
+        turn = np.asarray(turn, float)
+        sin_angle = 0.5 * math.sqrt((turn[2, 1] - turn[1, 2]) ** 2 + (turn[0, 2] - turn[2, 0]) ** 2
+                                    + (turn[1, 0] - turn[0, 1]) ** 2)
+        if sin_angle * self.camera.focal_px * 2.0 < TURN_NEGLIGIBLE_PX:  # (twice: off axis it moves further)
+            return uv
+        out = turn_pixels(self.camera, turn, uv)
+        bad = ~np.isfinite(out).all(axis=1)
+        out[bad] = uv[bad]
+        return out.astype(np.float32)
+
+    def _deviation(self, p1: np.ndarray, guess: np.ndarray, ok: np.ndarray) -> float:
+        """95th percentile of the distance of the tracked positions from a prediction (px; NaN: none tracked)."""
+        n = int(ok.sum())
+        if not n:
+            return math.nan
+        k = int(0.95 * (n - 1))
+        return float(np.partition(_norm(p1[ok] - guess[ok]), k)[k])
+
+    def track(self, img: np.ndarray, turn: np.ndarray | None = None) -> TrackStep:
+        """Follow the tracks into ``img``; outside a hold, top them up with new corners.
+
+        ``turn``: the camera's rotation since the last frame (bearings f_now = turn f_last), (3, 3), or (K, 3,
+        3) candidates of it (rival models of the camera's motion, e.g. with and without a predicted bending
+        change). Each track's search starts where the candidate with the smallest running deviation from the
+        tracked positions takes it (the first one while none has been measured): a model is used where it
+        predicts what the images show."""
         lost = False
         motion = offset = math.nan
+        st = self.stats
+        st.frames += 1
+        cands = None if turn is None or self.camera is None else np.asarray(turn, float).reshape(-1, 3, 3)
+        if cands is not None and len(cands) != len(self.turn_deviation_px):
+            self.turn_deviation_px = np.full(len(cands), math.nan)
+            self.rest = None
         if self.prev is not None and len(self.uv):
-            if self._anchor is not None:
-                a_img, a_uv, a_ids = self._anchor
-                keep = np.isin(a_ids, self.ids)
-                p1, ok = _lk(a_img, img, a_uv[keep], self.cfg, guess=self.uv)
+            turned_all = None if cands is None else [self._turned(self.uv, R) for R in cands]
+            best = 0
+            if turned_all is not None and np.isfinite(self.turn_deviation_px).any():
+                best = int(np.nanargmin(self.turn_deviation_px))
+            turned = None if turned_all is None else turned_all[best]
+            st.turn_frames += turned is not None
+            in_hold = self._anchor is not None
+            if in_hold:  # predicted: where they were (the rig is still), or where the turn took them
+                a_img, a_uv = self._anchor[:2]
+                a_uv = a_uv[self._in_anchor]  # the anchor's tracks still alive, in the order of self.uv
+                guesses = None if turned_all is None else turned_all
+                guess = self.uv if turned is None else turned
+                p1, ok = _lk_predicted(a_img, img, a_uv, guess, self.cfg, self.deviation_px, st)
                 if ok.any():
-                    offset = float(np.median(np.linalg.norm(p1[ok] - a_uv[keep][ok], axis=1)))
-            else:
-                p1, ok = _lk(self.prev, img, self.uv, self.cfg)
-            if ok.any():
-                motion = float(np.median(np.linalg.norm(p1[ok] - self.uv[ok], axis=1)))
-            if ok.sum() < self.cfg.lost_fraction * len(self.uv):
+                    offset = float(_median(_norm(p1[ok] - a_uv[ok])))
+            else:  # predicted: moving on as in the last frame, or turned plus the last motion's remainder
+                guesses = None if turned_all is None else \
+                    [t if self.rest is None else t + self.rest[j] for j, t in enumerate(turned_all)]
+                guess = self.uv + self.flow if guesses is None else guesses[best]
+                p1, ok = _lk_predicted(self.prev, img, self.uv, guess, self.cfg, self.deviation_px, st)
+            self.deviation_px = self._deviation(p1, guess, ok)
+            n_ok = int(ok.sum())
+            st.dropped_tracks += len(ok) - n_ok
+            if n_ok:
+                motion = float(_median(_norm(p1[ok] - self.uv[ok])))
+            if guesses is not None:  # each candidate's deviation, averaged over about the last four frames
+                dev = np.array([self._deviation(p1, g, ok) for g in guesses])
+                old = self.turn_deviation_px
+                self.turn_deviation_px = np.where(np.isfinite(old), 0.75 * old + 0.25 * dev, dev)
+            if n_ok < self.cfg.lost_fraction * len(self.uv):
                 lost = True
                 self.lost += 1
-                self.uv, self.ids = self.uv[:0], self.ids[:0]
+                st.lost += 1
+                self.uv, self.ids, self.flow = self.uv[:0], self.ids[:0], self.flow[:0]
+                self.rest = None
                 self._anchor = None
             else:
-                self.uv, self.ids = p1[ok], self.ids[ok]
+                self.rest = None if turned_all is None or in_hold else \
+                    np.stack([(p1 - t)[ok] for t in turned_all]).astype(np.float32)
+                self.uv, self.ids, self.flow = p1[ok], self.ids[ok], p1[ok] - self.uv[ok]
+                if self._anchor is not None:
+                    self._in_anchor = self._in_anchor[ok]
         self.prev = img
         if self._anchor is None:
             self._replenish(img)
+        st.tracks += len(self.uv)
         return TrackStep(motion, len(self.uv), lost, offset)
 
     def start_hold(self) -> None:
@@ -286,6 +515,7 @@ class KltTracker:
             ok = moved <= self.cfg.corner_refinement_px  # else no corner near it: it keeps its position
             self.uv = np.where(ok[:, None], ref, self.uv).astype(np.float32)
         self._anchor = (self.prev, self.uv.copy(), self.ids.copy())
+        self._in_anchor = np.arange(len(self.uv))
 
     def end_hold(self) -> None:
         self._anchor = None
@@ -379,18 +609,13 @@ def verify_correspondences(cam: Camera, f1: np.ndarray, f2: np.ndarray, cfg: Tra
     f1 = np.asarray(f1, float).reshape(-1, 3)
     f2 = np.asarray(f2, float).reshape(-1, 3)
     ok = np.zeros(len(f1), bool)
-    front = (f1[:, 2] > 0.1) & (f2[:, 2] > 0.1)  # normalised coordinates need z > 0 (up to ~84 deg off axis)
-    idx = np.flatnonzero(front)
+    idx = np.flatnonzero(in_front(f1, f2))
     if len(idx) < max(8, cfg.min_matches_per_camera):
         return ok
-    x1 = f1[idx, :2] / f1[idx, 2:]
-    x2 = f2[idx, :2] / f2[idx, 2:]
-    thr = cfg.ransac_threshold_px / cam.focal_px
-    method = cv2.USAC_DEFAULT if cfg.ransac == "usac" else cv2.RANSAC
-    E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), method=method, prob=cfg.ransac_confidence, threshold=thr)
-    if E is None or mask is None:
+    found = essential_matrix(f1[idx], f2[idx], cfg.ransac_threshold_px / cam.focal_px, cfg.ransac_confidence)
+    if found is None:
         return ok
-    ok[idx[mask.ravel()[: len(idx)] > 0]] = True
+    ok[idx[found[1]]] = True
     if ok.sum() < cfg.min_matches_per_camera:
         ok[:] = False
     return ok

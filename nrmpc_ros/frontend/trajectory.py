@@ -25,7 +25,7 @@ import numpy as np
 
 from ..core.so3 import matrix_to_quat_xyzw, rotation_angle
 from ..errors import InputError
-from .evaluation import STAMP_TOLERANCE_S, Reference
+from .reference import Reference, nearest_stamp
 
 
 @dataclass
@@ -59,23 +59,16 @@ def trajectories(rows: list) -> list:
     return out
 
 
-def _nearest(ts: np.ndarray, t: float) -> int | None:
-    if len(ts) == 0:
-        return None
-    i = int(np.argmin(np.abs(ts - t)))
-    return i if abs(ts[i] - t) <= STAMP_TOLERANCE_S else None
-
-
 def ground_truth_trajectory(traj: Trajectory, ref: Reference) -> Trajectory | None:
     """The ground truth at the stamps of ``traj``, in the body frame of the ground truth at its origin hold;
     stamps without ground truth are left out. None when the origin hold has no ground truth."""
-    i0 = _nearest(ref.pose_t, traj.origin_stamp)
+    i0 = nearest_stamp(ref.pose_t, traj.origin_stamp)
     if i0 is None:
         return None
     R0, p0 = ref.pose_R[i0], ref.pose_p[i0]
     keep, R, t = [], [], []
     for k, s in enumerate(traj.stamps):
-        i = _nearest(ref.pose_t, float(s))
+        i = nearest_stamp(ref.pose_t, float(s))
         if i is None:
             continue
         keep.append(k)

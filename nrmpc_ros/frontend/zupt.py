@@ -7,15 +7,22 @@ evaluation", IEEE TBME 2010), written so that its threshold follows from
 the noise instead of being tuned:
 
     T = sum_j |w_j - b|^2 / s_w^2                                  angular rate minus the gyro bias b
-      + sum_j |a_j - n_a * mean(a) / |mean(a)||^2 / s_a^2           specific force minus its window-mean
-                                                                    direction scaled to the still norm n_a
+      + sum_j |a_j - mean(a)|^2 / s_a^2                              the accelerometer's spread in the window
+      + (|mean(a)| - n_a)^2 / (s_a^2 / n + s_n^2)                   its magnitude against the still norm n_a
 
 with s_w, s_a the per-axis, per-sample noise (rad/s, m/s^2; never below the
-configured floors, so a noise-free simulated IMU still works). The second sum
-equals sum_j |a_j - mean(a)|^2 + n (|mean(a)| - n_a)^2: the spread of the
-accelerometer in the window plus its magnitude mismatch. Using the
+configured floors, so a noise-free simulated IMU still works). Using the
 accelerometer's own still norm n_a (estimated from the data) instead of the
 nominal |g| keeps a scale error of the accelerometer from reading as motion.
+The still norm is not one number, though: an accelerometer bias b makes
+|-g + b| differ between attitudes by up to 2 |b| (and a scale error adds to
+that), and that mismatch does not average away with more samples. s_n, the
+spread of the still norm across attitudes, enters the magnitude term as a
+variance of its own: without it the term grows as n (|b| / s_a)^2, so the
+faster the IMU the more holds at some attitude read as motion (a 1 kHz IMU
+with a 0.05 m/s^2 bias split every hold into dozens). s_n comes from the
+data (the robust spread of the norms of the windows whose spread and rates
+pass) and is never below ``accel_norm_floor_m_s2``.
 For a still rig with white Gaussian noise T is chi-square with
 nu = 3n + 3(n - 1) + 1 = 6n - 2 degrees of freedom, and a window is still
 when T < chi2.isf(significance, nu): ``significance`` is the false-alarm
@@ -24,7 +31,10 @@ threshold (< 1: still).
 
 Windows are centred on each sample and ``window_s`` long in time (widened to
 hold ``min_window_samples`` samples on slow IMUs), so non-uniform sampling
-just changes n and nu per sample. A step between samples longer than
+just changes n and nu per sample. Near the edge of the data (the newest
+samples of an online stream, either side of a gap) a window slides inward so
+that it keeps its full length: a window cut in half would hold half the
+samples, too few to test on a slow IMU. A step between samples longer than
 ``gap_periods`` sample periods is a gap: no window and no still run spans
 it. NaN/inf samples are skipped. Every sum is a difference of cumulative sums:
 the cost is linear in the number of samples, with no loop over samples.
@@ -64,11 +74,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri, gammaincinv  # chi-square quantiles without importing scipy.stats (slow)
 
 from ..config import check, option
 from ..errors import InputError
-from .imu import ImuBuffer
+from .imu import ImuBuffer, ImuReject
 
 
 @dataclass
@@ -85,7 +95,8 @@ class ZuptConfig:
                                      lo_open=True)
     accel_floor_m_s2: float = option(1e-3, "the accelerometer noise used is never below this (m/s^2)", lo=0.0,
                                      hi=10.0, lo_open=True)
-    min_still_s: float = option(0.25, "shortest run of still samples reported as still (s)", lo=0.0, hi=60.0)
+    min_still_s: float = option(0.0, "shortest run of still samples reported as still (s); never shorter than "
+                                "one window: a shorter run is the turning point of a move", lo=0.0, hi=60.0)
     gap_periods: float = option(5.0, "a step longer than this many sample periods is a gap: it breaks windows "
                                 "and still runs", lo=1.0, hi=1000.0)
     noise_quantile: float = option(0.1, "the noise estimated from the data comes from this quantile of the "
@@ -95,6 +106,10 @@ class ZuptConfig:
                                 hi=3600.0, lo_open=True)
     noise_refresh_s: float = option(10.0, "the noise is estimated again after this much new data (s)", lo=0.0,
                                     hi=3600.0, lo_open=True)
+    accel_norm_floor_m_s2: float = option(0.02, "the still norm of the accelerometer differs between attitudes by "
+                                          "its bias and scale error; the spread used is the data's, never below "
+                                          "this (m/s^2: a calibrated MEMS accelerometer's residual bias)", lo=0.0,
+                                          hi=10.0, lo_open=True)
     max_gyro_bias_rad_s: float = option(0.05, "the gyro bias estimated from the data is at most this (rad/s; MEMS "
                                         "gyros stay within a few deg/s): a steady turn is motion, not bias",
                                         lo=0.0, hi=10.0)
@@ -113,6 +128,7 @@ class ImuNoise:
     source: str = "data"  # "covariance" (sensor_msgs/Imu covariances) or "data" (quietest windows)
     accel_norm: float = math.nan  # m/s^2, |specific force| at rest; nan: no magnitude term in the test
     period_s: float = math.nan  # median sample period; nan: taken from the samples tested
+    accel_norm_sigma: float = 0.0  # m/s^2, spread of the still norm across attitudes (bias, scale error)
 
 
 def _valid_samples(t, accel, gyro, source: str):
@@ -142,7 +158,13 @@ def _period(t: np.ndarray, noise: ImuNoise | None = None) -> float:
 
 
 def _window_length(cfg: ZuptConfig, period: float) -> float:
-    return max(cfg.window_s, cfg.min_window_samples * period) if math.isfinite(period) else cfg.window_s
+    """``window_s``, widened on slow IMUs to an odd number of sample periods that holds ``min_window_samples``:
+    a centred window of k + 1/2 periods either side holds 2k + 1 samples with its edges half a period from any
+    sample, so stamp jitter and rounding do not drop one (a window of exactly m periods would hold m + 1, m or
+    m - 1 samples depending on rounding)."""
+    if not math.isfinite(period):
+        return cfg.window_s
+    return max(cfg.window_s, (2 * math.ceil((cfg.min_window_samples - 1) / 2) + 1) * period)
 
 
 def _windows(t: np.ndarray, period: float, cfg: ZuptConfig):
@@ -157,8 +179,14 @@ def _windows(t: np.ndarray, period: float, cfg: ZuptConfig):
     seg = np.cumsum(brk) - 1
     starts = np.flatnonzero(brk)
     ends = np.append(starts[1:], len(t))
-    i0 = np.maximum(np.searchsorted(t, t - half, side="left"), starts[seg])
-    i1 = np.minimum(np.searchsorted(t, t + half, side="right"), ends[seg])
+    if len(t) == 0:
+        return starts, ends, brk
+    # near a segment's edge (the newest samples online, a gap) the window slides inward to keep its full length:
+    # a window cut in half holds half the samples, which on a slow IMU is too few to test at all
+    first, last = t[starts[seg]], t[ends[seg] - 1]
+    lo = np.minimum(np.maximum(t - half, first), np.maximum(last - 2.0 * half, first))
+    i0 = np.maximum(np.searchsorted(t, lo, side="left"), starts[seg])
+    i1 = np.minimum(np.searchsorted(t, lo + 2.0 * half, side="right"), ends[seg])
     return i0, i1, brk
 
 
@@ -233,7 +261,7 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     mean_w, ssw, _ = _moments(w, i0, i1, np.median(w, axis=0))
     mean_a, ssa, _ = _moments(a, i0, i1, np.median(a, axis=0))
     q = cfg.noise_quantile
-    chi_q = _per_dof(lambda k: chi2.ppf(q, k), 3 * (n[ok] - 1))
+    chi_q = _per_dof(lambda k: 2.0 * gammaincinv(0.5 * k, q), 3 * (n[ok] - 1))  # chi2.ppf(q, k)
     rw, ra = ssw[ok] / chi_q, ssa[ok] / chi_q  # each an unbiased s^2 at the q quantile of still windows
     var_w, var_a = float(np.quantile(rw, q)), float(np.quantile(ra, q))
     score = rw / max(var_w, cfg.gyro_floor_rad_s ** 2) + ra / max(var_a, cfg.accel_floor_m_s2 ** 2)
@@ -243,9 +271,26 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     if size > cfg.max_gyro_bias_rad_s:  # a rig turning steadily the whole time is moving, whatever its rate
         bias = bias * (cfg.max_gyro_bias_rad_s / size)
     norm = float(np.median(np.linalg.norm(mean_a[ok][quiet], axis=1)))
-    if from_cov:
-        return ImuNoise(s_a, s_w, bias, "covariance", norm, period)
-    return ImuNoise(math.sqrt(var_a), math.sqrt(var_w), bias, "data", norm, period)
+    sa, sw = (s_a, s_w) if from_cov else (math.sqrt(var_a), math.sqrt(var_w))
+    spread = _norm_spread(w - bias, mean_a, ssa, i0, i1, ok, sa, sw, cfg)
+    return ImuNoise(sa, sw, bias, "covariance" if from_cov else "data", norm, period, spread)
+
+
+def _norm_spread(w_unbiased, mean_a, ssa, i0, i1, ok, s_a: float, s_w: float, cfg: ZuptConfig) -> float:
+    """Spread of the still norm across attitudes (m/s^2): the robust standard deviation (1.4826 MAD) of the
+    window-mean norms of the windows whose accelerometer spread and angular rates pass the test, less their
+    noise, never below ``accel_norm_floor_m_s2``."""
+    s_w, s_a = max(s_w, cfg.gyro_floor_rad_s), max(s_a, cfg.accel_floor_m_s2)
+    _, _, ssw = _moments(w_unbiased, i0, i1, np.zeros(3))
+    n = i1 - i0
+    stat = ssw / s_w ** 2 + ssa / s_a ** 2
+    passed = ok & (stat < _per_dof(lambda k: chdtri(k, cfg.significance), np.maximum(6 * n - 3, 1)))
+    if passed.sum() < 2:
+        return cfg.accel_norm_floor_m_s2
+    norms = np.linalg.norm(mean_a[passed], axis=1)
+    robust = 1.4826 * float(np.median(np.abs(norms - np.median(norms))))
+    excess = robust ** 2 - float(np.median(s_a ** 2 / n[passed]))
+    return max(math.sqrt(max(excess, 0.0)), cfg.accel_norm_floor_m_s2)
 
 
 def _statistic(t, a, w, noise: ImuNoise, cfg: ZuptConfig):
@@ -261,12 +306,13 @@ def _statistic(t, a, w, noise: ImuNoise, cfg: ZuptConfig):
     stat = ssw / s_w ** 2 + ssa / s_a ** 2
     dof = 6 * n - 3
     if math.isfinite(noise.accel_norm):
-        stat = stat + n * (np.linalg.norm(mean_a, axis=1) - noise.accel_norm) ** 2 / s_a ** 2
+        spread = max(float(noise.accel_norm_sigma), cfg.accel_norm_floor_m_s2)
+        stat = stat + (np.linalg.norm(mean_a, axis=1) - noise.accel_norm) ** 2 / (s_a ** 2 / n + spread ** 2)
         dof = dof + 1
     ok = n >= cfg.min_window_samples
     out = np.full(len(t), np.nan)
     if ok.any():
-        out[ok] = stat[ok] / _per_dof(lambda k: chi2.isf(cfg.significance, k), dof[ok])
+        out[ok] = stat[ok] / _per_dof(lambda k: chdtri(k, cfg.significance), dof[ok])  # chi2.isf
     return out, brk
 
 
@@ -289,6 +335,11 @@ def still_mask(t, accel, gyro, noise: ImuNoise, cfg: ZuptConfig | None = None,
         return still_statistic(t, accel, gyro, noise, cfg, source) < 1.0
 
 
+def _min_run(cfg: ZuptConfig, period: float) -> float:
+    """Shortest still run (s): ``min_still_s``, at least one window (whose length follows the IMU's rate)."""
+    return max(cfg.min_still_s, _window_length(cfg, period))
+
+
 def _runs(t: np.ndarray, still: np.ndarray, brk: np.ndarray, min_still_s: float):
     """First and last indices of the runs of still samples (broken at gaps) lasting at least min_still_s."""
     prev = np.zeros(len(t), dtype=bool)
@@ -303,14 +354,15 @@ def _runs(t: np.ndarray, still: np.ndarray, brk: np.ndarray, min_still_s: float)
 
 def still_intervals(t, accel, gyro, noise: ImuNoise, cfg: ZuptConfig | None = None,
                     source: str = "IMU samples") -> list:
-    """[(t0, t1), ...]: stamps of the first and last sample of each still run at least ``min_still_s`` long."""
+    """[(t0, t1), ...]: stamps of the first and last sample of each still run at least one window (and
+    ``min_still_s``) long."""
     cfg = cfg or ZuptConfig()
     tv, a, w, _ = _valid_samples(t, accel, gyro, source)
     if not len(tv):
         return []
     stat, brk = _statistic(tv, a, w, noise, cfg)
     with np.errstate(invalid="ignore"):
-        starts, ends = _runs(tv, stat < 1.0, brk, cfg.min_still_s)
+        starts, ends = _runs(tv, stat < 1.0, brk, _min_run(cfg, _period(tv, noise)))
     return [(float(tv[i]), float(tv[j])) for i, j in zip(starts, ends)]
 
 
@@ -338,7 +390,7 @@ class ZuptDetector:
         self._cache_still = np.empty(0, dtype=bool)
         self._cache_noise = None
 
-    def add(self, t: float, accel, gyro, covariance=None) -> str | None:
+    def add(self, t: float, accel, gyro, covariance=None) -> ImuReject | None:
         """Store one sample; None, or why it was rejected (NaN, out of order, wrong shape; counted by the buffer).
 
         ``covariance`` (linear_acceleration_covariance, angular_velocity_covariance) of the message: the first
@@ -401,17 +453,22 @@ class ZuptDetector:
         t, still, brk = v
         i = int(np.searchsorted(t, t0, side="left"))
         j = int(np.searchsorted(t, t1, side="right")) - 1
-        if j < i:
-            return None
-        starts, ends = _runs(t, still, brk, self.config.min_still_s)
+        if j < i:  # no sample inside (an IMU slower than the cameras): the nearest sample within a gap answers
+            gap = self.config.gap_periods * _period(t, self._noise)
+            after, before = i < len(t) and t[i] - t1 <= gap, j >= 0 and t0 - t[j] <= gap
+            if not (after or before):
+                return None
+            i = j = i if after else j
+        starts, ends = _runs(t, still, brk, _min_run(self.config, _period(t, self._noise)))
         k = int(np.searchsorted(starts, j, side="right")) - 1
         first = int(starts[k]) if k >= 0 and ends[k] >= j else None
         return t, i, j, first
 
     def is_still(self, t0: float, t1: float) -> bool | None:
-        """True when every sample in [t0, t1] lies in one still run (at least ``min_still_s`` long).
+        """True when every sample in [t0, t1] lies in one still run (at least one window long).
 
-        None when no sample lies in [t0, t1] or the noise is not known yet.
+        Without a sample inside [t0, t1] (an IMU slower than the cameras), the nearest sample within a gap of
+        the interval answers. None when there is none or the noise is not known yet.
         """
         r = self._run_of(t0, t1)
         if r is None:

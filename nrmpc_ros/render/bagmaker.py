@@ -9,17 +9,29 @@ body's acceleration, body frame), or, when the bars ring, its damped
 response. Like software-synchronised USB cameras, each camera's header stamp
 (and bag time) may be off the trigger by a random jitter, and each camera may
 drop frames; the image content and the ground truth stay at the trigger
-time. The IMU (200 Hz by default, throughout) reads the specific force
-(``a = -g`` when still, through the rig's ``imu`` mount) plus white noise
-and a constant bias, and the body angular velocity. Ground truth
-``/ground_truth/pose`` (body in world, world z up) and
-``/ground_truth/gravity`` (gravity in the body frame) is written at every
-trigger. Deterministic for a seed, with separate random streams for the
-trajectory, the IMU, the image noise, the jitter and the drops.
+time. Each camera may run at its own rate and phase (:mod:`.sequence`);
+auto-exposure may drift: each camera's grey levels become gain(t) I + offset(t)
+with a slow sinusoidal gain (1 +- ``exposure_drift``) and offset
+(+- ``EXPOSURE_OFFSET_GREY`` x ``exposure_drift`` grey levels), each camera with its own periods near
+``exposure_period_s`` and its own phases. The IMU (200 Hz by default,
+throughout) reads the specific force (``a = -g`` when still, through the
+rig's ``imu`` mount) plus white noise and a constant bias, and the body
+angular velocity; its stamps may be off the cameras' clock by a constant
+``imu_time_offset_ms``. Ground truth ``/ground_truth/pose`` (body in world,
+world z up), ``/ground_truth/gravity`` (gravity in the body frame) and
+``/ground_truth/angular_velocity`` (body rate, rad/s, body frame: zero exactly
+while the body is still, non-zero in a creeping hold or a move) is written at
+every trigger instant, and ``/ground_truth/extrinsics/<camera>`` (the camera's bent pose
+in the body frame at the trigger, stamped like the camera's image) with every image
+(docs/CONVENTIONS.md, "The rig in motion"). Deterministic for a seed, with separate random streams
+for the trajectory, the IMU, the image noise, the jitter, the drops and the
+exposure.
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import math
 import numbers
 import shutil
@@ -28,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..bag.writer import COMPRESSED_FORMATS, DEFAULT_JPEG_QUALITY, ENCODINGS, STORAGES, BagWriter, image_topic_for
+from ..core.bar_state import bent_extrinsics_at_loads
 from ..core.deformation import bend_rotation_vectors
 from ..core.dynamics import check_damping
 from ..core.rig import ImuMount, Rig
@@ -41,6 +54,9 @@ from .sequence import MotionOptions, Trajectory, make_trajectory
 
 POSE_TOPIC = "/ground_truth/pose"
 GRAVITY_TOPIC = "/ground_truth/gravity"
+EXTRINSICS_TOPIC = "/ground_truth/extrinsics/{}"  # .format(camera name): the bent camera's pose in the body
+ANGULAR_VELOCITY_TOPIC = "/ground_truth/angular_velocity"
+EXPOSURE_OFFSET_GREY = 40.0  # grey levels of offset drift per unit of exposure_drift
 WORLD_FRAME = "world"
 IMU_FRAME = "imu"
 # A still camera is re-rendered only when its bar's load moved by more than this (m/s^2): for the bars of
@@ -74,6 +90,9 @@ class BagOptions:
     jitter_ms: float = 0.0  # each camera's stamp is off the trigger by U(-jitter, +jitter) ms
     drop_rate: float = 0.0  # probability that a camera loses a frame
     supersample: int = 2  # rays per pixel side: a pixel integrates its area (1: point sampling, aliased)
+    imu_time_offset_ms: float = 0.0  # IMU stamps = true sample time + this (a constant clock offset)
+    exposure_drift: float = 0.0  # amplitude of each camera's slow gain change (0.2: gain 0.8-1.2)
+    exposure_period_s: float = 20.0  # typical period of the exposure drift
 
     def validate(self) -> None:
         """One OptionError naming the field of the first bad option."""
@@ -91,15 +110,25 @@ class BagOptions:
             value = getattr(self, name)
             if not (_real(value) and value >= 0):
                 raise OptionError(_OWNER, name, f"must be a finite number >= 0, got {value!r}")
+        if not (_real(self.imu_time_offset_ms) and abs(self.imu_time_offset_ms) <= 1e4):
+            raise OptionError(_OWNER, "imu_time_offset_ms", f"must be a finite number of ms within +-10000, "
+                              f"got {self.imu_time_offset_ms!r}")
+        if not (_real(self.exposure_drift) and 0 <= self.exposure_drift <= 0.5):
+            raise OptionError(_OWNER, "exposure_drift", f"must be in [0, 0.5] (a gain change), "
+                              f"got {self.exposure_drift!r}")
+        if not (_real(self.exposure_period_s) and self.exposure_period_s > 0):
+            raise OptionError(_OWNER, "exposure_period_s", f"must be a finite number > 0, "
+                              f"got {self.exposure_period_s!r}")
         if not (_real(self.drop_rate) and 0 <= self.drop_rate < 1):
             raise OptionError(_OWNER, "drop_rate", f"must be in [0, 1), got {self.drop_rate!r}")
         if self.damping is not None:
             check_damping(self.damping, _OWNER)
         self.motion.validate()
-        period_ms = 1e3 / self.motion.rate
+        rate = max(self.motion.camera_rates or (self.motion.rate,))
+        period_ms = 1e3 / rate
         if 2 * self.jitter_ms >= period_ms:
             raise OptionError(_OWNER, "jitter_ms", f"must be below half the frame period ({period_ms / 2:g} ms at "
-                              f"rate {self.motion.rate:g} Hz) so each camera's stamps stay in order, "
+                              f"rate {rate:g} Hz) so each camera's stamps stay in order, "
                               f"got {self.jitter_ms!r}")
 
 
@@ -112,9 +141,10 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
     the camera bent by its bar's load (docs/CONVENTIONS.md, Gravity measurements), where f_i adds the lever arm
     of the bent camera
     position w_i: alpha x w_i + omega x (omega x w_i). When that bar rings (``loads`` with a damping ratio)
-    the tip's own motion adds too: its acceleration c_d P_i x_i'' = P_i (u - x_i - 2 zeta / w x_i') (the
-    bar's spring and damper force per unit tip mass; P_i removes the axial part, which the bar carries
-    rigidly), the Coriolis term 2 omega x w_i', and, on the gyro, the bending rate J_l(phi_i) phi_i'.
+    the tip's own motion adds too: its acceleration c_d P_i x_i'' = P_i (l_i - x_i - 2 zeta / w x_i') (the
+    bar's spring and damper force per unit tip mass, l_i its quasi-static load :meth:`CameraLoads.quasi_static`;
+    P_i removes the axial part, which the bar carries rigidly), the Coriolis term 2 omega x w_i', and, on the
+    gyro, the bending rate J_l(phi_i) phi_i'.
     Quasi-static bars have no motion of their own.
     """
     imu = rig.imu or ImuMount()
@@ -127,10 +157,11 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
         i = rig.camera_index(imu.mount)
         u_dir, c_d, _ = (c[i] for c in rig.bar_coefficients)
         if loads is not None and loads.ringing:
-            x, v, _ = loads.state(t_ns)
-            xi, vi = x[:, i], v[:, i]
+            x, v, li = loads.state(t_ns)
+            xi, vi, li = x[:, i], v[:, i], li[:, i]
         else:
-            xi, vi = load, np.zeros_like(load)
+            li = load if loads is None else loads.quasi_static(t_ns)[:, i]
+            xi, vi = li, np.zeros_like(li)
         w, _ = bent_extrinsics(rig, np.broadcast_to(xi[:, None], (len(xi), rig.num_cameras, 3)))
         alpha = traj.angular_acceleration(t_ns)
         f_body = f_body + cross(alpha, w[:, i]) + cross(omega, cross(omega, w[:, i]))
@@ -140,7 +171,7 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
             def perp(y):
                 return y - np.outer(y @ u_dir, u_dir)
 
-            f_body = f_body + perp(load - xi - (2.0 * loads.damping / (2.0 * math.pi * loads.frequencies[i])) * vi)
+            f_body = f_body + perp(li - xi - (2.0 * loads.zeta[i] / (2.0 * math.pi * loads.frequencies[i])) * vi)
             f_body = f_body + 2.0 * cross(omega, c_d * perp(vi))
             w_body = omega + np.einsum("nij,nj->ni", J_l, bend_rotation_vectors(rig, vi, cams=[i])[:, 0])
     to_imu = np.einsum("ji,njk->nik", imu.rotation, np.swapaxes(mount_R, 1, 2))  # body -> IMU
@@ -165,13 +196,15 @@ def _check_inside(rig: Rig, traj: Trajectory, scene, loads: CameraLoads) -> None
 
 
 def hold_intervals(traj: Trajectory, loads: CameraLoads) -> list:
-    """One dict per hold: ``start``, ``end`` (s, the body is still in between) and ``settled`` (s, when the
+    """One dict per hold: ``start``, ``end`` (s, the body stopped in between), ``settled`` (s, when the
     bars' ringing amplitude has fallen below 1e-3 of its value at the start of the hold; None without
-    ringing; it may lie beyond ``end`` when the hold is too short)."""
+    ringing; it may lie beyond ``end`` when the hold is too short) and ``creeping`` (the body turns slowly
+    through the hold: it is not still)."""
     settled = loads.settle_times_ns()
-    return [{"start": int(a) * 1e-9, "end": int(b) * 1e-9, "settled": None if settled is None else int(s) * 1e-9}
-            for a, b, s in zip(traj.hold_start, traj.hold_end,
-                               settled if settled is not None else traj.hold_start)]
+    return [{"start": int(a) * 1e-9, "end": int(b) * 1e-9, "settled": None if settled is None else int(s) * 1e-9,
+             "creeping": bool(c)}
+            for a, b, s, c in zip(traj.hold_start, traj.hold_end,
+                                  settled if settled is not None else traj.hold_start, traj.creeping)]
 
 
 class _StillCache:
@@ -191,6 +224,21 @@ class _StillCache:
         self.view[i], self.load[i], self.image[i] = (view, load.copy(), image) if view >= 0 else (None, None, None)
 
 
+class Exposure:
+    """Each camera's slow auto-exposure drift: grey levels -> gain(t) I + offset(t) (see the module docstring)."""
+
+    def __init__(self, num_cameras: int, opts: BagOptions, rng: np.random.Generator):
+        self.amplitude = float(opts.exposure_drift)
+        # per camera: periods of the gain and of the offset (0.7-1.3 x the typical one), and their phases
+        self.periods = opts.exposure_period_s * rng.uniform(0.7, 1.3, size=(num_cameras, 2))
+        self.phases = rng.uniform(0.0, 2.0 * math.pi, size=(num_cameras, 2))
+
+    def gain_offset(self, i: int, t_s: float) -> tuple:
+        """(gain, offset in grey levels) of camera i at t_s seconds from the start."""
+        s = np.sin(2.0 * math.pi * t_s / self.periods[i] + self.phases[i])
+        return 1.0 + self.amplitude * float(s[0]), EXPOSURE_OFFSET_GREY * self.amplitude * float(s[1])
+
+
 def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     """Render and write a bag into ``out`` (a new directory; nothing is written elsewhere).
 
@@ -201,76 +249,102 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     from tqdm import tqdm
 
     opts.validate()
+    opts.motion.validate_cameras(rig.num_cameras)
     ss = np.random.SeedSequence(int(opts.seed))
-    rng_traj, rng_imu, rng_img, rng_jitter, rng_drop = (np.random.default_rng(s) for s in ss.spawn(5))
+    rng_traj, rng_imu, rng_img, rng_jitter, rng_drop, rng_exposure = (np.random.default_rng(s) for s in ss.spawn(6))
     scene = make_scene(int(opts.seed))
     traj = make_trajectory(rng_traj, opts.motion, rig.gravity_magnitude)
     loads = CameraLoads(rig, traj, opts.damping)
     _check_inside(rig, traj, scene, loads)
     renderer = Renderer(rig, scene, opts.supersample)
-    frame_t, frame_view = traj.frame_times(opts.motion.capture)
+    frame_t, frame_view, fires = traj.camera_triggers(opts.motion, rig.num_cameras)
     M = rig.num_cameras
     jitter_ns = np.rint(rng_jitter.uniform(-1.0, 1.0, size=(len(frame_t), M)) * opts.jitter_ms * 1e6).astype(np.int64)
     dropped = rng_drop.random(size=(len(frame_t), M)) < opts.drop_rate
+    exposure = Exposure(M, opts, rng_exposure) if opts.exposure_drift else None
+    imu_offset_ns = int(round(opts.imu_time_offset_ms * 1e6))
     if opts.imu:
         imu_period = int(round(1e9 / opts.motion.imu_rate))
         imu_t = np.arange(traj.start_ns, traj.end_ns, imu_period, dtype=np.int64)
         accel, gyro = imu_readings(rig, traj, imu_t, rng_imu, opts, loads)
     else:
         imu_t = np.zeros(0, dtype=np.int64)
-    R, p, _, _ = traj.state(frame_t)
+    R, p, omega, _ = traj.state(frame_t)
     g_true = traj.gravity_body(R)
     cam_loads = loads.at(frame_t)  # (F, M, 3)
+    gt_w, gt_W = bent_extrinsics_at_loads(rig, cam_loads)  # each camera's pose in the body at each trigger
+    creeping = traj.creeping
     imu_topic = bag_topic((rig.imu or ImuMount()).topic)  # a relative rig topic is recorded in the root namespace
     topics = [(image_topic_for(bag_topic(c.image_topic), opts.encoding), bag_topic(c.info_topic)) for c in rig.cameras]
     quality = {"jpeg_quality": opts.jpeg_quality} if opts.encoding in COMPRESSED_FORMATS else {}
     max_jitter_ns = int(np.max(np.abs(jitter_ns), initial=0))
     cache = _StillCache(M)
     j = 0  # next IMU sample
+    pending: list = []  # heap of (bag time, order, topic, message): written in bag-time order, ties as pushed
+    order = itertools.count()
     writer = BagWriter(out, opts.storage)  # refuses an existing path, so removing it on failure is safe
     try:
         with writer as bag:
-            def imu_msg(k):
-                return int(imu_t[k]), imu_topic, bag.imu_msg(int(imu_t[k]), IMU_FRAME, accel[k], gyro[k],
-                                                            opts.imu_noise, opts.gyro_noise)
+            def push(ts, topic, msg):
+                heapq.heappush(pending, (int(ts), next(order), topic, msg))
+
+            def flush(until_ns):
+                while pending and pending[0][0] <= until_ns:
+                    ts, _, topic, msg = heapq.heappop(pending)
+                    bag.write(topic, msg, ts)
 
             bar = tqdm(total=len(frame_t), unit="frame", desc="make-bag", disable=not progress, leave=False)
             for n, (t, view) in enumerate(zip(frame_t, frame_view)):
                 t, view = int(t), int(view)
-                # Everything stamped up to this trigger's latest camera stamp, in bag-time order (the next
-                # trigger's earliest stamp is later: the jitter is below half a frame period).
-                pending = []
-                while j < len(imu_t) and imu_t[j] <= t + max_jitter_ns:
-                    pending.append(imu_msg(j))
+                # IMU samples stamped up to this trigger's latest camera stamp (IMU stamps carry the clock offset)
+                while j < len(imu_t) and imu_t[j] + imu_offset_ns <= t + max_jitter_ns:
+                    ts = int(imu_t[j]) + imu_offset_ns
+                    push(ts, imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], opts.imu_noise,
+                                                    opts.gyro_noise))
                     j += 1
                 Rs, cs = renderer.camera_poses(R[n], p[n], cam_loads[n])
-                for i, cam in enumerate(rig.cameras):
-                    img = cache.get(i, view, cam_loads[n, i])
+                key = view if view < 0 or not creeping[view] else -1  # a creeping body is re-rendered every time
+                for i in np.flatnonzero(fires[n]):
+                    cam = rig.cameras[i]
+                    img = cache.get(i, key, cam_loads[n, i])
                     if img is None and not dropped[n, i]:
                         img = renderer.render_camera(i, Rs[i], cs[i])
-                        cache.put(i, view, cam_loads[n, i], img)
+                        cache.put(i, key, cam_loads[n, i], img)
                     h, w = cam.resolution[1], cam.resolution[0]
                     noise = rng_img.normal(scale=opts.image_noise, size=(h, w)) if opts.image_noise else 0.0
                     if dropped[n, i]:
                         continue  # the noise was drawn anyway, so a drop changes no other image
+                    if exposure is not None:
+                        gain, offset = exposure.gain_offset(i, (t - traj.start_ns) * 1e-9)
+                        img = gain * img + offset
                     u8 = np.clip(np.rint(img + noise), 0, 255).astype(np.uint8)
                     ts = t + int(jitter_ns[n, i])
-                    pending.append((ts, topics[i][0], bag.image_msg(u8, ts, cam.name, opts.encoding, **quality)))
-                    pending.append((ts, topics[i][1], bag.camera_info_msg(cam, ts)))
-                pending.append((t, POSE_TOPIC, bag.pose_msg(t, WORLD_FRAME, R[n], p[n])))
-                pending.append((t, GRAVITY_TOPIC, bag.vector_msg(t, rig.body_frame, g_true[n])))
-                for ts, topic, msg in sorted(pending, key=lambda m: m[0]):  # stable: IMU first at equal times
-                    bag.write(topic, msg, ts)
+                    push(ts, topics[i][0], bag.image_msg(u8, ts, cam.name, opts.encoding, **quality))
+                    push(ts, topics[i][1], bag.camera_info_msg(cam, ts))
+                    push(ts, EXTRINSICS_TOPIC.format(cam.name),
+                         bag.pose_msg(ts, rig.body_frame, gt_W[n, i], gt_w[n, i]))
+                push(t, POSE_TOPIC, bag.pose_msg(t, WORLD_FRAME, R[n], p[n]))
+                push(t, GRAVITY_TOPIC, bag.vector_msg(t, rig.body_frame, g_true[n]))
+                push(t, ANGULAR_VELOCITY_TOPIC, bag.vector_msg(t, rig.body_frame, omega[n]))
+                # later triggers stamp nothing before their earliest jittered stamp, later IMU samples nothing
+                # before this trigger's latest one
+                nxt = int(frame_t[n + 1]) - max_jitter_ns - 1 if n + 1 < len(frame_t) else t + max_jitter_ns
+                flush(min(t + max_jitter_ns, nxt))
                 bar.update(1)
-            for k in range(j, len(imu_t)):
-                bag.write(*imu_msg(k)[1:], int(imu_t[k]))
+            while j < len(imu_t):
+                ts = int(imu_t[j]) + imu_offset_ns
+                push(ts, imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], opts.imu_noise, opts.gyro_noise))
+                j += 1
+            flush(np.iinfo(np.int64).max)
             bar.close()
             counts = dict(bag.counts)
     except BaseException:
         shutil.rmtree(writer.path, ignore_errors=True)  # no half-written bag left behind
         raise
     return {
-        "frames": int(len(frame_t)), "views": int(len(traj.R)), "counts": counts, "dropped": int(dropped.sum()),
+        "frames": int(len(frame_t)), "views": int(len(traj.R)), "counts": counts,
+        "dropped": int((dropped & fires).sum()),
         "duration_s": (traj.end_ns - traj.start_ns) * 1e-9, "holds": hold_intervals(traj, loads),
         "bar_frequencies_hz": [float(f) for f in loads.frequencies], "trajectory": traj,
+        "images": int((fires & ~dropped).sum()),
     }

@@ -117,9 +117,7 @@ def load_scenario(kind: str, values: dict | None = None, scenario_file: str | No
                                   "file instead")
         rig = load_rig(rig_path)
         if "rig.EI" in values:
-            from ..experiments.crlb import set_bar_ei
-
-            rig = set_bar_ei(rig, values["rig.EI"])
+            rig = rig.with_bar_ei(values["rig.EI"])
     return sc, rig, extras
 
 
@@ -160,8 +158,8 @@ def validate_rig_spec(r, source: str) -> None:
     _check_types(source, r, "rig.", ("layout", "looking"))
     try:
         r.validate()
-    except ValueError as exc:
-        raise InputError(source, str(exc), "rig") from None
+    except OptionError as exc:  # the spec names its field
+        raise InputError(source, exc.message, f"rig.{exc.field}") from None
     _need(source, r.bar_length > 0 and math.isfinite(r.bar_length), "rig.bar_length", "must be > 0 (m)")
     _need(source, r.mass >= 0 and math.isfinite(r.mass), "rig.mass", "must be >= 0 (kg)")
     _need(source, r.EI > 0, "rig.EI", "must be > 0 (N m^2; inf = rigid)")

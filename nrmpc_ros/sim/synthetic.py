@@ -21,6 +21,7 @@ from ..core.deformation import deformed_extrinsics
 from ..core.matches import Matches
 from ..core.rig import Camera, ImuMount, Rig
 from ..core.so3 import exp_so3, normalize, tangent_basis
+from ..errors import OptionError
 
 LAYOUTS = ("cross", "line", "ring")
 LOOKING = ("outward", "forward")
@@ -46,14 +47,16 @@ class RigSpec:
     resolution: tuple = (640, 480)
 
     def validate(self):
+        """Raises OptionError (a ValueError) naming the field that is wrong."""
         if self.layout not in LAYOUTS:
-            raise ValueError(f"layout must be one of {LAYOUTS}, got {self.layout!r}")
+            raise OptionError("rig spec", "layout", f"layout must be one of {LAYOUTS}, got {self.layout!r}")
         if self.looking not in LOOKING:
-            raise ValueError(f"looking must be one of {LOOKING}, got {self.looking!r}")
+            raise OptionError("rig spec", "looking", f"looking must be one of {LOOKING}, got {self.looking!r}")
         if self.num_cameras < 1:
-            raise ValueError("num_cameras must be >= 1")
+            raise OptionError("rig spec", "num_cameras", "num_cameras must be >= 1")
         if self.layout == "cross" and self.num_cameras != 4:
-            raise ValueError("layout 'cross' has 4 cameras; use 'ring' or 'line' for other counts")
+            raise OptionError("rig spec", "num_cameras",
+                              "layout 'cross' has 4 cameras; use 'ring' or 'line' for other counts")
 
 
 @dataclass

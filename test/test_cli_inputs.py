@@ -1,12 +1,10 @@
-#!/usr/bin/env python3
-"""Malformed inputs through the command line: does every one end in one clear error naming what is wrong?
+"""Malformed inputs through the command line: every one ends in one clear error naming what is wrong
+(docs/INPUTS.md), and no run writes into its inputs.
 
-    python scripts/audit_inputs.py [--workdir DIR] [--jobs 2] [--area rig,bag,...] [--verbose]
-
-Builds one small bag (nrmpc make-bag, 320x240, 3 holds of 2 s), a replay CSV of it and simulated matches and
-tracks files, then malformed variants of each kind of input -- rig files, matches and tracks files, bags, estimate
-CSVs, settings files and flags -- and output paths that collide with an input. Each variant runs as ``nrmpc ...``
-in a subprocess and is classified:
+The good inputs are simulated matches and tracks files and one small rendered bag (nrmpc make-bag, 320x240,
+3 holds of 2 s) with a replay CSV of it. Malformed variants of each kind of input -- rig files, matches and
+tracks files, bags, estimate CSVs, settings files and flags -- and output paths that collide with an input each
+run as ``nrmpc ...`` in a subprocess (a traceback is seen as the user would see it) and are classified:
 
 - clear named error: exit status 2, no traceback, the message names the file (and the key, flag or topic);
 - accepted correctly: an input that is fine (or only warned about) runs to the end with the right result;
@@ -16,37 +14,33 @@ in a subprocess and is classified:
 - unnamed error: exit 2 but the message does not name what is wrong;
 - data modified: an input (or a previous output the run must keep) has other bytes afterwards.
 
-Prints one row per area and the runs that are not clear or correct; exits 1 when any run is a traceback, silent,
-unnamed or modified. Takes a few minutes on two cores.
+One test per kind of input fails on every run of the last four kinds and lists them. Some 150 runs of the
+command line take minutes: the module is slow.
 """
 
 from __future__ import annotations
 
-import argparse
 import io
 import os
 import pickle
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 import zipfile
-from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
-
-from nrmpc_ros.safeio import content_digest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-from badbags import corrupt_message, retype  # noqa: E402  (the tests' damaged bags, one definition)
+from badbags import corrupt_message, digest, retype
 
 REPO = Path(__file__).resolve().parents[1]
-COLUMNS = ("clear named error", "accepted correctly", "traceback", "silent wrong", "unnamed error", "data modified")
+GOOD = ("clear named error", "accepted correctly")
+
+pytestmark = pytest.mark.slow
 
 
 @dataclass
@@ -73,8 +67,6 @@ def nrmpc(*argv, check=True, timeout=600):
     return proc
 
 
-digest = content_digest  # a file's or a directory's content, to show nothing was written into it
-
 
 def partials(path: Path) -> list:
     """Temporary outputs (``*.partial``) in the directory of ``path`` (or in it)."""
@@ -86,19 +78,21 @@ def partials(path: Path) -> list:
 # fixtures
 # ---------------------------------------------------------------------------
 
-def fixtures(w: Path) -> dict:
-    """The good inputs every variant starts from."""
-    f = {"w": w, "bag": w / "bag", "rig": w / "rig.yaml", "csv": w / "good.csv"}
-    if not f["bag"].exists():
-        nrmpc("make-bag", "--resolution", "320x240", "--views", "3", "--hold-seconds", "2", "--no-progress",
-              "--out", f["bag"], "--save-rig", f["rig"])
-    if not f["csv"].exists():
-        nrmpc("replay", f["bag"], "--rig", f["rig"], "--out", f["csv"], "--no-progress", "--quiet")
-    if not (w / "sim" / "rig.yaml").exists():
-        nrmpc("simulate", "--out", w / "sim", "--points", "200")
-        nrmpc("simulate", "--out", w / "seq", "--sequence", "--views", "4", "--tracks-per-camera", "40")
-    f.update(sim_rig=w / "sim" / "rig.yaml", matches=w / "sim" / "pair_000.npz", seq_rig=w / "seq" / "rig.yaml",
-             tracks=w / "seq" / "seq_000.npz")
+def sim_inputs(w: Path) -> dict:
+    """The good simulated inputs: a rig with a matches file, a rig with a tracks file."""
+    nrmpc("simulate", "--out", w / "sim", "--points", "200")
+    nrmpc("simulate", "--out", w / "seq", "--sequence", "--views", "4", "--tracks-per-camera", "40")
+    return {"w": w, "sim_rig": w / "sim" / "rig.yaml", "matches": w / "sim" / "pair_000.npz",
+            "seq_rig": w / "seq" / "rig.yaml", "tracks": w / "seq" / "seq_000.npz"}
+
+
+def bag_inputs(f: dict) -> dict:
+    """The good recorded inputs besides ``f``: a rendered bag with its rig, and the replay's CSV of it."""
+    w = f["w"]
+    f = {**f, "bag": w / "bag", "rig": w / "rig.yaml", "csv": w / "good.csv"}
+    nrmpc("make-bag", "--resolution", "320x240", "--views", "3", "--hold-seconds", "2", "--no-progress",
+          "--out", f["bag"], "--save-rig", f["rig"])
+    nrmpc("replay", f["bag"], "--rig", f["rig"], "--out", f["csv"], "--no-progress", "--quiet")
     return f
 
 
@@ -528,8 +522,6 @@ def output_cases(f: dict) -> list:
     return cases
 
 
-AREAS = {"rig": rig_cases, "matches": matches_cases, "tracks": tracks_cases, "bag": bag_cases, "csv": csv_cases,
-         "config": config_cases, "outputs": output_cases}
 
 
 # ---------------------------------------------------------------------------
@@ -566,60 +558,33 @@ def run_case(c: Case) -> Case:
     return c
 
 
-def report(cases: list, verbose: bool) -> int:
-    by_area: dict = {}
-    for c in cases:
-        counts = by_area.setdefault(c.area, Counter())
-        counts["tried"] += 1
-        counts[c.result["kind"]] += 1
-        counts["data modified"] += bool(c.result["modified"])
-    width = max(len("area"), *(len(a) for a in by_area))
-    heads = ("variants tried",) + COLUMNS
-    print(f"{'area':<{width}} | " + " | ".join(heads))
-    print("-" * (width + 1) + "|" + "|".join("-" * (len(h) + 2) for h in heads))
-    total = Counter()
-    for area, counts in by_area.items():
-        total.update(counts)
-        print(f"{area:<{width}} | " + " | ".join(f"{counts[k]:>{len(h)}}" for k, h in zip(("tried",) + COLUMNS,
-                                                                                          heads)))
-    print(f"{'all':<{width}} | " + " | ".join(f"{total[k]:>{len(h)}}" for k, h in zip(("tried",) + COLUMNS, heads)))
-    bad = [c for c in cases if c.result["kind"] not in COLUMNS[:2] or c.result["modified"]]
-    for c in cases if verbose else bad:
-        mod = f" MODIFIED {c.result['modified']}" if c.result["modified"] else ""
-        print(f"\n[{c.area}] {c.name}: {c.result['kind']} (exit {c.result['rc']}, {c.result['seconds']:.1f} s){mod}\n"
-              f"    {c.result['message'][:400]}")
-    return 1 if bad else 0
+def _run_all(cases: list) -> None:
+    """Run every case (two at a time) and fail with the list of those not refused clearly or run correctly."""
+    with ThreadPoolExecutor(2) as pool:
+        cases = list(pool.map(run_case, cases))
+    bad = [c for c in cases if c.result["kind"] not in GOOD or c.result["modified"]]
+    lines = [f"[{c.area}] {c.name}: {c.result['kind']} (exit {c.result['rc']})"
+             f"{' MODIFIED ' + str(c.result['modified']) if c.result['modified'] else ''}\n"
+             f"    {c.result['message'][:400]}" for c in bad]
+    assert not bad, f"{len(bad)} of {len(cases)} runs not clear or correct:\n" + "\n".join(lines)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--workdir", type=Path, help="where the fixtures and variants go (default: a temporary "
-                    "directory, removed at the end); reused when it exists")
-    ap.add_argument("--jobs", type=int, default=2, help="runs at a time (default 2)")
-    ap.add_argument("--area", help=f"comma-separated subset of {', '.join(AREAS)}")
-    ap.add_argument("--verbose", action="store_true", help="print every run, not only those that failed")
-    args = ap.parse_args()
-    areas = args.area.split(",") if args.area else list(AREAS)
-    tmp = None
-    if args.workdir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="nrmpc_audit_")
-        args.workdir = Path(tmp.name)
-    w = args.workdir.resolve()
-    w.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    try:
-        f = fixtures(w)
-        cases = [c for a in areas for c in AREAS[a](f)]
-        print(f"{len(cases)} variants in {w} (fixtures ready after {time.perf_counter() - t0:.0f} s)", flush=True)
-        with ThreadPoolExecutor(max(1, args.jobs)) as pool:
-            cases = list(pool.map(run_case, cases))
-        code = report(cases, args.verbose)
-        print(f"\n{time.perf_counter() - t0:.0f} s in all")
-        return code
-    finally:
-        if tmp is not None:
-            tmp.cleanup()
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    return sim_inputs(tmp_path_factory.mktemp("audit"))
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+@pytest.fixture(scope="module")
+def recorded(simulated):
+    return bag_inputs(simulated)
+
+
+@pytest.mark.parametrize("cases", [rig_cases, matches_cases, tracks_cases], ids=["rig", "matches", "tracks"])
+def test_malformed_simulated_inputs_end_in_one_named_error(simulated, cases):
+    _run_all(cases(simulated))
+
+
+@pytest.mark.parametrize("cases", [bag_cases, csv_cases, config_cases, output_cases],
+                         ids=["bag", "csv", "config", "outputs"])
+def test_malformed_recorded_inputs_and_colliding_outputs_end_in_one_named_error(recorded, cases):
+    _run_all(cases(recorded))

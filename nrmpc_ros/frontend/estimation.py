@@ -1,0 +1,202 @@
+"""The estimation stage of the pipeline: measured holds in, hold estimates out (docs/PIPELINE.md, "Two stages").
+
+The intake stage (:class:`~nrmpc_ros.frontend.pipeline.Pipeline`: tracking, holds, settling, a hold's
+measurement and its IMU gravity) hands each measured hold over as a :class:`MeasuredHold`; the
+:class:`HoldEstimator` links its tracks to the landmarks of earlier holds (:mod:`.linking`, with patch
+alignment) and adds it to the joint estimate over the sequence of holds
+(:class:`~nrmpc_ros.core.incremental.IncrementalSequence`). Items are consumed in the order they were made and
+none is dropped; :class:`SequenceReset` starts a new sequence at its place in that order.
+
+Everything the estimator needs comes with the item: what depends on the IMU samples (the hold's averaged
+accelerometer gravity, the gyro's rotation from the previous hold) is computed by the intake when it closes
+the hold, so the estimate is the same whether the stage runs at once (replay) or later in its own worker
+thread (the node). The one result that flows back, a hold's gravity as evidence of the accelerometer's bias,
+goes to ``on_gravity`` and only moves the cameras' published extrinsics, never a decision of the intake.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.incremental import IncrementalSequence, NewSequence, StartReason, ViewEstimate
+from ..core.rig import Rig
+from .drops import Drop
+from .holds import Hold, RingingSource
+from .imu import ImuGravity
+from .linking import HoldLinker
+
+
+@dataclass
+class HoldEstimate:
+    """The estimate of one hold: its pose relative to the reference hold (p_ref = R p + t) and in the
+    sequence origin, its gravity (current body frame) from the joint solution, and how the hold was measured."""
+
+    stamp: float  # a frame inside the hold's settled part
+    ref_stamp: float  # the same of the reference hold (the one it was paired with)
+    method: str
+    R: np.ndarray
+    t: np.ndarray
+    gravity: np.ndarray | None  # m/s^2, this hold's body frame
+    gravity_sigma_deg: float
+    cov_gravity: np.ndarray | None
+    num_inliers: int
+    num_observations: int
+    time_ms: float
+    origin_stamp: float  # the sequence's first hold: the origin frame
+    R_origin: np.ndarray  # pose in the origin (p_origin = R_origin p + t_origin)
+    t_origin: np.ndarray
+    cov_pose: np.ndarray  # (6, 6): rotation (body frame) and translation (origin frame)
+    sequence: int
+    hold_index: int
+    hold: Hold
+    imu_gravity: np.ndarray | None = None  # this hold's averaged accelerometer gravity (body frame)
+    links: Counter = field(default_factory=Counter)
+    window: int = 0
+    noise_scale: float = 1.0  # the hold's bearing noise over the nominal one: its residual ringing's penalty
+
+
+@dataclass
+class MeasuredHold:
+    """A hold the intake measured, ready for the estimation stage: the hold, its averaged accelerometer gravity
+    (None: no IMU or too few samples) with that gravity's angular std (rad), the gyro's rotation (R, std rad)
+    from the previous hold given to the stage since the last reset (None: no such hold or no gyro), and the
+    entry of the pipeline's hold log it fills in (None: no log kept)."""
+
+    hold: Hold
+    imu: ImuGravity | None
+    imu_sigma_rad: float | None
+    turn: tuple | None
+    attempt: object | None = None
+
+
+@dataclass(frozen=True)
+class SequenceReset:
+    """Start a new sequence here: the next measured hold is its origin."""
+
+
+class HoldEstimator:
+    """Links and estimates the measured holds in order (see the module docstring).
+
+    ``stats`` is the pipeline's :class:`~nrmpc_ros.frontend.pipeline.PipelineStats`: the stage counts its
+    estimates, methods, sequences, merges, bridges and penalised holds there (the intake counts frames and
+    holds). ``require_imu`` (the method 4pt-bending forced): a hold without IMU gravity is linked (its tracks
+    stay landmarks for later holds) but not estimated, never silently by another method.
+    ``on_gravity((sequence, gravity, cov_gravity, turns))`` receives each estimate's gravity with the rotation
+    [(stamp, R)] of every hold of its sequence into its frame (the accelerometer bias's evidence,
+    :meth:`~nrmpc_ros.frontend.extrinsics.FrameExtrinsics.observe_sequence`).
+    """
+
+    def __init__(self, rig: Rig, sequence: IncrementalSequence, linker: HoldLinker, stats,
+                 require_imu: bool = False, on_gravity=None):
+        self.rig = rig
+        self.sequence = sequence
+        self.linker = linker
+        self.stats = stats
+        self.require_imu = require_imu
+        self.on_gravity = on_gravity
+        self.consumed = 0  # measured holds run so far (the intake counts those it made: the difference waits)
+        self._hold_stamps: list = []  # stamp of every hold of the current sequence
+        self._broken_stamps: dict = {}  # sequence number -> its holds' stamps, for the sequences a break ended
+
+    def run(self, item) -> list:
+        """Run one item of the intake (a :class:`MeasuredHold` or a :class:`SequenceReset`); returns the hold
+        estimates it gave (0 or 1)."""
+        if isinstance(item, SequenceReset):
+            self.reset()
+            return []
+        try:
+            return self._estimate(item)
+        finally:
+            self.consumed += 1
+
+    def reset(self) -> None:
+        self.sequence.reset()
+        self.linker.reset()
+        self._hold_stamps = []
+        self._broken_stamps = {}
+
+    def _estimate(self, item: MeasuredHold) -> list:
+        st, hold, imu, attempt = self.stats, item.hold, item.imu, item.attempt
+        t0 = time.perf_counter()
+        obs = self.linker.link(hold)
+        if imu is None and self.require_imu:  # forced: no silent fall back to 6pt-bending
+            st.dropped[Drop.HOLD_FORCED_WITHOUT_IMU] += 1
+            if attempt is not None:
+                attempt.why = Drop.HOLD_FORCED_WITHOUT_IMU.message
+            return []
+        g = None if imu is None else imu.gravity
+        focal = float(np.median([c.focal_px for c in self.rig.cameras]))
+        # the ringing enters as bearing noise. A snapshot's is the predicted envelope of its bars' ringing at
+        # that instant: an offset that turns all of a camera's bearings together, so that camera's n points tell
+        # its rotation no better than one bearing with the ringing's std (per point sigma^2 + n ringing^2: the
+        # information n / (sigma^2 + n ringing^2) about the rotation). A stream hold's ringing is what remains
+        # after averaging or fitting many frames (docs/PIPELINE.md, "Graded trust"): per point, as measured.
+        coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT) and len(obs.cam)
+        per_camera = float(np.median(np.unique(np.asarray(obs.cam), return_counts=True)[1])) if coherent else 1.0
+        scale = self.sequence.noise_scale(hold.ringing_px / focal * math.sqrt(per_camera))
+        st.penalized_holds += scale > 1.0
+        number = self.sequence.seq.number
+        out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale)
+        if attempt is not None:
+            attempt.sequence, attempt.index = self.sequence.seq.number, self.sequence.num_views - 1
+        if isinstance(out, NewSequence):
+            if out.reason is not StartReason.FIRST_VIEW and len(self._hold_stamps) >= 2:
+                self._broken_stamps[number] = self._hold_stamps  # a later hold may merge it back
+                keep = self.sequence.options.merge_sequences
+                self._broken_stamps = dict(list(self._broken_stamps.items())[-keep:]) if keep else {}
+            if out.reason is not StartReason.FIRST_VIEW and item.turn is not None and \
+                    self.sequence.bridge(*item.turn):
+                st.bridges += 1
+            self._hold_stamps = [hold.stamp]
+            st.sequences = max(st.sequences, out.sequence + 1)
+            if out.reason is not StartReason.FIRST_VIEW:
+                st.dropped[Drop.new_sequence(out.reason)] += 1
+            return []
+        if out.merged is not None:  # this sequence's holds now follow those of the earlier one, in its origin
+            st.merges += 1
+            self._hold_stamps = self._broken_stamps.pop(out.merged, [math.nan] * out.merged_views) + \
+                self._hold_stamps
+        self._hold_stamps.append(hold.stamp)
+        est = self._hold_estimate(out, hold, imu, obs.links, time.perf_counter() - t0, scale)
+        if attempt is not None:
+            attempt.estimate = est
+        return [est]
+
+    def _hold_estimate(self, v: ViewEstimate, hold: Hold, imu, links, elapsed_s: float,
+                       noise_scale: float = 1.0) -> HoldEstimate:
+        st = self.stats
+        st.estimates += 1
+        st.methods[v.method] += 1
+        R, t = self.sequence.relative_pose(v.view, v.reference)
+        if self.on_gravity is not None and imu is not None and v.gravity is not None:
+            # the accelerometer's bias: the sequence's gravity with every hold's rotation into this one's frame
+            turns = [(s, self.sequence.relative_pose(v.view, k)[0]) for k, s in enumerate(self._hold_stamps)]
+            self.on_gravity((v.sequence, v.gravity, v.cov_gravity, turns))
+        return HoldEstimate(
+            stamp=hold.stamp, ref_stamp=self._hold_stamps[v.reference], method=v.method, R=R, t=t,
+            gravity=v.gravity, gravity_sigma_deg=math.degrees(v.gravity_sigma_rad), cov_gravity=v.cov_gravity,
+            num_inliers=v.num_inliers, num_observations=v.num_observations, time_ms=1000.0 * elapsed_s,
+            origin_stamp=self._hold_stamps[0], R_origin=v.R, t_origin=v.t, cov_pose=v.cov_pose,
+            sequence=v.sequence, hold_index=v.view, hold=hold, imu_gravity=None if imu is None else imu.gravity,
+            links=links, window=v.window, noise_scale=noise_scale)
+
+    def batch(self) -> list:
+        """Every hold of the current sequence estimated jointly at once: (stamp, R_origin, t_origin, gravity,
+        gravity_sigma_deg) per hold, origin first; empty with fewer than two holds."""
+        est = self.sequence.batch()
+        if not est.success:
+            return []
+        out = []
+        for k, stamp in enumerate(self._hold_stamps[: len(est.R)]):
+            g = None if est.gravity is None else est.gravity[k]
+            s = math.nan if est.gravity_sigma_rad is None else math.degrees(est.gravity_sigma_rad[k])
+            out.append((stamp, est.R[k], est.t[k], g, s))
+        return out
+
+
+__all__ = ["HoldEstimate", "HoldEstimator", "MeasuredHold", "SequenceReset"]

@@ -1,0 +1,154 @@
+"""The body's rotation between two holds from the gyro: what bridges a break in the landmarks.
+
+When no landmark links a hold to the holds before it, the gyro still saw the
+move. Its rate, corrected by its mean over the earlier hold's still part
+(the bias, while the body does not turn), is integrated over the move into
+the rotation between the two holds' body frames, with a standard deviation
+from the samples' own noise (docs/PIPELINE.md, "Bridging a break").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.rig import ImuMount
+from ..core.so3 import exp_so3, rotation_angle
+from .imu import ImuBuffer
+
+GYRO_SCALE_ERROR = 0.01  # a MEMS gyro's scale-factor error (share of the angle turned) bounds the std from below
+
+
+@dataclass(frozen=True)
+class GyroRotation:
+    """The rotation of the body between two holds: ``R`` maps the later hold's body frame into the earlier
+    one's (p_before = R p_after); ``sigma_rad`` its angular std; the gyro samples integrated."""
+
+    R: np.ndarray
+    sigma_rad: float
+    samples: int
+
+
+def ordered_product(Rs: np.ndarray) -> np.ndarray:
+    """R_0 R_1 ... R_{n-1} of a stack (n, 3, 3), multiplied pairwise in order (log2 n array products)."""
+    Rs = np.asarray(Rs, float)
+    while len(Rs) > 1:
+        if len(Rs) % 2:
+            Rs = np.concatenate([Rs, np.eye(3)[None]])
+        Rs = Rs[0::2] @ Rs[1::2]
+    return Rs[0] if len(Rs) else np.eye(3)
+
+
+def rotation_between(buffer: ImuBuffer, mount: ImuMount, still: tuple, move: tuple,
+                     max_age_s: float) -> GyroRotation | None:
+    """The body's rotation over ``move`` = (t0, t1) (from the end of one hold to the next), bias-corrected
+    with the mean rate over ``still`` = (t0, t1) (the earlier hold's still part). None with an IMU inside a
+    camera (it turns with its bar), fewer than two samples in either span, no gyro (every rate exactly 0:
+    a message without angular velocity), or the move's samples more than ``max_age_s`` from its ends.
+
+    The std adds the samples' angle random walk (their rate noise while still), the bias's own std over the
+    move and ``GYRO_SCALE_ERROR`` of the angle turned.
+    """
+    if mount.mount != "body":
+        return None
+    ts, _, ws = buffer.window(*still)
+    t, _, w = buffer.window(*move)
+    if len(ts) < 2 or len(t) < 2 or not np.any(w) or t[0] - move[0] > max_age_s or move[1] - t[-1] > max_age_s:
+        return None
+    bias = ws.mean(axis=0)
+    sigma_w = float(np.sqrt(np.mean(np.var(ws, axis=0))))  # one sample's rate noise (rad/s) while still
+    dt = np.diff(t)
+    R_imu = ordered_product(exp_so3((w[:-1] - bias) * dt[:, None]))
+    T = float(t[-1] - t[0])
+    sigma = math.sqrt(sigma_w ** 2 * T * float(np.mean(dt)) + (sigma_w / math.sqrt(len(ws)) * T) ** 2
+                      + (GYRO_SCALE_ERROR * rotation_angle(R_imu)) ** 2)
+    M = mount.rotation  # IMU -> body
+    return GyroRotation(M @ R_imu @ M.T, sigma, len(t))
+
+
+
+
+def gyro_turn(buffer: ImuBuffer, mount: ImuMount, t0: float, t1: float, time_offset_s: float = 0.0,
+              max_gap_s: float | None = None) -> np.ndarray | None:
+    """The body's rotation from frame time ``t1`` into frame time ``t0`` (p_t0 = R p_t1) from the gyro's rate,
+    integrated piecewise-constant over [t0, t1] (each sample's rate held until the next, the newest one's up to
+    ``t1``: a frame set reaches the pipeline once the samples before its stamp are in); the IMU's stamps plus
+    ``time_offset_s`` are the cameras' clock. None with an IMU inside a camera (it turns with its bar), no
+    gyro (every rate exactly 0), or without a sample at or before ``t0`` and one within ``max_gap_s``
+    (default one sample period, at least 5 ms) of ``t1``: the samples do not cover the interval.
+
+    No bias is subtracted: a MEMS gyro's bias (below 0.01 rad/s) turns a camera by less than 0.2 px over a
+    frame interval of 1/30 s at 500 px focal length, a fraction of Lucas-Kanade's reach of a quarter window
+    (docs/PIPELINE.md, "Performance notes")."""
+    if mount.mount != "body" or not t1 > t0:
+        return None
+    gap = max(buffer.period_s if buffer.period_s == buffer.period_s else 0.0, 0.005) \
+        if max_gap_s is None else max_gap_s
+    a, b = t0 - time_offset_s, t1 - time_offset_s
+    t, _, w = buffer.window(a - gap, b + gap)
+    if len(t) < 2 or t[0] > a or t[-1] < b - gap or not np.any(w):
+        return None
+    # the time each sample's rate holds within [a, b]
+    dt = np.clip(np.r_[t[1:], b], a, b) - np.clip(t, a, b)
+    R_imu = ordered_product(exp_so3(w * dt[:, None]))
+    M = mount.rotation  # IMU -> body
+    return M @ R_imu @ M.T
+
+
+def camera_turns(R_body: np.ndarray, W0: np.ndarray, W1: np.ndarray) -> np.ndarray:
+    """Each camera's rotation between two frame times, f_t1 = R f_t0 (bearings in the camera frame): (M, 3, 3)
+    from the body's rotation ``R_body`` (p_t0 = R_body p_t1) and the cameras' bent rotations (camera -> body)
+    ``W0`` and ``W1`` (M, 3, 3) at the two times: R = W1^T R_body^T W0."""
+    return np.swapaxes(W1, -1, -2) @ R_body.T @ W0
+
+
+class CameraTurns:
+    """Each camera's rotation from one frame set to the next, from the gyro: the start of every KLT track's
+    search through a move (docs/PIPELINE.md, "Performance notes").
+
+    ``extrinsics`` (:class:`~.extrinsics.FrameExtrinsics`, None without an IMU) names the rig; ``buffer``/
+    ``mount`` the gyro. :meth:`advance` answers per frame set with the body's turn seen through each camera's
+    canonical rotation. Not through the bent one: the bars' state follows the accelerometer bias that the
+    estimation stage finds, so a start from it would make the tracks (and every estimate) depend on when that
+    stage ran, and the node would no longer give the replay's estimates; the bending changes the turn's axis
+    by its few degrees, a fraction of a pixel to a few pixels of the start. None for every camera without an
+    IMU on the body, for a camera's first frame, or while the gyro's samples do not cover the interval: the
+    trackers then predict from the images alone."""
+
+    def __init__(self, buffer: ImuBuffer, mount: ImuMount | None, extrinsics, num_cameras: int,
+                 time_offset_s: float = 0.0):
+        self.buffer, self.mount, self.extrinsics = buffer, mount, extrinsics
+        self.num_cameras = int(num_cameras)
+        self.time_offset_s = float(time_offset_s)
+        self._stamp = np.full(self.num_cameras, np.nan)  # each camera's previous image (frame set stamp)
+
+    def advance(self, stamp: float, present=None, max_interval_s: float = math.inf) -> list:
+        """The rotation of each camera (f_now = R f_last) since its previous image, (1, 3, 3), or None each;
+        ``present (M,) bool: the cameras with an image in this frame set
+        (default all). None too for a camera whose previous image is more than ``max_interval_s`` old: across
+        the gap between two streams or snapshots the tracks are not followed but linked by descriptors (a
+        whole move's translation leaves the turn's prediction far off, and a wrong KLT link is worse than
+        none)."""
+        out = [None] * self.num_cameras
+        if self.mount is None or self.mount.mount != "body" or self.extrinsics is None:
+            return out
+        cams = np.arange(self.num_cameras) if present is None else np.flatnonzero(np.asarray(present, bool))
+        W = self.extrinsics.rig.rotations
+        body = {}  # the body's turn since each distinct previous stamp
+        for i in cams:
+            t0 = float(self._stamp[i])
+            if not stamp - t0 <= max_interval_s:  # (NaN: the camera's first image)
+                continue
+            if t0 not in body:
+                body[t0] = gyro_turn(self.buffer, self.mount, t0, stamp, self.time_offset_s)
+            R = body.get(t0)
+            if R is not None:  # the gyro's turn through the camera's canonical rotation
+                out[i] = camera_turns(R, W[i], W[i])[None]
+        self._stamp[cams] = stamp
+        return out
+
+
+__all__ = ["GYRO_SCALE_ERROR", "CameraTurns", "GyroRotation", "camera_turns", "gyro_turn", "ordered_product",
+           "rotation_between"]

@@ -1,0 +1,70 @@
+"""The IMU's own gravity at any stamp of a recording: the reference an estimate's gravity is scored against.
+
+The accelerometer reads the specific force a = -g only while the rig is still, so the reference at a stamp
+is the mean of the still samples within ``window_s`` of it. Which samples are still is decided by the one
+stillness test of the front end (:mod:`nrmpc_ros.frontend.zupt`: its noise estimated once from the whole
+recording, or from the messages' covariances), the same test that decides when the pipeline measures a hold;
+the mean needs as many samples as a hold's (:attr:`ImuConfig.min_samples
+<nrmpc_ros.frontend.imu.ImuConfig.min_samples>`) and becomes body-frame gravity through the rig's IMU mount
+as :meth:`ImuBuffer.gravity <nrmpc_ros.frontend.imu.ImuBuffer.gravity>` does (docs/CONVENTIONS.md, "Gravity
+measurements"). Without a rig (or one without an ``imu`` block) the IMU frame is taken as the body frame.
+
+The samples stay in the reference's arrays rather than in an :class:`~nrmpc_ros.frontend.imu.ImuBuffer`: the
+buffer keeps a bounded, time-ordered history for a live stream, while scoring asks about any stamp of a
+recording of any length, in any order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.deformation import gravity_from_accelerometer
+from ..core.rig import Rig
+from ..errors import InputError
+from .imu import ImuConfig
+from .reference import Reference
+from .zupt import ImuNoise, ZuptConfig, estimate_noise, still_mask
+
+WINDOW_S = 0.25  # default half-width (s) of the window around a stamp (several stillness windows)
+NOMINAL_GRAVITY = 9.81  # m/s^2, the magnitude given to gravity without a rig
+
+
+class ImuReference:
+    """Body-frame gravity from a recording's still accelerometer samples around any stamp.
+
+    ``noise`` is the noise the stillness test used (None when the recording is too short to estimate it and
+    its messages carry no covariances: then no stamp has an IMU gravity).
+    """
+
+    def __init__(self, ref: Reference, rig: Rig | None = None, zupt: ZuptConfig | None = None,
+                 imu: ImuConfig | None = None):
+        self.rig = rig
+        self.min_samples = (imu or ImuConfig()).min_samples
+        self._t, self._a = ref.imu_t, ref.imu_a
+        self.noise: ImuNoise | None = None
+        self.still = np.zeros(len(ref.imu_t), bool)
+        if ref.has_imu:
+            try:
+                self.noise = estimate_noise(ref.imu_t, ref.imu_a, ref.imu_w, zupt, ref.imu_covariance, "the IMU")
+            except InputError:
+                return
+            self.still = still_mask(ref.imu_t, ref.imu_a, ref.imu_w, self.noise, zupt, "the IMU")
+
+    def gravity_at(self, stamp: float, window_s: float = WINDOW_S) -> np.ndarray | None:
+        """Gravity (body frame, m/s^2) from the still samples within +-``window_s`` of ``stamp``; None with fewer
+        than ``min_samples`` of them."""
+        i, j = np.searchsorted(self._t, [stamp - window_s, stamp + window_s])
+        a = self._a[i:j][self.still[i:j]]
+        if len(a) < self.min_samples:
+            return None
+        mean = a.mean(axis=0)
+        if self.rig is not None and self.rig.imu is not None:
+            try:
+                return gravity_from_accelerometer(self.rig, mean)
+            except InputError:  # a mean the mount cannot turn into gravity (as ImuBuffer.gravity refuses it)
+                return None
+        gm = self.rig.gravity_magnitude if self.rig is not None else NOMINAL_GRAVITY
+        return -gm * mean / np.linalg.norm(mean)
+
+
+__all__ = ["ImuReference", "WINDOW_S"]

@@ -1,0 +1,33 @@
+"""Scores against ground truth: the still holds of the ground truth, which holds got an estimate, which did not."""
+
+import numpy as np
+
+from nrmpc_ros.core.so3 import exp_so3
+from nrmpc_ros.frontend.estimates_csv import EstimateRow
+from nrmpc_ros.frontend.evaluation import evaluate, static_holds
+from nrmpc_ros.frontend.reference import Reference
+
+
+def _reference():
+    """Ground truth at 10 Hz: still at pose A (0.0-0.3 s), two moving samples, still at pose B (0.6-0.9 s),
+    one more moving sample at the end."""
+    angles = [0, 0, 0, 0, 0.1, 0.2, 0.3, 0.3, 0.3, 0.3, 0.5]
+    R = np.array([exp_so3(np.array([0.0, 0.0, a])) for a in angles])
+    return Reference(pose_t=0.1 * np.arange(len(angles)), pose_R=R, pose_p=np.zeros((len(angles), 3)))
+
+
+def test_static_holds_are_the_runs_of_identical_poses():
+    holds = static_holds(_reference())
+    assert np.allclose(holds, [(0.0, 0.3), (0.6, 0.9)])  # single moving samples are no holds
+    assert static_holds(Reference()) == []
+
+
+def test_evaluate_counts_the_holds_with_an_estimate_and_the_estimates_outside():
+    ref = _reference()
+    R = ref.pose_R[0].T @ ref.pose_R[7]
+    rows = [EstimateRow(0.7, 0.1, "6pt-bending", R, np.zeros(3), None, 10, 1.0),
+            EstimateRow(0.41, 0.1, "6pt-bending", R, np.zeros(3), None, 10, 1.0)]  # stamped while moving
+    ev = evaluate(rows, ref)
+    assert (ev.holds, ev.holds_with_estimate, ev.outside_holds) == (2, 1, 1)
+    assert ev.errors["rotation_deg"][0] < 1e-9 and ev.errors["rotation_deg"][1] > 1.0
+    assert np.isnan(ev.errors["gravity_vs_gt_deg"]).all()  # no gravity estimated, none in the ground truth

@@ -1,0 +1,110 @@
+"""The body's rotation between two holds from the gyro (frontend.gyro): bias-corrected integration over the
+move, its std covering the error, the IMU's mount, and no rotation without gyro samples."""
+
+import math
+
+import numpy as np
+import pytest
+
+from nrmpc_ros.core.rig import ImuMount
+from nrmpc_ros.core.so3 import exp_so3, rotation_angle
+from nrmpc_ros.frontend.gyro import camera_turns, gyro_turn, ordered_product, rotation_between
+from nrmpc_ros.frontend.imu import ImuBuffer
+
+RATE_HZ = 200.0
+AXIS = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+TURN = math.radians(25.0)
+
+
+def samples(rng, bias, noise, gyro=True):
+    """1 s still, a 1.5 s cosine-profile turn of TURN about AXIS (IMU frame), 1 s still: (buffer, truth)."""
+    buf = ImuBuffer()
+    for t in np.arange(0.0, 3.5, 1.0 / RATE_HZ):
+        u = min(max((t - 1.0) / 1.5, 0.0), 1.0)
+        rate = TURN * 0.5 * math.pi * math.sin(math.pi * u) / 1.5 if 0.0 < u < 1.0 else 0.0
+        w = rate * AXIS + bias + rng.normal(scale=noise, size=3) if gyro else None
+        buf.add(t, [0.0, 0.0, 9.81], w)
+    return buf, exp_so3(TURN * AXIS)
+
+
+def test_ordered_product_keeps_the_order(rng):
+    Rs = exp_so3(rng.normal(size=(9, 3)))
+    R = np.eye(3)
+    for x in Rs:
+        R = R @ x
+    assert np.allclose(ordered_product(Rs), R) and np.allclose(ordered_product(Rs[:0]), np.eye(3))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_turn_between_two_holds_is_found_within_its_std(seed):
+    rng = np.random.default_rng(seed)
+    buf, truth = samples(rng, bias=np.array([0.004, -0.003, 0.002]), noise=0.002)
+    turn = rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1)
+    err = rotation_angle(truth.T @ turn.R)
+    assert err < 3 * turn.sigma_rad and turn.sigma_rad < math.radians(1.0), (math.degrees(err), turn.sigma_rad)
+    assert turn.sigma_rad >= 0.01 * TURN  # the scale error bounds it from below
+    # the bias (0.005 rad/s) over the 1.6 s move would leave about 0.5 deg: the correction removed it
+    assert err < math.radians(0.3)
+
+
+def test_the_imu_mount_turns_the_rotation_into_the_body_frame(rng):
+    buf, truth = samples(rng, bias=np.zeros(3), noise=1e-4)
+    M = exp_so3(np.array([0.0, 0.0, math.pi / 2]))  # IMU -> body
+    turn = rotation_between(buf, ImuMount(rotation=M), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1)
+    assert rotation_angle((M @ truth @ M.T).T @ turn.R) < math.radians(0.05)
+
+
+def test_no_rotation_without_gyro_samples_or_inside_a_camera(rng):
+    buf, _ = samples(rng, bias=np.zeros(3), noise=0.002, gyro=False)
+    assert rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1) is None
+    buf, _ = samples(rng, bias=np.zeros(3), noise=0.002)
+    assert rotation_between(buf, ImuMount(mount="cam0"), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1) is None
+    assert rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 5.0), max_age_s=0.1) is None  # samples end early
+
+
+def test_gyro_turn_between_frames_integrates_the_rate_over_the_interval(rng):
+    """Piecewise-constant integration over [t0, t1] (interior of the cosine turn, frame times off the sample
+    grid) matches the truth; None where the samples do not cover the interval or inside a camera."""
+    buf, _ = samples(rng, bias=np.zeros(3), noise=0.0)
+
+    def angle(t):  # the cosine profile's angle turned by time t
+        u = min(max((t - 1.0) / 1.5, 0.0), 1.0)
+        return TURN * 0.5 * (1.0 - math.cos(math.pi * u))
+
+    for t0 in (1.3013, 1.8421, 2.2007):
+        t1 = t0 + 1.0 / 30.0
+        R = gyro_turn(buf, ImuMount(), t0, t1)
+        truth = exp_so3((angle(t1) - angle(t0)) * AXIS)
+        # a held rate errs by about half a sample's change of angle per step: far below 1e-4 rad here
+        assert rotation_angle(truth.T @ R) < 1e-4
+    assert gyro_turn(buf, ImuMount(), 3.3, 3.6) is None  # the samples end more than a period before t1
+    # the newest sample's rate holds up to t1 when it is less than a sample period old
+    last = 1.0 + 1.5 * 0.4  # inside the turn, the frame stamp just after a sample
+    t_last = buf.window(0.0, last)[0][-1]
+    assert last - t_last < 1.0 / RATE_HZ
+    R = gyro_turn(ImuBufferUpTo(buf, t_last), ImuMount(), last - 1.0 / 30.0, last)
+    assert R is not None and rotation_angle(exp_so3((angle(last) - angle(last - 1.0 / 30.0)) * AXIS).T @ R) < 1e-3
+    assert gyro_turn(buf, ImuMount(mount="cam0"), 1.3, 1.4) is None
+    M = exp_so3(np.array([0.0, 0.0, math.pi / 2]))  # IMU -> body
+    R = gyro_turn(buf, ImuMount(rotation=M), 1.3, 1.4)
+    assert rotation_angle((M @ gyro_turn(buf, ImuMount(), 1.3, 1.4) @ M.T).T @ R) < 1e-12
+
+
+class ImuBufferUpTo:
+    """The samples of a buffer up to a stamp (those after it have not arrived yet)."""
+
+    def __init__(self, buf, t_end):
+        self.buf, self.t_end, self.period_s = buf, t_end, buf.period_s
+
+    def window(self, t0, t1):
+        return self.buf.window(t0, min(t1, self.t_end))
+
+
+def test_camera_turns_compose_the_body_turn_with_the_bending(rng):
+    """A world direction seen by each camera at t0 and t1: f1 = R f0 with R from camera_turns."""
+    R_body = exp_so3(rng.normal(size=3) * 0.1)  # p_t0 = R_body p_t1
+    W0, W1 = exp_so3(rng.normal(size=(4, 3))), exp_so3(rng.normal(size=(4, 3)))  # camera -> body
+    d0 = rng.normal(size=3)  # a direction in the body frame at t0
+    f0 = np.einsum("mji,j->mi", W0, d0)
+    f1 = np.einsum("mji,j->mi", W1, R_body.T @ d0)
+    np.testing.assert_allclose(np.einsum("mij,mj->mi", camera_turns(R_body, W0, W1), f0), f1, atol=1e-12)
