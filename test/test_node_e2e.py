@@ -400,6 +400,11 @@ def test_faults_are_dropped_counted_reported_and_estimates_resume(bag, replayed,
         faults_run(bag, replayed, tmp_path, saturated)
 
 
+# A hold's estimate is stamped at a frame of its settled part; when frames were dropped, another of them: the
+# bag's holds last seconds and are seconds apart, so half a second tells the same hold from another.
+HOLD_STAMP_SLACK_US = 500_000
+
+
 def busy_drops(listener: Listener) -> int:
     """Frame sets the node's worker has dropped so far because the estimator was busy."""
     return int(listener.last("estimation")[2].get("dropped: worker: frame set dropped while the estimator is busy", 0))
@@ -455,14 +460,18 @@ def faults_run(bag, replayed, tmp_path, saturated: bool = False):
     # estimates resume: the second pass, clean, gives the replay's estimates (every hold, at its stamp)
     second = listener.got["gravity"][first_estimates:]
     stamps = [stamp_key(msg_stamp(m.header)) for m in second]
-    assert stamps[-len(replayed):] == sorted(replayed), (first_estimates, stamps)
-    if not saturated and busy_drops(listener) == busy_before:  # the node kept up: the replay's numbers exactly
+    busy_second = busy_drops(listener) - busy_before
+    if not saturated and busy_second == 0:  # the node kept up: the replay's stamps and numbers exactly
+        assert stamps[-len(replayed):] == sorted(replayed), (first_estimates, stamps)
         check_against_replay(listener, replayed, stamps[-len(replayed):])
-    else:  # frames of moves dropped while busy (a saturated or slow machine): other links, the same holds,
-        # within the published uncertainty
+    else:  # frames dropped while busy (a saturated or slow machine): the same holds, each estimate stamped at a
+        # frame of that hold's settled part (another frame may have been its anchor), within the published std
         got = listener.gravity_by_stamp()
-        for s in stamps[-len(replayed):]:
-            row = replayed[s]
+        mine = stamps[-len(replayed):]
+        assert len(mine) == len(replayed), (busy_second, first_estimates, stamps)
+        for s, r in zip(mine, sorted(replayed)):
+            assert abs(s - r) <= HOLD_STAMP_SLACK_US, (busy_second, s, r, stamps)
+            row = replayed[r]
             g = np.array([float(row[k]) for k in ("gx", "gy", "gz")])
             angle = math.degrees(math.acos(min(1.0, float(got[s] @ g) / (np.linalg.norm(got[s]) * np.linalg.norm(g)))))
             assert angle <= 3.0 * float(row["gravity_sigma_deg"]), (s, angle, row["gravity_sigma_deg"])
