@@ -59,13 +59,12 @@ from .estimators import estimate, pair_method
 from .matches import Matches
 from .rig import Rig
 from .sequence import (
-    RIGID_REASON,
     SequenceEstimate,
     SequenceOptions,
+    adjust_sequence,
     choose_gravity,
     distinct_candidates,
     refine_sequence,
-    repair_links,
     resect_on_landmarks,
     triangulated,
 )
@@ -742,26 +741,9 @@ class IncrementalSequence:
         obs, _ = Observations.from_arrays(view, cam, track, f, K, s.scales())
         seen = (np.bincount(obs.point, minlength=obs.num_points) >= 2)[obs.point]
         obs, _ = obs.subset(seen)
-        refine = dict(priors=self._priors(K), max_iterations=self.options.max_iterations,
-                      rounds=self.options.inlier_rounds, huber_k=self.options.estimator.huber_k,
-                      tol=self.options.relative_tolerance)
-        res, inl = refine_sequence(self.model_rig, obs, np.array(s.R), np.array(s.t), s.gravity, self.threshold,
-                                   **refine)
-        res, inl, repairs = repair_links(self.model_rig, self.tracks(), obs, res, inl, self.method, self.threshold,
-                                         self.options, self.seed, **refine)
-        st = res.state
-        grav = sig = None
-        reason = ""
-        if self.with_gravity and st.gravity is not None:
-            grav = st.view_gravity
-            sig = np.array([res.gravity_sigma_rad(i) for i in range(K)])
-        elif self.method != "6pt-nonbending":
-            reason = RIGID_REASON
-        inliers = np.zeros(len(view), bool)
-        inliers[np.flatnonzero(seen)[inl]] = True
-        return SequenceEstimate(method=self.method, success=True, R=st.R, t=st.t, gravity=grav,
-                                gravity_sigma_rad=sig, inliers=inliers, time_s=time.perf_counter() - t0,
-                                reason=reason, bundle=res, link_repairs=repairs)
+        return adjust_sequence(self.model_rig, self.tracks(), obs, np.flatnonzero(seen), np.array(s.R),
+                               np.array(s.t), s.gravity, self.with_gravity, self.method, self._priors(K),
+                               self.threshold, self.options, self.seed, t0)
 
 
 __all__ = ["IncrementalSequence", "NewSequence", "SequenceRecord", "StartReason", "ViewEstimate", "parallel_bars"]

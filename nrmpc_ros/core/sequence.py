@@ -643,6 +643,21 @@ def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", see
             gravity = chosen
         else:
             R, t, gravity = chosen.R, chosen.t, chosen.gravity
+    out = adjust_sequence(model_rig, tracks, obs, obs_index, R, t, gravity, with_gravity, method, priors, threshold,
+                          opts, seed, t0)
+    out.pair_methods, out.candidates = pair_methods, n_cand
+    return out
+
+
+def adjust_sequence(model_rig: Rig, tracks: Tracks, obs: Observations, obs_index: np.ndarray, R, t, gravity,
+                    with_gravity: bool, method: str, priors, threshold: float, opts: SequenceOptions, seed: int,
+                    t0: float) -> SequenceEstimate:
+    """The joint adjustment of a placed sequence and its result: every orchestrator's last step.
+
+    ``obs`` are the observations adjusted, ``obs_index`` their rows in ``tracks`` (the result's inlier mask is
+    over the tracks); ``R``, ``t``, ``gravity`` the start (``with_gravity`` False: the rig is taken as rigid). The
+    robust adjustment (:func:`refine_sequence`) is followed by the repair of broken links (:func:`repair_links`);
+    every view's gravity and its std come from the adjusted sequence's one gravity."""
     refine = dict(priors=priors, max_iterations=opts.max_iterations, rounds=opts.inlier_rounds,
                   huber_k=opts.estimator.huber_k, tol=opts.relative_tolerance)
     res, inl = refine_sequence(model_rig, obs, R, t, gravity, threshold, **refine)
@@ -654,14 +669,14 @@ def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", see
     reason = ""
     if with_gravity and st.gravity is not None:
         grav = st.view_gravity
-        sig = np.array([res.gravity_sigma_rad(k) for k in range(K)])
+        sig = np.array([res.gravity_sigma_rad(k) for k in range(len(st.R))])
     elif method != "6pt-nonbending":
         reason = RIGID_REASON
     return SequenceEstimate(method=method, success=True, R=st.R, t=st.t, gravity=grav, gravity_sigma_rad=sig,
                             inliers=inliers, time_s=time.perf_counter() - t0, reason=reason, bundle=res,
-                            pair_methods=pair_methods, candidates=n_cand, link_repairs=repairs)
+                            link_repairs=repairs)
 
 
-__all__ = ["RIGID_REASON", "SequenceEstimate", "SequenceOptions", "broken_link", "choose_gravity",
+__all__ = ["RIGID_REASON", "SequenceEstimate", "SequenceOptions", "adjust_sequence", "broken_link", "choose_gravity",
            "distinct_candidates", "estimate_sequence", "link_retention", "refine_sequence", "repair_links",
            "triangulated"]
