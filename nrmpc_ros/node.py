@@ -29,7 +29,7 @@ try:  # rclpy is optional for the package; --help works without it
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-    from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+    from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, InvalidParameterValueException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -44,6 +44,7 @@ except ImportError as _exc:  # pragma: no cover - exercised only without ROS
 NODE_NAME = "estimator"
 MARKERS = ("visualization_msgs/msg/MarkerArray", "~/markers")  # latched: the last state of the rig
 SUMMARY_LINGER_S = 0.5  # after the shutdown summary: time for a reliable /rosout delivery on a busy machine
+IMU_DRAIN_MAX = 2000  # IMU samples taken from the subscription's queue in one callback (2 s at 1 kHz)
 SIGNAL_WAKE_S = 0.1  # longest wait of the executor before Python sees a signal that arrived during it
 EXIT_S = 0.4  # after the linger: destroying the node and the context, ending the process (measured: 0.1-0.25 s)
 
@@ -51,6 +52,20 @@ EXIT_S = 0.4  # after the linger: destroying the node and the context, ending th
 def _sensor_qos(depth: int):
     return QoSProfile(history=qos_profile_sensor_data.history, depth=int(depth),
                       reliability=qos_profile_sensor_data.reliability, durability=qos_profile_sensor_data.durability)
+
+
+def take_waiting(sub, limit: int):
+    """The messages waiting in ``sub``'s queue, up to ``limit``, taken as the executor takes them; stops at the
+    first empty take (or when the subscription is gone)."""
+    for _ in range(limit):
+        try:
+            with sub.handle:
+                got = sub.handle.take_message(sub.msg_type, sub.raw)
+        except InvalidHandle:  # destroyed meanwhile (shutdown)
+            return
+        if got is None:
+            return
+        yield got[0]
 
 
 class EstimatorNode(Node):
@@ -75,9 +90,9 @@ class EstimatorNode(Node):
         self._info = {i: self.create_subscription(CameraInfo, self.resolve_topic_name(c.info_topic),
                                                   lambda m, i=i: self._on_info(i, m), _sensor_qos(1))
                       for i, c in enumerate(self.rig.cameras) if c.info_topic}
+        self._imu_sub = None
         if imu:
-            self.create_subscription(Imu, imu, lambda m: self.service.on_imu(m, self._now()),
-                                     _sensor_qos(cfg.imu_queue_size))
+            self._imu_sub = self.create_subscription(Imu, imu, self._on_imu, _sensor_qos(cfg.imu_queue_size))
         outputs = {**OUTPUTS, "diag": ("diagnostic_msgs/msg/DiagnosticArray", "/diagnostics")}
         if not cfg.publish_tf or importlib.util.find_spec("tf2_msgs") is None:  # not always installed
             del outputs["tf"]
@@ -141,6 +156,14 @@ class EstimatorNode(Node):
     def _now(self) -> float | None:
         ns = self.get_clock().now().nanoseconds
         return ns * 1e-9 if ns > 0 else None  # simulated time before the first /clock: no clock
+
+    def _on_imu(self, msg) -> None:
+        """One IMU sample, then the samples already waiting in the subscription's queue: the executor takes one
+        message per subscription per turn, so a 200-1000 Hz IMU would fall seconds behind the cameras' 10-60
+        frames a second whenever the process is busy (docs/ARCHITECTURE.md, "The node's two workers")."""
+        self.service.on_imu(msg, self._now())
+        for waiting in take_waiting(self._imu_sub, IMU_DRAIN_MAX):
+            self.service.on_imu(waiting, self._now())
 
     def _on_timer(self) -> None:
         self.service.tick()

@@ -93,6 +93,37 @@ def test_work_leaves_merged_by_stamp_whatever_order_the_topics_arrive_in(rig):
     assert len([s for k, s in runs[0][:frames[1][0]] if k == "imu"]) > 0
 
 
+def round_robin(msgs):
+    """The messages as a busy process takes them: each topic's queue in turn, one message of each at a time."""
+    queues = {}
+    for m in msgs:
+        queues.setdefault((m[1], m[2]), []).append(m)
+    out = []
+    while any(queues.values()):
+        out += [q.pop(0) for q in queues.values() if q]
+    return out
+
+
+def test_an_imu_taken_in_turns_with_the_cameras_is_waited_for(rig):
+    """A busy node takes one message per subscription in turn: the 10 Hz frames run seconds (of stamps) ahead of
+    the 200 Hz IMU, which keeps arriving. The sets wait for it (up to imu_max_lag_s), so the work is the same
+    as in step; only frames that far ahead, or an IMU that sends nothing while frames imu_wait_s newer come, let
+    a set go without its samples."""
+    f, work, _ = feeder(rig)
+    feed(f, messages())
+    f.end()
+    in_step = trace(work)
+    f, work, _ = feeder(rig)
+    feed(f, round_robin(messages()))
+    f.end()
+    assert trace(work) == in_step
+    f, work, _ = feeder(rig, imu_max_lag_s=1.0)  # the IMU lags beyond what the sets may wait
+    feed(f, round_robin(messages()))
+    f.end()
+    sets = [i for i, (k, _) in enumerate(trace(work)) if k == "frames"]
+    assert len(sets) == 20 and trace(work) != in_step
+
+
 def test_without_imu_sets_leave_at_once_and_with_a_stopped_imu_after_the_wait(rig):
     f, work, _ = feeder(rig, imu_topic=None)
     feed(f, [m for m in messages(seconds=0.5) if m[1] == "image"])

@@ -48,3 +48,23 @@ def test_a_camera_without_images_is_missing_only_after_the_others_published_for_
     assert len(events) == 1 and "camera /cam2: no image yet" in events[0][1] and w.silent() == ["/cam2"]
     first = w.seen(2, 101.5)
     assert "camera /cam2 is publishing (its first image" in first[0][1] and w.silent() == []
+
+
+def test_a_check_after_a_stall_of_the_process_judges_nothing():
+    """A busy process runs its timer late, before the images that arrived meanwhile are taken from their
+    queues: that check says nothing, the next one on time judges what came."""
+    w = CameraWatch(NAMES, timeout_s=1.0, check_period_s=0.5)
+    for k in range(5):
+        t = 0.5 * k
+        for i in range(3):
+            w.seen(i, t)
+        assert w.check(t) == []
+    assert w.check(4.0) == [] and w.stalls == 1  # 2 s of silence seen by a check 1.5 s late
+    for i in range(3):
+        w.seen(i, 4.01)  # the images queued during the stall
+    assert w.check(4.5) == [] and w.ended is None
+    assert w.check(5.0) == [] and [lvl for lvl, _ in w.check(5.5)] == ["ended"]  # a real end: checks on time
+    stalled = CameraWatch(NAMES, timeout_s=1.0)  # without the period every late check judges
+    for i in range(3):
+        stalled.seen(i, 2.0)
+    assert stalled.check(2.0) == [] and [lvl for lvl, _ in stalled.check(4.0)] == ["ended"]

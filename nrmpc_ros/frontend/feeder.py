@@ -17,14 +17,20 @@ are the replay's whenever the same messages arrive. Per message:
    leaves after every IMU sample stamped before t + ``imu_lead_s`` and before
    the others (a sample at the frame's own stamp may be the first of a move),
    so the stillness test around t sees the same samples whatever order the
-   topics arrived in (within ``imu_wait_s`` of each other). A set waits
-   for an IMU sample at or after t + ``imu_lead_s``, but no longer than until
-   frames ``imu_wait_s`` newer arrived (the IMU is late or stopped); it
-   leaves at once when there is no IMU, and at :meth:`Feeder.end`. An IMU
-   sample stamped s waits until no frame set older than s - ``imu_lead_s``
-   can come any more: every camera that published in the last ``imu_wait_s``
-   (of IMU time) has sent a frame that new, and the frame grouping holds none
-   older.
+   topics arrived in. A set waits for an IMU sample at or after
+   t + ``imu_lead_s``; it leaves without one when frames ``imu_wait_s`` newer
+   arrived and no IMU sample arrived meanwhile (the IMU stopped), or frames
+   ``imu_max_lag_s`` newer arrived (the IMU lags too far), at once when there
+   is no IMU, and at :meth:`Feeder.end`. An IMU sample stamped s waits until
+   no frame set older than s - ``imu_lead_s`` can come any more: every live
+   camera has sent a frame that new, and the frame grouping holds none older.
+   A camera is live while its stamps are within ``imu_wait_s`` of the IMU's,
+   or it sent a frame while the IMU advanced by less than that, up to
+   ``imu_max_lag_s`` behind. Whether an input stopped is judged by what
+   arrived, not by stamps alone: a busy process takes its subscriptions'
+   queues in turns, one message of each at a time, so a 200 Hz IMU's
+   samples arrive seconds of stamps behind 10 Hz frames although nothing
+   stopped.
 
 Work items go to ``sink`` as :class:`Work` (kind "imu", "frames", "flush",
 "restart", "reset"). Every drop goes to the :class:`~nrmpc_ros.frontend.droplog.DropLog`.
@@ -79,8 +85,10 @@ class FeederConfig:
                                "long after its stamp (s); 0: before its stamp, so a frame taken just before the rig "
                                "moves (a snapshot at the end of its hold) is judged by the samples before it",
                                lo=0.0, hi=10.0)
-    imu_wait_s: float = option(0.5, "... or, without them, once frames this much newer arrived (s): the IMU is "
-                               "late or stopped", lo=0.0, hi=60.0)
+    imu_wait_s: float = option(0.5, "... or, without them, once frames this much newer arrived and no IMU sample "
+                               "meanwhile (s): the IMU stopped", lo=0.0, hi=60.0)
+    imu_max_lag_s: float = option(5.0, "... or once frames this much newer arrived, IMU samples or not (s): the "
+                                  "IMU lags too far behind the cameras to wait for", lo=0.0, hi=600.0)
 
     def __post_init__(self):
         check(self, "input config")
@@ -128,7 +136,9 @@ class Feeder:
         self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
         self._imu: deque = deque()  # (stamp, accel, gyro, covariances or None)
         self._imu_newest = -math.inf
+        self._cams_at_imu = -math.inf  # the cameras' newest stamp when the latest IMU sample arrived
         self._cam_newest = [-math.inf] * self.rig.num_cameras  # newest frame accepted per camera
+        self._cam_seen = [-math.inf] * self.rig.num_cameras  # the IMU's newest stamp when each camera last sent
 
     # ------------------------------------------------------------------ input
     def image(self, index: int, msg, now: float | None = None) -> None:
@@ -236,9 +246,11 @@ class Feeder:
                            f"{stamp:.6f} s is not newer than the last one ({self._imu_newest:.6f} s)")
                 return
             self._imu_newest = stamp
+            self._cams_at_imu = max(self._cam_newest)
             self._imu.append((stamp, *payload))
         else:
             self._cam_newest[stream] = max(self._cam_newest[stream], stamp)
+            self._cam_seen[stream] = self._imu_newest
             self._emit_sets(self.sync.add(stream, stamp, payload))
         self._release()
 
@@ -253,22 +265,30 @@ class Feeder:
             self._frames.append((FrameSet(s.stamp, list(s.items), list(s.stamps)), arrival))
 
     def _frontier(self) -> float:
-        """No frame set to come is older than this (s): the sets waiting, the frames grouped, the cameras that
-        published in the last imu_wait_s; and IMU samples leave at least imu_wait_s behind the newest."""
-        wait = self.config.imu_wait_s
-        live = [t for t in self._cam_newest if t >= self._imu_newest - wait]
+        """No frame set to come is older than this (s): the sets waiting, the frames grouped, the live cameras'
+        newest frames (module docstring, step 4); and IMU samples leave at least imu_wait_s behind the newest."""
+        wait, lag, newest = self.config.imu_wait_s, self.config.imu_max_lag_s, self._imu_newest
+        live = [t for t, seen in zip(self._cam_newest, self._cam_seen)
+                if t >= newest - wait or (t >= newest - lag and seen >= newest - wait)]
         waiting = self._frames[0][0].stamp if self._frames else math.inf
-        return min(waiting, self.sync.oldest, min(live, default=math.inf), self._imu_newest - wait)
+        return min(waiting, self.sync.oldest, min(live, default=math.inf), newest - wait)
+
+    def _imu_gone(self, stamp: float) -> bool:
+        """Whether a frame set stamped ``stamp`` leaves without its IMU samples (module docstring, step 4): frames
+        imu_wait_s newer came, and as much since the IMU's latest sample arrived; or frames imu_max_lag_s newer."""
+        newest, wait = max(self._cam_newest), self.config.imu_wait_s
+        ahead = newest - stamp
+        return ahead > self.config.imu_max_lag_s or (ahead > wait and newest - self._cams_at_imu > wait)
 
     def _release(self, final: bool = False) -> None:
         """Frame sets and IMU samples out, merged by stamp (module docstring, step 4)."""
-        lead, wait = self.config.imu_lead_s, self.config.imu_wait_s
+        lead = self.config.imu_lead_s
         frames, imu = self._frames, self._imu
         while frames or imu:
             if frames:
                 fs, arrival = frames[0]
                 if (final or self.imu_topic is None or self._imu_newest >= fs.stamp + lead
-                        or max(self._cam_newest) > fs.stamp + wait):
+                        or self._imu_gone(fs.stamp)):
                     while imu and imu[0][0] < fs.stamp + lead:
                         self._emit_imu()
                     frames.popleft()

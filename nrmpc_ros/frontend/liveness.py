@@ -16,19 +16,30 @@ ROS time). With ``timeout_s``:
 
 :meth:`CameraWatch.seen` and :meth:`CameraWatch.check` return the events as
 (level, message) pairs to log; each change of state is reported once.
+
+With ``check_period_s`` (the period of the timer that calls
+:meth:`CameraWatch.check`), a check that comes more than 1.5 periods after
+the previous one judges nothing: the process itself was stalled (a busy
+machine), and the images that arrived meanwhile wait in its subscriptions'
+queues, unseen; the next check on time judges the silence.
 """
 
 from __future__ import annotations
 
 import math
 
+STALL_PERIODS = 1.5  # a check this many timer periods after the previous one came late: the process was stalled
+
 
 class CameraWatch:
     """State of every camera's input (see the module docstring)."""
 
-    def __init__(self, names: list, timeout_s: float):
+    def __init__(self, names: list, timeout_s: float, check_period_s: float | None = None):
         self.names = list(names)
         self.timeout_s = float(timeout_s)
+        self.late_check_s = math.inf if check_period_s is None else STALL_PERIODS * float(check_period_s)
+        self.last_check: float | None = None  # when check() last ran
+        self.stalls = 0  # checks that judged nothing: they came late
         self.last = [None] * len(self.names)  # arrival of the newest image
         self.first_any: float | None = None  # arrival of the first image of any camera
         self.state = ["waiting"] * len(self.names)  # waiting | live | stopped | missing
@@ -56,6 +67,11 @@ class CameraWatch:
 
     def check(self, now: float) -> list:
         """Events of the states that changed by ``now``; ("ended", ...) when the input ended."""
+        late = self.last_check is not None and now - self.last_check > self.late_check_s
+        self.last_check = now
+        if late:
+            self.stalls += 1
+            return []
         if self.first_any is None or self.ended is not None:
             return []
         newest = max(t for t in self.last if t is not None)

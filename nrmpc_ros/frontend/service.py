@@ -231,7 +231,7 @@ class EstimatorService:
         elif imu_mount_warning(rig):
             log("warn", imu_mount_warning(rig))
         self.stats = self.runner.stats  # a copy the worker renews after each work item (the timer reads it)
-        self.watch = CameraWatch(self.camera_topics, config.camera_timeout_s)
+        self.watch = CameraWatch(self.camera_topics, config.camera_timeout_s, config.diagnostics_period_s)
         self.frames = FrameNames(rig.body_frame, config.origin_frame or f"{rig.body_frame}_origin",
                                  tuple(c.name + config.camera_frame_suffix for c in rig.cameras))
         self.received: Counter = Counter()
