@@ -112,15 +112,16 @@ def tangent_frames(cam: Camera, uv: np.ndarray) -> TangentFrames:
 
 
 def _cubic_weights(t: np.ndarray) -> np.ndarray:
-    """Keys cubic convolution weights (a = -0.5) of the 4 taps at -1, 0, 1, 2 for fractions t (M,) -> (M, 4)."""
+    """Keys cubic convolution weights (a = -0.5) of the 4 taps at -1, 0, 1, 2 for fractions t (M,) -> (4, M),
+    one contiguous row per tap."""
     t = t.astype(np.float32)
-    out = np.empty(t.shape + (4,), np.float32)
+    out = np.empty((4,) + t.shape, np.float32)
     t2 = t * t
     t3 = t2 * t
-    out[:, 0] = -0.5 * t3 + t2 - 0.5 * t
-    out[:, 1] = 1.5 * t3 - 2.5 * t2 + 1
-    out[:, 2] = -1.5 * t3 + 2 * t2 + 0.5 * t
-    out[:, 3] = 0.5 * t3 - 0.5 * t2
+    out[0] = -0.5 * t3 + t2 - 0.5 * t
+    out[1] = 1.5 * t3 - 2.5 * t2 + 1
+    out[2] = -1.5 * t3 + 2 * t2 + 0.5 * t
+    out[3] = 0.5 * t3 - 0.5 * t2
     return out
 
 
@@ -138,19 +139,28 @@ def sample_pixels(image: np.ndarray, uv: np.ndarray) -> tuple:
     inside = np.isfinite(x) & np.isfinite(y) & (x >= 1) & (y >= 1) & (x < w - 2) & (y < h - 2)
     x = np.where(inside, x, 1.0)
     y = np.where(inside, y, 1.0)
-    x0 = np.minimum(x.astype(np.int64), w - 3)
-    y0 = np.minimum(y.astype(np.int64), h - 3)
-    wx = _cubic_weights(x - x0).T.copy()  # (4, M): tap weights as contiguous rows
-    wy = _cubic_weights(y - y0).T.copy()
+    x0 = np.minimum(x.astype(np.intp), w - 3)
+    y0 = np.minimum(y.astype(np.intp), h - 3)
+    wx = _cubic_weights(x - x0)  # (4, M)
+    wy = _cubic_weights(y - y0)
     base = (y0 - 1) * w + (x0 - 1)  # top-left tap
     flat = image.reshape(-1)
-    out = np.zeros(len(base), image.dtype)
+    idx = np.empty_like(base)
+    tap = np.empty(len(base), image.dtype)
+    out = None
     for i in range(4):  # the 4 x 4 taps, separable: along x within each row, then across the rows
-        row = base + i * w
-        r = flat[row] * wx[0]
-        for j in range(1, 4):
-            r += flat[row + j] * wx[j]
-        out += wy[i] * r
+        np.add(base, i * w, out=idx)
+        r = np.take(flat, idx) * wx[0]
+        for j in range(1, 4):  # in place: no temporaries of M values per tap
+            idx += 1
+            np.take(flat, idx, out=tap)
+            tap *= wx[j]
+            r += tap
+        if out is None:
+            out = wy[0] * r
+        else:
+            r *= wy[i]
+            out += r
     return out.reshape(shape), inside.reshape(shape)
 
 
@@ -208,7 +218,8 @@ class LocalProjection:
         for k, (i, j) in enumerate(_TERMS):
             np.multiply(sp[i], tp[j], out=basis[:, k])
         uv = np.matmul(self.coef[idx].transpose(0, 2, 1), basis).transpose(0, 2, 1)  # (m, 2, 21) @ (m, 21, P)
-        return np.where((np.abs(q) <= 1.0).all(-1, keepdims=True), uv, np.nan)
+        inside = (np.abs(q[..., 0]) <= 1.0) & (np.abs(q[..., 1]) <= 1.0)
+        return np.where(inside[..., None], uv, np.nan)
 
 
 @dataclass
@@ -346,10 +357,13 @@ def align(cam: Camera, image, ref: ReferencePatches, uv0, affine0, cfg: PatchAli
         gw = np.stack([gx * M[..., 1, 1] - gy * M[..., 1, 0], gy * M[..., 0, 0] - gx * M[..., 0, 1]], -1)
         gw /= det[..., None]
         g = gain[idx, None] / D  # (m, P)
-        JA = (gw[..., :, None] * x[None, :, None, :]).reshape(m, -1, 4)
-        Jc = -(gw * w).sum(-1)[..., None] * x[None]
-        J = np.concatenate([gw, JA, Jc], axis=-1) * g[..., None]  # b, A (row-major), c
-        J = np.concatenate([J, Iw[..., None], np.ones_like(Iw)[..., None]], axis=-1)  # gain, offset
+        J = np.empty(gw.shape[:-1] + (10,))  # b, A (row-major), c, gain, offset
+        J[..., 0:2] = gw
+        J[..., 2:6] = (gw[..., :, None] * x[None, :, None, :]).reshape(m, -1, 4)
+        J[..., 6:8] = -(gw * w).sum(-1)[..., None] * x[None]
+        J[..., :8] *= g[..., None]
+        J[..., 8] = Iw
+        J[..., 9] = 1.0
         r = gain[idx, None] * Iw + off[idx, None] - T[idx]
         Jt = J.transpose(0, 2, 1) * Wm[:, None, :]
         H = Jt @ J
