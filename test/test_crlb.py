@@ -38,6 +38,10 @@ def test_tracks_at_the_truth_give_the_bound_of_the_true_landmarks_and_mismatches
     # a landmark whose mismatch pulled its triangulation off may lose an inlier with it
     assert got.observations == pytest.approx(np.count_nonzero(views.sum(axis=1)[inl.point] >= 2), rel=0.02)
     np.testing.assert_allclose(got.median_angles(), want, rtol=0.03)
+    # the bearings' error at the truth is their noise (per axis, three dof per landmark used up)
+    dof = 2 * got.observations - 3 * got.landmarks
+    assert math.sqrt(np.sum(got.residual_rad**2) / dof) == pytest.approx(sigma, rel=0.1)
+    assert np.all(p.inlier_mask[got.used])
     # the outliers kept in: the same tracks give a different (wrong) bound
     kept = observed_sequence_bound(p.rig, _obs(p), p.R, p.t, p.gravity[0], sigma)
     assert kept.observations == len(p.tracks.view)

@@ -226,11 +226,15 @@ def sequence_bound(problem, sigma_rad: float, gravity_prior_sigma: float = math.
 @dataclass
 class ObservedBound:
     """Joint bound on each view's gravity direction from a sequence's observed tracks at a known true geometry:
-    tangent covariances (K, 2, 2) in rad^2, and the observations and landmarks that carried it."""
+    tangent covariances (K, 2, 2) in rad^2, the observations and landmarks that carried it, which observations
+    those were (indices into the given ones) and their angular distance (rad) from their landmarks
+    triangulated at the truth (the measured bearings' error at the truth, three dof per landmark used up)."""
 
     gravity: np.ndarray
     observations: int
     landmarks: int
+    used: np.ndarray | None = None
+    residual_rad: np.ndarray | None = None
 
     def median_angles(self, rng: np.random.Generator | None = None, draws: int = 2000) -> np.ndarray:
         """(K,) median angle (rad) an efficient estimator of each view's gravity reaches."""
@@ -285,9 +289,10 @@ def observed_sequence_bound(rig: Rig, obs: Observations, R, t, gravity, sigma_ra
         keep[idx[~drop]] = True
         idx = _multi_view(obs, keep)
     if len(idx) == 0:
-        return ObservedBound(np.full((K, 2, 2), np.inf), 0, 0)
+        return ObservedBound(np.full((K, 2, 2), np.inf), 0, 0, idx, np.zeros(0))
     sub, _ = obs.subset(idx)
     state, prob = triangulated(rig, sub, BundleState(R, t, g0, np.zeros((sub.num_points, 3))))
+    residual = np.linalg.norm(prob.residuals(state), axis=1) * (1.0 if sub.scale is None else sub.scale)
     exact = Observations(sub.view, sub.cam, sub.point, prob.predicted_bearings(state), K, sub.num_points,
                          None, sub.scale)
     bias = priors is not None and priors.bias_sigma_rad is not None
@@ -299,7 +304,7 @@ def observed_sequence_bound(rig: Rig, obs: Observations, R, t, gravity, sigma_ra
     res = BundleResult(state=state, layout=layout, sigma_rad=float(sigma_rad), information=info,
                        covariance=covariance_from_information(info))
     cov = np.array([res.gravity_tangent_covariance(k) for k in range(K)])
-    return ObservedBound(cov, len(sub), sub.num_points)
+    return ObservedBound(cov, len(sub), sub.num_points, idx, residual)
 
 
 __all__ = ["Bound", "KINDS", "ObservedBound", "SequenceBound", "angle_samples", "bound_from_information",
