@@ -347,11 +347,11 @@ def estimate_bounds(rig, pipe, ests: list, ref) -> list:
     landmark is a mismatch and dropped) and, with 4pt-bending, the measured gravity at its own std (and the
     accelerometer's tilt, as the pipeline estimates it). Noises, per hold and camera: ``tracks`` what the
     pipeline measured (:func:`_hold_camera_noise_rad`: the averaged track noise and the correspondence-bias
-    floor); ``ringing`` that and the residual ringing the estimation stage adds as noise; ``truth`` the RMS
-    distance of the bearings from their landmarks triangulated at the truth (what the bearings' error really
-    was, bias and ringing included, as if it were white) and the measured gravity at the accelerometer's own
-    white noise (its std without the pipeline's floor; the accelerometer's tilt as before). nan where a hold
-    of the sequence has no stamp (it came with a merge) or no ground truth."""
+    floor); ``ringing`` that and the residual ringing the estimation stage adds as noise; ``truth`` the spread
+    (robust, per axis) of the bearings about their landmarks triangulated at the truth (what the bearings'
+    error really was, bias and ringing included, as if it were white) and the measured gravity at the
+    accelerometer's own white noise (its std without the pipeline's floor; the accelerometer's tilt as before).
+    nan where a hold of the sequence has no stamp (it came with a merge) or no ground truth."""
     seq = pipe.sequence
     seqs = {s.number: s for s in seq.history + [seq.seq]}
     holds = {h.stamp: h for h in pipe.measured_holds}
@@ -414,13 +414,16 @@ def _view_bounds(rig, seq, s, k: int, truth: list, holds: list, imu_floor_deg: f
         measured[name] = bound_at(name, sigma, every)
     first = measured["tracks"]
     keep = first.used
-    if len(keep):  # each (hold, camera)'s RMS distance at the truth, per axis, the landmarks' dof shared out
+    if len(keep):
+        # each (hold, camera)'s noise at the truth, per axis: the median distance of its bearings from their
+        # landmarks over that of a 2-D Gaussian (sqrt(2 ln 2) sigma), robust to the tails the inlier threshold
+        # lets in (the Gaussian of that spread is the bulk's information), with the landmarks' dof shared out
         group = view[keep] * rig.num_cameras + cam[keep]
-        size = (k + 1) * rig.num_cameras
         dof = max(2 * len(keep) - 3 * first.landmarks, 1)
-        ss = np.bincount(group, weights=first.residual_rad ** 2, minlength=size)
-        n = np.bincount(group, minlength=size)
-        per = np.sqrt(ss / np.maximum(2 * n, 1) * 2 * len(keep) / dof)
+        per = np.zeros(group.max() + 1)
+        for gr in np.unique(group):
+            per[gr] = np.median(first.residual_rad[group == gr]) / math.sqrt(2.0 * math.log(2.0))
+        per *= math.sqrt(2 * len(keep) / dof)
         bound_at("truth", np.maximum(per[group], 1e-12), keep, white)
     return r
 
