@@ -333,6 +333,7 @@ def _hold_camera_noise_rad(rig, hold, cam: np.ndarray, fallback_rad: float, ring
     return np.hypot(white[cam], ringing_noise_rad(rig, hold, cam) if ringing else 0.0)
 
 
+MIN_GROUP = 10  # observations a (hold, camera) needs for its own noise at the truth (core.bundle.camera_noise_factors)
 NOISES = ("tracks", "ringing", "truth")  # the bearing noise each bound is taken at (see estimate_bounds)
 
 
@@ -418,11 +419,16 @@ def _view_bounds(rig, seq, s, k: int, truth: list, holds: list, imu_floor_deg: f
         # each (hold, camera)'s noise at the truth, per axis: the median distance of its bearings from their
         # landmarks over that of a 2-D Gaussian (sqrt(2 ln 2) sigma), robust to the tails the inlier threshold
         # lets in (the Gaussian of that spread is the bulk's information), with the landmarks' dof shared out
+        # (a (hold, camera) with fewer than MIN_GROUP observations takes the spread of all, as the pipeline's
+        # per-(hold, camera) noise does)
         group = view[keep] * rig.num_cameras + cam[keep]
         dof = max(2 * len(keep) - 3 * first.landmarks, 1)
-        per = np.zeros(group.max() + 1)
+        rayleigh = math.sqrt(2.0 * math.log(2.0))
+        per = np.full(group.max() + 1, np.median(first.residual_rad) / rayleigh)
         for gr in np.unique(group):
-            per[gr] = np.median(first.residual_rad[group == gr]) / math.sqrt(2.0 * math.log(2.0))
+            mine = group == gr
+            if mine.sum() >= MIN_GROUP:
+                per[gr] = np.median(first.residual_rad[mine]) / rayleigh
         per *= math.sqrt(2 * len(keep) / dof)
         bound_at("truth", np.maximum(per[group], 1e-12), keep, white)
     return r
