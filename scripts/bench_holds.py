@@ -421,14 +421,18 @@ def _view_bounds(rig, seq, s, k: int, truth: list, holds: list, imu_floor_deg: f
         # lets in (the Gaussian of that spread is the bulk's information), with the landmarks' dof shared out
         # (a (hold, camera) with fewer than MIN_GROUP observations takes the spread of all, as the pipeline's
         # per-(hold, camera) noise does)
+        # (a landmark seen along parallel rays is placed on its anchor's ray: that observation's zero distance
+        # tells nothing of the noise and is left out of the spread)
         group = view[keep] * rig.num_cameras + cam[keep]
         dof = max(2 * len(keep) - 3 * first.landmarks, 1)
         rayleigh = math.sqrt(2.0 * math.log(2.0))
-        per = np.full(group.max() + 1, np.median(first.residual_rad) / rayleigh)
+        res = first.residual_rad
+        seen = res > 1e-9 * np.median(res[res > 0]) if np.any(res > 0) else res > 0
+        per = np.full(group.max() + 1, np.median(res[seen]) / rayleigh if seen.any() else math.nan)
         for gr in np.unique(group):
-            mine = group == gr
+            mine = (group == gr) & seen
             if mine.sum() >= MIN_GROUP:
-                per[gr] = np.median(first.residual_rad[mine]) / rayleigh
+                per[gr] = np.median(res[mine]) / rayleigh
         per *= math.sqrt(2 * len(keep) / dof)
         bound_at("truth", np.maximum(per[group], 1e-12), keep, white)
     return r
