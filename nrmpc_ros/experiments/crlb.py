@@ -21,7 +21,7 @@ estimator's median error divided by the median bound is ~1 when efficient.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from ..core.bundle import (
 )
 from ..core.deformation import deformed_extrinsics
 from ..core.rig import Rig
+from ..core.sequence import triangulated
 from ..core.so3 import normalize
 
 KINDS = ("rotation", "translation", "gravity")
@@ -222,5 +223,90 @@ def sequence_bound(problem, sigma_rad: float, gravity_prior_sigma: float = math.
     return SequenceBound(joint=jcov, pairwise=pair)
 
 
-__all__ = ["Bound", "KINDS", "SequenceBound", "angle_samples", "bound_from_information", "fisher_information",
-           "noise_free_bearings", "problem_bound", "sequence_bound", "summarize_bounds"]
+@dataclass
+class ObservedBound:
+    """Joint bound on each view's gravity direction from a sequence's observed tracks at a known true geometry:
+    tangent covariances (K, 2, 2) in rad^2, the observations and landmarks that carried it, which observations
+    those were (indices into the given ones) and their angular distance (rad) from their landmarks
+    triangulated at the truth (the measured bearings' error at the truth, three dof per landmark used up)."""
+
+    gravity: np.ndarray
+    observations: int
+    landmarks: int
+    used: np.ndarray | None = None
+    residual_rad: np.ndarray | None = None
+
+    def median_angles(self, rng: np.random.Generator | None = None, draws: int = 2000) -> np.ndarray:
+        """(K,) median angle (rad) an efficient estimator of each view's gravity reaches."""
+        rng = rng or np.random.default_rng(0)
+        return np.array([float(np.median(angle_samples(c, rng, draws))) for c in self.gravity])
+
+
+_MISMATCH_ROUNDS = 5  # a landmark seen by up to this many mismatched observations is cleaned
+
+
+def _multi_view(obs: Observations, keep: np.ndarray) -> np.ndarray:
+    """Indices of the observations in ``keep`` whose landmark ``keep`` sees in two views or more."""
+    seen = np.zeros((obs.num_points, obs.num_views), bool)
+    seen[obs.point[keep], obs.view[keep]] = True
+    return np.flatnonzero(keep & (seen.sum(axis=1) >= 2)[obs.point])
+
+
+def observed_sequence_bound(rig: Rig, obs: Observations, R, t, gravity, sigma_rad: float,
+                            priors: GravityPriors | None = None, outlier_rad: float = math.inf) -> ObservedBound:
+    """Cramér-Rao bound of the joint gravity over the views of ``obs`` at the true poses ``R``, ``t`` (view k in
+    view 0, p_0 = R_k p + t_k) and view 0's true gravity ``gravity``, for the landmarks those observations track.
+
+    The landmarks are not known: each is triangulated from its observed bearings at the true geometry, and
+    the bearings are then replaced by the model's exact ones (the information is that of noise-free data at the
+    truth). An observation farther than ``outlier_rad`` from its truth-triangulated landmark is a mismatched
+    correspondence and carries no information (each landmark's worst such observation is dropped and the landmark
+    triangulated again, until none is left); landmarks
+    seen in fewer than two views carry none either. ``sigma_rad`` is the nominal noise, ``obs.scale`` each
+    observation's std over it (per hold and camera). ``priors`` (measured gravity per view at its std, with
+    ``bias_sigma_rad`` a constant tilt estimated alongside) is what 4pt-bending adds; their directions should be
+    the true ones (the information does not depend on them, the residuals at the truth then vanish).
+    """
+    R, t = np.asarray(R, float), np.asarray(t, float)
+    K = obs.num_views
+    g0 = np.asarray(gravity, float)
+    idx = _multi_view(obs, np.ones(len(obs), bool))
+    for _ in range(_MISMATCH_ROUNDS):  # each landmark's worst observation off the truth, one per round
+        if len(idx) == 0:
+            break
+        sub, _ = obs.subset(idx)
+        state, prob = triangulated(rig, sub, BundleState(R, t, g0, np.zeros((sub.num_points, 3))))
+        err = np.linalg.norm(prob.residuals(state), axis=1)
+        if sub.scale is not None:
+            err = err * sub.scale  # the residuals come whitened by the scale: the raw angle decides
+        err = np.where(np.isfinite(err), err, np.inf)
+        if not np.any(err > outlier_rad):
+            break
+        worst = np.full(sub.num_points, -1.0)
+        np.maximum.at(worst, sub.point, err)
+        drop = (err > outlier_rad) & (err == worst[sub.point])
+        keep = np.zeros(len(obs), bool)
+        keep[idx[~drop]] = True
+        idx = _multi_view(obs, keep)
+    if len(idx) == 0:
+        return ObservedBound(np.full((K, 2, 2), np.inf), 0, 0, idx, np.zeros(0))
+    sub, _ = obs.subset(idx)
+    state, prob = triangulated(rig, sub, BundleState(R, t, g0, np.zeros((sub.num_points, 3))))
+    residual = np.linalg.norm(prob.residuals(state), axis=1) * (1.0 if sub.scale is None else sub.scale)
+    exact = Observations(sub.view, sub.cam, sub.point, prob.predicted_bearings(state), K, sub.num_points,
+                         None, sub.scale)
+    bias = priors is not None and priors.bias_sigma_rad is not None
+    if bias:
+        state = replace(state, bias=np.zeros(3))
+    layout = ParameterLayout(K, np.arange(1, K), True, bias=bias)
+    info = SequenceBundleProblem(rig, exact, layout, float(sigma_rad), huber_k=1e6,
+                                 priors=priors).linearize(state).information()
+    res = BundleResult(state=state, layout=layout, sigma_rad=float(sigma_rad), information=info,
+                       covariance=covariance_from_information(info))
+    cov = np.array([res.gravity_tangent_covariance(k) for k in range(K)])
+    return ObservedBound(cov, len(sub), sub.num_points, idx, residual)
+
+
+__all__ = ["Bound", "KINDS", "ObservedBound", "SequenceBound", "angle_samples", "bound_from_information",
+           "fisher_information", "noise_free_bearings", "observed_sequence_bound", "problem_bound", "sequence_bound",
+           "summarize_bounds"]

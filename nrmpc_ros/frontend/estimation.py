@@ -31,6 +31,21 @@ from .imu import ImuGravity
 from .linking import HoldLinker
 
 
+def ringing_noise_rad(rig: Rig, hold: Hold, cam) -> float:
+    """The angular noise (rad) a hold's residual ringing adds to each of its bearings (``cam``: the camera of
+    each of them), on top of the averaged track noise.
+
+    A snapshot's ringing is the predicted envelope of its bars' ringing at that instant: an offset that turns
+    all of a camera's bearings together, so that camera's n points tell its rotation no better than one bearing
+    with the ringing's std (per point sigma^2 + n ringing^2: the information n / (sigma^2 + n ringing^2) about
+    the rotation). A stream hold's ringing is what remains after averaging or fitting many frames
+    (docs/PIPELINE.md, "Graded trust"): per point, as measured."""
+    focal = float(np.median([c.focal_px for c in rig.cameras]))
+    coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT) and len(cam)
+    per_camera = float(np.median(np.unique(np.asarray(cam), return_counts=True)[1])) if coherent else 1.0
+    return hold.ringing_px / focal * math.sqrt(per_camera)
+
+
 @dataclass
 class HoldEstimate:
     """The estimate of one hold: its pose relative to the reference hold (p_ref = R p + t) and in the
@@ -130,15 +145,7 @@ class HoldEstimator:
                 attempt.why = Drop.HOLD_FORCED_WITHOUT_IMU.message
             return []
         g = None if imu is None else imu.gravity
-        focal = float(np.median([c.focal_px for c in self.rig.cameras]))
-        # the ringing enters as bearing noise. A snapshot's is the predicted envelope of its bars' ringing at
-        # that instant: an offset that turns all of a camera's bearings together, so that camera's n points tell
-        # its rotation no better than one bearing with the ringing's std (per point sigma^2 + n ringing^2: the
-        # information n / (sigma^2 + n ringing^2) about the rotation). A stream hold's ringing is what remains
-        # after averaging or fitting many frames (docs/PIPELINE.md, "Graded trust"): per point, as measured.
-        coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT) and len(obs.cam)
-        per_camera = float(np.median(np.unique(np.asarray(obs.cam), return_counts=True)[1])) if coherent else 1.0
-        scale = self.sequence.noise_scale(hold.ringing_px / focal * math.sqrt(per_camera))
+        scale = self.sequence.noise_scale(ringing_noise_rad(self.rig, hold, obs.cam))
         st.penalized_holds += scale > 1.0
         number = self.sequence.seq.number
         out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale)
@@ -199,4 +206,4 @@ class HoldEstimator:
         return out
 
 
-__all__ = ["HoldEstimate", "HoldEstimator", "MeasuredHold", "SequenceReset"]
+__all__ = ["HoldEstimate", "HoldEstimator", "MeasuredHold", "SequenceReset", "ringing_noise_rad"]
