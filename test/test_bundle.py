@@ -10,6 +10,7 @@ from nrmpc_ros.core.bundle import (
     adjust_bundle,
     camera_noise_factors,
     condense_gravity,
+    jackknife_widening,
     refine_two_view,
     two_view_priors,
 )
@@ -282,3 +283,24 @@ def test_camera_scale_weighs_each_camera(rng):
         z.append(angle_between(res.state.view_gravity[3], R[3].T @ g0) / np.sqrt(np.trace(C) / 2))
     rms = float(np.sqrt(np.mean(np.square(z))))
     assert 0.6 < rms < 1.9, rms
+
+
+def test_jackknife_widening_follows_the_clusters_that_carry_it(rng):
+    """Equal moves of G clusters: Student's t at G - 1 degrees of freedom; one cluster carrying the spread: t at
+    1 (a variance resting on one draw); a jackknife no larger than the model's: nothing to widen, and the
+    widening fades as the jackknife's excess over the model's shrinks."""
+    from scipy.stats import norm, t
+
+    G = 12
+    equal = np.where(np.arange(G) % 2 == 0, 1.0, -1.0)[:, None]
+    q = norm.cdf(2.0)
+    assert jackknife_widening(equal, G)[0] == pytest.approx((t.ppf(q, G - 1) / 2.0) ** 2, rel=1e-9)
+    one = np.zeros((G, 1))
+    one[3] = 1.0
+    assert jackknife_widening(one, G)[0] == pytest.approx((t.ppf(q, 1) / 2.0) ** 2, rel=1e-9)
+    a = rng.normal(size=(G, 3))
+    k = jackknife_widening(a, G, np.array([0.5, 1.0, 1e-3 + 1.0]))
+    assert np.allclose(k[:2], 1.0) and 1.0 <= k[2] < 1.0 + 1e-4
+    big = jackknife_widening(a, G, np.array([100.0, 100.0, 100.0]))
+    assert np.all(big > jackknife_widening(a, G, np.array([2.0, 2.0, 2.0])))
+    assert np.allclose(big, jackknife_widening(a, G), rtol=0.05)

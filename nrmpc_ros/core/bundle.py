@@ -1028,16 +1028,50 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
         except np.linalg.LinAlgError:
             moves[c] = C @ S[c]
     d = moves - moves.mean(axis=0)
-    jack = d.T @ d * ((G - 1.0) / G)
     # the larger of the two in every direction: in the model's whitened coordinates, eigenvalues below 1 raised
     try:
         Lc = np.linalg.cholesky(0.5 * (C + C.T))
     except np.linalg.LinAlgError:
         return C
     Li = np.linalg.inv(Lc)
-    A = Li @ jack @ Li.T
+    dw = d @ Li.T  # the moves in the model's whitened coordinates (G, nc)
+    A = dw.T @ dw * ((G - 1.0) / G)
     w, V = np.linalg.eigh(0.5 * (A + A.T))
+    w = w * jackknife_widening(dw @ V, G, w)
     return Lc @ ((V * np.maximum(w, 1.0)) @ V.T) @ Lc.T
+
+
+# The coverage a published std promises and the small-sample widening keeps: an error within two of its std, as
+# often as a Gaussian's (two-sided).
+JACKKNIFE_COVERAGE_SIGMAS = 2.0
+
+
+def jackknife_widening(a: np.ndarray, num_clusters: int, ratio: np.ndarray | None = None) -> np.ndarray:
+    """Variance factor (>= 1) per direction that makes a jackknife variance from few clusters keep its promise:
+    ``a`` (G, n) the clusters' centred moves along n directions; ``ratio`` (n,) the jackknife's variance over
+    the model's along them (default: the jackknife alone). The jackknife variance along a direction is a
+    sum of G squared moves; when a few clusters carry it, it rests on few degrees of freedom and is itself
+    uncertain, so an error over that std follows Student's t, not the normal. The degrees of freedom are
+    Satterthwaite's for a sum of unequal squares, (sum a^2)^2 / sum a^4 (G - 1 for equal moves, 1 when one
+    cluster carries all), at most G - 1; of the variance the model's share is known (the independent errors'
+    part of it), only the excess (ratio - 1) is estimated, so the published variance has ratio^2 / (ratio -
+    1)^2 times those degrees of freedom (none to add where the jackknife is the model's). The factor is the
+    squared ratio of t's quantile to the normal's at ``JACKKNIFE_COVERAGE_SIGMAS`` (docs/PIPELINE.md, "The
+    joint estimate over the sequence", step 6)."""
+    from scipy.special import ndtr, stdtrit  # the t quantile without importing scipy.stats (seconds)
+
+    a2 = np.asarray(a, float) ** 2
+    s2, s4 = a2.sum(axis=0), (a2**2).sum(axis=0)
+    nu = np.where(s4 > 0, s2**2 / np.maximum(s4, 1e-300), num_clusters - 1.0)
+    nu = np.clip(nu, 1.0, max(num_clusters - 1.0, 1.0))
+    if ratio is not None:
+        r = np.asarray(ratio, float)
+        excess = np.maximum(r - 1.0, 0.0)
+        share = excess / np.maximum(r, 1.0)  # the estimated part of the published variance, in [0, 1)
+        nu = np.where(share > 1e-6, nu / np.maximum(share, 1e-6) ** 2, np.inf)
+    z = JACKKNIFE_COVERAGE_SIGMAS
+    t = np.where(np.isfinite(nu), stdtrit(np.where(np.isfinite(nu), nu, 1.0), float(ndtr(z))), z)
+    return (t / z) ** 2
 
 
 def condense_gravity(rig: Rig, obs: Observations, state: BundleState, sigma_rad: float,
@@ -1100,4 +1134,5 @@ def two_view_priors(g1, g2, sigma_rad: float) -> GravityPriors:
 __all__ = ["BundleResult", "BundleState", "BundleWorkspace", "GravityInformation", "GravityPriors", "InverseDepthChart",
            "Observations", "ParameterLayout", "SequenceBundleProblem", "TwoViewResult", "adjust_bundle",
            "condense_gravity", "covariance_from_information", "gravity_covariance", "inv3", "refine_two_view",
-           "robust_sigma", "two_view_priors", "camera_noise_factors", "cluster_robust_covariance"]
+           "robust_sigma", "two_view_priors", "camera_noise_factors", "cluster_robust_covariance",
+           "jackknife_widening"]
