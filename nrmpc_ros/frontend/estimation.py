@@ -132,11 +132,13 @@ class HoldEstimator:
         g = None if imu is None else imu.gravity
         focal = float(np.median([c.focal_px for c in self.rig.cameras]))
         # the ringing enters as bearing noise. A snapshot's is the predicted envelope of its bars' ringing at
-        # that instant: an offset that turns all of a camera's bearings together, so that camera's n points tell
+        # that instant (or, the ringing predicted and removed, that prediction's error): an offset that turns
+        # all of a camera's bearings together, so that camera's n points tell
         # its rotation no better than one bearing with the ringing's std (per point sigma^2 + n ringing^2: the
         # information n / (sigma^2 + n ringing^2) about the rotation). A stream hold's ringing is what remains
         # after averaging or fitting many frames (docs/PIPELINE.md, "Graded trust"): per point, as measured.
-        coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT) and len(obs.cam)
+        coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT, RingingSource.PREDICTED) \
+            and len(obs.cam)
         per_camera = float(np.median(np.unique(np.asarray(obs.cam), return_counts=True)[1])) if coherent else 1.0
         scale = self.sequence.noise_scale(hold.ringing_px / focal * math.sqrt(per_camera))
         st.penalized_holds += scale > 1.0
