@@ -91,9 +91,10 @@ def test_the_prediction_error_grows_with_the_time_since_the_stop_and_the_damping
     f = bar_natural_frequencies(rig)
     calibrated = dataclasses.replace(rig, cameras=tuple(dataclasses.replace(
         c, damping_std=0.0003, frequency_hz=1.001 * fi, frequency_std_hz=0.0005 * fi) for c, fi in zip(rig.cameras, f)))
+    assert bar_natural_frequencies(calibrated) == pytest.approx(1.001 * f)  # the identified frequency is used
     uc = uncertainty(calibrated, 0.2, 0.03, 0.01, 0.0, 0.001)
     assert uc.damping_std.tolist() == [0.0003] * 3  # the rig file's stds, not the defaults
-    assert uc.frequency_rel_std == pytest.approx(np.full(3, math.hypot(0.001, 0.0005)))
+    assert uc.frequency_rel_std == pytest.approx(np.full(3, 0.0005 / 1.001))
     assert np.all(residual_px(rig, zeta, p, uc) < 0.5 * r)
     noisy = uncertainty(rig, 0.0, 0.0, 0.0, 0.02, 0.005)
     n = np.sqrt(residual_px(rig, zeta, p, noisy) ** 2 - residual_px(rig, zeta, p, uncertainty(

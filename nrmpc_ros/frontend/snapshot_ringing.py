@@ -101,8 +101,8 @@ def uncertainty(rig: Rig, damping_rel_std: float, unknown_damping_std: float, fr
                 accel_sigma: float, imu_period_s: float) -> PredictionUncertainty:
     """Per bar, the damping's std: the rig file's ``damping_std`` (the bar calibration's), else
     ``damping_rel_std`` of its ``damping``, else ``unknown_damping_std`` (the propagator then assumes a default
-    ratio); the frequency's: the rig file's identified ``frequency_hz`` against the model's sqrt(3 EI / (m L^3))
-    / (2 pi), which the propagator uses, combined with its ``frequency_std_hz``, else ``frequency_rel_std``.
+    ratio); the frequency's: the rig file's ``frequency_std_hz`` with its identified ``frequency_hz`` (the
+    frequency the propagator then uses), else ``frequency_rel_std`` (of sqrt(3 EI / (m L^3)) / (2 pi)).
     The stamps: uniform over an IMU period (the propagated load is linear between samples; an acceleration
     that changes inside one is smeared over it), std period / sqrt(12)."""
     f = bar_natural_frequencies(rig)
@@ -113,7 +113,7 @@ def uncertainty(rig: Rig, damping_rel_std: float, unknown_damping_std: float, fr
         else:
             zs.append(c.damping_std if c.damping_std is not None else damping_rel_std * float(c.damping))
         if c.frequency_hz is not None and c.frequency_std_hz is not None and math.isfinite(fi) and fi > 0:
-            fs.append(math.hypot(c.frequency_std_hz, c.frequency_hz - fi) / fi)
+            fs.append(c.frequency_std_hz / fi)
         else:
             fs.append(frequency_rel_std)
     period = float(imu_period_s) if math.isfinite(imu_period_s) and imu_period_s > 0 else 0.0
