@@ -80,6 +80,9 @@ def test_the_prediction_error_grows_with_the_time_since_the_stop_and_the_damping
     zeta = np.full(3, 0.03)
     exact = uncertainty(rig, 0.0, 0.0, 0.0, 0.0, 0.0)  # no IMU period: the stamps exact too
     assert np.all(residual_px(rig, zeta, p, exact) == 0.0)
+    u_dir, cd, _ = rig.bar_coefficients  # the translation, not removed, over the depth of the points
+    perp = p.deflection - np.sum(p.deflection * u_dir, axis=1, keepdims=True) * u_dir
+    assert residual_px(rig, zeta, p, exact, depth_m=2.0) == pytest.approx(235.0 * cd * np.linalg.norm(perp, axis=1) / 2)
     u = uncertainty(rig, 0.2, 0.03, 0.0, 0.0, 0.001)
     assert u.damping_std.tolist() == pytest.approx([0.006] * 3)
     assert u.clock_std_s == pytest.approx(0.001 / math.sqrt(12))

@@ -122,7 +122,8 @@ def uncertainty(rig: Rig, damping_rel_std: float, unknown_damping_std: float, fr
                                  sigma, period)
 
 
-def residual_px(rig: Rig, zeta, p: RingingPrediction, u: PredictionUncertainty) -> np.ndarray:
+def residual_px(rig: Rig, zeta, p: RingingPrediction, u: PredictionUncertainty,
+                depth_m: float = math.inf) -> np.ndarray:
     """Each camera's expected error of its predicted ringing (px, (K,)): the ringing's envelope at the image
     (its rotation through the focal length) times its relative error, and the IMU's noise through the bar.
 
@@ -131,7 +132,9 @@ def residual_px(rig: Rig, zeta, p: RingingPrediction, u: PredictionUncertainty) 
     - a frequency off by s_f shifts the ringing's phase by 2 pi s_f t: relative error 2 pi t s_f;
     - a stamp off by s_t shifts it by w s_t;
     - white accelerometer noise of std sigma per sample at period h drives each transverse axis of the bar's
-      load to a std sigma sqrt(h w / (4 zeta)) (the second-order response's noise bandwidth, w / (4 zeta)).
+      load to a std sigma sqrt(h w / (4 zeta)) (the second-order response's noise bandwidth, w / (4 zeta));
+    - the camera's translation by the ringing, c_d (x - l) across the bar, is not removed: it turns the
+      bearing of a point ``depth_m`` away by up to its length over that depth.
     """
     cams = p.cams
     f = bar_natural_frequencies(rig)[cams]
@@ -148,7 +151,11 @@ def residual_px(rig: Rig, zeta, p: RingingPrediction, u: PredictionUncertainty) 
                   + (w * u.clock_std_s) ** 2)
     per_load = focal * np.linalg.norm(cr, ord=2, axis=(1, 2))
     noise = u.accel_sigma * np.sqrt(u.imu_period_s * w / (4.0 * np.maximum(zeta, 1e-6)))
-    out = np.hypot(env * np.where(flex, rel, 0.0), math.sqrt(2.0) * per_load * noise)
+    u_dir, cd, _ = rig.bar_coefficients
+    dx = p.deflection
+    perp = dx - np.sum(dx * u_dir[cams], axis=1, keepdims=True) * u_dir[cams]
+    shift = focal * cd[cams] * np.linalg.norm(perp, axis=1) / depth_m if depth_m > 0 else np.full(len(cams), np.inf)
+    out = np.sqrt((env * np.where(flex, rel, 0.0)) ** 2 + 2.0 * (per_load * noise) ** 2 + shift ** 2)
     return np.where(flex, out, 0.0)
 
 
