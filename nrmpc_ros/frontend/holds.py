@@ -109,9 +109,11 @@ class HoldConfig:
     frequency_rel_std: float = option(0.01, "relative std of a bar's natural frequency sqrt(3 EI / (m L^3)) / "
                                       "(2 pi): half that of the rig file's compliance as the bar calibration "
                                       "measures it (2 %), for the predicted ringing's error", lo=0.0, hi=1.0)
-    ringing_depth_m: float = option(2.0, "a snapshot's camera moved by its predicted ringing (not removed) is "
-                                    "judged at points this far (m): its translation over this depth is part of "
-                                    "the prediction's error", lo=0.0, hi=1e6, lo_open=True)
+    ringing_depth_m: float | None = option(None, "a snapshot's camera moved by its predicted ringing (not "
+                                           "removed) is judged at points this far (m): its translation over this "
+                                           "depth is part of the prediction's error; None: not counted (the "
+                                           "hold's pose and landmarks absorb most of it)", lo=0.0, hi=1e6,
+                                           lo_open=True, nullable=True)
     lone_gap_s: float = option(1.0, "a frame with no other frame within this (s), or lone_periods frame periods, "
                                "is a snapshot: a hold of its own", lo=0.0, hi=3600.0, lo_open=True)
     lone_periods: float = option(3.0, "see lone_gap_s", lo=0.0, hi=1000.0)
