@@ -393,13 +393,17 @@ def describe_dynamics(dyn: list, rig: Rig) -> str:
 
 
 def rig_dict_with_dynamics(rig: Rig, dyn: list) -> dict:
-    """The rig file's mapping with each identified bar's ``damping`` and ``frequency_hz`` (docs/CONVENTIONS.md,
-    "The rig in motion"; the frequency is informational, the loader derives it from EI, mass and length)."""
+    """The rig file's mapping with each identified bar's ``damping`` and ``frequency_hz`` and their stds
+    (docs/CONVENTIONS.md, "The rig in motion"; the dynamics derive the frequency from EI, mass and length, the
+    identified one and the stds tell how far a prediction of the ringing can be trusted)."""
     d = rig.to_dict()
     for cd, b in zip(d["cameras"], dyn):
         if b is not None and "bar" in cd:
             cd["bar"]["damping"] = float(round(b.zeta, 6))
             cd["bar"]["frequency_hz"] = float(round(b.freq_hz, 6))
+            for key, std in (("damping_std", b.zeta_std), ("frequency_std_hz", b.freq_std_hz)):
+                if np.isfinite(std) and std >= 0:
+                    cd["bar"][key] = float(f"{std:.3g}")
     return d
 
 

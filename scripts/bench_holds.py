@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from nrmpc_ros.bag.reader import BagReader
+from nrmpc_ros.config import from_mapping, load_mapping
 from nrmpc_ros.core import load_rig, save_rig
 from nrmpc_ros.core.bundle import GravityPriors, Observations
 from nrmpc_ros.core.dynamics import bar_natural_frequencies, ringing_decay_time
@@ -134,14 +135,15 @@ def implied_settle_s(rig: Rig, damping: float | None) -> float:
     return float(ringing_decay_time(float(f.min()), damping)) if len(f) else math.nan
 
 
-def replay_rows(path: Path, rig, method: str, with_holds: bool = False, keep: list | None = None):
+def replay_rows(path: Path, rig, method: str, with_holds: bool = False, keep: list | None = None,
+                config: PipelineConfig | None = None):
     """Replay one bag with one method: (rows, reference, pipeline, wall s, the ground truth's still holds or
     None). ``keep``, a list, receives the hold estimates themselves, and the pipeline then keeps every
     sequence and measured hold (what :func:`estimate_bounds` needs)."""
     t0 = time.perf_counter()
     with BagReader(path) as bag:
         imu_topic = resolve_imu_topic(bag, rig, warn=lambda m: None)
-        pipe = Pipeline(rig, PipelineConfig(), method=method)
+        pipe = Pipeline(rig, config or PipelineConfig(), method=method)
         if keep is not None:
             pipe.sequence.keep_history = True
             pipe.measured_holds = []
@@ -438,11 +440,13 @@ def _view_bounds(rig, seq, s, k: int, truth: list, holds: list, imu_floor_deg: f
     return r
 
 
-def score_cell(path: Path, rig_file: Path, method: str, bound: bool = True) -> dict:
-    """Replay one bag with one method and score it against the ground truth (see the module docstring)."""
+def score_cell(path: Path, rig_file: Path, method: str, bound: bool = True,
+               config: PipelineConfig | None = None) -> dict:
+    """Replay one bag with one method (``config``: the pipeline settings, default PipelineConfig()) and score it
+    against the ground truth (see the module docstring)."""
     rig = load_rig(rig_file)
     ests: list = []
-    rows, ref, pipe, wall, holds = replay_rows(path, rig, method, with_holds=True, keep=ests)
+    rows, ref, pipe, wall, holds = replay_rows(path, rig, method, with_holds=True, keep=ests, config=config)
     ev = evaluate(rows, ref, rig)
     stamps = np.array([r.stamp for r in rows])
     tol = STAMP_TOLERANCE_S
@@ -492,12 +496,14 @@ def score_cell(path: Path, rig_file: Path, method: str, bound: bool = True) -> d
 
 
 def run_cell(job) -> list:
-    """Render (if missing) and score one (out, style, rig, methods) cell; one result dict per method."""
-    out, style, rig_name, methods = job
+    """Render (if missing) and score one (out, style, rig, methods, pipeline settings file or None) cell; one
+    result dict per method."""
+    out, style, rig_name, methods, config = job
     path, rig_file = render_cell(out, style, rig_name)
+    cfg = None if config is None else from_mapping(PipelineConfig, load_mapping(config, "--config"), config)
     results = []
     for method in methods:
-        r = score_cell(path, rig_file, method)
+        r = score_cell(path, rig_file, method, config=cfg)
         r.update(style=style, rig=rig_name, method=method)
         results.append(r)
     return results
@@ -556,11 +562,12 @@ def main(argv=None) -> int:
     p.add_argument("--methods", default="auto,6pt-bending", help="comma-separated methods")
     p.add_argument("--cells", help="comma-separated style:rig cells instead of --quick/--full")
     p.add_argument("--json", help="also write the results as JSON")
+    p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig, as for nrmpc replay)")
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cells = [tuple(c.split(":")) for c in args.cells.split(",")] if args.cells else matrix_cells(args.full)
-    jobs = [(out, s, r, args.methods.split(",")) for s, r in cells]
+    jobs = [(out, s, r, args.methods.split(","), args.config) for s, r in cells]
     t0 = time.perf_counter()
     if args.workers > 1:
         from multiprocessing import Pool

@@ -153,6 +153,10 @@ def test_bar_dynamics_from_the_ringing_after_the_stops(tmp_path):
     raw = yaml.safe_load(path.read_text())
     assert raw["cameras"][2]["bar"]["damping"] == pytest.approx(dyn[2].zeta, abs=1e-6)
     assert raw["cameras"][2]["bar"]["frequency_hz"] == pytest.approx(dyn[2].freq_hz, abs=1e-6)
+    for c, d in zip(back.cameras, dyn):  # the stds come back: how far a predicted ringing can be trusted
+        assert c.damping_std == pytest.approx(d.zeta_std, rel=1e-2) and c.damping_std > 0
+        assert c.frequency_std_hz == pytest.approx(d.freq_std_hz, rel=1e-2)
+        assert c.frequency_hz == pytest.approx(d.freq_hz, abs=1e-6)
 
 
 def test_bar_damping_from_a_large_ringing_in_the_image():

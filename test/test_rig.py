@@ -239,6 +239,24 @@ def test_bar_damping_is_read_checked_and_written(tmp_path):
         load_rig(write(tmp_path, bad, "bad.yaml"))
 
 
+def test_bar_dynamics_stds_are_read_checked_and_written(tmp_path):
+    """docs/CONVENTIONS.md (The rig in motion): ``damping_std``, ``frequency_hz`` and ``frequency_std_hz``,
+    optional, as nrmpc calibrate-bars writes them; a negative std or a zero frequency is refused."""
+    d = _mutate(lambda d: d["cameras"][0]["bar"].update(damping=0.03, damping_std=0.001, frequency_hz=2.5,
+                                                        frequency_std_hz=0.002))
+    rig = load_rig(write(tmp_path, d))
+    c = rig.cameras[0]
+    assert (c.damping_std, c.frequency_hz, c.frequency_std_hz) == (0.001, 2.5, 0.002)
+    assert rig.cameras[1].damping_std is None and rig.cameras[1].frequency_hz is None
+    save_rig(rig, tmp_path / "out.yaml")
+    back = load_rig(tmp_path / "out.yaml").cameras[0]
+    assert (back.damping_std, back.frequency_hz, back.frequency_std_hz) == (0.001, 2.5, 0.002)
+    for key, value in (("damping_std", -0.01), ("frequency_hz", 0.0), ("frequency_std_hz", -1.0)):
+        bad = _mutate(lambda d, kv={key: value}: d["cameras"][0]["bar"].update(kv))
+        with pytest.raises(InputError, match=rf"cameras\[0\].bar.{key}"):
+            load_rig(write(tmp_path, bad, "bad.yaml"))
+
+
 def test_with_bar_ei_sets_every_bar_with_a_tip_mass():
     from dataclasses import replace
 

@@ -339,6 +339,36 @@ class BarPropagator:
             x[beyond] = np.where(rigid, np.broadcast_to(b, x.shape), held)[beyond]
         return x
 
+    def ringing_at(self, stamps, cams):
+        """Complex ringing amplitude (K, 3) of bar cams[j] at stamps[j] (body frame, m/s^2): the free part of its
+        effective load is its real part, its envelope the modulus (zero for rigid bars). Beyond the newest sample
+        the ringing decays freely (the last load held). None before two samples have arrived."""
+        self.flush()
+        if not len(self._t0):
+            return None
+        q = np.asarray(stamps, dtype=float).reshape(-1)
+        m = np.asarray(cams, dtype=int).reshape(-1)
+        t0, h = self._t0, self._h
+        k = np.clip(np.searchsorted(t0, q, side="right") - 1, 0, len(t0) - 1)
+        tau = np.clip(q - t0[k], 0.0, h[k])
+        C = self._C[k, m] * np.exp(self.lam[m] * tau)[:, None]
+        end = t0[-1] + h[-1]
+        beyond = q > end
+        if beyond.any():
+            C_end = np.exp(self.lam * h[-1])[:, None] * self._C[-1] - self.kappa[:, None] * self._s[-1]
+            C[beyond] = C_end[m[beyond]] * np.exp(self.lam[m[beyond]] * (q[beyond] - end))[:, None]
+        return np.where(self.rigid[m][:, None], 0.0, C)
+
+    def mean_load(self, t0: float, t1: float):
+        """Mean load (M, 3) of every bar over the propagated samples stamped in [t0, t1] (body clock, s): the
+        load the rig sits at while still, with the accelerometer's noise averaged; None without such samples."""
+        self.flush()
+        t = self._t0
+        sel = (t >= t0) & (t <= t1)
+        if not sel.any():
+            return None
+        return self._a[sel].mean(axis=0)
+
     def extrinsics_at(self, stamps, cams=None):
         """Bent extrinsics w, W (camera -> body) at stamps (K,): of every camera (K, M, 3), (K, M, 3, 3), or with
         ``cams`` (K,) of camera cams[j] at stamps[j] only (K, 3), (K, 3, 3). None before two samples."""

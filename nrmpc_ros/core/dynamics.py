@@ -51,7 +51,9 @@ UNKNOWN_DAMPING_RATIO = 0.02
 
 
 def bar_natural_frequencies(rig: Rig) -> np.ndarray:
-    """(M,) natural frequency f_i = sqrt(3 EI_i / (m_i L_i^3)) / (2 pi) of each camera's bar, Hz.
+    """(M,) natural frequency of each camera's bar, Hz: the rig file's identified ``bar.frequency_hz`` when it
+    gives one (what ``nrmpc calibrate-bars`` measured from the ringing, to a fraction of a per mille), else
+    f_i = sqrt(3 EI_i / (m_i L_i^3)) / (2 pi) (as good as the compliance, a percent or so).
 
     inf for rigid bars (EI = inf, m = 0) and for cameras at the body centre (L = 0).
     """
@@ -59,7 +61,8 @@ def bar_natural_frequencies(rig: Rig) -> np.ndarray:
     for i, cam in enumerate(rig.cameras):
         L = float(np.linalg.norm(cam.position))
         if cam.is_flexible and L > 0:
-            out[i] = math.sqrt(3.0 * cam.EI / (cam.mass * L**3)) / (2.0 * math.pi)
+            model = math.sqrt(3.0 * cam.EI / (cam.mass * L**3)) / (2.0 * math.pi)
+            out[i] = model if cam.frequency_hz is None else float(cam.frequency_hz)
     return out
 
 

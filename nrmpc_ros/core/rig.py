@@ -44,7 +44,8 @@ _CAMERA_KEYS = {
     "name", "image_topic", "info_topic", "model", "intrinsics", "distortion",
     "resolution", "position", "rotation_xyzw", "bar",
 }
-_BAR_KEYS = {"mass", "EI", "damping", "frequency_hz"}  # damping, frequency_hz: section 13 (read by the dynamics)
+_BAR_KEYS = {"mass", "EI", "damping", "frequency_hz", "damping_std", "frequency_std_hz"}  # all but mass, EI:
+# section 13 (the dynamics; nrmpc calibrate-bars writes them)
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,9 @@ class Camera:
     mass: float = 0.0  # tip mass m_i (kg)
     EI: float = math.inf  # flexural rigidity (N m^2)
     damping: float | None = None  # damping ratio zeta_i of the bar's first bending mode; None: unknown
+    damping_std: float | None = None  # its std (the bar calibration's); None: not given
+    frequency_hz: float | None = None  # the bar's identified natural frequency (Hz); None: not given
+    frequency_std_hz: float | None = None  # its std (Hz); None: not given
     image_topic: str = ""
     info_topic: str = ""
 
@@ -186,8 +190,9 @@ class Rig:
                 d["info_topic"] = c.info_topic
             if c.mass > 0 or math.isfinite(c.EI):
                 d["bar"] = {"mass": float(c.mass), "EI": float(c.EI)}
-                if c.damping is not None:
-                    d["bar"]["damping"] = float(c.damping)
+                for key in ("damping", "damping_std", "frequency_hz", "frequency_std_hz"):
+                    if getattr(c, key) is not None:
+                        d["bar"][key] = float(getattr(c, key))
             cams.append(d)
         out["cameras"] = cams
         return out
@@ -385,6 +390,22 @@ def _damping(src, p, bar) -> float | None:
     return zeta
 
 
+def _dynamics_numbers(src, p, bar) -> dict:
+    """The bar's optional ``damping_std``, ``frequency_hz`` and ``frequency_std_hz`` (docs/CONVENTIONS.md, "The
+    rig in motion"): finite, the frequency positive, the stds not negative; None where absent."""
+    out = {}
+    for key, positive in (("damping_std", False), ("frequency_hz", True), ("frequency_std_hz", False)):
+        if bar.get(key) is None:
+            out[key] = None
+            continue
+        v = _number(src, f"{p}.bar.{key}", bar[key])
+        if v < 0 or (positive and v == 0):
+            raise InputError(src, f"must be {'positive' if positive else 'zero or positive'}, got {v}",
+                             f"{p}.bar.{key}")
+        out[key] = v
+    return out
+
+
 def _intrinsics(src, p, d, model):
     intr = _vector(src, f"{p}.intrinsics", d["intrinsics"], length=4)
     for j, axis in enumerate(("fx", "fy")):
@@ -418,15 +439,17 @@ def _parse_camera(src, i, d, gm) -> Camera:
         raise InputError(src, f"|position| = {math.hypot(*pos):.3g} m is beyond the plausible "
                               f"{MAX_POSITION_M:g} m from the body centre", f"{p}.position")
     rot = _rotation(src, f"{p}.rotation_xyzw", d["rotation_xyzw"])
-    mass, ei, damping = 0.0, math.inf, None
+    mass, ei, damping, dyn = 0.0, math.inf, None, {}
     if d.get("bar") is not None:
         mass, ei = _bar(src, p, name, d["bar"], pos, gm)
         damping = _damping(src, p, d["bar"])
+        dyn = _dynamics_numbers(src, p, d["bar"])
     image_topic = _ros_topic(src, f"{p}.image_topic", d.get("image_topic", f"/{name}/image_raw"))
     info_topic = _ros_topic(src, f"{p}.info_topic", d.get("info_topic", _default_info_topic(image_topic)))
     return Camera(
         name=name, model=model, intrinsics=tuple(intr), distortion=tuple(dist), resolution=tuple(int(x) for x in res),
         position=pos, rotation=rot, mass=mass, EI=ei, damping=damping, image_topic=image_topic, info_topic=info_topic,
+        **dyn,
     )
 
 

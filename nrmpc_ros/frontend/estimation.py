@@ -35,13 +35,15 @@ def ringing_noise_rad(rig: Rig, hold: Hold, cam) -> float:
     """The angular noise (rad) a hold's residual ringing adds to each of its bearings (``cam``: the camera of
     each of them), on top of the averaged track noise.
 
-    A snapshot's ringing is the predicted envelope of its bars' ringing at that instant: an offset that turns
+    A snapshot's ringing is the predicted envelope of its bars' ringing at that instant (or, the ringing
+    predicted and removed, that prediction's error): an offset that turns
     all of a camera's bearings together, so that camera's n points tell its rotation no better than one bearing
     with the ringing's std (per point sigma^2 + n ringing^2: the information n / (sigma^2 + n ringing^2) about
     the rotation). A stream hold's ringing is what remains after averaging or fitting many frames
     (docs/PIPELINE.md, "Graded trust"): per point, as measured."""
     focal = float(np.median([c.focal_px for c in rig.cameras]))
-    coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT) and len(cam)
+    coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT, RingingSource.PREDICTED) \
+        and len(cam)
     per_camera = float(np.median(np.unique(np.asarray(cam), return_counts=True)[1])) if coherent else 1.0
     return hold.ringing_px / focal * math.sqrt(per_camera)
 

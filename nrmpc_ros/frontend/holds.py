@@ -74,6 +74,7 @@ class RingingSource(Enum):
     SPREAD = "spread"  # too few frames to fit the ringing: the offsets' own spread about their mean
     IMU = "imu"  # a snapshot: the stop's deceleration measured by the IMU, decayed at the bar's damping
     DEFAULT = "default"  # a snapshot whose stop the IMU did not see: holds.stop_load_m_s2, decayed
+    PREDICTED = "predicted"  # a snapshot whose ringing the IMU-driven bars predicted and removed: that error
     RIGID = "rigid"  # no flexible bar: nothing rings
     UNKNOWN = "unknown"  # a snapshot without an IMU: nothing says when the rig stopped
 
@@ -98,6 +99,22 @@ class HoldConfig:
                             lo=0.0, hi=0.99, lo_open=True)
     stop_load_m_s2: float = option(3.0, "a snapshot whose stop the IMU did not see is assumed to have stopped "
                                    "with this change of load (m/s^2) setting its bars ringing", lo=0.0, hi=100.0)
+    predict_ringing: bool = option(False, "with an IMU, a snapshot's ringing predicted by the bars' state is "
+                                   "removed from its bearings and only the prediction's error is extra noise (off "
+                                   "by default: with a calibrated rig file its std is not yet kept everywhere)")
+    damping_rel_std: float = option(0.2, "relative std of a damping ratio the rig file gives (the bar "
+                                     "calibration's target), for the predicted ringing's error", lo=0.0, hi=10.0)
+    unknown_damping_std: float = option(0.03, "std of the damping ratio of a bar whose rig file gives none (the "
+                                        "assumed light damping, while bars with a camera at the tip span about "
+                                        "0.01-0.08), for the predicted ringing's error", lo=0.0, hi=1.0)
+    frequency_rel_std: float = option(0.01, "relative std of a bar's natural frequency sqrt(3 EI / (m L^3)) / "
+                                      "(2 pi): half that of the rig file's compliance as the bar calibration "
+                                      "measures it (2 %), for the predicted ringing's error", lo=0.0, hi=1.0)
+    ringing_depth_m: float | None = option(None, "a snapshot's camera moved by its predicted ringing (not "
+                                           "removed) is judged at points this far (m): its translation over this "
+                                           "depth is part of the prediction's error; None: not counted (the "
+                                           "hold's pose and landmarks absorb most of it)", lo=0.0, hi=1e6,
+                                           lo_open=True, nullable=True)
     lone_gap_s: float = option(1.0, "a frame with no other frame within this (s), or lone_periods frame periods, "
                                "is a snapshot: a hold of its own", lo=0.0, hi=3600.0, lo_open=True)
     lone_periods: float = option(3.0, "see lone_gap_s", lo=0.0, hi=1000.0)
@@ -237,6 +254,7 @@ class HoldRecorder:
         self.stamps: list = []
         self.positions: list = []  # per frame: list of (ids, uv) or None per camera
         self.measured = False  # estimated already (a long hold is measured once, before it ends)
+        self.prediction = None  # a snapshot's ringing predicted from the IMU (.snapshot_ringing.RingingPrediction)
 
     def add(self, stamp: float, positions: list) -> None:
         self.stamps.append(float(stamp))

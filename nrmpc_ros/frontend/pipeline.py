@@ -36,12 +36,13 @@ from .drops import Drop, sorted_counts
 from .estimation import HoldEstimate, HoldEstimator, MeasuredHold, SequenceReset
 from .extrinsics import CameraPoses, FrameExtrinsics
 from .gyro import CameraTurns, rotation_between
-from .holds import BarRinging, Hold, HoldConfig, HoldRecorder, Refusal, slowest_bar_period
+from .holds import BarRinging, Hold, HoldConfig, HoldRecorder, Refusal, RingingSource, slowest_bar_period
 from .imu import ImuBuffer, ImuConfig, ImuGravity, _vec3
 from .imu_clock import ImuClockEstimator
 from .linking import HoldLinker
 from .motion import Motion, MotionKind
 from .patch_align import PatchAlignConfig
+from .snapshot_ringing import correct_pixels, correction_rotations, predict, residual_px, uncertainty
 from .tracking import HoldThinning, KltTracker, TrackingConfig
 from .zupt import ZuptConfig, ZuptDetector
 
@@ -333,6 +334,7 @@ class Pipeline:
             # previous frame, and this one may start a hold (the rig may be at rest here, its bars ringing)
             out += self._close()
             self._open(stamp, images, snapshot=True)
+            self._hold.prediction = self._predict_ringing(frames, images)
             if gap <= lone_gap:
                 self._periods = (self._periods + [gap])[-20:]
         else:
@@ -565,12 +567,54 @@ class Pipeline:
         load = float(np.max(np.linalg.norm(a[~still] - a[still].mean(axis=0), axis=1)))
         return load * float(np.max(self.bars.px_per_load, initial=0.0))
 
+    def _predict_ringing(self, frames: FrameSet, images: list):
+        """The ringing of a frame set that may be a snapshot, predicted by the bars' state at its cameras'
+        stamps (:func:`.snapshot_ringing.predict`), while the propagator still holds them; None without an
+        IMU, rigid bars, or an IMU not still before the frames."""
+        cfg = self.config.holds
+        if self.extrinsics is None or not cfg.predict_ringing or not self.bars.period_s or not len(self.imu):
+            return None
+        t = float(frames.stamp)
+        since = self.zupt.still_since(t)
+        if since is None:
+            return None
+        cams = [i for i, img in enumerate(images) if img is not None]
+        stamps = [t if frames.stamps is None or frames.stamps[i] is None else float(frames.stamps[i]) for i in cams]
+        self._observe_gravity()
+        off = self.config.imu_time_offset_s  # the still onset in the cameras' clock, as the propagator's stamps
+        return predict(self.extrinsics.bars, stamps, cams, max(since, t - cfg.measure_s) + off, t, since + off)
+
+    def _remove_predicted_ringing(self, rec: HoldRecorder, hold: Hold) -> None:
+        """A snapshot whose ringing was predicted: each camera's pixels turned to where the static model sees
+        them, and the prediction's error as its residual ringing (docs/PIPELINE.md, "Settling")."""
+        p = rec.prediction
+        if p is None or not hold.snapshot or hold.ringing_source not in (RingingSource.IMU, RingingSource.DEFAULT):
+            return
+        R = correction_rotations(self.rig, p)
+        noise = self.zupt.noise
+        cfg = self.config.holds
+        u = uncertainty(self.rig, cfg.damping_rel_std, cfg.unknown_damping_std, cfg.frequency_rel_std,
+                        math.nan if noise is None else noise.accel_sigma, self.imu.period_s)
+        res = residual_px(self.rig, self.extrinsics.bars.zeta, p, u,
+                          math.inf if cfg.ringing_depth_m is None else cfg.ringing_depth_m)
+        used = []
+        for k, i in enumerate(p.cams):
+            ch = hold.cameras[i]
+            if ch is None:
+                continue
+            ch.uv = correct_pixels(self.rig.cameras[i], ch.uv, R[k])
+            used.append(float(res[k]))
+        if used:
+            hold.ringing_px, hold.ringing_source = max(used), RingingSource.PREDICTED
+
     def _estimate_hold(self, rec: HoldRecorder) -> list:
         """Measure a closed (or long enough) hold and hand it to the estimation stage with what it needs of
         the IMU; returns the estimates when the stage runs at once."""
         since = self._imu_still_since(rec)
         hold, why = rec.measure(self.config.holds, self.bar_period_s, since, self.bars,
                                 self._stop_amplitude_px(rec, since))
+        if hold is not None:
+            self._remove_predicted_ringing(rec, hold)
         attempt = HoldAttempt(rec.start, rec.stamps[-1] if len(rec) else rec.start, len(rec), hold,
                               str(why) if why is not None else "")
         if self.hold_log is not None:
