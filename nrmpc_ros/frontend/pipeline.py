@@ -580,7 +580,8 @@ class Pipeline:
             return None
         cams = [i for i, img in enumerate(images) if img is not None]
         stamps = [t if frames.stamps is None or frames.stamps[i] is None else float(frames.stamps[i]) for i in cams]
-        self._observe_gravity()
+        # the accelerometer's bias cancels in the ringing (docs/PIPELINE.md, "Settling"): the estimation stage's
+        # newest bias is not taken here, so this intake decision does not depend on when that stage ran
         off = self.config.imu_time_offset_s  # the still onset in the cameras' clock, as the propagator's stamps
         return predict(self.extrinsics.bars, stamps, cams, max(since, t - cfg.measure_s) + off, t, since + off)
 
