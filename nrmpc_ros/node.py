@@ -20,6 +20,7 @@ import time
 from .core.rig import load_rig
 from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
 from .frontend import node_config as cfgs
+from .frontend.imu_block import ImuDecoder
 from .frontend.markers import build_markers, marker_array_fields
 from .frontend.outputs import OUTPUTS, HoldOutput, fill_message, frame_pose_fields, message_fields
 from .frontend.service import SHUTDOWN_S, EstimatorService
@@ -29,6 +30,7 @@ try:  # rclpy is optional for the package; --help works without it
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+    from rclpy.callback_groups import CallbackGroup
     from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, InvalidParameterValueException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
@@ -39,12 +41,12 @@ try:  # rclpy is optional for the package; --help works without it
 
     _RCLPY_ERROR = None
 except ImportError as _exc:  # pragma: no cover - exercised only without ROS
-    rclpy, Node, _RCLPY_ERROR = None, object, _exc
+    rclpy, Node, CallbackGroup, _RCLPY_ERROR = None, object, object, _exc
 
 NODE_NAME = "estimator"
 MARKERS = ("visualization_msgs/msg/MarkerArray", "~/markers")  # latched: the last state of the rig
 SUMMARY_LINGER_S = 0.5  # after the shutdown summary: time for a reliable /rosout delivery on a busy machine
-IMU_DRAIN_MAX = 2000  # IMU samples taken from the subscription's queue in one callback (2 s at 1 kHz)
+IMU_DRAIN_MAX = 2000  # IMU samples taken from the subscription's queue at once (2 s at 1 kHz)
 SIGNAL_WAKE_S = 0.1  # longest wait of the executor before Python sees a signal that arrived during it
 EXIT_S = 0.4  # after the linger: destroying the node and the context, ending the process (measured: 0.1-0.25 s)
 
@@ -66,6 +68,21 @@ def take_waiting(sub, limit: int):
         if got is None:
             return
         yield got[0]
+
+
+class TakenByTimer(CallbackGroup):
+    """Subscriptions the executor neither waits on nor runs: a timer takes their waiting messages. A 1 kHz IMU
+    would otherwise wake the executor a thousand times a second, and each wake (the wait set built again over
+    every subscription, timer and QoS event of the node) costs more than the sample it brings."""
+
+    def can_execute(self, entity) -> bool:
+        return False
+
+    def beginning_execution(self, entity) -> bool:
+        return False
+
+    def ending_execution(self, entity) -> None:
+        pass
 
 
 class EstimatorNode(Node):
@@ -92,7 +109,12 @@ class EstimatorNode(Node):
                       for i, c in enumerate(self.rig.cameras) if c.info_topic}
         self._imu_sub = None
         if imu:
-            self._imu_sub = self.create_subscription(Imu, imu, self._on_imu, _sensor_qos(cfg.imu_queue_size))
+            self._imu_decoder = ImuDecoder()
+            taken = cfg.imu_take_period_s > 0
+            self._imu_sub = self.create_subscription(Imu, imu, self._on_imu, _sensor_qos(cfg.imu_queue_size),
+                                                     raw=True, callback_group=TakenByTimer() if taken else None)
+            if taken:
+                self.create_timer(cfg.imu_take_period_s, self._take_imu)
         outputs = {**OUTPUTS, "diag": ("diagnostic_msgs/msg/DiagnosticArray", "/diagnostics")}
         if not cfg.publish_tf or importlib.util.find_spec("tf2_msgs") is None:  # not always installed
             del outputs["tf"]
@@ -157,13 +179,20 @@ class EstimatorNode(Node):
         ns = self.get_clock().now().nanoseconds
         return ns * 1e-9 if ns > 0 else None  # simulated time before the first /clock: no clock
 
-    def _on_imu(self, msg) -> None:
-        """One IMU sample, then the samples already waiting in the subscription's queue: the executor takes one
-        message per subscription per turn, so a 200-1000 Hz IMU would fall seconds behind the cameras' 10-60
-        frames a second whenever the process is busy (docs/ARCHITECTURE.md, "The node's two workers")."""
-        self.service.on_imu(msg, self._now())
-        for waiting in take_waiting(self._imu_sub, IMU_DRAIN_MAX):
-            self.service.on_imu(waiting, self._now())
+    def _on_imu(self, raw) -> None:
+        """One serialized IMU message and the ones already waiting in the subscription's queue, decoded as one
+        block: the executor takes one message per subscription per turn, so a 200-1000 Hz IMU would fall seconds
+        behind the cameras' 10-60 frames a second whenever the process is busy, and turning each message into a
+        Python object would cost more than what the pipeline does with it (docs/ARCHITECTURE.md, "The node's
+        two workers")."""
+        raws = [raw, *take_waiting(self._imu_sub, IMU_DRAIN_MAX)]
+        self.service.on_imu_block(self._imu_decoder.decode(raws), self._now())
+
+    def _take_imu(self) -> None:
+        """The IMU samples waiting, taken by the timer of ``imu_take_period_s`` (see :class:`TakenByTimer`)."""
+        raws = list(take_waiting(self._imu_sub, IMU_DRAIN_MAX))
+        if raws:
+            self.service.on_imu_block(self._imu_decoder.decode(raws), self._now())
 
     def _on_timer(self) -> None:
         self.service.tick()

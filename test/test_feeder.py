@@ -16,6 +16,7 @@ from nrmpc_ros.errors import InputError
 from nrmpc_ros.frontend.droplog import DropLog
 from nrmpc_ros.frontend.drops import Drop
 from nrmpc_ros.frontend.feeder import Feeder, FeederConfig
+from nrmpc_ros.frontend.imu_block import ImuBlock
 from nrmpc_ros.frontend.stamps import JumpPolicy
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -208,3 +209,60 @@ def test_ros_stamps_come_back_as_received(rig):
     assert f.ros_stamp(1700000000 + 1e-9 * 123456789) == (1700000000, 123456789)
     assert f.ros_stamp(5.25) == (5, 250000000)
     assert np.isfinite(t)
+
+
+def imu_block(stamps, accel=None):
+    n = len(stamps)
+    accel = np.tile([0.0, 0.0, 9.81], (n, 1)) if accel is None else np.asarray(accel, float)
+    return ImuBlock(np.asarray(stamps, float), accel, np.zeros((n, 3)), np.zeros((n, 9)), np.zeros((n, 9)))
+
+
+def feed_in_blocks(f, msgs, rng, now=None):
+    """As :func:`feed`, with the IMU samples that arrive one after another handed over as blocks of 1-40."""
+    pending = []
+
+    def hand_over():
+        while pending:
+            k = int(rng.integers(1, 41))
+            f.imu_block(imu_block(pending[:k]), now)
+            del pending[:k]
+
+    for _, kind, i, t in msgs:
+        if kind == "image":
+            hand_over()
+            f.image(i, image(t), now)
+        else:
+            pending.append(t)
+    hand_over()
+
+
+@pytest.mark.parametrize("order", ["in step", "round robin", "imu late"])
+def test_imu_samples_handed_over_in_blocks_give_the_work_of_sample_by_sample(rig, order):
+    msgs = {"in step": messages(), "round robin": round_robin(messages()),
+            "imu late": messages(imu_delay=0.3)}[order]
+    f, work, _ = feeder(rig)
+    feed(f, msgs, now=110.0)
+    f.end()
+    g, blocks, _ = feeder(rig)
+    feed_in_blocks(g, msgs, np.random.default_rng(4), now=110.0)
+    g.end()
+    assert trace(blocks) == trace(work) and g.events == f.events
+    imu = [w for w in blocks if w.kind == "imu"]
+    assert len(imu) == 400 and all(tuple(w.data[0]) == (0.0, 0.0, 9.81) for w in imu)
+
+
+def test_bad_samples_in_a_block_are_dropped_as_one_by_one(rig):
+    stamps = [100.0, 100.005, 100.01, 100.01, 100.02, 99.0, 2145916800.0, 100.03]
+    accel = np.tile([0.0, 0.0, 9.81], (len(stamps), 1))
+    accel[0, 0], accel[1] = math.nan, 0.0
+    f, work, _ = feeder(rig)
+    for t, a in zip(stamps, accel):
+        f.imu_msg(imu(t, accel=tuple(a)), now=100.5)
+    g, blocks, _ = feeder(rig)
+    g.imu_block(imu_block(stamps, accel), now=100.5)
+    assert g.drops.counts() == f.drops.counts()
+    assert {r for _, r in g.drops.counts()} == {Drop.IMU_NOT_FINITE, Drop.IMU_ZERO_ACCEL, Drop.IMU_OUT_OF_ORDER,
+                                                 Drop.STAMP_FAR_PAST, Drop.STAMP_IN_FUTURE}
+    f.end()
+    g.end()
+    assert trace(blocks) == trace(work) == [("imu", 100.01), ("imu", 100.02), ("imu", 100.03), ("flush", None)]

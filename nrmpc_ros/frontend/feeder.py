@@ -52,6 +52,7 @@ from ..errors import InputError
 from .droplog import DropLog
 from .drops import Drop
 from .images import decode_image
+from .imu_block import ImuBlock
 from .pipeline import FrameSet
 from .stamps import JumpPolicy, StampGuard
 from .sync import StampSynchronizer, SyncConfig
@@ -178,8 +179,29 @@ class Feeder:
         """One IMU sample: specific force (m/s^2) and angular rate (rad/s) in the IMU frame, stamp in s; optionally
         the message's (linear_acceleration_covariance, angular_velocity_covariance), which set the stillness
         test's noise (:meth:`~nrmpc_ros.frontend.pipeline.Pipeline.add_imu`)."""
-        topic = self.imu_topic or IMU
         self.events["imu samples"] += 1
+        self._sample(stamp, accel, gyro, now, covariance)
+
+    def imu_block(self, block: ImuBlock, now: float | None = None) -> None:
+        """IMU samples in arrival order (:class:`~nrmpc_ros.frontend.imu_block.ImuBlock`, the node's IMU callback
+        hands over the samples waiting): what :meth:`imu` does sample by sample, in one pass over the arrays for
+        a block of good samples with increasing stamps that the stamp policy accepts as they are."""
+        n = len(block)
+        self.events["imu samples"] += n
+        a, w, t = block.accel, block.gyro, block.stamps
+        good = bool(n) and bool(np.isfinite(a).all() and np.isfinite(w).all() and a.any(axis=1).all())
+        if good and t[0] > self._imu_newest and self.guard.accept_run(IMU, t, now):
+            self._imu_newest = float(t[-1])
+            self._cams_at_imu = max(self._cam_newest)
+            covs = zip(block.accel_cov, block.gyro_cov)
+            self._imu.extend((s, ai, wi, c) for s, ai, wi, c in zip(t.tolist(), a.tolist(), w.tolist(), covs))
+            self._release()
+            return
+        for i in range(n):
+            self._sample(float(t[i]), a[i], w[i], now, (block.accel_cov[i], block.gyro_cov[i]))
+
+    def _sample(self, stamp: float, accel, gyro, now: float | None, covariance) -> None:
+        topic = self.imu_topic or IMU
         a = np.asarray(accel, dtype=float).reshape(-1)
         w = np.asarray(gyro, dtype=float).reshape(-1)
         if a.shape != (3,) or w.shape != (3,):

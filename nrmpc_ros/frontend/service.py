@@ -267,6 +267,11 @@ class EstimatorService:
         self.received[self.imu_topic] += 1
         self._guarded(self.imu_topic, self.feeder.imu_msg, msg, now)
 
+    def on_imu_block(self, block, now: float | None) -> None:
+        """IMU samples taken together (an :class:`~nrmpc_ros.frontend.imu_block.ImuBlock`), as :meth:`on_imu`."""
+        self.received[self.imu_topic] += len(block)
+        self._guarded(self.imu_topic, self.feeder.imu_block, block, now)
+
     def _guarded(self, source: str, fn, *args) -> None:
         """Run an input step; a failure (a bug, not bad input: that is dropped on its own) is counted and logged,
         and the node goes on."""

@@ -35,6 +35,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .drops import Drop
 
 
@@ -147,6 +149,21 @@ class StampGuard:
         self._newest[stream] = max(own, stamp) if stamp >= own - self.jump_back_s else stamp
         self._before.pop(stream, None)
         return Verdict(True, drops)
+
+    def accept_run(self, stream, stamps, now: float | None = None) -> bool:
+        """Accept ``stamps`` (an array, arrival order) of ``stream`` at once when every one of them, checked in
+        turn, would simply be accepted: finite, increasing, newer than its stream, none in the future, no jump
+        held. False changes nothing: then check them one by one."""
+        if self._pending is not None or not len(stamps) or (stream not in self._newest and stream in self._before):
+            return False
+        first, last = float(stamps[0]), float(stamps[-1])
+        if not (first > self._newest.get(stream, -math.inf) and math.isfinite(last)
+                and (now is None or last <= now + self.max_future_s)):
+            return False
+        if len(stamps) > 1 and not bool((np.diff(stamps) > 0).all()):
+            return False
+        self._newest[stream] = last
+        return True
 
     def _rejoins(self, stream, stamp: float) -> bool:
         others = [t for s, t in self._newest.items() if s != stream]
