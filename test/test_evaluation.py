@@ -31,3 +31,13 @@ def test_evaluate_counts_the_holds_with_an_estimate_and_the_estimates_outside():
     assert (ev.holds, ev.holds_with_estimate, ev.outside_holds) == (2, 1, 1)
     assert ev.errors["rotation_deg"][0] < 1e-9 and ev.errors["rotation_deg"][1] > 1.0
     assert np.isnan(ev.errors["gravity_vs_gt_deg"]).all()  # no gravity estimated, none in the ground truth
+
+
+def test_ground_truth_repeated_at_one_stamp_is_one_pose():
+    """A recording that writes the ground truth at every camera's trigger repeats a moving pose at one stamp:
+    that is not a hold."""
+    ref = _reference()
+    n = len(ref.pose_t)
+    twice = np.repeat(np.arange(n), 2)
+    ref.pose_t, ref.pose_R, ref.pose_p = ref.pose_t[twice], ref.pose_R[twice], ref.pose_p[twice]
+    assert static_holds(ref) == static_holds(_reference())

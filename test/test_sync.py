@@ -281,3 +281,28 @@ def test_bad_arguments():
         StampSynchronizer(2, config=SyncConfig(period_fraction=0.5))
     sync = StampSynchronizer(2)
     assert sync.add(0, float("nan"), None) == [] and sync.dropped[Drop.FRAME_STAMP_NOT_FINITE] == 1
+
+
+def rated(rates, seconds=6.0, t0=100.0):
+    """(stream, stamp, item) of cameras at ``rates`` (Hz) triggered by one clock, in stamp order."""
+    msgs = [(i, t0 + k / r, (i, k)) for i, r in enumerate(rates) for k in range(int(seconds * r))]
+    return sorted(msgs, key=lambda m: (m[1], m[0]))
+
+
+def test_cameras_at_different_rates_group_by_instant():
+    """15, 10, 5 and 15 Hz from one clock: instants a third of a 10 Hz period apart (0.3 and 0.333 s). The frames
+    of one instant stay together, so no set repeats the stamp of the one before it (the pipeline would drop it)."""
+    sync = StampSynchronizer(4)
+    sets = run(sync, rated((15.0, 10.0, 5.0, 15.0)))
+    assert all(len({round(t, 9) for t in s.stamps if t is not None}) == 1 for s in sets)
+    stamps = [s.stamp for s in sets]
+    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    assert sync.grouped == 90 + 60 + 30 + 90 and sum(sync.dropped.values()) == 0
+
+
+def test_a_fast_camera_beside_a_slow_one_does_not_overflow_its_queue():
+    """A 60 Hz camera sends 12 frames before the 5 Hz camera's next frame decides their sets."""
+    sync = StampSynchronizer(3)  # default queue_size 10
+    sets = run(sync, rated((5.0, 60.0, 30.0)))
+    assert sum(sync.dropped.values()) == 0 and sync.grouped == 30 + 360 + 180
+    assert all(b.stamp > a.stamp for a, b in zip(sets, sets[1:]))

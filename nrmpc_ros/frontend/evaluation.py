@@ -63,17 +63,21 @@ class Evaluation:
 
 
 def static_holds(ref: Reference, tol_deg: float = 0.01, tol_m: float = 1e-4) -> list:
-    """(start, end) stamps of runs of identical ground-truth poses (the rig held still)."""
+    """(start, end) stamps of runs of identical ground-truth poses (the rig held still). Poses repeated at one
+    stamp (a recording that writes the ground truth at every camera's trigger, cameras at different rates) count
+    once: two cameras at one instant of a move are not a hold."""
     if not ref.has_pose:
         return []
-    dR = np.einsum("nji,njk->nik", ref.pose_R[:-1], ref.pose_R[1:])
+    new = np.r_[True, np.diff(ref.pose_t) > 0]
+    pose_t, pose_R, pose_p = ref.pose_t[new], ref.pose_R[new], ref.pose_p[new]
+    dR = np.einsum("nji,njk->nik", pose_R[:-1], pose_R[1:])
     ang = np.degrees(np.arccos(np.clip((np.trace(dR, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-    same = (ang < tol_deg) & (np.linalg.norm(np.diff(ref.pose_p, axis=0), axis=1) < tol_m)
+    same = (ang < tol_deg) & (np.linalg.norm(np.diff(pose_p, axis=0), axis=1) < tol_m)
     cut = np.flatnonzero(~same) + 1  # first pose of every run after the first
-    first, last = np.r_[0, cut], np.r_[cut - 1, len(ref.pose_t) - 1]
+    first, last = np.r_[0, cut], np.r_[cut - 1, len(pose_t) - 1]
     min_len = 2 if np.any(last > first) else 1
     keep = last - first + 1 >= min_len
-    return [(float(ref.pose_t[a]), float(ref.pose_t[b])) for a, b in zip(first[keep], last[keep])]
+    return [(float(pose_t[a]), float(pose_t[b])) for a, b in zip(first[keep], last[keep])]
 
 
 def evaluate(rows: list, ref: Reference, rig: Rig | None = None, imu_window_s: float = WINDOW_S,

@@ -8,7 +8,11 @@ Policy:
   set's reference than to the next frames of the set's streams (their median;
   a stream's next frame is its next queued message, else predicted one
   estimated period later): a frame of the next trigger does not fill the gap
-  of a dropped frame. Sets are formed from the
+  of a dropped frame. Nor does a frame join a set when another camera's
+  frame is nearer to it than the set is and cannot join the set too: cameras
+  at different rates (15 and 10 Hz) have frames of two instants a third of a
+  period apart, and the frames of the later instant stay together. Sets are
+  formed from the
   oldest queued message on; among several queued messages of one stream (a
   faster camera) the one nearest the set's reference is taken and the older
   ones are dropped as "unmatched". Stamps are told apart up to a jitter of
@@ -50,9 +54,12 @@ Policy:
   queues and counts a "time jump back"; a jump ahead counts a "time jump ahead"
   (a pause longer than ``jump_periods`` periods between snapshots counts so
   too; its frames are held until the second camera's frame arrives, not lost).
-- **Cost.** Queues are bounded (``queue_size`` per stream; the oldest message
-  is dropped as "queue overflow"; keep ``queue_size`` above ``wait_periods`` + 1
-  so a silent camera does not overflow the others' queues). Every message is
+- **Cost.** Queues are bounded (``queue_size`` per stream, plus, for a
+  stream faster than the slowest, what it sends beyond the slowest one's pace
+  in ``wait_periods`` + 1 of its periods; the oldest message is dropped as
+  "queue overflow"; keep
+  ``queue_size`` above ``wait_periods`` + 1 so a silent camera does not
+  overflow the others' queues). Every message is
   queued and popped once and each set looks at the queue heads and the
   messages within its window only, so the cost is linear in streams x queue
   depth (times the few streams of a set, for the medians).
@@ -125,6 +132,20 @@ class _Pending(HeldJump):
     kind: str = "back"  # "back" or "ahead"
     latest: float = math.nan
     threshold: float = 0.0
+
+
+def _pulled_away(vals: list, h: float, others: list, tol: float) -> bool:
+    """Whether the frame stamped ``h`` belongs with another camera's queued frame rather than with the set of
+    stamps ``vals``: one of ``others`` (stamps) is nearer to it than the set's median is, and could not join the
+    set with it (module docstring, Sets)."""
+    gap = abs(h - median(vals))
+    for g in others:
+        if abs(g - h) < gap:
+            trial = vals + [h, g]
+            ref = median(trial)
+            if max(abs(v - ref) for v in trial) > tol:
+                return True
+    return False
 
 
 class StampSynchronizer:
@@ -223,6 +244,15 @@ class StampSynchronizer:
         known = [p for p in self._period if p > 0]
         return max(known) if known else self.initial_tolerance_s / self.period_fraction
 
+    def _capacity(self, i: int) -> int:
+        """Messages stream i may queue: ``queue_size``, plus what it sends beyond the slowest stream's pace while
+        a set waits for that stream (``wait_periods`` + 1 of its periods): a 60 Hz camera beside a 5 Hz one
+        sends 12 frames before the 5 Hz frame that decides their sets arrives."""
+        slowest, own = self._known_period(), self._known_period(i)
+        if not own > 0 or not slowest > own:
+            return self.queue_size
+        return self.queue_size + round((self.wait_periods + 1) * (slowest / own - 1.0))
+
     def _known_period(self, i: int | None = None) -> float:
         """Stream i's period (i None: the largest of all streams); nan until known."""
         known = [p for p in (self._period if i is None else self._period[i:i + 1]) if p > 0]
@@ -317,7 +347,7 @@ class StampSynchronizer:
             self._newest[i] = stamp
         st.insert(k, stamp)
         it.insert(k, item)
-        if len(st) > self.queue_size:
+        if len(st) > self._capacity(i):
             self._last[i] = st.pop(0)
             it.pop(0)
             self._drop(Drop.FRAME_QUEUE_OVERFLOW, i, self._last[i])
@@ -361,8 +391,9 @@ class StampSynchronizer:
             if max(abs(v - ref) for v in trial) > tol:
                 continue
             nxt = median(self._next_stamp(i, k) for i, k in members.items())
-            if h - median(vals) >= nxt - h:
-                claimed.add(j)  # nearer the next frames of the streams in the set: it belongs to a later set
+            others = [g for g, i in heads[1:] if i != j and i not in members]
+            if h - median(vals) >= nxt - h or _pulled_away(vals, h, others, tol):
+                claimed.add(j)  # nearer the next frames of the set's streams, or a later frame: a later set
                 continue
             members[j] = 0
             vals = trial
