@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .deformation import deformation_jacobians
-from .lm import LinearSystem, LMOptions, LMStats, SchurStructure, group_sum, inv3, levenberg_marquardt
+from .lm import LinearSystem, LMOptions, LMStats, SchurStructure, Stop, group_sum, inv3, levenberg_marquardt
 from .loss import HuberLoss
 from .rig import Rig
 from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
@@ -949,11 +949,11 @@ def _minimize_reestimating_sigma(prob: SequenceBundleProblem, state: BundleState
             if accepted == 1 or abs(new / prob.sigma - 1.0) > SIGMA_TOLERANCE:
                 prob = prob.with_sigma(new)
                 system = prob.linearize(state)
-                stop = "max accepted"  # the cost changed meaning: the next step judges convergence
-        if stop != "max accepted":
+                stop = Stop.MAX_ACCEPTED  # the cost changed meaning: the next step judges convergence
+        if stop != Stop.MAX_ACCEPTED:
             break
         if iterations >= options.max_iterations:
-            stop = "max iterations"
+            stop = Stop.MAX_ITERATIONS
             break
     return state, system, LMStats(iterations=iterations, accepted=accepted, initial_cost=initial, cost=system.cost,
                                   stop=stop, damping=damping), prob

@@ -503,7 +503,8 @@ class IncrementalSequence:
         """The earlier views view k may be paired with: (j, shared observation indices in j and in k, pair
         method) of those that share enough landmarks from two cameras; the newest ``max_pair_gap`` views first
         (newest first), then any older view of the sequence, most shared landmarks first (docs/PIPELINE.md,
-        "The joint estimate over the sequence"). Or a str why none does."""
+        "The joint estimate over the sequence"), and, where there are none, what the best ones shared (for the
+        user: the detail of a :class:`NewSequence`)."""
         s = self.seq
         opts = self.options
         # landmarks shared with view k, per earlier view and camera, counted at once
@@ -525,9 +526,9 @@ class IncrementalSequence:
             has_g = s.views[j].has_gravity and s.views[k].has_gravity
             out.append((int(j), ia, ib, pair_method(self.method, has_g)))
         if out:
-            return out
+            return out, ""
         best = np.argsort(-shared, kind="stable")[:3]
-        return "; ".join(f"view {j}: {shared[j]} shared landmarks from {cams[j]} camera(s)" for j in best) or \
+        return [], "; ".join(f"view {j}: {shared[j]} shared landmarks from {cams[j]} camera(s)" for j in best) or \
             "no earlier view"
 
     def _resect(self, k: int):
@@ -541,8 +542,8 @@ class IncrementalSequence:
             return None
         if s.rivals:
             return None  # gravity still ambiguous: each new pair's candidates compete (_update_gravity)
-        links = self._links(k)
-        if isinstance(links, str):
+        links, _ = self._links(k)
+        if not links:
             return None
         j, _, _, pm = links[0]
         view, cam, track, f, inl = s.arrays()
@@ -567,9 +568,9 @@ class IncrementalSequence:
         """(reference view, method, two-view estimate) of view k, or (StartReason, detail) why none. At most
         ``max_pair_gap`` pairs are estimated, in the order of :meth:`_links`."""
         s = self.seq
-        links = self._links(k)
-        if isinstance(links, str):
-            return StartReason.NO_SHARED_LANDMARKS, links
+        links, why_none = self._links(k)
+        if not links:
+            return StartReason.NO_SHARED_LANDMARKS, why_none
         why = []
         for j, ia, ib, pm in links[: self.options.max_pair_gap]:
             vj, vk = s.views[j], s.views[k]
