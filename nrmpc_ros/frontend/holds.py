@@ -36,6 +36,7 @@ import numpy as np
 
 from ..config import check, option
 from ..core.dynamics import bar_natural_frequencies
+from ..core.loss import MAD_TO_STD
 from ..core.rig import Rig
 from .ringing import RingingFit, fit_damped_response
 
@@ -457,7 +458,7 @@ def _offset_noise(shifts: list, offsets: np.ndarray) -> float:
         n = np.count_nonzero(np.isfinite(r), axis=1)
         ok = n > 0
         if ok.any():
-            spread = 1.4826 * np.nanmedian(r[ok], axis=1) / math.sqrt(2.0)  # per axis, per frame
+            spread = MAD_TO_STD * np.nanmedian(r[ok], axis=1) / math.sqrt(2.0)  # per axis, per frame
             out.append(float(np.median(1.2533 * spread / np.sqrt(n[ok]))))
     return max(out) if out else 0.0
 
