@@ -161,6 +161,11 @@ class SequenceRecord:
     noise_scale: np.ndarray | None = None  # (K,) each view's bearing noise over the nominal one (None: all 1)
 
 
+def _landmark_keys(cam: np.ndarray, track: np.ndarray) -> np.ndarray:
+    """One key per observation for its (camera, landmark) pair: views share a landmark when one camera sees it."""
+    return cam * (1 << 40) + track
+
+
 @dataclass
 class _View:
     """One view of a sequence: its observations (camera, landmark id, unit bearing each), its measured gravity
@@ -187,8 +192,8 @@ class _View:
         return bool(np.all(np.isfinite(self.measured)))
 
     def keys(self) -> np.ndarray:
-        """One key per observation for (camera, landmark) pairs: a landmark is shared when the same camera sees it."""
-        return self.cam * (1 << 40) + self.track
+        """:func:`_landmark_keys` of its observations."""
+        return _landmark_keys(self.cam, self.track)
 
 
 @dataclass
@@ -363,6 +368,11 @@ class IncrementalSequence:
     def num_views(self) -> int:
         return self.seq.num_views
 
+    @property
+    def number(self) -> int:
+        """The current sequence's number (a reset or a break starts the next)."""
+        return self.seq.number
+
     def tracks(self) -> Tracks:
         """The current sequence's observations as tracks (with the measured gravity)."""
         return self._tracks_of(self.seq)
@@ -451,7 +461,7 @@ class IncrementalSequence:
         key = vk.keys()
         for p in reversed(self._broken):
             view, cam, track = p.view_index(), p.column("cam"), p.column("track")
-            hit = np.isin(cam * (1 << 40) + track, key)
+            hit = np.isin(_landmark_keys(cam, track), key)
             ncam = self.rig.num_cameras
             per_cam = np.bincount(view[hit] * ncam + cam[hit], minlength=p.num_views * ncam).reshape(-1, ncam)
             shared = per_cam.sum(axis=1)
@@ -509,7 +519,7 @@ class IncrementalSequence:
         opts = self.options
         # landmarks shared with view k, per earlier view and camera, counted at once
         view, cam, track = s.view_index(k), s.column("cam", k), s.column("track", k)
-        hit = np.isin(cam * (1 << 40) + track, s.views[k].keys())
+        hit = np.isin(_landmark_keys(cam, track), s.views[k].keys())
         ncam = self.rig.num_cameras
         per_cam = np.bincount(view[hit] * ncam + cam[hit], minlength=k * ncam).reshape(k, ncam)
         shared = per_cam.sum(axis=1)
