@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     hub = adjust_bundle(rig, obs, R, t, g0, max_iterations=200, tol=1e-13)
     print(f"from the truth: least squares {_errors(ls.state, gk).round(3)}, Huber {_errors(hub.state, gk).round(3)} "
           f"(a posteriori noise {hub.sigma_rad * focal:.3f} px); the pipeline's own "
-          f"{np.round([math.degrees(angle_between(s.R[k].T @ s.gravity, gk[k])) for k in (0, K - 1)], 3)}")
+          f"{np.round([math.degrees(angle_between(s.views[k].R.T @ s.gravity, gk[k])) for k in (0, K - 1)], 3)}")
     bulk = float(np.median(d)) / RAYLEIGH
     for c in (float(x) for x in args.cuts.split(",")):
         keep = _multi_view(obs.subset(d < c * bulk)[0])
@@ -111,7 +111,7 @@ def main(argv=None) -> int:
         b = observed_sequence_bound(rig, keep, R, t, g0, bulk / focal)
         print(f"within {c:g} x the bulk ({bulk:.3f} px), {np.mean(d < c * bulk):.0%} kept: "
               f"{_errors(res.state, gk).round(3)}, bound at the bulk {np.degrees(b.median_angles())[[0, -1]].round(3)}")
-    Rp, tp, gp = np.array(s.R), np.array(s.t), s.gravity
+    (Rp, tp), gp = s.poses(), s.gravity
     for r in range(3):
         dp = _distances(rig, obs, Rp, tp, gp) * focal
         bp = float(np.median(dp)) / RAYLEIGH

@@ -389,7 +389,7 @@ def _view_bounds(rig, seq, s, k: int, truth: list, holds: list, imu_floor_deg: f
     t = np.array([Rw0.T @ (pw - pw0) for _, pw, _ in truth])
     priors = white = None
     if seq.method == "4pt-bending":
-        ms = np.array(s.measured_sigma[: k + 1], float)
+        ms = s.measured_sigmas(k + 1)
         g = np.where(np.isfinite(ms)[:, None], np.array([gk for _, _, gk in truth]), np.nan)
         priors = GravityPriors(g, ms, seq.options.gravity_bias_sigma)
         # the accelerometer's own white noise: its std without the floor the pipeline adds (the tilt stays)

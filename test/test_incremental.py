@@ -90,9 +90,9 @@ def test_a_view_without_shared_landmarks_starts_a_new_sequence_and_reset_does_to
     c, t, f, g = items[4]
     out = seq.add_view(c, t + 10**6, f, g)  # landmark ids nobody has seen
     assert isinstance(out, NewSequence) and out.reason is StartReason.NO_SHARED_LANDMARKS and out.sequence == 1
-    assert seq.seq.number == 1 and seq.num_views == 1
+    assert seq.number == 1 and seq.num_views == 1
     seq.reset()
-    assert seq.seq.number == 2 and seq.num_views == 0
+    assert seq.number == 2 and seq.num_views == 0
     recs = seq.sequences()
     assert [r.tracks.num_views for r in recs] == [4]
     assert recs[0].R.shape == (4, 3, 3) and recs[0].gravity.shape == (3,)
@@ -186,7 +186,7 @@ def test_a_later_view_linking_both_sequences_merges_them(noisy):
         assert v.sequence == 0 and v.view == k
         assert rotation_angle(p.R[k].T @ v.R) < math.radians(0.5) and np.linalg.norm(v.t - p.t[k]) < 0.03
         assert float(angle_between(v.gravity, p.gravity[k])) < 4 * v.gravity_sigma_rad + math.radians(0.05)
-    assert seq.num_views == 10 and seq.seq.number == 0
+    assert seq.num_views == 10 and seq.number == 0
 
 
 def test_a_bridged_break_carries_gravity_into_the_new_sequence():

@@ -4,7 +4,7 @@ a linear one with points eliminated by the Schur complement (compared with a den
 import numpy as np
 import pytest
 
-from nrmpc_ros.core.lm import LinearSystem, LMOptions, SchurStructure, levenberg_marquardt
+from nrmpc_ros.core.lm import LinearSystem, LMOptions, SchurStructure, Stop, levenberg_marquardt
 
 
 class Rosenbrock:
@@ -123,7 +123,7 @@ def test_runs_of_one_accepted_step_resumed_with_their_system_and_damping_take_th
                                                 system=system, damping=damping)
         iterations, damping, runs = iterations + st.iterations, st.damping, runs + 1
         assert st.accepted <= 1
-        if st.stop != "max accepted":
+        if st.stop != Stop.MAX_ACCEPTED:
             break
     np.testing.assert_array_equal(state, whole)
     assert st.stop == stats.stop and iterations == stats.iterations and runs == stats.accepted

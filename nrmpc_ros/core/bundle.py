@@ -31,8 +31,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .deformation import deformation_jacobians
-from .lm import LinearSystem, LMOptions, LMStats, SchurStructure, group_sum, inv3, levenberg_marquardt
-from .loss import HuberLoss
+from .lm import LinearSystem, LMOptions, LMStats, SchurStructure, Stop, group_sum, inv3, levenberg_marquardt
+from .loss import MAD_TO_STD, HuberLoss
 from .rig import Rig
 from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
 
@@ -289,7 +289,7 @@ def robust_sigma(e: np.ndarray, num_points: int, num_params: int = 0, floor: flo
     """
     n_res = e.size
     dof = max(n_res - 3 * num_points - num_params, 1)
-    s0 = max(1.4826 * float(np.median(np.abs(e))), floor)
+    s0 = max(MAD_TO_STD * float(np.median(np.abs(e))), floor)
     r2 = np.einsum("ni,ni->n", e, e) / (s0 * s0)
     w = HuberLoss(huber_k).weight(r2)
     s = s0 * math.sqrt(float(np.sum(w * r2)) / max(float(np.sum(w)), 1e-300) / 2.0)  # per component
@@ -949,11 +949,11 @@ def _minimize_reestimating_sigma(prob: SequenceBundleProblem, state: BundleState
             if accepted == 1 or abs(new / prob.sigma - 1.0) > SIGMA_TOLERANCE:
                 prob = prob.with_sigma(new)
                 system = prob.linearize(state)
-                stop = "max accepted"  # the cost changed meaning: the next step judges convergence
-        if stop != "max accepted":
+                stop = Stop.MAX_ACCEPTED  # the cost changed meaning: the next step judges convergence
+        if stop != Stop.MAX_ACCEPTED:
             break
         if iterations >= options.max_iterations:
-            stop = "max iterations"
+            stop = Stop.MAX_ITERATIONS
             break
     return state, system, LMStats(iterations=iterations, accepted=accepted, initial_cost=initial, cost=system.cost,
                                   stop=stop, damping=damping), prob

@@ -16,7 +16,7 @@ import numpy as np
 
 from .deformation import bend_rotation_vectors, deformed_extrinsics, rays
 from .epipolar import essential_matrix, in_front
-from .loss import msac_score
+from .loss import MAD_TO_STD, HuberLoss, msac_score
 from .matches import Matches
 from .residuals import two_view_angular_errors
 from .rig import Rig
@@ -228,8 +228,8 @@ def least_squares_translations(o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d
         H = np.swapaxes(Aw, -1, -2) @ Aw + 1e-12 * np.eye(3)
         t = np.linalg.solve(H, np.swapaxes(Aw, -1, -2) @ (b * w)[..., None])[..., 0]
         r = np.abs((A @ t[..., None])[..., 0] - b)
-        s = 1.4826 * np.median(r, axis=-1, keepdims=True) + 1e-15
-        w = np.minimum(1.0, 2.0 * s / np.maximum(r, 1e-300))
+        s = MAD_TO_STD * np.median(r, axis=-1, keepdims=True) + 1e-15
+        w = HuberLoss(2.0 * s).weight(r * r)
     return t
 
 

@@ -161,26 +161,62 @@ class SequenceRecord:
     noise_scale: np.ndarray | None = None  # (K,) each view's bearing noise over the nominal one (None: all 1)
 
 
+def _landmark_keys(cam: np.ndarray, track: np.ndarray) -> np.ndarray:
+    """One key per observation for its (camera, landmark) pair: views share a landmark when one camera sees it."""
+    return cam * (1 << 40) + track
+
+
+@dataclass
+class _View:
+    """One view of a sequence: its observations (camera, landmark id, unit bearing each), its measured gravity
+    in its body frame (NaN: none) with that gravity's std (rad), its bearings' noise std over the nominal one,
+    which of its observations the latest solve kept as inliers, and its pose in the sequence's origin
+    (p_0 = R p + t; None until the view is placed)."""
+
+    cam: np.ndarray  # (n,) int64
+    track: np.ndarray  # (n,) int64
+    f: np.ndarray  # (n, 3)
+    measured: np.ndarray  # (3,), NaN without measured gravity
+    measured_sigma: float
+    noise_scale: float = 1.0
+    inlier: np.ndarray | None = None  # (n,) bool; None: all
+    R: np.ndarray | None = None
+    t: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.inlier is None:
+            self.inlier = np.ones(len(self.cam), bool)
+
+    @property
+    def has_gravity(self) -> bool:
+        return bool(np.all(np.isfinite(self.measured)))
+
+    def keys(self) -> np.ndarray:
+        """:func:`_landmark_keys` of its observations."""
+        return _landmark_keys(self.cam, self.track)
+
+
 @dataclass
 class _Sequence:
-    """Everything one sequence has seen and estimated."""
+    """Everything one sequence has seen and estimated: one :class:`_View` per view, the origin's gravity (set
+    by :meth:`set_gravity` only) and what else is known of it."""
 
     number: int
-    view: list = field(default_factory=list)  # per view: (n,) arrays
-    cam: list = field(default_factory=list)
-    track: list = field(default_factory=list)
-    f: list = field(default_factory=list)
-    measured: list = field(default_factory=list)  # per view (3,) or NaN
-    measured_sigma: list = field(default_factory=list)
-    R: list = field(default_factory=list)
-    t: list = field(default_factory=list)
-    gravity: np.ndarray | None = None  # origin's gravity
+    views: list = field(default_factory=list)  # _View each, in order (index = view number)
+    _gravity: np.ndarray | None = None  # origin's gravity
     condensed: GravityInformation | None = None
     retired: set = field(default_factory=set)  # landmark ids folded into ``condensed``
-    inlier: list = field(default_factory=list)  # per view (n,) bool
-    noise_scale: list = field(default_factory=list)  # per view: its observations' noise std over the nominal one
     rivals: list = field(default_factory=list)  # origin gravities of basins whose joint cost is within the noise
     carried: GravityInformation | None = None  # the gravity a gyro-bridged break carried over (a prior on g_0)
+
+    @property
+    def gravity(self) -> np.ndarray | None:
+        """The origin's gravity (m/s^2), None while unknown."""
+        return self._gravity
+
+    def set_gravity(self, gravity: np.ndarray | None) -> None:
+        """The origin's gravity: a chosen candidate, a window solve's or one carried over a break."""
+        self._gravity = gravity
 
     def information(self) -> GravityInformation | None:
         """Every prior on the origin's gravity: condensed from retired landmarks, and carried over a break."""
@@ -190,17 +226,54 @@ class _Sequence:
 
     @property
     def num_views(self) -> int:
-        return len(self.view)
+        return len(self.views)
+
+    def posed(self) -> bool:
+        """Whether every view has its pose (a view being added has none until it is placed)."""
+        return all(v.R is not None for v in self.views)
+
+    def poses(self, upto: int | None = None) -> tuple:
+        """((K, 3, 3), (K, 3)): the poses of views [0, upto) in the origin."""
+        vs = self.views[:upto]
+        return np.array([v.R for v in vs]), np.array([v.t for v in vs])
+
+    def measured(self, upto: int | None = None) -> np.ndarray:
+        """(K, 3) measured gravity of views [0, upto) (NaN rows: none)."""
+        return np.array([v.measured for v in self.views[:upto]])
+
+    def measured_sigmas(self, upto: int | None = None) -> np.ndarray:
+        """(K,) the measured gravity's std (rad) of views [0, upto)."""
+        return np.array([v.measured_sigma for v in self.views[:upto]])
+
+    def noise_scales(self) -> np.ndarray:
+        """(K,) each view's bearing noise over the nominal one."""
+        return np.array([v.noise_scale for v in self.views], dtype=float)
 
     def scales(self) -> np.ndarray | None:
         """Per observation (in the order of :meth:`arrays`): its view's noise scale; None when all are 1."""
-        if all(x == 1.0 for x in self.noise_scale):
+        if all(v.noise_scale == 1.0 for v in self.views):
             return None
-        return np.repeat(np.asarray(self.noise_scale, float), [len(v) for v in self.view])
+        return np.repeat(self.noise_scales(), [len(v.cam) for v in self.views])
+
+    def column(self, name: str, upto: int | None = None) -> np.ndarray:
+        """One per-observation field of views [0, upto) concatenated (``cam``, ``track``, ``f``, ``inlier``)."""
+        return np.concatenate([getattr(v, name) for v in self.views[:upto]])
+
+    def view_index(self, upto: int | None = None) -> np.ndarray:
+        """(n,) the view of each observation of views [0, upto)."""
+        vs = self.views[:upto]
+        return np.repeat(np.arange(len(vs), dtype=np.int64), [len(v.cam) for v in vs])
 
     def arrays(self):
-        return (np.concatenate(self.view), np.concatenate(self.cam), np.concatenate(self.track),
-                np.concatenate(self.f), np.concatenate(self.inlier))
+        """(view, cam, track, f, inlier) of every observation, view by view."""
+        return (self.view_index(), self.column("cam"), self.column("track"), self.column("f"),
+                self.column("inlier"))
+
+    def set_inliers(self, flat: np.ndarray) -> None:
+        """Every view's inlier mask from one array in the order of :meth:`arrays`."""
+        sizes = np.cumsum([len(v.cam) for v in self.views])[:-1]
+        for v, part in zip(self.views, np.split(flat, sizes)):
+            v.inlier = part
 
 
 def _rotated(info: GravityInformation | None, M: np.ndarray) -> GravityInformation | None:
@@ -279,7 +352,7 @@ class IncrementalSequence:
         if not math.isfinite(sigma) or sigma <= 0.0:
             return False
         g0 = np.asarray(rotation, float).T @ g_prev
-        s.gravity = g0
+        s.set_gravity(g0)
         s.carried = GravityInformation(normalize(g0), np.eye(2) / sigma ** 2)
         self._carry = None
         return True
@@ -288,13 +361,17 @@ class IncrementalSequence:
         """Every sequence of two views or more so far (with ``keep_history``; else the current one): a
         :class:`SequenceRecord` each."""
         seqs = self.history + ([self.seq] if self.seq.num_views >= 2 else [])
-        return [SequenceRecord(self._tracks_of(s), np.array(s.R[: s.num_views]), np.array(s.t[: s.num_views]),
-                               s.gravity, np.array(s.measured_sigma), np.array(s.noise_scale, dtype=float))
-                for s in seqs if len(s.R) >= s.num_views]
+        return [SequenceRecord(self._tracks_of(s), *s.poses(), s.gravity, s.measured_sigmas(), s.noise_scales())
+                for s in seqs if s.posed()]
 
     @property
     def num_views(self) -> int:
         return self.seq.num_views
+
+    @property
+    def number(self) -> int:
+        """The current sequence's number (a reset or a break starts the next)."""
+        return self.seq.number
 
     def tracks(self) -> Tracks:
         """The current sequence's observations as tracks (with the measured gravity)."""
@@ -303,15 +380,15 @@ class IncrementalSequence:
     @staticmethod
     def _tracks_of(s: _Sequence) -> Tracks:
         view, cam, track, f, _ = s.arrays()
-        g = np.array(s.measured)
+        g = s.measured()
         return Tracks(view, cam, track, f, g if np.isfinite(g).any() else None, num_views=s.num_views,
                       source=f"sequence {s.number}")
 
     def relative_pose(self, view: int, reference: int):
         """(R, t) of ``view`` in ``reference``'s body frame (p_ref = R p + t)."""
         s = self.seq
-        Rr, tr = s.R[reference], s.t[reference]
-        return Rr.T @ s.R[view], Rr.T @ (s.t[view] - tr)
+        r, v = s.views[reference], s.views[view]
+        return r.R.T @ v.R, r.R.T @ (v.t - r.t)
 
     @property
     def noise_rad(self) -> float:
@@ -341,32 +418,23 @@ class IncrementalSequence:
         sg = self.options.estimator.gravity_prior_sigma if measured_sigma_rad is None else float(measured_sigma_rad)
         s = self.seq
         k = s.num_views
-        s.view.append(np.full(len(cam), k, np.int64))
-        s.cam.append(cam)
-        s.track.append(track)
-        s.f.append(f)
-        s.measured.append(g)
-        s.measured_sigma.append(sg)
-        s.inlier.append(np.ones(len(cam), bool))
-        s.noise_scale.append(max(float(noise_scale), 1.0) if math.isfinite(noise_scale) else 1.0)
+        new = _View(cam, track, f, g, sg, max(float(noise_scale), 1.0) if math.isfinite(noise_scale) else 1.0)
+        s.views.append(new)
         if k == 0:
-            s.R.append(np.eye(3))
-            s.t.append(np.zeros(3))
+            new.R, new.t = np.eye(3), np.zeros(3)
             return NewSequence(s.number, StartReason.FIRST_VIEW)
         placed = self._resect(k)
         warm = placed is not None
         if warm:
-            j, pm, (R, t) = placed
-            s.R.append(R)
-            s.t.append(t)
+            j, pm, (new.R, new.t) = placed
         else:
             paired = self._pair(k)
             if isinstance(paired, tuple) and isinstance(paired[0], StartReason):
                 self._restart_from_last()
                 return NewSequence(self.seq.number, *paired)
             j, pm, est = paired
-            s.R.append(s.R[j] @ est.R)
-            s.t.append(s.R[j] @ est.t + s.t[j])
+            ref = s.views[j]
+            new.R, new.t = ref.R @ est.R, ref.R @ est.t + ref.t
             if self.with_gravity:
                 self._update_gravity(k, j, est)
         merged = self._merge(k)
@@ -389,10 +457,11 @@ class IncrementalSequence:
         Returns (the earlier sequence's number, its number of views) or None."""
         s = self.seq
         opts = self.options
-        key = s.cam[k] * (1 << 40) + s.track[k]
+        vk = s.views[k]
+        key = vk.keys()
         for p in reversed(self._broken):
-            view, cam, track = (np.concatenate(x) for x in (p.view, p.cam, p.track))
-            hit = np.isin(cam * (1 << 40) + track, key)
+            view, cam, track = p.view_index(), p.column("cam"), p.column("track")
+            hit = np.isin(_landmark_keys(cam, track), key)
             ncam = self.rig.num_cameras
             per_cam = np.bincount(view[hit] * ncam + cam[hit], minlength=p.num_views * ncam).reshape(-1, ncam)
             shared = per_cam.sum(axis=1)
@@ -400,11 +469,12 @@ class IncrementalSequence:
             for j in np.argsort(-shared, kind="stable")[: opts.max_pair_gap]:
                 if not ok[j]:
                     break
-                ia, ib = np.intersect1d(p.cam[j] * (1 << 40) + p.track[j], key, return_indices=True)[1:]
-                has_g = np.all(np.isfinite(p.measured[j])) and np.all(np.isfinite(s.measured[k]))
+                vj = p.views[j]
+                ia, ib = np.intersect1d(vj.keys(), key, return_indices=True)[1:]
+                has_g = vj.has_gravity and vk.has_gravity
                 pm = pair_method(self.method, has_g)
-                m = Matches(p.f[j][ia], s.f[k][ib], p.cam[j][ia], p.measured[j] if has_g else None,
-                            s.measured[k] if has_g else None, source=f"sequence {p.number} view {j}, view {k}")
+                m = Matches(vj.f[ia], vk.f[ib], vj.cam[ia], vj.measured if has_g else None,
+                            vk.measured if has_g else None, source=f"sequence {p.number} view {j}, view {k}")
                 est = estimate(self.model_rig, m, method=pm, seed=self.seed + k, options=self._pair_options)
                 if est.success:
                     n = p.num_views
@@ -415,20 +485,10 @@ class IncrementalSequence:
     def _join(self, p: _Sequence, j: int, k: int, est) -> None:
         """The current sequence appended to ``p`` (view k placed from p's view j by ``est``), and current."""
         s = self.seq
-        M = p.R[j] @ est.R @ s.R[k].T  # current origin -> p's origin
-        c = p.R[j] @ est.t + p.t[j] - M @ s.t[k]
-        n = p.num_views
-        for i in range(s.num_views):
-            p.view.append(s.view[i] + n)
-            p.cam.append(s.cam[i])
-            p.track.append(s.track[i])
-            p.f.append(s.f[i])
-            p.measured.append(s.measured[i])
-            p.measured_sigma.append(s.measured_sigma[i])
-            p.noise_scale.append(s.noise_scale[i])
-            p.inlier.append(s.inlier[i])
-            p.R.append(M @ s.R[i])
-            p.t.append(M @ s.t[i] + c)
+        vj, vk = p.views[j], s.views[k]
+        M = vj.R @ est.R @ vk.R.T  # current origin -> p's origin
+        c = vj.R @ est.t + vj.t - M @ vk.t
+        p.views += [replace(v, R=M @ v.R, t=M @ v.t + c) for v in s.views]
         p.retired |= s.retired  # a gravity s carried over its break is dropped: p's own views say it again
         p.condensed = _rotated(s.condensed, M) if p.condensed is None else \
             p.condensed.combined(_rotated(s.condensed, M))
@@ -446,21 +506,20 @@ class IncrementalSequence:
     def _shared(self, j: int, k: int):
         """Observation indices (in views j and k) of the landmarks both see with the same camera."""
         s = self.seq
-        a = s.cam[j] * (1 << 40) + s.track[j]
-        b = s.cam[k] * (1 << 40) + s.track[k]
-        _, ia, ib = np.intersect1d(a, b, assume_unique=False, return_indices=True)
+        _, ia, ib = np.intersect1d(s.views[j].keys(), s.views[k].keys(), assume_unique=False, return_indices=True)
         return ia, ib
 
     def _links(self, k: int):
         """The earlier views view k may be paired with: (j, shared observation indices in j and in k, pair
         method) of those that share enough landmarks from two cameras; the newest ``max_pair_gap`` views first
         (newest first), then any older view of the sequence, most shared landmarks first (docs/PIPELINE.md,
-        "The joint estimate over the sequence"). Or a str why none does."""
+        "The joint estimate over the sequence"), and, where there are none, what the best ones shared (for the
+        user: the detail of a :class:`NewSequence`)."""
         s = self.seq
         opts = self.options
         # landmarks shared with view k, per earlier view and camera, counted at once
-        view, cam, track = (np.concatenate(x[:k]) for x in (s.view, s.cam, s.track))
-        hit = np.isin(cam * (1 << 40) + track, s.cam[k] * (1 << 40) + s.track[k])
+        view, cam, track = s.view_index(k), s.column("cam", k), s.column("track", k)
+        hit = np.isin(_landmark_keys(cam, track), s.views[k].keys())
         ncam = self.rig.num_cameras
         per_cam = np.bincount(view[hit] * ncam + cam[hit], minlength=k * ncam).reshape(k, ncam)
         shared = per_cam.sum(axis=1)
@@ -474,12 +533,12 @@ class IncrementalSequence:
             if not ok[j]:
                 continue
             ia, ib = self._shared(j, k)
-            has_g = np.all(np.isfinite(s.measured[j])) and np.all(np.isfinite(s.measured[k]))
+            has_g = s.views[j].has_gravity and s.views[k].has_gravity
             out.append((int(j), ia, ib, pair_method(self.method, has_g)))
         if out:
-            return out
+            return out, ""
         best = np.argsort(-shared, kind="stable")[:3]
-        return "; ".join(f"view {j}: {shared[j]} shared landmarks from {cams[j]} camera(s)" for j in best) or \
+        return [], "; ".join(f"view {j}: {shared[j]} shared landmarks from {cams[j]} camera(s)" for j in best) or \
             "no earlier view"
 
     def _resect(self, k: int):
@@ -493,38 +552,41 @@ class IncrementalSequence:
             return None
         if s.rivals:
             return None  # gravity still ambiguous: each new pair's candidates compete (_update_gravity)
-        links = self._links(k)
-        if isinstance(links, str):
+        links, _ = self._links(k)
+        if not links:
             return None
         j, _, _, pm = links[0]
         view, cam, track, f, inl = s.arrays()
         # every earlier view's landmarks (fixed poses outside the window): a view may return to an old place
-        known = (view < k) & inl & np.isin(track, s.track[k])
-        placed = resect_on_landmarks(self.model_rig, (view[known], cam[known], track[known], f[known]), s.R[:k],
-                                     s.t[:k], s.gravity if self.with_gravity else None,
-                                     (s.cam[k], s.track[k], s.f[k]), (s.R[j], s.t[j]), self.threshold,
+        vk, vj = s.views[k], s.views[j]
+        known = (view < k) & inl & np.isin(track, vk.track)
+        placed = resect_on_landmarks(self.model_rig, (view[known], cam[known], track[known], f[known]),
+                                     [v.R for v in s.views[:k]], [v.t for v in s.views[:k]],
+                                     s.gravity if self.with_gravity else None,
+                                     (vk.cam, vk.track, vk.f), (vj.R, vj.t), self.threshold,
                                      opts.min_pair_matches, self.seed + k)
         if placed is None:
             return None
         res, hit = placed
-        inlier = np.zeros(len(s.cam[k]), bool)
+        inlier = np.zeros(len(vk.cam), bool)
         inlier[hit[res.inliers]] = True
         inlier[np.setdiff1d(np.arange(len(inlier)), hit)] = True  # new landmarks: judged by the window solve
-        s.inlier[k] = inlier
+        vk.inlier = inlier
         return j, pm, (res.R, res.t)
 
     def _pair(self, k: int):
         """(reference view, method, two-view estimate) of view k, or (StartReason, detail) why none. At most
         ``max_pair_gap`` pairs are estimated, in the order of :meth:`_links`."""
         s = self.seq
-        links = self._links(k)
-        if isinstance(links, str):
-            return StartReason.NO_SHARED_LANDMARKS, links
+        links, why_none = self._links(k)
+        if not links:
+            return StartReason.NO_SHARED_LANDMARKS, why_none
         why = []
         for j, ia, ib, pm in links[: self.options.max_pair_gap]:
-            has_g = np.all(np.isfinite(s.measured[j])) and np.all(np.isfinite(s.measured[k]))
-            m = Matches(s.f[j][ia], s.f[k][ib], s.cam[j][ia], s.measured[j] if has_g else None,
-                        s.measured[k] if has_g else None, source=f"views {j}, {k}")
+            vj, vk = s.views[j], s.views[k]
+            has_g = vj.has_gravity and vk.has_gravity
+            m = Matches(vj.f[ia], vk.f[ib], vj.cam[ia], vj.measured if has_g else None,
+                        vk.measured if has_g else None, source=f"views {j}, {k}")
             est = estimate(self.model_rig, m, method=pm, seed=self.seed + k, options=self._pair_options)
             if est.success:
                 return j, pm, est
@@ -534,48 +596,36 @@ class IncrementalSequence:
     def _restart_from_last(self) -> None:
         """The newest view cannot be linked: it becomes the origin of a new sequence."""
         s = self.seq
-        last = (s.cam.pop(), s.track.pop(), s.f.pop(), s.measured.pop(), s.measured_sigma.pop(), s.noise_scale.pop())
-        s.view.pop()
-        s.inlier.pop()
-        if s.num_views >= 2 and len(s.R) >= s.num_views and self.options.merge_sequences > 0:
+        last = s.views.pop()
+        if s.num_views >= 2 and s.posed() and self.options.merge_sequences > 0:
             self._broken = (self._broken + [s])[-self.options.merge_sequences:]
         carry = None
         if self._last_gravity is not None and self._last_gravity[0] == s.num_views - 1:
             carry = self._last_gravity[1:]  # the previous view's own gravity, in its body frame
         self._new_sequence()
         self._carry = carry
-        n = self.seq
-        n.view.append(np.zeros(len(last[0]), np.int64))
-        n.cam.append(last[0])
-        n.track.append(last[1])
-        n.f.append(last[2])
-        n.measured.append(last[3])
-        n.measured_sigma.append(last[4])
-        n.noise_scale.append(last[5])
-        n.inlier.append(np.ones(len(last[0]), bool))
-        n.R.append(np.eye(3))
-        n.t.append(np.zeros(3))
+        self.seq.views.append(replace(last, inlier=None, R=np.eye(3), t=np.zeros(3)))
 
     # --------------------------------------------------------------- gravity
     def _priors(self, K: int) -> GravityPriors | None:
         s = self.seq
         if self.method != "4pt-bending" or not math.isfinite(self.options.estimator.gravity_prior_sigma):
             return None
-        g = np.array(s.measured[:K])
+        g = s.measured(K)
         if not np.isfinite(g).any():
             return None
-        return GravityPriors(g, np.array(s.measured_sigma[:K]), self.options.gravity_bias_sigma)
+        return GravityPriors(g, s.measured_sigmas(K), self.options.gravity_bias_sigma)
 
     def _update_gravity(self, k: int, j: int, est) -> None:
         """Choose the origin's gravity among the joint one and the new pair's candidates (see the module)."""
         s = self.seq
         if est.gravity is None:
             return
-        Rj = s.R[j]
+        Rj = s.views[j].R
         cands = [(Rj @ np.asarray(g, float), float(est.num_inliers))
                  for g in [est.gravity] + list(est.info.gravity_candidates)]
         if self.method == "4pt-bending":
-            cands += [(s.R[i] @ s.measured[i], 0.0) for i in (j, k) if np.all(np.isfinite(s.measured[i]))]
+            cands += [(s.views[i].R @ s.views[i].measured, 0.0) for i in (j, k) if s.views[i].has_gravity]
         if s.gravity is not None:
             young = k < self.young_views or bool(s.rivals)
             # a pair contradicts the joint gravity by more than options.reconsider_deg and its own noise allows
@@ -594,17 +644,17 @@ class IncrementalSequence:
         distinct = distinct_candidates(cands, math.radians(opts.candidate_separation_deg), opts.max_candidates)
         obs, _, free = self._window_problem(k, max(0, k + 1 - self.window))
         scores = []
-        chosen, _ = choose_gravity(self.model_rig, obs, np.array(s.R), np.array(s.t), distinct, self._priors(k + 1),
+        chosen, _ = choose_gravity(self.model_rig, obs, *s.poses(), distinct, self._priors(k + 1),
                                    self.threshold,
                                    replace(opts, refined_candidates=max(opts.refined_candidates, len(distinct))),
                                    np.random.default_rng(self.seed + k), free_views=free,
                                    gravity_information=s.information(), scores=scores)
         if isinstance(chosen, np.ndarray):
-            s.gravity = chosen
+            s.set_gravity(chosen)
         else:
-            s.gravity = chosen.gravity
+            s.set_gravity(chosen.gravity)
             for i in free:
-                s.R[i], s.t[i] = chosen.R[i], chosen.t[i]
+                s.views[i].R, s.views[i].t = chosen.R[i], chosen.t[i]
         s.rivals = self._rivals(s.gravity, scores)
 
     def _rivals(self, gravity: np.ndarray, scores: list) -> list:
@@ -648,8 +698,8 @@ class IncrementalSequence:
         start = None
         if warm:  # the inliers so far, and the observations of landmarks not seen twice before view k
             before = np.bincount(obs.point, weights=obs.view < k, minlength=obs.num_points)
-            start = np.concatenate(s.inlier)[idx] | (before[obs.point] < 2)
-        res, inl = refine_sequence(self.model_rig, obs, np.array(s.R), np.array(s.t), s.gravity, self.threshold,
+            start = s.column("inlier")[idx] | (before[obs.point] < 2)
+        res, inl = refine_sequence(self.model_rig, obs, *s.poses(), s.gravity, self.threshold,
                                    priors=self._priors(k + 1), gravity_information=s.information(), free_views=free,
                                    max_iterations=self.options.max_iterations, rounds=self.options.window_rounds,
                                    huber_k=self.options.estimator.huber_k, inliers=start,
@@ -657,13 +707,12 @@ class IncrementalSequence:
                                    camera_noise=self.options.camera_noise)
         st = res.state
         for i in free:
-            s.R[i], s.t[i] = st.R[i], st.t[i]
+            s.views[i].R, s.views[i].t = st.R[i], st.t[i]
         if self.with_gravity and st.gravity is not None:
-            s.gravity = st.gravity
-        flat = np.concatenate(s.inlier)
+            s.set_gravity(st.gravity)
+        flat = s.column("inlier")
         flat[idx] = inl
-        sizes = np.cumsum([len(x) for x in s.inlier])[:-1]
-        s.inlier = np.split(flat, sizes)
+        s.set_inliers(flat)
         return res, first
 
     def _retire(self, first_next: int) -> None:
@@ -684,7 +733,7 @@ class IncrementalSequence:
         seen_twice = np.bincount(obs.point, minlength=obs.num_points) >= 2
         if seen_twice.any():
             obs, _ = obs.subset(seen_twice[obs.point])
-            state = BundleState(np.array(s.R), np.array(s.t), s.gravity, np.zeros((obs.num_points, 3)))
+            state = BundleState(*s.poses(), s.gravity, np.zeros((obs.num_points, 3)))
             state, _ = triangulated(self.model_rig, obs, state)
             info = condense_gravity(self.model_rig, obs, state, self._noise_rad, self.options.estimator.huber_k)
             if info is not None:
@@ -712,7 +761,7 @@ class IncrementalSequence:
         g = cov = None
         sigma = math.inf
         if self.with_gravity and s.gravity is not None and self.gravity_resolved(k):
-            g = s.R[k].T @ s.gravity
+            g = s.views[k].R.T @ s.gravity
             # the local std knows one basin only: the spread to rival basins enters it (docs/PIPELINE.md)
             spread = self.ambiguity_rad()
             sigma = math.hypot(res.gravity_sigma_rad(k), spread)
@@ -722,11 +771,11 @@ class IncrementalSequence:
                 cov = cov + spread ** 2 * float(g @ g) * (np.eye(3) - np.outer(u, u))
         if g is not None:
             self._last_gravity = (k, g, sigma)
-        n = len(s.cam[k])
-        return ViewEstimate(sequence=s.number, view=k, reference=j, method=pm, R=s.R[k].copy(), t=s.t[k].copy(),
+        vk = s.views[k]
+        return ViewEstimate(sequence=s.number, view=k, reference=j, method=pm, R=vk.R.copy(), t=vk.t.copy(),
                             gravity=g, gravity_sigma_rad=sigma, cov_gravity=cov,
-                            cov_pose=res.pose_covariance(k, body=True), num_observations=n,
-                            num_inliers=int(np.count_nonzero(s.inlier[k])), window=k + 1 - first,
+                            cov_pose=res.pose_covariance(k, body=True), num_observations=len(vk.cam),
+                            num_inliers=int(np.count_nonzero(vk.inlier)), window=k + 1 - first,
                             time_s=elapsed)
 
     # ----------------------------------------------------------------- batch
@@ -735,14 +784,14 @@ class IncrementalSequence:
         t0 = time.perf_counter()
         s = self.seq
         K = s.num_views
-        if K < 2 or len(s.R) < K:
+        if K < 2 or not s.posed():
             return SequenceEstimate(method=self.method, success=False, reason="fewer than two linked views")
         view, cam, track, f, _ = s.arrays()
         obs, _ = Observations.from_arrays(view, cam, track, f, K, s.scales())
         seen = (np.bincount(obs.point, minlength=obs.num_points) >= 2)[obs.point]
         obs, _ = obs.subset(seen)
-        return adjust_sequence(self.model_rig, self.tracks(), obs, np.flatnonzero(seen), np.array(s.R),
-                               np.array(s.t), s.gravity, self.with_gravity, self.method, self._priors(K),
+        return adjust_sequence(self.model_rig, self.tracks(), obs, np.flatnonzero(seen), *s.poses(), s.gravity,
+                               self.with_gravity, self.method, self._priors(K),
                                self.threshold, self.options, self.seed, t0)
 
 

@@ -28,6 +28,7 @@ there (for covariances) and its statistics whole (:class:`LMStats`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
@@ -265,6 +266,19 @@ class LMOptions:
     max_accepted: int | None = None  # stop after this many accepted steps (None: no limit)
 
 
+class Stop(str, Enum):
+    """Why a Levenberg-Marquardt run ended; the value is the phrase shown."""
+
+    CONVERGED = "converged"  # a step decreased the cost by less than the tolerances
+    MAX_ITERATIONS = "max iterations"
+    MAX_ACCEPTED = "max accepted"  # LMOptions.max_accepted steps were accepted (a run to be resumed)
+    DAMPING = "damping"  # the damping grew beyond LMOptions.max_damping
+    MINIMUM = "minimum"  # a rejected step whose cost only rose by rounding
+
+    def __str__(self) -> str:
+        return self.value
+
+
 @dataclass
 class LMStats:
     """What one run did: steps tried and accepted, the cost at the start and at the end, why it stopped and
@@ -274,7 +288,7 @@ class LMStats:
     accepted: int
     initial_cost: float
     cost: float
-    stop: str  # converged | max iterations | max accepted | damping | minimum
+    stop: Stop
     damping: float = 0.0
 
 
@@ -297,7 +311,7 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None, *, sys
     cost = initial = system.cost
     refit = getattr(problem, "refit_points", None)
     it = accepted = 0
-    stop = "max iterations"
+    stop = Stop.MAX_ITERATIONS
     while it < opts.max_iterations:
         it += 1
         dc, dp, camera_decrease = system.solve(lam)
@@ -309,11 +323,11 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None, *, sys
             new_state, new_cost = refit(new_state)
         if not (np.isfinite(new_cost) and new_cost <= cost):
             if np.isfinite(new_cost) and new_cost - cost < opts.cost_tolerance:
-                stop = "minimum"
+                stop = Stop.MINIMUM
                 break
             lam = max(lam * opts.damping_factor, opts.initial_damping)
             if lam > opts.max_damping:
-                stop = "damping"
+                stop = Stop.DAMPING
                 break
             continue
         decrease = cost - new_cost
@@ -325,13 +339,14 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None, *, sys
         system = problem.linearize(state)
         cost = system.cost
         if converged:
-            stop = "converged"
+            stop = Stop.CONVERGED
             break
         if opts.max_accepted is not None and accepted >= opts.max_accepted:
-            stop = "max accepted"
+            stop = Stop.MAX_ACCEPTED
             break
     return state, system, LMStats(iterations=it, accepted=accepted, initial_cost=initial, cost=cost, stop=stop,
                                   damping=lam)
 
 
-__all__ = ["LMOptions", "LMStats", "LinearSystem", "SchurStructure", "group_sum", "inv3", "levenberg_marquardt"]
+__all__ = ["LMOptions", "LMStats", "LinearSystem", "SchurStructure", "Stop", "group_sum", "inv3",
+           "levenberg_marquardt"]

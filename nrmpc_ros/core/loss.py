@@ -16,14 +16,18 @@ from __future__ import annotations
 
 import numpy as np
 
+MAD_TO_STD = 1.4826  # a normal distribution's std over its median absolute deviation (1 / Phi^-1(3/4))
+
 
 class HuberLoss:
-    """Quadratic up to ``delta``, linear beyond: cost r2/2 or delta (r - delta/2) with r = sqrt(r2)."""
+    """Quadratic up to ``delta``, linear beyond: cost r2/2 or delta (r - delta/2) with r = sqrt(r2).
+    ``delta`` is one number, or an array that broadcasts against ``r2`` (one per batch of problems)."""
 
-    def __init__(self, delta: float):
-        if not delta > 0:
+    def __init__(self, delta):
+        d = np.asarray(delta, dtype=float)
+        if not np.all(d > 0):
             raise ValueError(f"Huber delta must be > 0, got {delta}")
-        self.delta = float(delta)
+        self.delta = float(d) if d.ndim == 0 else d
 
     def loss(self, r2: np.ndarray) -> np.ndarray:
         r2 = np.asarray(r2, dtype=float)
@@ -44,4 +48,4 @@ def msac_score(errors: np.ndarray, threshold: float, axis=None) -> np.ndarray | 
     return float(s) if axis is None else s
 
 
-__all__ = ["HuberLoss", "msac_score"]
+__all__ = ["HuberLoss", "MAD_TO_STD", "msac_score"]

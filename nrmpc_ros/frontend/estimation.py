@@ -149,10 +149,10 @@ class HoldEstimator:
         g = None if imu is None else imu.gravity
         scale = self.sequence.noise_scale(ringing_noise_rad(self.rig, hold, obs.cam))
         st.penalized_holds += scale > 1.0
-        number = self.sequence.seq.number
+        number = self.sequence.number
         out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale)
         if attempt is not None:
-            attempt.sequence, attempt.index = self.sequence.seq.number, self.sequence.num_views - 1
+            attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):
             if out.reason is not StartReason.FIRST_VIEW and len(self._hold_stamps) >= 2:
                 self._broken_stamps[number] = self._hold_stamps  # a later hold may merge it back

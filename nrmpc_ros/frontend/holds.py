@@ -36,9 +36,12 @@ import numpy as np
 
 from ..config import check, option
 from ..core.dynamics import bar_natural_frequencies
+from ..core.loss import MAD_TO_STD
 from ..core.rig import Rig
 from .ringing import RingingFit, fit_damped_response
 
+EXPLAINED_NOISE_SIGMAS = 3.0  # a fit explains a camera's offsets: residual within this many of their noise ...
+EXPLAINED_SHARE = 0.1  # ... or within this share of the offsets' spread (the ringing it removed)
 MIN_FIT_FRAMES = 8  # the damped response has 8 parameters per camera (rest, cos, sin per axis; frequency, damping)
 # for 2 numbers per frame: 8 frames leave as many degrees of freedom for its noise as it has parameters
 
@@ -443,7 +446,7 @@ def _explains(fit: RingingFit, offsets: np.ndarray, noise: float) -> bool:
     """The damped response explains a camera's offsets: its residual is at the offsets' noise (or a small
     fraction of the ringing it removed), not a motion the model cannot follow."""
     spread = float(np.sqrt(np.nanmean(np.sum((offsets - np.nanmean(offsets, axis=0)) ** 2, axis=1))))
-    return fit.residual_rms <= max(3.0 * noise, 0.1 * spread)
+    return fit.residual_rms <= max(EXPLAINED_NOISE_SIGMAS * noise, EXPLAINED_SHARE * spread)
 
 
 def _offset_noise(shifts: list, offsets: np.ndarray) -> float:
@@ -455,7 +458,7 @@ def _offset_noise(shifts: list, offsets: np.ndarray) -> float:
         n = np.count_nonzero(np.isfinite(r), axis=1)
         ok = n > 0
         if ok.any():
-            spread = 1.4826 * np.nanmedian(r[ok], axis=1) / math.sqrt(2.0)  # per axis, per frame
+            spread = MAD_TO_STD * np.nanmedian(r[ok], axis=1) / math.sqrt(2.0)  # per axis, per frame
             out.append(float(np.median(1.2533 * spread / np.sqrt(n[ok]))))
     return max(out) if out else 0.0
 

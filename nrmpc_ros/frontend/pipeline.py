@@ -47,6 +47,7 @@ from .tracking import HoldThinning, KltTracker, TrackingConfig
 from .zupt import ZuptConfig, ZuptDetector
 
 PIPELINE_METHODS = ("auto",) + METHODS
+RECENT_PERIODS = 20  # the frame period is the median of this many recent intervals (robust to drops and gaps)
 
 
 @dataclass
@@ -290,6 +291,10 @@ class Pipeline:
         return self.thinning.skip(stamp, h.stamps[-1], frames, noise, self.bar_period_s, self.config.holds.measure_s,
                                   lambda: self.zupt.is_still(self.last_stamp, stamp) is True)
 
+    def _note_period(self, gap: float) -> None:
+        """One more interval between consecutive frame sets of a stream (s)."""
+        self._periods = (self._periods + [gap])[-RECENT_PERIODS:]
+
     def _lone_gap(self) -> float:
         """Frames further apart than this do not belong to one stream (s)."""
         p = float(np.median(self._periods)) if self._periods else 0.0
@@ -309,7 +314,7 @@ class Pipeline:
         gap = stamp - self.last_stamp
         self.stats.frames += 1
         if self._thin(stamp):  # a settled, still hold with the frames its averaging needs
-            self._periods = (self._periods + [gap])[-20:]
+            self._note_period(gap)
             self.last_stamp = stamp
             return self._measure_early(stamp)
         turns = self.turns.advance(stamp, [img is not None for img in images], self._lone_gap()) \
@@ -328,7 +333,7 @@ class Pipeline:
             self.zupt.is_still(self.last_stamp, stamp) is False
         if lost and settling and gap <= lone_gap and not imu_moved:
             self._reanchor(stamp, images)  # the bars ring too far for the tracks: anchor again, keep the stop
-            self._periods = (self._periods + [gap])[-20:]
+            self._note_period(gap)
         elif gap > lone_gap or lost:
             # a new stream, a snapshot, or a jump the tracks could not follow: what was open ends with the
             # previous frame, and this one may start a hold (the rig may be at rest here, its bars ringing)
@@ -336,9 +341,9 @@ class Pipeline:
             self._open(stamp, images, snapshot=True)
             self._hold.prediction = self._predict_ringing(frames, images)
             if gap <= lone_gap:
-                self._periods = (self._periods + [gap])[-20:]
+                self._note_period(gap)
         else:
-            self._periods = (self._periods + [gap])[-20:]
+            self._note_period(gap)
             still, why = self._still(self.last_stamp, stamp, steps)
             if self._hold is not None and still:
                 self._record(stamp, images)

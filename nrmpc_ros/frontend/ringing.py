@@ -32,6 +32,10 @@ from scipy.optimize import least_squares
 
 ZETA_BOUNDS = (1e-3, 0.7)  # damping ratios searched: lightly damped metal to strongly damped composite bars
 FREQ_BAND = (0.6, 1.6)  # the frequency is searched within this factor of its start (the rig file's)
+FREQ_GRID = 41  # frequencies of the coarse grid over FREQ_BAND (geometric: about 2.5 % apart)
+ZETA_GRID = (0.01, 0.03, 0.1, 0.3)  # damping ratios of the coarse grid when the rig file gives none
+ZETA_START = (1.1e-3, 0.69)  # the refinement starts strictly inside ZETA_BOUNDS
+X_SCALE = (0.05, 0.01)  # the refinement's parameter scales: frequency (share of the start), damping ratio
 
 
 @dataclass
@@ -175,8 +179,8 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
     if not used or n < 3 * D * len(used) + 4:
         return None
     lo, hi = band[0] * freq_hz, band[1] * freq_hz
-    fgrid = np.geomspace(lo, hi, 41)
-    zgrid = [zeta] if zeta is not None else [0.01, 0.03, 0.1, 0.3]
+    fgrid = np.geomspace(lo, hi, FREQ_GRID)
+    zgrid = [zeta] if zeta is not None else list(ZETA_GRID)
     zgrid = np.asarray(zgrid, dtype=float)
     costs = _grid_costs(segs, fgrid, zgrid)
     grid = [(float(c), float(f), float(z)) for c, (f, z) in zip(costs, ((f, z) for f in fgrid for z in zgrid))]
@@ -184,8 +188,9 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
     # an aliased frame rate makes f and its alias fit alike: of the (near) ties, the one nearest the start wins
     best = min((g for g in grid if g[0] <= lowest * (1.0 + 1e-3) + 1e-300), key=lambda g: abs(math.log(g[1] / freq_hz)))
     try:
-        sol = least_squares(_projected, x0=[best[1], min(max(best[2], 1.1e-3), 0.69)], args=(segs,),
-                            bounds=([lo, ZETA_BOUNDS[0]], [hi, ZETA_BOUNDS[1]]), x_scale=[0.05 * freq_hz, 0.01])
+        sol = least_squares(_projected, x0=[best[1], min(max(best[2], ZETA_START[0]), ZETA_START[1])], args=(segs,),
+                            bounds=([lo, ZETA_BOUNDS[0]], [hi, ZETA_BOUNDS[1]]),
+                            x_scale=[X_SCALE[0] * freq_hz, X_SCALE[1]])
     except ValueError:
         return None
     f, z = float(sol.x[0]), float(sol.x[1])

@@ -67,6 +67,10 @@ def image_change(previous, images) -> tuple:
     return change, small
 
 
+WORK_POLL_S = 0.1  # a worker waits this long for work before it looks at its stop flag again
+ESTIMATE_POLL_S = 0.05  # ... the estimation worker (shorter: a hold waiting at shutdown starts sooner)
+RECENT_TIMINGS = 500  # latencies and processing times per frame set: the diagnostics' percentiles over this many
+RECENT_HOLD_TIMINGS = 50  # the estimation stage's time per hold: the shutdown judges the open hold by these
 SEQUENCE_ENDS = ("flush", "restart", "reset")  # work kinds that end the open hold (restart, reset: the sequence)
 
 
@@ -237,10 +241,10 @@ class EstimatorService:
         self.received: Counter = Counter()
         self.camera_info: dict = {}  # camera index -> "agrees with the rig file" or what differs
         self.counts: Counter = Counter()
-        self.latency_ms: deque = deque(maxlen=500)  # arrival of the frame set that completed a hold to its output
-        self.process_ms: deque = deque(maxlen=500)  # the intake's processing time per frame set
-        self.set_latency_ms: deque = deque(maxlen=1000)  # arrival of a frame set to the end of its intake
-        self.hold_ms: deque = deque(maxlen=50)  # the estimation stage's time per hold estimated
+        self.latency_ms: deque = deque(maxlen=RECENT_TIMINGS)  # arrival of the set that completed a hold to its output
+        self.process_ms: deque = deque(maxlen=RECENT_TIMINGS)  # the intake's processing time per frame set
+        self.set_latency_ms: deque = deque(maxlen=2 * RECENT_TIMINGS)  # arrival of a frame set to the end of its intake
+        self.hold_ms: deque = deque(maxlen=RECENT_HOLD_TIMINGS)  # the estimation stage's time per hold estimated
         self.last: HoldOutput | None = None
         self._holds: dict = {}  # sequence -> {stamp: hold index} (reference frame names)
         self._lock = threading.Lock()
@@ -403,11 +407,11 @@ class EstimatorService:
 
     def _work_loop(self) -> None:
         while not self._stop.is_set():
-            self.work_once(0.1)
+            self.work_once(WORK_POLL_S)
 
     def _estimate_loop(self) -> None:
         while not self._halt.is_set():
-            if self.estimate_once(0.05) is None and self._drain.is_set() and not len(self.holds):
+            if self.estimate_once(ESTIMATE_POLL_S) is None and self._drain.is_set() and not len(self.holds):
                 return
 
     def work_once(self, timeout: float = 0.0) -> list:

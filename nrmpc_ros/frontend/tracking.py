@@ -31,6 +31,16 @@ from ..core.rig import Camera
 MODES = ("auto", "klt", "descriptors")
 DESCRIPTORS = ("orb", "sift")
 CORNER_DETECTORS = ("fast", "gftt")
+# pyramidal Lucas-Kanade stops after 20 iterations or a step below 0.01 px, OpenCV's defaults
+LK_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+# a corner's sub-pixel refinement: 30 iterations or a step below 0.001 px (it is found again in every hold)
+SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.001)
+# inside a settled hold one frame is tracked per quarter bar period (an eighth of the measurement window
+# without a bar period): the tracks follow the slowest ringing the hold's measurement still removes
+SKIP_SPACING_PERIODS = 0.25
+SKIP_SPACING_MEASURE = 0.125
+DEVIATION_QUANTILE = 0.95  # a prediction's deviation: this quantile of the tracks' distances from it
+DEVIATION_SMOOTHING = 0.25  # the deviation averaged over about the last 1 / this frames (exponentially)
 
 
 @dataclass
@@ -171,7 +181,7 @@ def _lk(img0, img1, p0, cfg: TrackingConfig, window: int | None = None, levels: 
     threshold default to the config's; ``guess``: starting positions in img1)."""
     if len(p0) == 0:
         return np.asarray(p0, np.float32).copy(), np.zeros(0, bool)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+    crit = LK_CRITERIA
     w = int(cfg.klt_window if window is None else window)
     win, levels = (w, w), int(cfg.klt_levels if levels is None else levels)
     p0 = np.ascontiguousarray(p0, np.float32)
@@ -238,7 +248,7 @@ def _lk_predicted(img0, img1, p0, guess, cfg: TrackingConfig, deviation_px: floa
             stats.full_pass_tracks += len(p0)
         return _lk(img0, img1, p0, cfg, guess=guess)
     w = int(cfg.klt_window)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+    crit = LK_CRITERIA
     p0 = np.ascontiguousarray(p0, np.float32)
     guess = np.ascontiguousarray(guess, np.float32)
     levels = _levels_for(2.0 * deviation_px, w, int(cfg.klt_levels))  # twice the last: the motion may change
@@ -333,7 +343,7 @@ class HoldThinning:
         last: the rest is cheaper) says whether the IMU saw the rig still since the last frame."""
         if not math.isfinite(noise_px) or settled_frames < self.needed_frames(noise_px):
             return False
-        spacing = 0.25 * bar_period_s if bar_period_s > 0 else 0.125 * measure_s
+        spacing = SKIP_SPACING_PERIODS * bar_period_s if bar_period_s > 0 else SKIP_SPACING_MEASURE * measure_s
         if stamp - last_tracked >= spacing or not imu_still():
             return False
         self.skipped += 1
@@ -425,11 +435,12 @@ class KltTracker:
         return out.astype(np.float32)
 
     def _deviation(self, p1: np.ndarray, guess: np.ndarray, ok: np.ndarray) -> float:
-        """95th percentile of the distance of the tracked positions from a prediction (px; NaN: none tracked)."""
+        """The DEVIATION_QUANTILE of the distance of the tracked positions from a prediction (px; NaN: none
+        tracked)."""
         n = int(ok.sum())
         if not n:
             return math.nan
-        k = int(0.95 * (n - 1))
+        k = int(DEVIATION_QUANTILE * (n - 1))
         return float(np.partition(_norm(p1[ok] - guess[ok]), k)[k])
 
     def track(self, img: np.ndarray, turn: np.ndarray | None = None) -> TrackStep:
@@ -474,10 +485,11 @@ class KltTracker:
             st.dropped_tracks += len(ok) - n_ok
             if n_ok:
                 motion = float(_median(_norm(p1[ok] - self.uv[ok])))
-            if guesses is not None:  # each candidate's deviation, averaged over about the last four frames
+            if guesses is not None:  # each candidate's deviation, averaged over the last few frames
                 dev = np.array([self._deviation(p1, g, ok) for g in guesses])
                 old = self.turn_deviation_px
-                self.turn_deviation_px = np.where(np.isfinite(old), 0.75 * old + 0.25 * dev, dev)
+                a = DEVIATION_SMOOTHING
+                self.turn_deviation_px = np.where(np.isfinite(old), (1.0 - a) * old + a * dev, dev)
             if n_ok < self.cfg.lost_fraction * len(self.uv):
                 lost = True
                 self.lost += 1
@@ -507,7 +519,7 @@ class KltTracker:
         if self.prev is None:
             return
         if len(self.uv) and self.cfg.corner_refinement_px > 0:
-            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.001)
+            crit = SUBPIX_CRITERIA
             half = int(self.cfg.corner_window_px) // 2
             ref = cv2.cornerSubPix(self.prev, self.uv.reshape(-1, 1, 2).copy(), (half, half), (-1, -1), crit)
             ref = ref.reshape(-1, 2)

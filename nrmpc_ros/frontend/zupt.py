@@ -77,6 +77,7 @@ import numpy as np
 from scipy.special import chdtri, gammaincinv  # chi-square quantiles without importing scipy.stats (slow)
 
 from ..config import check, option
+from ..core.loss import MAD_TO_STD
 from ..errors import InputError
 from .imu import ImuBuffer, ImuReject
 
@@ -288,7 +289,7 @@ def _norm_spread(w_unbiased, mean_a, ssa, i0, i1, ok, s_a: float, s_w: float, cf
     if passed.sum() < 2:
         return cfg.accel_norm_floor_m_s2
     norms = np.linalg.norm(mean_a[passed], axis=1)
-    robust = 1.4826 * float(np.median(np.abs(norms - np.median(norms))))
+    robust = MAD_TO_STD * float(np.median(np.abs(norms - np.median(norms))))
     excess = robust ** 2 - float(np.median(s_a ** 2 / n[passed]))
     return max(math.sqrt(max(excess, 0.0)), cfg.accel_norm_floor_m_s2)
 
