@@ -214,11 +214,12 @@ def test_online_detector_matches_the_offline_test(rng):
         assert det.is_still(h0 - 0.2, h1) is bool(h0 == t[0])  # before the first sample nothing says it moved
     assert det.is_still(3.3, 3.6) is False and det.still_since(3.5) is None
     assert det.is_still(100.0, 101.0) is None
-    # online answers agree with the offline runs known up to that sample
+    # online answers agree with the offline runs known up to that sample (within a window: the online noise
+    # estimate in use then was from less data)
     for k, s in since.items():
         run = [h0 for h0, h1 in offline if h0 <= t[k] <= h1 + 0.1]
         if s is not None:
-            assert run and s == run[0]
+            assert run and abs(s - run[0]) <= ZuptConfig().window_s
     assert sum(s is not None for s in since.values()) > 0.6 * len(since)
 
 
@@ -286,3 +287,26 @@ def test_a_steady_vertical_acceleration_without_rotation_is_motion(rng):
     noise = estimate_noise(t[t < 3.0], a[t < 3.0], w[t < 3.0])
     still = still_mask(t, a, w, noise)
     assert not still[(t > 3.2) & (t < 3.8)].any() and still[t < 2.8].all()
+
+
+@pytest.mark.parametrize("rate", [200.0, 1000.0])
+def test_online_with_covariances_the_first_bias_estimate_is_soon_replaced(rng, rate):
+    """With valid message covariances the online detector answers after one window of samples, its gyro bias from
+    those few windows. That early bias is off by several times what a 1 kHz window resolves; kept for
+    noise_refresh_s it read a still rig as moving. It is estimated again as the data doubles: every frame
+    interval of a long hold is still, and the bias in use converges to the data's."""
+    t, a, w = still_trace(rng, rate=rate, seconds=8.0)
+    covariance = (np.diag([0.02**2] * 3).ravel(), np.diag([0.002**2] * 3).ravel())
+    det = ZuptDetector(covariance=covariance)
+    k, answers, first = 0, [], None
+    for f0, f1 in zip(np.arange(0.0, 8.0, 1 / 60)[:-1], np.arange(0.0, 8.0, 1 / 60)[1:]):
+        while k < len(t) and t[k] <= f1:
+            det.add(t[k], a[k], w[k], covariance)
+            k += 1
+        if det.noise is not None and first is None:
+            first = det.noise.gyro_bias.copy()
+        if f0 >= 0.3:
+            answers.append(det.is_still(f0, f1))
+    assert det.noise.source == "covariance" and answers and all(s is True for s in answers)
+    bias_std = 0.002 / math.sqrt(len(t))  # of the mean over all samples; the quietest windows' median is near it
+    assert np.abs(det.noise.gyro_bias - BIAS).max() < 10 * bias_std < np.abs(first - BIAS).max()

@@ -375,8 +375,13 @@ class ZuptDetector:
     whole window has arrived are cached, so a query recomputes only the newest
     window_s of samples. ``noise`` is fixed when given; otherwise it is
     estimated from the buffer (with ``covariance`` as in :func:`estimate_noise`)
-    once ``noise_min_s`` of samples have arrived and again every
-    ``noise_refresh_s``; until then the queries answer None.
+    once ``noise_min_s`` of samples have arrived (with valid covariances: once
+    a window's samples have) and again whenever the data has doubled since,
+    at most ``noise_refresh_s`` apart; until then the queries answer None. The
+    gyro bias and the still norm always come from the data: estimated from the
+    first few windows they are off by several times what a window of a fast
+    IMU resolves (their error enters T as n (db / s_w)^2), so an estimate from
+    little data is soon replaced.
     """
 
     def __init__(self, config: ZuptConfig | None = None, noise: ImuNoise | None = None, covariance=None,
@@ -386,6 +391,7 @@ class ZuptDetector:
         self._fixed = noise is not None
         self._noise = noise
         self._noise_stamp = -math.inf  # newest sample stamp at the last noise estimate
+        self._noise_span = 0.0  # the span of the samples that estimate used (s)
         self._covariance = covariance
         self._cache_t = np.empty(0)  # stamps and verdicts of the samples whose window is complete
         self._cache_still = np.empty(0, dtype=bool)
@@ -412,11 +418,12 @@ class ZuptDetector:
     def noise(self) -> ImuNoise | None:
         """The noise in use; None while too few samples have arrived to estimate it."""
         newest = self.buffer.last_stamp
-        if not self._fixed and (self._noise is None or newest - self._noise_stamp >= self.config.noise_refresh_s):
+        refresh = min(self.config.noise_refresh_s, max(self._noise_span, self.config.window_s))  # data doubled
+        if not self._fixed and (self._noise is None or newest - self._noise_stamp >= refresh):
             t, a, w = self.buffer.window(-math.inf, math.inf)
             try:
                 self._noise = estimate_noise(t, a, w, self.config, self._covariance, self.buffer.source)
-                self._noise_stamp = newest
+                self._noise_stamp, self._noise_span = newest, float(t[-1] - t[0])
             except InputError:
                 pass
         return self._noise
