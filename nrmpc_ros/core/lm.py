@@ -266,8 +266,8 @@ class LMOptions:
     # points still creep along their rays (a larger gain means the linearised camera block is not to be trusted)
     creep_tolerance: float = 1.0
     initial_damping: float = 1e-4  # lambda relative to the diagonal
-    # Damping follows the gain ratio rho (actual over predicted decrease; Nielsen 1999, Madsen, Nielsen & Tingleff
-    # 2004, "Methods for non-linear least squares problems", eq. 2.21): an accepted step multiplies lambda by
+    # Damping follows the gain ratio rho (actual over predicted decrease; Nielsen 1999, in Madsen, Nielsen & Tingleff
+    # 2004, "Methods for non-linear least squares problems", section 3.2): an accepted step multiplies lambda by
     # max(1/3, 1 - (2 rho - 1)^3) (a step the model predicted well shrinks it, a poorly predicted one keeps it),
     # a rejected one by damping_factor, doubled on every further rejection in a row. A fixed factor down after
     # every accepted step makes LM alternate between a rejected and an accepted step wherever the model is only
