@@ -50,6 +50,14 @@ def bearings_to_pixels(cam: Camera, f) -> np.ndarray:
     if not front.any():
         return out
     K, d = camera_matrix(cam), _dist(cam)
+    if cam.model != "equidistant" and not np.any(d):
+        # OpenCV's model without distortion is K (x / z, y / z, 1): the same in numpy, without projectPoints'
+        # Jacobians (always computed in the binding), several times faster on the patch grids
+        fx, fy, cx, cy = cam.intrinsics
+        p = f[front]
+        out[front, 0] = fx * (p[:, 0] / p[:, 2]) + cx
+        out[front, 1] = fy * (p[:, 1] / p[:, 2]) + cy
+        return out
     pts = f[front].reshape(-1, 1, 3)
     rvec = tvec = np.zeros(3)
     if cam.model == "equidistant":

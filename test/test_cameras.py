@@ -2,10 +2,11 @@
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
-from nrmpc_ros.cameras import bearings_to_pixels, check_image_size, pixels_to_bearings
+from nrmpc_ros.cameras import bearings_to_pixels, camera_matrix, check_image_size, pixels_to_bearings
 from nrmpc_ros.errors import InputError
 
 
@@ -25,6 +26,17 @@ def test_round_trip(pinhole, model, distortion):
     f = pixels_to_bearings(cam, uv)
     assert np.allclose(np.linalg.norm(f, axis=1), 1.0) and np.all(f[:, 2] > 0)
     assert np.abs(bearings_to_pixels(cam, f) - uv).max() < 1e-6
+
+
+def test_a_distortion_free_pinhole_projects_as_opencv(pinhole):
+    """Without distortion the projection is computed in numpy: OpenCV's values, NaN behind the camera."""
+    cam = replace(pinhole, model="pinhole", distortion=())
+    f = np.random.default_rng(1).normal(size=(500, 3))
+    uv = bearings_to_pixels(cam, f)
+    front = f[:, 2] > 1e-9
+    ref, _ = cv2.projectPoints(f[front].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), camera_matrix(cam), np.zeros(4))
+    np.testing.assert_allclose(uv[front], ref.reshape(-1, 2), rtol=1e-12, atol=1e-9)
+    assert np.all(np.isnan(uv[~front]))
 
 
 def test_principal_point_and_focal(pinhole):

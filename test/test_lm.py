@@ -127,3 +127,17 @@ def test_runs_of_one_accepted_step_resumed_with_their_system_and_damping_take_th
             break
     np.testing.assert_array_equal(state, whole)
     assert st.stop == stats.stop and iterations == stats.iterations and runs == stats.accepted
+
+
+@pytest.mark.parametrize("lam", [0.0, 1e-2, 1.0])
+def test_the_predicted_decrease_is_the_linear_model_s_on_a_linear_problem(lam):
+    """On a linear problem the model is exact: the decrease solve() predicts for its damped step (the gain
+    ratio's denominator) is the cost's actual decrease, whatever the damping."""
+    cols, point, A, B, y, _ = _linear_problem(2, 40, 3, 30, 2)
+    prob = LinearWithPoints(cols, point, A, B, y, 30)
+    start = (np.zeros(30), np.zeros((40, 3)))
+    system = prob.linearize(start)
+    dc, dp, _, predicted = system.solve(lam)
+    actual = prob.cost(start) - prob.cost(prob.step(start, dc, dp))
+    assert predicted > 0
+    assert predicted == pytest.approx(actual, rel=1e-8)

@@ -1,6 +1,7 @@
 """Patch alignment: a landmark's position in a later hold from its one reference patch, against known truth."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -114,6 +115,23 @@ def test_local_projection_matches_the_camera_models(rng):
         exact = bearings_to_pixels(cam, tf.rays(w).reshape(-1, 3)).reshape(50, 30, 2)
         assert np.abs(proj.pixels(np.arange(50), w) - exact).max() < 1e-3
         assert proj.fit_px.max() < 1e-3
+
+
+def test_local_projection_of_a_pinhole_is_its_exact_homography_without_distortion(rng):
+    """Without distortion the tangent plane maps to the image by a homography, used as it is (exact); with
+    distortion the fitted polynomial stands in; both give NaN beyond the radius."""
+    base = camera("pinhole")
+    for cam, tol in ((base, 1e-9), (replace(base, distortion=(-0.2, 0.05, 0.001, -0.001)), 1e-3)):
+        uv = rng.uniform([10, 10], [310, 230], size=(50, 2))
+        tf = tangent_frames(cam, uv)
+        proj = LocalProjection(cam, tf, np.full(50, 25.0))
+        assert (proj.homography is not None) == (len(cam.distortion) == 0)
+        w = rng.uniform(-25, 25, size=(50, 30, 2))
+        exact = bearings_to_pixels(cam, tf.rays(w).reshape(-1, 3)).reshape(50, 30, 2)
+        assert np.abs(proj.pixels(np.arange(50), w) - exact).max() < tol
+        beyond = proj.pixels(np.arange(50), w + 30.0)
+        out = np.abs(w + 30.0).max(axis=-1) > 25.0
+        assert out.any() and np.all(np.isnan(beyond[out])) and np.all(np.isfinite(beyond[~out]))
 
 
 def _hold(img, ids, uv):

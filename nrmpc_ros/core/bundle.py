@@ -1000,22 +1000,19 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     cols = prob.structure.cols
     # every observation's Jacobian on the whole camera block (N, 2, nc), the spare column collecting none
     Jfull = np.zeros((N, 2, n1))
-    np.add.at(Jfull, (np.arange(N)[:, None, None], np.arange(2)[None, :, None], cols[:, None, :]), Jc)
+    # an observation's existing columns are distinct (only the spare one repeats, and it is dropped)
+    Jfull[np.arange(N)[:, None, None], np.arange(2)[None, :, None], cols[:, None, :]] = Jc
     Jfull = Jfull[:, :, :nc]
     JpT = np.swapaxes(Jp, 1, 2)
     P = obs.num_points
-    Hpp = np.zeros((P, 3, 3))
-    np.add.at(Hpp, obs.point, JpT @ Jp)
+    Hpp = group_sum(obs.point, JpT @ Jp, P)
     Hpp += 1e-12 * np.eye(3) * np.maximum(np.trace(Hpp, axis1=1, axis2=2), 1e-300)[:, None, None]
-    Hpc = np.zeros((P, 3, nc))
-    np.add.at(Hpc, obs.point, JpT @ Jfull)
+    Hpc = group_sum(obs.point, JpT @ Jfull, P)
     # with the landmark eliminated, an observation also moves the camera block through its landmark
     Jr = Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point]
     s_obs = np.einsum("nrc,nr->nc", Jr, e)
-    S = np.zeros((G, nc))
-    np.add.at(S, cl, s_obs)
-    Hc = np.zeros((G, nc, nc))
-    np.add.at(Hc, cl, np.swapaxes(Jr, 1, 2) @ Jr)
+    S = group_sum(cl, s_obs, G)
+    Hc = group_sum(cl, np.swapaxes(Jr, 1, 2) @ Jr, G)
     H = res.information
     moves = np.empty((G, nc))
     for c in range(G):  # clusters (holds x cameras), not observations

@@ -229,8 +229,10 @@ class LinearSystem:
         self.cost += 0.5 * float(r @ r)
 
     def solve(self, lam: float):
-        """(dc, dp, camera_decrease): camera and point steps of the damped system and the cost decrease the
-        camera step predicts with the points re-fitted (dc^T S dc / 2)."""
+        """(dc, dp, camera_decrease, decrease): camera and point steps of the damped system, the cost decrease
+        the camera step predicts with the points re-fitted (dc^T S dc / 2) and the decrease the damped model
+        predicts for the whole step (h^T b / 2 + lam h^T D h / 2, D the damped diagonal: the model's gain, the
+        denominator of the gain ratio that steers the damping)."""
         if self.structure is None:
             S = self.Hcc + lam * np.diag(np.diag(self.Hcc)) + 1e-12 * np.eye(len(self.bc))
             rhs, Hpp_inv = self.bc, None
@@ -241,7 +243,11 @@ class LinearSystem:
         except np.linalg.LinAlgError:
             dc = np.linalg.lstsq(S, rhs, rcond=None)[0]
         dp = None if Hpp_inv is None else self.structure.back_substitute(self, Hpp_inv, dc)
-        return dc, dp, 0.5 * float(dc @ S @ dc)
+        decrease = 0.5 * float(dc @ self.bc) + 0.5 * lam * float(np.diag(self.Hcc) @ (dc * dc))
+        if dp is not None:
+            dpp = np.diagonal(self.Hpp, axis1=1, axis2=2)
+            decrease += 0.5 * float(np.sum(dp * self.bp)) + 0.5 * lam * float(np.sum(dpp * dp * dp))
+        return dc, dp, 0.5 * float(dc @ S @ dc), decrease
 
     def information(self) -> np.ndarray:
         """Fisher information of the camera block, points eliminated (undamped)."""
@@ -261,7 +267,13 @@ class LMOptions:
     # points still creep along their rays (a larger gain means the linearised camera block is not to be trusted)
     creep_tolerance: float = 1.0
     initial_damping: float = 1e-4  # lambda relative to the diagonal
-    damping_factor: float = 10.0  # lambda is multiplied / divided by this on a rejected / accepted step
+    # Damping follows the gain ratio rho (actual over predicted decrease; Nielsen 1999, in Madsen, Nielsen & Tingleff
+    # 2004, "Methods for non-linear least squares problems", section 3.2): an accepted step multiplies lambda by
+    # max(1/3, 1 - (2 rho - 1)^3) (a step the model predicted well shrinks it, a poorly predicted one keeps it),
+    # a rejected one by damping_factor, doubled on every further rejection in a row. A fixed factor down after
+    # every accepted step makes LM alternate between a rejected and an accepted step wherever the model is only
+    # fair (low-parallax landmarks), paying a failed step and a re-fit of the points for every step it takes.
+    damping_factor: float = 2.0  # first factor up on a rejected step
     max_damping: float = 1e8  # give up beyond this
     max_accepted: int | None = None  # stop after this many accepted steps (None: no limit)
 
@@ -311,10 +323,11 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None, *, sys
     cost = initial = system.cost
     refit = getattr(problem, "refit_points", None)
     it = accepted = 0
+    up = opts.damping_factor
     stop = Stop.MAX_ITERATIONS
     while it < opts.max_iterations:
         it += 1
-        dc, dp, camera_decrease = system.solve(lam)
+        dc, dp, camera_decrease, predicted = system.solve(lam)
         new_state = problem.step(state, dc, dp)
         new_cost = problem.cost(new_state)
         if not new_cost <= cost and refit is not None and dp is not None:
@@ -325,7 +338,8 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None, *, sys
             if np.isfinite(new_cost) and new_cost - cost < opts.cost_tolerance:
                 stop = Stop.MINIMUM
                 break
-            lam = max(lam * opts.damping_factor, opts.initial_damping)
+            lam = max(lam * up, opts.initial_damping)
+            up *= 2.0
             if lam > opts.max_damping:
                 stop = Stop.DAMPING
                 break
@@ -335,7 +349,9 @@ def levenberg_marquardt(problem, state, options: LMOptions | None = None, *, sys
                      or camera_decrease < opts.cost_tolerance and decrease < opts.creep_tolerance)
         state = new_state
         accepted += 1
-        lam = max(lam / opts.damping_factor, 1e-9)
+        rho = decrease / predicted if predicted > 0 else 1.0
+        lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-9)
+        up = opts.damping_factor
         system = problem.linearize(state)
         cost = system.cost
         if converged:

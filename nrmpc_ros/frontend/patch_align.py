@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..cameras import bearings_to_pixels, pixels_to_bearings
+from ..cameras import bearings_to_pixels, camera_matrix, pixels_to_bearings
 from ..config import check, option
 from ..core.rig import Camera
 
@@ -197,10 +197,18 @@ class LocalProjection:
     fitted once to the camera model's exact projection of a 13 x 13 grid (the models are smooth over a
     patch: the fit is exact to ~1e-5 px on pinhole and ~2e-4 px on fisheye cameras over 30 px; ``fit_px``
     is its largest residual on the grid per point). Projecting through OpenCV's camera models at every
-    iteration would cost most of an alignment."""
+    iteration would cost most of an alignment. A pinhole camera without distortion maps each tangent plane
+    to the image by a homography (the ray f + s (x e1 + y e2) through K): that one is used as it is, exact
+    and a few times cheaper than the polynomial's 21 terms."""
 
     def __init__(self, cam: Camera, tf: TangentFrames, radius: np.ndarray):
         self.radius = np.asarray(radius, np.float64)
+        self.homography = None
+        if cam.model == "pinhole" and not np.any(np.asarray(cam.distortion, float)):
+            s = tf.step[:, None]
+            self.homography = camera_matrix(cam) @ np.stack([s * tf.e1, s * tf.e2, tf.f], axis=2)  # (N, 3, 3)
+            self.fit_px = np.zeros(len(tf.f))
+            return
         r = np.linspace(-1.0, 1.0, 13)
         q = np.stack(np.meshgrid(r, r, indexing="ij"), -1).reshape(-1, 2)  # (K, 2) in units of radius
         uv = bearings_to_pixels(cam, tf.rays(q[None] * self.radius[:, None, None]).reshape(-1, 3))
@@ -211,7 +219,19 @@ class LocalProjection:
         self.fit_px = np.where(np.isfinite(fit), fit, np.inf)
 
     def pixels(self, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Pixels (m, P, 2) of tangent coordinates w (m, P, 2) of points idx (m,); NaN beyond the radius."""
+        """Pixels (m, P, 2) of tangent coordinates w (m, P, 2) of points idx (m,); NaN beyond the radius (and
+        behind the camera)."""
+        if self.homography is not None:
+            H = self.homography[idx]
+            x, y = w[..., 0], w[..., 1]
+            z = H[:, 2, 0, None] * x + H[:, 2, 1, None] * y + H[:, 2, 2, None]
+            r = self.radius[idx, None]
+            ok = (np.abs(x) <= r) & (np.abs(y) <= r) & (z > 1e-9)
+            z = np.where(ok, z, np.nan)
+            out = np.empty(w.shape)
+            out[..., 0] = (H[:, 0, 0, None] * x + H[:, 0, 1, None] * y + H[:, 0, 2, None]) / z
+            out[..., 1] = (H[:, 1, 0, None] * x + H[:, 1, 1, None] * y + H[:, 1, 2, None]) / z
+            return out
         q = w / self.radius[idx, None, None]
         sp, tp = _powers(q)
         basis = np.empty((len(idx), len(_TERMS)) + q.shape[1:-1])  # (m, 21, P): each term a contiguous row
@@ -350,26 +370,40 @@ def align(cam: Camera, image, ref: ReferencePatches, uv0, affine0, cfg: PatchAli
         Iw = Ib[:, 1:-1, 1:-1].reshape(m, -1)
         gx = 0.5 * (Ib[:, 1:-1, 2:] - Ib[:, 1:-1, :-2]).reshape(m, -1)
         gy = 0.5 * (Ib[:, 2:, 1:-1] - Ib[:, :-2, 1:-1]).reshape(m, -1)
-        w = wb.reshape(m, sideb, sideb, 2)[:, 1:-1, 1:-1].reshape(m, -1, 2)  # the patch: xb without its border
+        # the patch (xb without its border), each coordinate a contiguous (m, P) array
+        w0 = wb[..., 0].reshape(m, sideb, sideb)[:, 1:-1, 1:-1].reshape(m, -1)
+        w1 = wb[..., 1].reshape(m, sideb, sideb)[:, 1:-1, 1:-1].reshape(m, -1)
         D = Db.reshape(m, sideb, sideb)[:, 1:-1, 1:-1].reshape(m, -1)
-        M = (Ai[:, None] - w[..., :, None] * ci[:, None, None, :]) / D[..., None, None]  # dW/dx (m, P, 2, 2)
-        det = M[..., 0, 0] * M[..., 1, 1] - M[..., 0, 1] * M[..., 1, 0]  # gradient in W's plane: g_x M^-1
-        gw = np.stack([gx * M[..., 1, 1] - gy * M[..., 1, 0], gy * M[..., 0, 0] - gx * M[..., 0, 1]], -1)
-        gw /= det[..., None]
+        # dW/dx = (A - w c^T) / D entry by entry, and the gradient in W's plane g_x (dW/dx)^-1
+        c0, c1 = ci[:, 0, None], ci[:, 1, None]
+        m00, m01 = (Ai[:, 0, 0, None] - w0 * c0) / D, (Ai[:, 0, 1, None] - w0 * c1) / D
+        m10, m11 = (Ai[:, 1, 0, None] - w1 * c0) / D, (Ai[:, 1, 1, None] - w1 * c1) / D
+        det = m00 * m11 - m01 * m10
         g = gain[idx, None] / D  # (m, P)
-        J = np.empty(gw.shape[:-1] + (10,))  # b, A (row-major), c, gain, offset
-        J[..., 0:2] = gw
-        J[..., 2:6] = (gw[..., :, None] * x[None, :, None, :]).reshape(m, -1, 4)
-        J[..., 6:8] = -(gw * w).sum(-1)[..., None] * x[None]
-        J[..., :8] *= g[..., None]
-        J[..., 8] = Iw
-        J[..., 9] = 1.0
+        # the Jacobian parameter-major (m, 10, P): b, A (row-major), c, gain, offset; every row contiguous
+        J = np.empty((m, 10, len(x)))
+        np.multiply((gx * m11 - gy * m10) / det, g, out=J[:, 0])
+        np.multiply((gy * m00 - gx * m01) / det, g, out=J[:, 1])
+        np.multiply(J[:, 0], x[:, 0], out=J[:, 2])
+        np.multiply(J[:, 0], x[:, 1], out=J[:, 3])
+        np.multiply(J[:, 1], x[:, 0], out=J[:, 4])
+        np.multiply(J[:, 1], x[:, 1], out=J[:, 5])
+        s_ = -(J[:, 0] * w0 + J[:, 1] * w1)
+        np.multiply(s_, x[:, 0], out=J[:, 6])
+        np.multiply(s_, x[:, 1], out=J[:, 7])
+        J[:, 8] = Iw
+        J[:, 9] = 1.0
         r = gain[idx, None] * Iw + off[idx, None] - T[idx]
-        Jt = J.transpose(0, 2, 1) * Wm[:, None, :]
-        H = Jt @ J
-        rhs = (Jt @ r[..., None])[..., 0]
+        Jw = J * Wm[:, None, :]
+        H = Jw @ J.transpose(0, 2, 1)
+        rhs = (Jw @ r[..., None])[..., 0]
         H += 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(10)
-        delta = -np.linalg.solve(H, rhs[..., None])[..., 0]
+        # one solve for the step and the first two columns of H^-1 (the point's covariance, below)
+        B = np.zeros((m, 10, 3))
+        B[:, :, 0] = rhs
+        B[:, 0, 1] = B[:, 1, 2] = 1.0
+        sol = np.linalg.solve(H, B)
+        delta = -sol[:, :, 0]
         big = np.linalg.norm(delta[:, :2], axis=1)
         scale = np.minimum(1.0, 1.0 / np.maximum(big, 1e-12))  # at most one step (px) per iteration
         delta *= scale[:, None]
@@ -379,7 +413,7 @@ def align(cam: Camera, image, ref: ReferencePatches, uv0, affine0, cfg: PatchAli
         gain[idx] += delta[:, 8]
         off[idx] += delta[:, 9]
         sigma2 = (Wm * r * r).sum(axis=1) / (dof * Wm.mean(axis=1))
-        std[idx] = np.sqrt(sigma2 * np.trace(np.linalg.inv(H)[:, :2, :2], axis1=1, axis2=2) / 2)
+        std[idx] = np.sqrt(sigma2 * (sol[:, 0, 1] + sol[:, 1, 2]) / 2)
         # tangent steps are about one pixel; a step well inside the point's own uncertainty changes nothing
         done = big * scale < np.maximum(cfg.tolerance_px, cfg.tolerance_std * np.nan_to_num(std[idx]))
         far = np.linalg.norm(b[idx], axis=1) > cfg.max_shift_px
