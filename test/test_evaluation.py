@@ -40,4 +40,5 @@ def test_ground_truth_repeated_at_one_stamp_is_one_pose():
     n = len(ref.pose_t)
     twice = np.repeat(np.arange(n), 2)
     ref.pose_t, ref.pose_R, ref.pose_p = ref.pose_t[twice], ref.pose_R[twice], ref.pose_p[twice]
+    ref.pose_t[1::2] += 1e-9  # one trigger's stamp as two cameras' rates round it
     assert static_holds(ref) == static_holds(_reference())

@@ -62,13 +62,16 @@ class Evaluation:
         return self.holds_with_estimate / (self.holds - 1) if self.holds > 1 else math.nan
 
 
+SAME_INSTANT_S = 1e-6  # ground-truth stamps closer than this are one instant (cameras' roundings of one trigger)
+
+
 def static_holds(ref: Reference, tol_deg: float = 0.01, tol_m: float = 1e-4) -> list:
     """(start, end) stamps of runs of identical ground-truth poses (the rig held still). Poses repeated at one
     stamp (a recording that writes the ground truth at every camera's trigger, cameras at different rates) count
     once: two cameras at one instant of a move are not a hold."""
     if not ref.has_pose:
         return []
-    new = np.r_[True, np.diff(ref.pose_t) > 0]
+    new = np.r_[True, np.diff(ref.pose_t) > SAME_INSTANT_S]
     pose_t, pose_R, pose_p = ref.pose_t[new], ref.pose_R[new], ref.pose_p[new]
     dR = np.einsum("nji,njk->nik", pose_R[:-1], pose_R[1:])
     ang = np.degrees(np.arccos(np.clip((np.trace(dR, axis1=1, axis2=2) - 1) / 2, -1, 1)))
