@@ -31,6 +31,7 @@ try:  # rclpy is optional for the package; --help works without it
     from diagnostic_msgs.msg import DiagnosticArray
     from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
     from rclpy.callback_groups import CallbackGroup
+    from rclpy.clock import Clock, ClockType
     from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, InvalidParameterValueException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
@@ -114,7 +115,9 @@ class EstimatorNode(Node):
             self._imu_sub = self.create_subscription(Imu, imu, self._on_imu, _sensor_qos(cfg.imu_queue_size),
                                                      raw=True, callback_group=TakenByTimer() if taken else None)
             if taken:
-                self.create_timer(cfg.imu_take_period_s, self._take_imu)
+                # a steady clock: draining a queue is no matter of ROS time (a simulated clock may be paused,
+                # slow, or not published yet while the IMU's messages keep arriving)
+                self.create_timer(cfg.imu_take_period_s, self._take_imu, clock=Clock(clock_type=ClockType.STEADY_TIME))
         outputs = {**OUTPUTS, "diag": ("diagnostic_msgs/msg/DiagnosticArray", "/diagnostics")}
         if not cfg.publish_tf or importlib.util.find_spec("tf2_msgs") is None:  # not always installed
             del outputs["tf"]
