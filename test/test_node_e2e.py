@@ -264,6 +264,25 @@ def test_the_node_publishes_the_replays_estimates_in_their_frames(bag, replayed,
     assert "no image yet" not in log and "stopped publishing" not in log, "no false alarms at start-up or at the end"
 
 
+def test_with_simulated_time_and_no_clock_yet_the_imu_is_still_taken(bag, replayed, tmp_path):
+    """use_sim_time with no /clock published: ROS time stands still, yet the IMU's samples, taken by a timer from
+    their queue, must reach the pipeline (its timer runs on a steady clock): the holds the IMU closes get the
+    replay's estimates."""
+    path, rig_path, _ = bag
+    run = Session(tmp_path, rig_path, "-p", "work_queue_size:=1000", "-p", "use_sim_time:=true")
+    try:  # no /diagnostics to wait for: its timer follows ROS time; the player waits for the node's subscriptions
+        player = run.start(play(path, "--rate", "2"))
+        assert player.wait(120) == 0, (tmp_path / "play.log").read_text()
+        deadline = time.monotonic() + 60
+        while len(run.listener.got["gravity"]) < len(replayed) - 1 and time.monotonic() < deadline:
+            time.sleep(0.2)
+    finally:
+        run.__exit__(None, None, None)
+    log = run.log()
+    assert check_against_replay(run.listener, replayed) >= len(replayed) - 1, log[-3000:]
+    assert "shutting down: 416 images, 0 IMU samples" not in log and " IMU samples" in log, log[-3000:]
+
+
 def test_a_namespaced_remapped_node_runs_the_bag_and_names_its_topics_after_remapping(bag, tmp_path):
     path, rig_path, _ = bag
     remaps = [a for i in range(4) for name in ("image_raw", "camera_info")
