@@ -237,7 +237,7 @@ def test_noise_scale_is_an_input_of_the_problem_and_is_reestimated_between_runs(
     res = adjust_bundle(rig, obs, *_perturb(R, t, g0, rng), huber_k=1e6)
     assert res.sigma_rad == pytest.approx(noise, rel=0.2)  # the tangent-plane noise of unit bearings
     st = res.stats
-    assert st.stop == Stop.CONVERGED and 0 < st.accepted <= st.iterations == res.iterations
+    assert st.stop is res.stop is Stop.CONVERGED and 0 < st.accepted <= st.iterations == res.iterations
     assert st.cost == res.cost and np.isfinite(st.initial_cost) and st.initial_cost > 0
     prob = SequenceBundleProblem(rig, obs, res.layout, res.sigma_rad, huber_k=1e6)
     twice = prob.with_sigma(2.0 * res.sigma_rad)

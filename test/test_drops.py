@@ -9,6 +9,7 @@ from nrmpc_ros.frontend.drops import Drop, Stage, sorted_counts
 from nrmpc_ros.frontend.holds import Refusal
 from nrmpc_ros.frontend.imu import ImuRefusal, ImuReject
 from nrmpc_ros.frontend.motion import Motion, MotionKind
+from nrmpc_ros.frontend.work import WorkKind
 
 
 def test_every_outcome_of_a_family_has_its_drop():
@@ -22,8 +23,8 @@ def test_every_outcome_of_a_family_has_its_drop():
     assert {Drop.new_sequence(r) for r in breaks} == {Drop.NEW_SEQUENCE_NO_SHARED, Drop.NEW_SEQUENCE_PAIR_FAILED}
     with pytest.raises(KeyError):  # a sequence's first view is no drop
         Drop.new_sequence(StartReason.FIRST_VIEW)
-    for kind in ("frames", "imu", "flush", "restart", "reset", "method"):
-        assert Drop.busy(kind).stage is Stage.WORKER
+    assert len({Drop.busy(kind) for kind in WorkKind}) == len(WorkKind)
+    assert all(Drop.busy(kind).stage is Stage.WORKER for kind in WorkKind)
 
 
 def test_messages_are_unique_and_user_facing_ones_unchanged():

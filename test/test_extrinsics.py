@@ -69,13 +69,13 @@ def test_the_runner_hands_the_poses_of_every_frame_set_over():
     got = []
     runner = PipelineRunner(rig, on_poses=got.append)
     t, accel, gyro = _samples()
-    from nrmpc_ros.frontend.feeder import Work
+    from nrmpc_ros.frontend.work import Work, WorkKind
 
     for k in range(len(t)):
-        runner.run(Work("imu", t[k], (accel[k], gyro[k])))
+        runner.run(Work(WorkKind.IMU, t[k], (accel[k], gyro[k])))
     rng = np.random.default_rng(0)
     for s in (101.0, 101.1):
-        runner.run(Work("frames", s, (FrameSet(s, [rng.integers(0, 255, (48, 64), dtype=np.uint8)] * 3), 0.0)))
+        runner.run(Work(WorkKind.FRAMES, s, (FrameSet(s, [rng.integers(0, 255, (48, 64), dtype=np.uint8)] * 3), 0.0)))
     assert len(got) == 2 and runner.poses_sets == 2 and got[1].stamps.tolist() == [101.1] * 3
 
 

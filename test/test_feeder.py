@@ -18,6 +18,7 @@ from nrmpc_ros.frontend.drops import Drop
 from nrmpc_ros.frontend.feeder import Feeder, FeederConfig
 from nrmpc_ros.frontend.imu_block import ImuBlock
 from nrmpc_ros.frontend.stamps import JumpPolicy
+from nrmpc_ros.frontend.work import WorkKind
 
 ROOT = Path(__file__).resolve().parents[1]
 TOPICS = [f"/cam{i}/image_raw" for i in range(4)]
@@ -84,14 +85,14 @@ def test_work_leaves_merged_by_stamp_whatever_order_the_topics_arrive_in(rig):
         f.end()
         runs.append(trace(work))
     assert all(r == runs[0] for r in runs[1:])
-    frames = [(i, t) for i, (k, t) in enumerate(runs[0]) if k == "frames"]
-    assert len(frames) == 20 and runs[0][-1][0] == "flush"
+    frames = [(i, t) for i, (k, t) in enumerate(runs[0]) if k is WorkKind.FRAMES]
+    assert len(frames) == 20 and runs[0][-1][0] == WorkKind.FLUSH
     lead = FeederConfig().imu_lead_s
     for i, t in frames:  # every IMU sample stamped before t + lead goes before the set, none later
-        before = [s for k, s in runs[0][:i] if k == "imu"]
-        after = [s for k, s in runs[0][i:] if k == "imu"]
+        before = [s for k, s in runs[0][:i] if k is WorkKind.IMU]
+        after = [s for k, s in runs[0][i:] if k is WorkKind.IMU]
         assert max(before, default=-math.inf) < t + lead and (not after or min(after) >= t + lead)
-    assert len([s for k, s in runs[0][:frames[1][0]] if k == "imu"]) > 0
+    assert len([s for k, s in runs[0][:frames[1][0]] if k is WorkKind.IMU]) > 0
 
 
 def round_robin(msgs):
@@ -121,17 +122,17 @@ def test_an_imu_taken_in_turns_with_the_cameras_is_waited_for(rig):
     f, work, _ = feeder(rig, imu_max_lag_s=1.0)  # the IMU lags beyond what the sets may wait
     feed(f, round_robin(messages()))
     f.end()
-    sets = [i for i, (k, _) in enumerate(trace(work)) if k == "frames"]
+    sets = [i for i, (k, _) in enumerate(trace(work)) if k is WorkKind.FRAMES]
     assert len(sets) == 20 and trace(work) != in_step
 
 
 def test_without_imu_sets_leave_at_once_and_with_a_stopped_imu_after_the_wait(rig):
     f, work, _ = feeder(rig, imu_topic=None)
     feed(f, [m for m in messages(seconds=0.5) if m[1] == "image"])
-    assert [k for k, _ in trace(work)].count("frames") >= 4  # the last set waits for its partial window only
+    assert [k for k, _ in trace(work)].count(WorkKind.FRAMES) >= 4  # the last set waits for its partial window only
     f, work, _ = feeder(rig, imu_wait_s=0.5)
     feed(f, [m for m in messages(seconds=1.0) if m[1] == "image" or m[3] < 100.2])  # the IMU stops at 100.2 s
-    sets = [t for k, t in trace(work) if k == "frames"]
+    sets = [t for k, t in trace(work) if k is WorkKind.FRAMES]
     assert sets[0] == pytest.approx(100.0) and sets[-1] <= 100.9 - 0.5 + 1e-6, "released once 0.5 s newer came"
 
 
@@ -153,7 +154,7 @@ def test_bad_inputs_are_dropped_counted_and_logged_once(rig):
     warned = [line for level, line in logs if level == "warn"]
     assert len(warned) == 5 and any("yuv422" in w for w in warned) and any("32x24" in w for w in warned)
     f.end()
-    assert [k for k, _ in trace(work)] == ["imu", "flush"]  # the good sample went on
+    assert [k for k, _ in trace(work)] == [WorkKind.IMU, WorkKind.FLUSH]  # the good sample went on
 
 
 def test_stamps_in_the_future_are_dropped_and_the_present_stays(rig):
@@ -166,7 +167,7 @@ def test_stamps_in_the_future_are_dropped_and_the_present_stays(rig):
     f.end()
     assert f.drops.by_reason()[Drop.STAMP_IN_FUTURE] == 5
     assert max(t for _, t in trace(work) if t is not None) < 101.0
-    assert sum(k == "frames" for k, _ in trace(work)) == 10
+    assert sum(k is WorkKind.FRAMES for k, _ in trace(work)) == 10
 
 
 def test_a_jump_back_flushes_and_restarts_then_carries_on(rig):
@@ -175,9 +176,9 @@ def test_a_jump_back_flushes_and_restarts_then_carries_on(rig):
     n = len(work)
     feed(f, messages(seconds=2.0))  # played again: the same stamps
     kinds = [k for k, _ in trace(work)]
-    i = kinds.index("restart")
-    assert kinds[i - 1] == "flush" and i >= n, "the old time's work, a flush, then the restart"
-    assert kinds[i + 1:].count("frames") >= 18, "the second pass goes through"
+    i = kinds.index(WorkKind.RESTART)
+    assert kinds[i - 1] == WorkKind.FLUSH and i >= n, "the old time's work, a flush, then the restart"
+    assert kinds[i + 1:].count(WorkKind.FRAMES) >= 18, "the second pass goes through"
     assert f.events["time jumps back"] == 1
     assert sum("detected jump back in time" in line for _, line in logs) == 1
     assert "detected jump back in time" in work[i].data
@@ -247,7 +248,7 @@ def test_imu_samples_handed_over_in_blocks_give_the_work_of_sample_by_sample(rig
     feed_in_blocks(g, msgs, np.random.default_rng(4), now=110.0)
     g.end()
     assert trace(blocks) == trace(work) and g.events == f.events
-    imu = [w for w in blocks if w.kind == "imu"]
+    imu = [w for w in blocks if w.kind is WorkKind.IMU]
     assert len(imu) == 400 and all(tuple(w.data[0]) == (0.0, 0.0, 9.81) for w in imu)
 
 
@@ -265,4 +266,5 @@ def test_bad_samples_in_a_block_are_dropped_as_one_by_one(rig):
                                                  Drop.STAMP_FAR_PAST, Drop.STAMP_IN_FUTURE}
     f.end()
     g.end()
-    assert trace(blocks) == trace(work) == [("imu", 100.01), ("imu", 100.02), ("imu", 100.03), ("flush", None)]
+    imu_stamps = [(WorkKind.IMU, 100.01), (WorkKind.IMU, 100.02), (WorkKind.IMU, 100.03)]
+    assert trace(blocks) == trace(work) == imu_stamps + [(WorkKind.FLUSH, None)]

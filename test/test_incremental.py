@@ -90,6 +90,9 @@ def test_a_view_without_shared_landmarks_starts_a_new_sequence_and_reset_does_to
     c, t, f, g = items[4]
     out = seq.add_view(c, t + 10**6, f, g)  # landmark ids nobody has seen
     assert isinstance(out, NewSequence) and out.reason is StartReason.NO_SHARED_LANDMARKS and out.sequence == 1
+    # the views tried, as data (the most shared first; none shares a landmark); the sentence is made by str()
+    assert [a.view for a in out.tried] == [0, 1, 2] and all(a.shared == 0 and not a.estimated for a in out.tried)
+    assert "view 0: 0 shared landmarks from 0 camera(s); view 1" in str(out)
     assert seq.number == 1 and seq.num_views == 1
     seq.reset()
     assert seq.number == 2 and seq.num_views == 0

@@ -13,7 +13,6 @@ from nrmpc_ros.core.attitude import tangent_covariance
 from nrmpc_ros.core.deformation import deformed_extrinsics
 from nrmpc_ros.core.rig import load_rig
 from nrmpc_ros.core.so3 import angle_between, normalize
-from nrmpc_ros.frontend.feeder import Work
 from nrmpc_ros.frontend.markers import (
     CONE_SIGMAS,
     MarkerKind,
@@ -25,6 +24,7 @@ from nrmpc_ros.frontend.markers import (
 from nrmpc_ros.frontend.node_config import NodeConfig
 from nrmpc_ros.frontend.pipeline import FrameSet, PipelineConfig, RigState, RigStatus
 from nrmpc_ros.frontend.service import EstimatorService
+from nrmpc_ros.frontend.work import Work, WorkKind
 from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 
 REPO_RIG = "config/sample_cross4.yaml"
@@ -52,12 +52,12 @@ def run(rig3):
     k = 0
     for st, _, _, imgs in frames:
         while k < len(imu) and imu[k][0] <= st:
-            s.queue.put(Work("imu", imu[k][0], (imu[k][1], imu[k][2], None)))
+            s.queue.put(Work(WorkKind.IMU, imu[k][0], (imu[k][1], imu[k][2], None)))
             step()
             k += 1
-        s.queue.put(Work("frames", st, (FrameSet(st, imgs), 0.0)))
+        s.queue.put(Work(WorkKind.FRAMES, st, (FrameSet(st, imgs), 0.0)))
         step()
-    s.queue.put(Work("flush"))
+    s.queue.put(Work(WorkKind.FLUSH))
     step()
     return got, len(frames), s.counts["estimates"]
 

@@ -30,6 +30,7 @@ from nrmpc_ros.core.deformation import deformed_extrinsics  # noqa: E402
 from nrmpc_ros.core.so3 import exp_so3, quat_xyzw_to_matrix  # noqa: E402
 from nrmpc_ros.frontend.outputs import hold_output  # noqa: E402
 from nrmpc_ros.frontend.pipeline import HoldEstimate  # noqa: E402
+from nrmpc_ros.frontend.work import WorkKind  # noqa: E402
 from nrmpc_ros.node import EstimatorNode, main  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -207,7 +208,7 @@ def test_reset_service_and_method_at_run_time(ctx):
         future = client.call_async(Trigger.Request())
         executor.spin_until_future_complete(future, timeout_sec=10)
         assert future.result().success and "a new sequence" in future.result().message
-        assert node.service.queue.get(0.0).kind == "reset"
+        assert node.service.queue.get(0.0).kind is WorkKind.RESET
         assert node.set_parameters([Parameter("method", value="6pt-bending")])[0].successful
         assert not node.set_parameters([Parameter("method", value="magic")])[0].successful
         assert not node.set_parameters([Parameter("input.jump_back_s", value=5.0)])[0].successful, "read-only"

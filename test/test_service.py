@@ -13,7 +13,7 @@ from test_feeder import TOPICS, image, imu
 
 from nrmpc_ros.core import load_rig
 from nrmpc_ros.frontend.drops import Drop
-from nrmpc_ros.frontend.feeder import FeederConfig, Work
+from nrmpc_ros.frontend.feeder import FeederConfig
 from nrmpc_ros.frontend.node_config import (
     NodeConfig,
 )
@@ -21,6 +21,7 @@ from nrmpc_ros.frontend.pipeline import FrameSet, PipelineConfig
 from nrmpc_ros.frontend.runner import PipelineRunner
 from nrmpc_ros.frontend.service import ERROR, OK, WARN, EstimatorService, WorkQueue, image_change
 from nrmpc_ros.frontend.sync import StampSynchronizer
+from nrmpc_ros.frontend.work import Work, WorkKind
 
 
 @pytest.fixture
@@ -46,9 +47,9 @@ def service(rig, clock=None, imu_topic="/imu/data", **cfg):
 # --------------------------------------------------------------------------- the work queue and the service
 def test_the_work_queue_refuses_frame_sets_when_full_but_not_imu_samples():
     q = WorkQueue(max_frames=2)
-    dropped = [q.put(Work("frames", k)) for k in range(3)]
+    dropped = [q.put(Work(WorkKind.FRAMES, k)) for k in range(3)]
     assert dropped[:2] == [None, None] and dropped[2].stamp == 1, "equals: the first and the newest are kept"
-    assert q.put(Work("imu", 1.0)) is None and q.put(Work("flush")) is None and q.frames() == 2
+    assert q.put(Work(WorkKind.IMU, 1.0)) is None and q.put(Work(WorkKind.FLUSH)) is None and q.frames() == 2
     assert q.get(0.01).stamp == 0 and q.frames() == 1
 
 
@@ -59,7 +60,7 @@ def test_a_full_work_queue_drops_the_frame_sets_of_moves_and_keeps_those_of_hold
     change = {k: (1.5 if k < 8 or k >= 16 else 30.0) for k in range(40)}  # hold 0-7, move 8-15, hold 16-39
     dropped, kept = [], []
     for k in range(40):
-        d = q.put(Work("frames", 0.1 * k), change[k])
+        d = q.put(Work(WorkKind.FRAMES, 0.1 * k), change[k])
         dropped += [] if d is None else [round(d.stamp * 10)]
         if k % 2:
             kept.append(round(q.get(0.0).stamp * 10))
@@ -79,15 +80,15 @@ def test_a_full_work_queue_keeps_both_ends_of_a_time_jump_back():
         q = WorkQueue(max_frames=4)
         dropped = []
         for k in range(6):
-            dropped.append(q.put(Work("frames", 8.0 + 0.1 * k), 1.5))
+            dropped.append(q.put(Work(WorkKind.FRAMES, 8.0 + 0.1 * k), 1.5))
         if restart:
-            assert q.put(Work("restart", data="time jumped back")) is None
+            assert q.put(Work(WorkKind.RESTART, data="time jumped back")) is None
         for k in range(6):
-            dropped.append(q.put(Work("frames", 0.1 * k), 1.5))
+            dropped.append(q.put(Work(WorkKind.FRAMES, 0.1 * k), 1.5))
         dropped = [round(d.stamp * 10) for d in dropped if d is not None]
         kept = []
         while (w := q.get(0.0)) is not None:
-            kept += [round(w.stamp * 10)] if w.kind == "frames" else []
+            kept += [round(w.stamp * 10)] if w.kind is WorkKind.FRAMES else []
         assert {85, 0, 5} <= set(kept), (restart, kept, dropped)
 
 
@@ -132,7 +133,7 @@ def test_the_end_of_the_input_flushes_and_the_diagnostics_say_so(rig):
     kinds = []
     while (w := s.queue.get(0.0)) is not None:
         kinds.append(w.kind)
-    assert kinds[-1] == "flush" and kinds.count("frames") == 2
+    assert kinds[-1] == WorkKind.FLUSH and kinds.count(WorkKind.FRAMES) == 2
     cams = s.diagnostics()[0]
     assert cams.level == OK and "the input ended" in cams.message
     assert cams.values["/cam0/image_raw: state"] == "input ended"
@@ -173,13 +174,13 @@ def test_the_runner_keeps_statistics_and_sequence_numbers_over_restarts(rig):
     rng = np.random.default_rng(0)
     for k in range(3):
         imgs = [rng.integers(0, 255, (48, 64), dtype=np.uint8) for _ in range(4)]
-        runner.run(Work("frames", 1.0 + k, (FrameSet(1.0 + k, imgs), 0.0)))
+        runner.run(Work(WorkKind.FRAMES, 1.0 + k, (FrameSet(1.0 + k, imgs), 0.0)))
     first = runner.pipeline
-    runner.run(Work("restart", data="time jumped back"))
+    runner.run(Work(WorkKind.RESTART, data="time jumped back"))
     assert runner.pipeline is not first and runner.restarts == 1
-    runner.run(Work("frames", 0.5, (FrameSet(0.5, imgs), 0.0)))  # an older stamp: fine in the new pipeline
+    runner.run(Work(WorkKind.FRAMES, 0.5, (FrameSet(0.5, imgs), 0.0)))  # an older stamp: fine in the new pipeline
     assert runner.stats.frames == 4
-    runner.run(Work("frames", 0.6, (FrameSet(0.6, imgs[:2]), 0.0)))  # the pipeline refuses it: counted
+    runner.run(Work(WorkKind.FRAMES, 0.6, (FrameSet(0.6, imgs[:2]), 0.0)))  # the pipeline refuses it: counted
     assert runner.drops.by_reason()[Drop.BAD_FRAME_SET] == 1
 
 

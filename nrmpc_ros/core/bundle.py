@@ -772,8 +772,9 @@ class BundleResult:
         return 0 if self.stats is None else self.stats.iterations
 
     @property
-    def stop(self) -> str:
-        return "" if self.stats is None else self.stats.stop
+    def stop(self) -> Stop | None:
+        """Why the adjustment ended; None where none ran."""
+        return None if self.stats is None else self.stats.stop
 
     @property
     def R(self) -> np.ndarray:

@@ -55,10 +55,11 @@ from .bundle import (
     condense_gravity,
     covariance_from_information,
 )
-from .estimators import estimate, pair_method
+from .estimators import Estimate, estimate, pair_method
 from .matches import Matches
 from .rig import Rig
 from .sequence import (
+    PairAttempt,
     SequenceEstimate,
     SequenceOptions,
     adjust_sequence,
@@ -115,14 +116,32 @@ class StartReason(Enum):
 @dataclass(frozen=True)
 class NewSequence:
     """:meth:`IncrementalSequence.add_view`'s result for a view that starts a sequence: the sequence number,
-    the reason and, for the user, what each earlier view shared or why its pair failed."""
+    the reason and the earlier views tried: what each shared or why its pair failed (shown to the user)."""
 
     sequence: int
     reason: StartReason
-    detail: str = ""
+    tried: tuple[PairAttempt, ...] = ()
+
+    @property
+    def detail(self) -> str:
+        """What the earlier views tried shared or why their pairs failed, as shown to the user."""
+        return "; ".join(a.describe("landmarks") for a in self.tried) or \
+            ("" if self.reason is StartReason.FIRST_VIEW else "no earlier view")
 
     def __str__(self) -> str:
         return f"view starts sequence {self.sequence} ({self.reason.value}{': ' if self.detail else ''}{self.detail})"
+
+
+@dataclass(frozen=True)
+class _Pairing:
+    """:meth:`IncrementalSequence._pair`'s outcome: the reference view, pair method and two-view estimate of a
+    new view or, where no earlier view gives one (``estimate`` None), why a sequence starts and the views tried."""
+
+    reference: int = -1
+    method: str = ""
+    estimate: Estimate | None = None
+    reason: StartReason | None = None
+    tried: tuple[PairAttempt, ...] = ()
 
 
 @dataclass
@@ -429,10 +448,10 @@ class IncrementalSequence:
             j, pm, (new.R, new.t) = placed
         else:
             paired = self._pair(k)
-            if isinstance(paired, tuple) and isinstance(paired[0], StartReason):
+            if paired.estimate is None:
                 self._restart_from_last()
-                return NewSequence(self.seq.number, *paired)
-            j, pm, est = paired
+                return NewSequence(self.seq.number, paired.reason, paired.tried)
+            j, pm, est = paired.reference, paired.method, paired.estimate
             ref = s.views[j]
             new.R, new.t = ref.R @ est.R, ref.R @ est.t + ref.t
             if self.with_gravity:
@@ -514,7 +533,7 @@ class IncrementalSequence:
         method) of those that share enough landmarks from two cameras; the newest ``max_pair_gap`` views first
         (newest first), then any older view of the sequence, most shared landmarks first (docs/PIPELINE.md,
         "The joint estimate over the sequence"), and, where there are none, what the best ones shared (for the
-        user: the detail of a :class:`NewSequence`)."""
+        user: the views tried of a :class:`NewSequence`)."""
         s = self.seq
         opts = self.options
         # landmarks shared with view k, per earlier view and camera, counted at once
@@ -536,10 +555,9 @@ class IncrementalSequence:
             has_g = s.views[j].has_gravity and s.views[k].has_gravity
             out.append((int(j), ia, ib, pair_method(self.method, has_g)))
         if out:
-            return out, ""
+            return out, ()
         best = np.argsort(-shared, kind="stable")[:3]
-        return [], "; ".join(f"view {j}: {shared[j]} shared landmarks from {cams[j]} camera(s)" for j in best) or \
-            "no earlier view"
+        return [], tuple(PairAttempt(int(j), int(shared[j]), int(cams[j])) for j in best)
 
     def _resect(self, k: int):
         """(reference view, method, (R, t)) of view k placed by resection on the landmarks the earlier views
@@ -574,13 +592,13 @@ class IncrementalSequence:
         vk.inlier = inlier
         return j, pm, (res.R, res.t)
 
-    def _pair(self, k: int):
-        """(reference view, method, two-view estimate) of view k, or (StartReason, detail) why none. At most
-        ``max_pair_gap`` pairs are estimated, in the order of :meth:`_links`."""
+    def _pair(self, k: int) -> _Pairing:
+        """The reference view, method and two-view estimate of view k, or why none. At most ``max_pair_gap``
+        pairs are estimated, in the order of :meth:`_links`."""
         s = self.seq
-        links, why_none = self._links(k)
+        links, best = self._links(k)
         if not links:
-            return StartReason.NO_SHARED_LANDMARKS, why_none
+            return _Pairing(reason=StartReason.NO_SHARED_LANDMARKS, tried=best)
         why = []
         for j, ia, ib, pm in links[: self.options.max_pair_gap]:
             vj, vk = s.views[j], s.views[k]
@@ -589,9 +607,9 @@ class IncrementalSequence:
                         vk.measured if has_g else None, source=f"views {j}, {k}")
             est = estimate(self.model_rig, m, method=pm, seed=self.seed + k, options=self._pair_options)
             if est.success:
-                return j, pm, est
-            why.append(f"view {j}: {est.info.reason or 'estimation failed'}")
-        return StartReason.PAIR_FAILED, "; ".join(why)
+                return _Pairing(j, pm, est)
+            why.append(PairAttempt(j, len(ia), len(np.unique(vj.cam[ia])), estimated=True, failure=est.info.reason))
+        return _Pairing(reason=StartReason.PAIR_FAILED, tried=tuple(why))
 
     def _restart_from_last(self) -> None:
         """The newest view cannot be linked: it becomes the origin of a new sequence."""

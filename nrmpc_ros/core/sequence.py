@@ -176,13 +176,55 @@ def _failure(method, t0, reason) -> SequenceEstimate:
     return SequenceEstimate(method=method, success=False, time_s=time.perf_counter() - t0, reason=reason)
 
 
-def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, seed: int, threshold: float,
-                 with_gravity: bool):
-    """Poses of every view in view 0 from two-view estimates (the first ``opts.chain_pairs`` views after the
-    origin, and any later one resection cannot place) and resection, and gravity candidates for g_0.
+@dataclass(frozen=True)
+class PairAttempt:
+    """One earlier view tried as the reference of a new view: how many landmarks it shares with it and from how
+    many cameras and, where the two-view estimate was made (``estimated``) and failed, the estimator's reason."""
 
-    Returns (R (K,3,3), t (K,3), candidates list of (g_0, weight), pair methods) or a str reason.
-    """
+    view: int
+    shared: int
+    cameras: int
+    estimated: bool = False
+    failure: str | None = None  # the two-view estimator's reason (EstimateInfo.reason)
+
+    def describe(self, landmarks: str = "tracks") -> str:
+        """The phrase shown to the user; ``landmarks`` names what is shared."""
+        if self.estimated:
+            return f"view {self.view}: {self.failure or 'estimation failed'}"
+        return f"view {self.view}: {self.shared} shared {landmarks} from {self.cameras} camera(s)"
+
+
+@dataclass(frozen=True)
+class Unlinked:
+    """Why a chain of two-view estimates stops: view ``view`` links to none of the views before it, each
+    earlier view tried (newest first) with what it shared or why its pair failed."""
+
+    view: int
+    tried: tuple[PairAttempt, ...] = ()
+
+    def __str__(self) -> str:
+        why = "; ".join(a.describe() for a in self.tried) or "no earlier view"
+        return f"view {self.view} cannot be linked to the views before it ({why})"
+
+
+@dataclass
+class Chain:
+    """:func:`_chain_pairs`'s outcome: the poses of the views placed, in view 0, the gravity candidates for g_0
+    (list of (g_0, weight)) and each placed view's (method, reference view); ``unlinked`` says why the chain
+    stops before the last view (None: every view is placed)."""
+
+    R: np.ndarray  # (K', 3, 3)
+    t: np.ndarray  # (K', 3)
+    candidates: list
+    methods: list
+    unlinked: Unlinked | None = None
+
+
+def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, seed: int, threshold: float,
+                 with_gravity: bool) -> Chain:
+    """Poses of every view in view 0 from two-view estimates (the first ``opts.chain_pairs`` views after the
+    origin, and any later one resection cannot place) and resection, and gravity candidates for g_0; the chain
+    stops at the first view that links to no view before it (:class:`Unlinked`)."""
     K = tracks.num_views
     R, t = [np.eye(3)], [np.zeros(3)]
     candidates, methods = [], []
@@ -202,12 +244,12 @@ def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, s
             m = tracks.pair(j, k)
             cams = len(np.unique(m.cam))
             if len(m) < opts.min_pair_matches or cams < 2:
-                why.append(f"view {j}: {len(m)} shared tracks from {cams} camera(s)")
+                why.append(PairAttempt(j, len(m), cams))
                 continue
             pm = pair_method(method, m.has_gravity)
             est = estimate(rig, m, method=pm, seed=seed + k, options=pair_opts)
             if not est.success:
-                why.append(f"view {j}: {est.info.reason or 'estimation failed'}")
+                why.append(PairAttempt(j, len(m), cams, estimated=True, failure=est.info.reason))
                 continue
             R.append(R[j] @ est.R)
             t.append(R[j] @ est.t + t[j])
@@ -218,8 +260,8 @@ def _chain_pairs(rig: Rig, tracks: Tracks, method: str, opts: SequenceOptions, s
                     candidates.append((R[j] @ np.asarray(g, float), weight))
             break
         else:
-            return f"view {k} cannot be linked to the views before it ({'; '.join(why) or 'no earlier view'})"
-    return np.array(R), np.array(t), candidates, methods
+            return Chain(np.array(R), np.array(t), candidates, methods, Unlinked(k, tuple(why)))
+    return Chain(np.array(R), np.array(t), candidates, methods)
 
 
 def _resect_next(rig: Rig, tracks: Tracks, method: str, R, t, candidates, threshold: float,
@@ -621,9 +663,9 @@ def estimate_sequence(rig: Rig, tracks: Tracks, method: str = "6pt-bending", see
     focal = float(np.mean([c.focal_px for c in rig.cameras]))
     threshold = opts.estimator.threshold_px / focal
     chained = _chain_pairs(model_rig, tracks, method, opts, seed, threshold, with_gravity)
-    if isinstance(chained, str):
-        return _failure(method, t0, chained)
-    R, t, cands, pair_methods = chained
+    if chained.unlinked is not None:
+        return _failure(method, t0, str(chained.unlinked))
+    R, t, cands, pair_methods = chained.R, chained.t, chained.candidates, chained.methods
     obs, obs_index = _observations(tracks)
     if len(obs) == 0:
         return _failure(method, t0, "no track is seen in two views")
@@ -677,6 +719,6 @@ def adjust_sequence(model_rig: Rig, tracks: Tracks, obs: Observations, obs_index
                             link_repairs=repairs)
 
 
-__all__ = ["RIGID_REASON", "SequenceEstimate", "SequenceOptions", "adjust_sequence", "broken_link", "choose_gravity",
-           "distinct_candidates", "estimate_sequence", "link_retention", "refine_sequence", "repair_links",
-           "triangulated"]
+__all__ = ["RIGID_REASON", "PairAttempt", "SequenceEstimate", "SequenceOptions", "Unlinked", "adjust_sequence",
+           "broken_link", "choose_gravity", "distinct_candidates", "estimate_sequence", "link_retention",
+           "refine_sequence", "repair_links", "triangulated"]

@@ -21,6 +21,7 @@ from ..core.incremental import StartReason
 from .holds import Refusal
 from .imu import ImuRefusal, ImuReject
 from .motion import MotionKind
+from .work import WorkKind
 
 
 class Stage(Enum):
@@ -111,8 +112,8 @@ class Drop(Enum):
 
     # ------------------------------------------------------------------ the families, by their own outcome types
     @classmethod
-    def busy(cls, kind: str) -> Drop:
-        """A work item of ``kind`` ("frames", "imu", ...) dropped while the estimator is busy."""
+    def busy(cls, kind: WorkKind) -> Drop:
+        """A work item of ``kind`` dropped while the estimator is busy."""
         return _BUSY[kind]
 
     @classmethod
@@ -137,8 +138,8 @@ class Drop(Enum):
         return _NEW_SEQUENCE[reason]
 
 
-_BUSY = {"frames": Drop.BUSY_FRAME_SET, "imu": Drop.BUSY_IMU, "flush": Drop.BUSY_FLUSH,
-         "restart": Drop.BUSY_RESTART, "reset": Drop.BUSY_RESET, "method": Drop.BUSY_METHOD}
+_BUSY = {WorkKind.FRAMES: Drop.BUSY_FRAME_SET, WorkKind.IMU: Drop.BUSY_IMU, WorkKind.FLUSH: Drop.BUSY_FLUSH,
+         WorkKind.RESTART: Drop.BUSY_RESTART, WorkKind.RESET: Drop.BUSY_RESET, WorkKind.METHOD: Drop.BUSY_METHOD}
 _IMU_SAMPLE = {ImuReject.WRONG_SHAPE: Drop.IMU_SAMPLE_WRONG_SHAPE, ImuReject.NOT_FINITE: Drop.IMU_SAMPLE_NOT_FINITE,
                ImuReject.OUT_OF_ORDER: Drop.IMU_SAMPLE_OUT_OF_ORDER}
 _NOT_AT_REST = {MotionKind.IMU_MOVED: Drop.NOT_AT_REST_IMU, MotionKind.TRACKS_LOST: Drop.NOT_AT_REST_TRACKS_LOST,

@@ -32,8 +32,9 @@ are the replay's whenever the same messages arrive. Per message:
    samples arrive seconds of stamps behind 10 Hz frames although nothing
    stopped.
 
-Work items go to ``sink`` as :class:`Work` (kind "imu", "frames", "flush",
-"restart", "reset"). Every drop goes to the :class:`~nrmpc_ros.frontend.droplog.DropLog`.
+Work items go to ``sink`` as :class:`~nrmpc_ros.frontend.work.Work` (kind
+IMU, FRAMES, FLUSH, RESTART, RESET of :class:`~nrmpc_ros.frontend.work.WorkKind`).
+Every drop goes to the :class:`~nrmpc_ros.frontend.droplog.DropLog`.
 """
 
 from __future__ import annotations
@@ -42,7 +43,6 @@ import math
 import time
 from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
@@ -56,6 +56,7 @@ from .imu_block import ImuBlock
 from .pipeline import FrameSet
 from .stamps import JumpPolicy, StampGuard
 from .sync import StampSynchronizer, SyncConfig
+from .work import Work, WorkKind
 
 IMU = "imu"  # stream id of the IMU in the stamp guard (cameras are 0..M-1)
 HELD_QUEUES = 4  # a candidate jump back holds up to this many frame queues of messages: every camera's and the
@@ -97,16 +98,6 @@ class FeederConfig:
     def jump_policy(self) -> JumpPolicy:
         """When held stamps are a jump of the clock: one policy for the stamp checks and the frame grouping."""
         return JumpPolicy(self.jump_back_s, self.jump_confirm)
-
-
-class Work(NamedTuple):
-    """One step for the pipeline: ``kind`` "imu" (data = (accel, gyro, covariances or None)), "frames"
-    (data = (FrameSet, arrival time on the feeder's clock)), "flush" (the input ended), "restart" (data = why:
-    time jumped back) or "reset" (data = why: a new sequence on request)."""
-
-    kind: str
-    stamp: float = math.nan
-    data: object = None
 
 
 class Feeder:
@@ -220,12 +211,12 @@ class Feeder:
         """The input ended (a bag's end, every camera silent): every frame set left goes out, then a flush."""
         self._emit_sets(self.sync.flush())
         self._release(final=True)
-        self.sink(Work("flush"))
+        self.sink(Work(WorkKind.FLUSH))
 
     def reset(self, why: str) -> None:
         """A new sequence on request: the frame sets before it go out first."""
         self._release(final=True)
-        self.sink(Work("reset", data=why))
+        self.sink(Work(WorkKind.RESET, data=why))
 
     def ros_stamp(self, stamp: float) -> tuple:
         """(sec, nanosec) of a frame stamp as it was received (computed for stamps not seen)."""
@@ -255,8 +246,8 @@ class Feeder:
         self.log("warn", f"{why}: the frame grouping, the IMU samples and the holds start afresh (a new sequence)")
         self._emit_sets(self.sync.flush())
         self._release(final=True)
-        self.sink(Work("flush"))
-        self.sink(Work("restart", data=why))
+        self.sink(Work(WorkKind.FLUSH))
+        self.sink(Work(WorkKind.RESTART, data=why))
         self._new_epoch()
         for stream, stamp, payload in jump.held:
             self._accept(stream, stamp, payload)
@@ -314,7 +305,7 @@ class Feeder:
                     while imu and imu[0][0] < fs.stamp + lead:
                         self._emit_imu()
                     frames.popleft()
-                    self.sink(Work("frames", fs.stamp, (fs, arrival)))
+                    self.sink(Work(WorkKind.FRAMES, fs.stamp, (fs, arrival)))
                     continue
             if imu and (final or imu[0][0] < self._frontier() + lead):
                 self._emit_imu()
@@ -323,7 +314,7 @@ class Feeder:
 
     def _emit_imu(self) -> None:
         s, *data = self._imu.popleft()
-        self.sink(Work("imu", s, tuple(data)))
+        self.sink(Work(WorkKind.IMU, s, tuple(data)))
 
     def _drop(self, source: str, reason: Drop, message: str) -> None:
         line = self.drops.drop(source, reason, message)

@@ -24,6 +24,25 @@ from ..core.deformation import gravity_from_accelerometer
 from ..core.rig import Rig
 from ..errors import InputError
 
+INITIAL_ROWS = 1024
+"""Rows of the sample array at the start (grown by doubling): a second of a 1 kHz IMU, five of a 200 Hz one."""
+
+PENDING_BLOCK = 256
+"""Samples appended one at a time (a tuple each) before they move as one block into the array: the numpy calls of
+a consolidation are shared by this many samples; every read consolidates first, so the block size never delays a
+hold's samples."""
+
+PERIOD_SAMPLES = 16
+"""Samples that measure the IMU's period before the first block is full: the gap test (``gap_periods`` periods)
+needs the period from the start, and :data:`PERIOD_MIN_STEPS` steps of the first samples give it."""
+
+PERIOD_MIN_STEPS = 8
+"""Fewest steps whose median is taken as the sample period: a median of 8 steps is unmoved by up to 3 outlying
+ones (a gap, or the long and the short step around a late sample)."""
+
+PERIOD_WINDOW = PENDING_BLOCK
+"""The period is the median step of the newest samples: the block just added and up to this many before it."""
+
 
 @dataclass
 class ImuConfig:
@@ -116,7 +135,7 @@ class ImuBuffer:
         self.rig = rig  # None: a bare sample store (no gravity, e.g. for the stillness detector)
         self.config = config or ImuConfig()
         self.source = rig.imu.topic if rig is not None and rig.imu is not None else "imu"
-        self._buf = np.empty((1024, 7))
+        self._buf = np.empty((INITIAL_ROWS, 7))
         self._i0 = self._n = 0  # live rows of _buf
         self._pending: list = []  # (t, ax, ay, az, wx, wy, wz) appended since the last consolidation
         self._gaps: list = []
@@ -145,8 +164,9 @@ class ImuBuffer:
         self.last_stamp = stamp
         self.stats["samples"] += 1
         self._pending.append((stamp, *a, *w))
-        if len(self._pending) >= 256 or (self.period_s != self.period_s and len(self._pending) >= 16):
-            self._consolidate()  # (the first 16 samples give the period the gap test needs)
+        n = len(self._pending)
+        if n >= PENDING_BLOCK or (self.period_s != self.period_s and n >= PERIOD_SAMPLES):
+            self._consolidate()  # (the first samples give the period the gap test needs)
         return None
 
     def _consolidate(self) -> None:
@@ -155,9 +175,9 @@ class ImuBuffer:
         if self._pending:
             block = np.array(self._pending, dtype=float)
             self._pending.clear()
-            live = self._buf[max(self._i0, self._n - 256):self._n, 0]
+            live = self._buf[max(self._i0, self._n - PERIOD_WINDOW):self._n, 0]
             steps = np.diff(np.concatenate([live, block[:, 0]]))
-            if len(steps) >= 8:  # the median step of the newest samples: a gap or a late sample does not move it
+            if len(steps) >= PERIOD_MIN_STEPS:  # the median step of the newest samples
                 self.period_s = float(np.median(steps))
             self._i0 += int(np.searchsorted(self._buf[self._i0:self._n, 0], keep_from))
             if self._n + len(block) > len(self._buf):  # compact to the front, growing when over half full

@@ -22,13 +22,48 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MAX_LAG_S = 0.25  # lags searched: +- this (s); stamps further off are a configuration error, not a lag
-LAG_STEP_S = 0.0005  # grid of the search (s); the peak is refined by a parabola through its neighbours
-MIN_CORRELATION = 0.5  # below this the images and the gyro do not tell the same motion: no estimate
-MIN_MOVING_FRAMES = 10  # frames with image motion above the ringing's before an offset is looked for
-KEEP_IMU_SAMPLES = 60_000  # the newest samples kept (1 min at 1 kHz, 5 min at 200 Hz): enough moves
+MAX_LAG_S = 0.25
+"""Lags searched (s, either way). A clock offset is a stamping or transport delay of a few frame periods at most
+(a 30 Hz camera's period is 33 ms); stamps further off are a configuration error (another clock), not a lag, and
+a wider window would only let a periodic move alias into a false peak."""
+
+LAG_STEP_S = 0.0005
+"""Grid of the lag search (s): half the period of a 1 kHz IMU, the finest stream this front end serves, so the
+grid does not round the lag coarser than the IMU resolves it; the peak is refined by a parabola through its
+neighbours (:func:`_parabola`)."""
+
+LAG_TOLERANCE_S = 1e-4
+"""The bent cameras' refinement stops when the lag is known to this (s): a fifth of :data:`LAG_STEP_S`, below what
+the parabola through the grid resolves."""
+
+MIN_CORRELATION = 0.5
+"""Below this correlation the images and the gyro do not tell the same motion (no estimate). Two rates that share
+a move correlate near 1 at the right lag; 0.5 means the shared motion explains only a quarter of the images'
+variance (r^2), the rest being tracking noise and ringing: a lag read from that is not the clock's."""
+
+MIN_MOVING_FRAMES = 10
+"""Frames whose image motion stands above the ringing's (:data:`MOVE_MADS`) before an offset is looked for: the
+correlation of fewer frames is dominated by the noise of each (its std is about 1/sqrt(n - 3))."""
+
+MIN_IMU_SAMPLES = 10
+"""IMU samples needed before an offset is looked for: enough to integrate the gyro over a move at all."""
+
+MOVE_MADS = 3.0
+"""A frame moves when the images' median rate is this many median absolute deviations above the median over the
+frames (unscaled MADs: about 2 standard deviations of normal noise), the frames of holds, which ring, below."""
+
+KEEP_IMU_SAMPLES = 60_000
+"""The newest IMU samples kept: 1 min at 1 kHz, 5 min at 200 Hz; enough moves for the correlation, a bounded
+memory and search cost."""
+
 KEEP_FRAMES = 5_000
-FRAME_LAGS = 1.5  # the bent cameras' refinement searches this many frame periods around the gyro's lag
+"""The newest frame intervals kept: over 2 min at 30 Hz, so the frames cover at least the IMU samples kept at
+1 kHz."""
+
+FRAME_LAGS = 1.5
+"""The bent cameras' refinement searches this many frame periods around the gyro's lag: the bars' response lags
+the body by tens of ms for bars of a few Hz (see :class:`ImuClockEstimator`), about one frame period of cameras at
+10-30 Hz, searched with half a period to spare."""
 
 
 @dataclass(frozen=True)
@@ -67,7 +102,7 @@ class ImuClockEstimator:
             self._frames.append((float(t_prev), float(t), r))
 
     def estimate(self) -> ClockOffset | None:
-        if len(self._imu) < 10 or len(self._frames) < MIN_MOVING_FRAMES:
+        if len(self._imu) < MIN_IMU_SAMPLES or len(self._frames) < MIN_MOVING_FRAMES:
             return None
         imu = np.array(self._imu)
         imu = imu[np.argsort(imu[:, 0], kind="stable")]
@@ -79,8 +114,8 @@ class ImuClockEstimator:
         a, b, y = a[inside], b[inside], y[inside]
         med = np.nanmedian(y, axis=1) if len(y) else np.zeros(0)
         ok = np.isfinite(med)
-        if ok.sum() < MIN_MOVING_FRAMES or np.count_nonzero(med[ok] > np.median(med[ok]) + 3 * _mad(med[ok])) < \
-                MIN_MOVING_FRAMES:
+        moving = np.count_nonzero(med[ok] > np.median(med[ok]) + MOVE_MADS * _mad(med[ok])) if ok.any() else 0
+        if ok.sum() < MIN_MOVING_FRAMES or moving < MIN_MOVING_FRAMES:
             return None  # no move the images and the gyro could both show
         # The gyro's rate integrated once: its mean over any shifted interval, for every lag at once.
         w = np.linalg.norm(imu[:, 4:7], axis=1)
@@ -98,7 +133,7 @@ class ImuClockEstimator:
 
             res = minimize_scalar(lambda d: -self._camera_correlation(imu, a, b, y, d), method="bounded",
                                   bounds=(lag - FRAME_LAGS * np.median(b - a), lag + FRAME_LAGS * np.median(b - a)),
-                                  options={"xatol": 1e-4})
+                                  options={"xatol": LAG_TOLERANCE_S})
             lag, best = float(res.x), -float(res.fun)
         if best < MIN_CORRELATION:
             return None

@@ -27,6 +27,7 @@ from .feeder import Feeder, FeederConfig
 from .pipeline import Pipeline, PipelineConfig
 from .runner import PipelineRunner
 from .topics import CAMERA_INFO_TYPE, IMU_TYPE, bag_image_topics, bag_topic, check_topic_type
+from .work import WorkKind
 
 
 def _stderr_warn(msg: str) -> None:
@@ -137,7 +138,7 @@ class BagReplay:
     def _run_work(self) -> Iterator[list]:
         for item in self._work:
             estimates = self.runner.run(item)
-            if item.kind in ("frames", "flush"):
+            if item.kind in (WorkKind.FRAMES, WorkKind.FLUSH):
                 yield estimates
         self._work.clear()
 

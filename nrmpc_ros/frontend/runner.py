@@ -1,10 +1,12 @@
 """The work of a :class:`~nrmpc_ros.frontend.feeder.Feeder` run through a Pipeline (the node's worker, the replay).
 
-- "imu" and "frames" go to :meth:`Pipeline.add_imu` / :meth:`Pipeline.add_frames`;
+The items (:class:`~nrmpc_ros.frontend.work.Work`), by kind (:class:`~nrmpc_ros.frontend.work.WorkKind`):
+
+- IMU and FRAMES go to :meth:`Pipeline.add_imu` / :meth:`Pipeline.add_frames`;
   a frame set the pipeline refuses is dropped and counted ("bad frame set").
-- "flush" closes the open hold (its estimate comes out).
-- "reset" starts a new sequence (:meth:`Pipeline.reset`).
-- "restart" (time jumped back) replaces the pipeline by a fresh one of the
+- FLUSH closes the open hold (its estimate comes out).
+- RESET starts a new sequence (:meth:`Pipeline.reset`).
+- RESTART (time jumped back) replaces the pipeline by a fresh one of the
   same rig, settings and method: its hold state, IMU samples and trackers
   all belong to the old time. The statistics of every pipeline run so far
   add up in :attr:`PipelineRunner.stats`.
@@ -35,6 +37,7 @@ from .droplog import DropLog
 from .drops import Drop
 from .estimation import MeasuredHold
 from .pipeline import Pipeline, PipelineConfig, PipelineStats
+from .work import Work, WorkKind
 
 
 @dataclass(frozen=True)
@@ -112,13 +115,13 @@ class PipelineRunner:
     def method(self) -> str:
         return self.pipeline.method
 
-    def run(self, work) -> list:
+    def run(self, work: Work) -> list:
         """Run one work item; returns the hold estimates it completed (0 or more)."""
         p = self.pipeline
-        if work.kind == "imu":
+        if work.kind is WorkKind.IMU:
             p.add_imu(work.stamp, *work.data)
             return []
-        if work.kind == "frames":
+        if work.kind is WorkKind.FRAMES:
             try:
                 out = self._numbered(p.add_frames(work.data[0]))
                 self._take(p)
@@ -133,15 +136,15 @@ class PipelineRunner:
                                                            f"{work.stamp:.3f} s: {type(exc).__name__}: {exc}")
             self._take(p)
             return []
-        if work.kind == "flush":
+        if work.kind is WorkKind.FLUSH:
             out = self._numbered(p.flush())
             self._take(p)
             return out
-        if work.kind == "reset":
+        if work.kind is WorkKind.RESET:
             p.reset()
             self._take(p)
             return []
-        if work.kind == "restart":
+        if work.kind is WorkKind.RESTART:
             self.restart(work.data)
             return []
         raise ValueError(f"unknown work item {work.kind!r}")

@@ -44,12 +44,13 @@ from .diagnostics import ERROR, OK, WARN, ServiceDiagnostics, Status
 from .droplog import DropLog
 from .drops import Drop
 from .extrinsics import NO_IMU_NOTE, imu_mount_warning
-from .feeder import Feeder, Work
+from .feeder import Feeder
 from .liveness import CameraWatch
 from .node_config import NodeConfig
 from .outputs import FrameNames, FramePosesOutput, HoldOutput, hold_output
 from .pipeline import PIPELINE_METHODS, PipelineConfig, RigState
 from .runner import PipelineRunner
+from .work import Work, WorkKind
 
 SHUTDOWN_S = 2.0  # SIGINT or SIGTERM to the end of the process: what launch files and test harnesses wait for
 
@@ -71,9 +72,6 @@ WORK_POLL_S = 0.1  # a worker waits this long for work before it looks at its st
 ESTIMATE_POLL_S = 0.05  # ... the estimation worker (shorter: a hold waiting at shutdown starts sooner)
 RECENT_TIMINGS = 500  # latencies and processing times per frame set: the diagnostics' percentiles over this many
 RECENT_HOLD_TIMINGS = 50  # the estimation stage's time per hold: the shutdown judges the open hold by these
-SEQUENCE_ENDS = ("flush", "restart", "reset")  # work kinds that end the open hold (restart, reset: the sequence)
-
-
 class WorkQueue:
     """Work for the worker thread: ``put`` never blocks; at most ``max_frames`` frame sets wait.
 
@@ -95,7 +93,7 @@ class WorkQueue:
         """Queue ``work``; returns None, or the frame set dropped to make room (``work`` itself when it ranks
         last; any work when ``max_items`` wait)."""
         with self._cv:
-            frames = work.kind == "frames"
+            frames = work.kind is WorkKind.FRAMES
             if len(self._items) >= self.max_items:
                 return work
             dropped = None
@@ -117,11 +115,11 @@ class WorkQueue:
         their sequences' spans and are kept like the newest (a gap across sequences is no gap in time)."""
         sets, ends, start = [], set(), True  # ends: indices in sets of a sequence's first or last set
         for k, (w, c) in enumerate(self._items):
-            if w.kind in SEQUENCE_ENDS:
+            if w.kind.ends_sequence:
                 start = True
                 if sets:
                     ends.add(len(sets) - 1)
-            elif w.kind == "frames":
+            elif w.kind is WorkKind.FRAMES:
                 if start or (sets and w.stamp <= sets[-1][1]):
                     ends.update({len(sets), len(sets) - 1} if sets else {0})
                 start = False
@@ -142,10 +140,10 @@ class WorkQueue:
             if item is None:
                 return None
             work, _ = item
-            if work.kind == "frames":
+            if work.kind is WorkKind.FRAMES:
                 self._frames -= 1
                 self._last_stamp = work.stamp
-            elif work.kind in SEQUENCE_ENDS:
+            elif work.kind.ends_sequence:
                 self._last_stamp = -math.inf
             return work
 
@@ -306,7 +304,7 @@ class EstimatorService:
         if method not in PIPELINE_METHODS:
             return f"parameter method: must be one of {', '.join(PIPELINE_METHODS)}, got {method!r}"
         self.feeder.end()
-        self._put(Work("method", data=method))
+        self._put(Work(WorkKind.METHOD, data=method))
         self.log("info", f"method {method} from the next hold on (a new sequence)")
         return None
 
@@ -323,13 +321,13 @@ class EstimatorService:
 
     def _put(self, work: Work) -> None:
         change = 0.0
-        if work.kind == "frames":
+        if work.kind is WorkKind.FRAMES:
             change, self._small = image_change(self._small, work.data[0].images)
-        elif work.kind in SEQUENCE_ENDS:  # the next set is compared with nothing: it starts a sequence
+        elif work.kind.ends_sequence:  # the next set is compared with nothing: it starts a sequence
             self._small = [None] * self.rig.num_cameras
         dropped = self.queue.put(work, change)
         if dropped is not None:
-            what = "frame set" if dropped.kind == "frames" else f"{dropped.kind} item"
+            what = "frame set" if dropped.kind is WorkKind.FRAMES else f"{dropped.kind.value} item"
             line = self.drops.drop("worker", Drop.busy(dropped.kind),
                                    f"{what} at {dropped.stamp:.3f} s dropped while the estimator is busy (of "
                                    f"the {self.queue.frames() + 1} waiting, the one whose images changed most: "
@@ -397,7 +395,7 @@ class EstimatorService:
             return (f"open hold not estimated: would not fit in the {budget_s:g} s of the shutdown (hold "
                     f"estimates took up to {1e3 * need / ahead:.0f} ms, {ahead - 1} holds waited ahead of it, "
                     f"{max(0.0, 1e3 * left):.0f} ms were left)")
-        self.queue.put(Work("flush"))
+        self.queue.put(Work(WorkKind.FLUSH))
         flush = threading.Thread(target=self.work_once, name="nrmpc-shutdown-flush", daemon=True)
         flush.start()
         flush.join(max(0.0, end - time.monotonic()))
@@ -424,7 +422,7 @@ class EstimatorService:
         self._running = True
         outputs = []
         try:
-            if work.kind == "method":
+            if work.kind is WorkKind.METHOD:
                 self.runner.restart(f"method {work.data}", work.data)
             else:
                 t0 = time.perf_counter()
@@ -432,7 +430,7 @@ class EstimatorService:
                 elapsed_ms = 1e3 * (time.perf_counter() - t0)
                 for out in outputs:
                     self._publish(self.publish, out)
-            arrival = work.data[1] if work.kind == "frames" else self.clock()
+            arrival = work.data[1] if work.kind is WorkKind.FRAMES else self.clock()
             for item in self.runner.take_stage_work():
                 self.holds.put(item, arrival)
         finally:
@@ -440,11 +438,11 @@ class EstimatorService:
         stats = self.runner.stats
         with self._lock:
             self.stats = stats
-            if work.kind == "frames":
+            if work.kind is WorkKind.FRAMES:
                 self.counts["processed frame sets"] += 1
                 self.process_ms.append(elapsed_ms)
                 self.set_latency_ms.append(1e3 * (self.clock() - work.data[1]))
-            self._outputs(outputs, work.data[1] if work.kind == "frames" else None)
+            self._outputs(outputs, work.data[1] if work.kind is WorkKind.FRAMES else None)
         self._status_changed(outputs)
         return outputs
 
