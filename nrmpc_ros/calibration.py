@@ -25,7 +25,7 @@ import numpy as np
 from .core.bundle import BundleState, GravityPriors, Observations, adjust_bundle
 from .core.estimators import EstimatorOptions, estimate
 from .core.rig import Rig
-from .core.sequence import triangulated
+from .core.sequence_steps import triangulated
 from .errors import EstimationError
 
 

@@ -33,7 +33,7 @@ import bench_holds as bh  # noqa: E402
 
 from nrmpc_ros.core import load_rig  # noqa: E402
 from nrmpc_ros.core.bundle import BundleState, Observations, adjust_bundle  # noqa: E402
-from nrmpc_ros.core.sequence import triangulated  # noqa: E402
+from nrmpc_ros.core.sequence_steps import triangulated  # noqa: E402
 from nrmpc_ros.core.so3 import angle_between  # noqa: E402
 from nrmpc_ros.experiments.crlb import observed_sequence_bound  # noqa: E402
 

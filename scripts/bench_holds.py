@@ -58,7 +58,7 @@ from nrmpc_ros.core import load_rig, save_rig
 from nrmpc_ros.core.bundle import GravityPriors, Observations
 from nrmpc_ros.core.dynamics import bar_natural_frequencies, ringing_decay_time
 from nrmpc_ros.core.rig import Camera, Rig
-from nrmpc_ros.core.sequence import CORRESPONDENCE_BIAS_FLOOR_PX
+from nrmpc_ros.core.sequence_steps import CORRESPONDENCE_BIAS_FLOOR_PX
 from nrmpc_ros.core.so3 import angle_between
 from nrmpc_ros.experiments.crlb import observed_sequence_bound
 from nrmpc_ros.frontend.estimates_csv import batch_rows, row_from_estimate

@@ -7,14 +7,8 @@ import numpy as np
 import pytest
 
 from nrmpc_ros.core.bundle import BundleState, GravityPriors, Observations
-from nrmpc_ros.core.sequence import (
-    SequenceOptions,
-    broken_link,
-    estimate_sequence,
-    measured_gravity_excess,
-    refine_sequence,
-    repair_links,
-)
+from nrmpc_ros.core.sequence import SequenceOptions, estimate_sequence
+from nrmpc_ros.core.sequence_steps import broken_link, measured_gravity_excess, refine_sequence, repair_links
 from nrmpc_ros.core.so3 import angle_between, exp_so3, rotation_angle, tangent_basis
 from nrmpc_ros.core.tracks import Tracks
 from nrmpc_ros.errors import EstimationError

@@ -332,7 +332,7 @@ def _record_pose(info: EstimateInfo, res, optimize_gravity: bool) -> EstimateInf
     return info
 
 
-_RIGID_REASON = "the rig has no flexible bar (every EI is inf or mass 0), so gravity is unobservable from vision"
+RIGID_REASON = "the rig has no flexible bar (every EI is inf or mass 0), so gravity is unobservable from vision"
 
 
 # ---------------------------------------------------------------------------
@@ -482,7 +482,7 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         if rr is None:
             return None
         R, t, _, inliers, res, _ = _refine_loop(rig, m, *rr.model, None, tight, opts, optimize_gravity=False)
-        info = EstimateInfo(ransac_iterations=int(rr.iterations), gravity_unobservable=_RIGID_REASON)
+        info = EstimateInfo(ransac_iterations=int(rr.iterations), gravity_unobservable=RIGID_REASON)
         return R, t, None, inliers, _record_pose(info, res, False)
     axis = _common_bar_axis(rig, m)
     # parallel bars observe gravity weakly (paper, section 3.3): search wider there
@@ -568,7 +568,7 @@ def _four_point_bending(rig, m, opts, rng):
                                          inliers=rr.inliers)
     _record_pose(info, res, flexible)
     if not flexible:
-        info.gravity_unobservable = _RIGID_REASON
+        info.gravity_unobservable = RIGID_REASON
         g = None
     return R, t, g, inliers, info
 
@@ -632,4 +632,4 @@ def estimate(rig: Rig, matches: Matches, method: str = "6pt-bending", seed: int 
                     time_s=elapsed, info=info)
 
 
-__all__ = ["METHODS", "Estimate", "EstimateInfo", "EstimatorOptions", "estimate", "pair_method"]
+__all__ = ["METHODS", "RIGID_REASON", "Estimate", "EstimateInfo", "EstimatorOptions", "estimate", "pair_method"]

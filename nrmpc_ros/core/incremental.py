@@ -20,7 +20,7 @@ joint solution (docs/PIPELINE.md, "The joint estimate over the sequence"):
    rivals: their spread enters the published std until the views tell them
    apart; on parallel bars a young vision-only sequence publishes no gravity.
 3. The newest ``window`` views are adjusted jointly (robust bundle adjustment
-   with inlier classification, :func:`.sequence.refine_sequence`; after a
+   with inlier classification, :func:`.sequence_steps.refine_sequence`; after a
    resection from the inliers so far, the rest of the window being adjusted
    already); older
    views keep their poses. Their observations of landmarks the window still
@@ -58,7 +58,7 @@ from .bundle import (
 from .estimators import Estimate, estimate, pair_method
 from .matches import Matches
 from .rig import Rig
-from .sequence import (
+from .sequence_steps import (
     PairAttempt,
     SequenceEstimate,
     SequenceOptions,

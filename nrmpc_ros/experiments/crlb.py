@@ -37,7 +37,7 @@ from ..core.bundle import (
 )
 from ..core.deformation import deformed_extrinsics
 from ..core.rig import Rig
-from ..core.sequence import triangulated
+from ..core.sequence_steps import triangulated
 from ..core.so3 import normalize
 
 KINDS = ("rotation", "translation", "gravity")

@@ -30,7 +30,7 @@ from ..config import check, from_mapping, option
 from ..core import METHODS
 from ..core.incremental import IncrementalSequence
 from ..core.rig import Rig
-from ..core.sequence import CORRESPONDENCE_BIAS_FLOOR_PX, SequenceOptions
+from ..core.sequence_steps import CORRESPONDENCE_BIAS_FLOOR_PX, SequenceOptions
 from ..errors import InputError
 from .drops import Drop, sorted_counts
 from .estimation import HoldEstimate, HoldEstimator, MeasuredHold, SequenceReset
