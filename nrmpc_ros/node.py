@@ -187,13 +187,14 @@ class EstimatorNode(Node):
         block: the executor takes one message per subscription per turn, so a 200-1000 Hz IMU would fall seconds
         behind the cameras' 10-60 frames a second whenever the process is busy, and turning each message into a
         Python object would cost more than what the pipeline does with it (docs/ARCHITECTURE.md, "The node's
-        two workers")."""
-        raws = [raw, *take_waiting(self._imu_sub, IMU_DRAIN_MAX)]
-        self.service.on_imu_block(self._imu_decoder.decode(raws), self._now())
+        two workers"). Runs only with ``imu_take_period_s`` 0; otherwise :meth:`_take_imu` takes them."""
+        self._hand_over_imu([raw, *take_waiting(self._imu_sub, IMU_DRAIN_MAX)])
 
     def _take_imu(self) -> None:
         """The IMU samples waiting, taken by the timer of ``imu_take_period_s`` (see :class:`TakenByTimer`)."""
-        raws = list(take_waiting(self._imu_sub, IMU_DRAIN_MAX))
+        self._hand_over_imu(list(take_waiting(self._imu_sub, IMU_DRAIN_MAX)))
+
+    def _hand_over_imu(self, raws: list) -> None:
         if raws:
             self.service.on_imu_block(self._imu_decoder.decode(raws), self._now())
 

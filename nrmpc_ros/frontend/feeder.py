@@ -51,7 +51,7 @@ from ..core.rig import Rig
 from ..errors import InputError
 from .droplog import DropLog
 from .drops import Drop
-from .images import decode_image
+from .images import decode_image, ros_seconds, stamp_seconds
 from .imu_block import ImuBlock
 from .pipeline import FrameSet
 from .stamps import JumpPolicy, StampGuard
@@ -153,7 +153,7 @@ class Feeder:
             return
         st = msg.header.stamp
         sec, nsec = int(st.sec), int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
-        stamp = sec + 1e-9 * nsec
+        stamp = ros_seconds(sec, nsec)
         self._stamps[stamp] = (sec, nsec)
         while len(self._stamps) > STAMPS_KEPT:
             self._stamps.popitem(last=False)
@@ -161,8 +161,7 @@ class Feeder:
 
     def imu_msg(self, msg, now: float | None = None) -> None:
         """One sensor_msgs/Imu."""
-        a, w, st = msg.linear_acceleration, msg.angular_velocity, msg.header.stamp
-        stamp = int(st.sec) + 1e-9 * int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
+        a, w, stamp = msg.linear_acceleration, msg.angular_velocity, stamp_seconds(msg)
         cov = (getattr(msg, "linear_acceleration_covariance", None), getattr(msg, "angular_velocity_covariance", None))
         self.imu(stamp, (a.x, a.y, a.z), (w.x, w.y, w.z), now, covariance=cov)
 

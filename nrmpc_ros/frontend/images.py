@@ -106,7 +106,12 @@ def decode_image(msg, source: str, depth_bits: int | None = None) -> np.ndarray:
     raise InputError(source, f"not a sensor_msgs/Image or CompressedImage ({type(msg).__name__})")
 
 
+def ros_seconds(sec, nanosec) -> float:
+    """A ROS stamp (sec, nanosec) in seconds (float); every reader of stamps computes them so, bit for bit."""
+    return float(sec) + 1e-9 * float(nanosec)
+
+
 def stamp_seconds(msg) -> float:
-    """header.stamp of a message in seconds (float)."""
+    """header.stamp of a message (rclpy, rosbags or ROS 1) in seconds (float)."""
     st = msg.header.stamp
-    return float(st.sec) + 1e-9 * float(getattr(st, "nanosec", getattr(st, "nsec", 0)))
+    return ros_seconds(st.sec, getattr(st, "nanosec", getattr(st, "nsec", 0)))

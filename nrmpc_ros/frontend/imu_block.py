@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .images import ros_seconds, stamp_seconds
+
 IMU_TYPE = "sensor_msgs/msg/Imu"
 CDR_HEADER = 4  # encapsulation: 2 bytes representation id (byte 1: 1 little endian, 0 big), 2 bytes options
 NUM_DOUBLES = 37
@@ -50,27 +52,14 @@ class ImuBlock:
         return len(self.stamps)
 
     @classmethod
-    def from_messages(cls, msgs) -> ImuBlock:
-        """From deserialized messages (rclpy or rosbags objects alike)."""
-        rows = [_row(m) for m in msgs]
-        arr = np.array(rows, dtype=float).reshape(len(rows), 1 + NUM_DOUBLES)
-        return cls._from_rows(arr[:, 0], arr[:, 1:])
-
-    @classmethod
     def _from_rows(cls, stamps, doubles) -> ImuBlock:
         return cls(stamps, doubles[:, ACCEL], doubles[:, GYRO], doubles[:, ACCEL_COV], doubles[:, GYRO_COV])
 
 
-def _stamp(sec, nanosec) -> float:
-    """Seconds of a ROS stamp, computed as the per-message path computes it (same floating-point operations)."""
-    return int(sec) + 1e-9 * int(nanosec)
-
-
 def _row(m) -> list:
-    st = m.header.stamp
-    ns = getattr(st, "nanosec", getattr(st, "nsec", 0))
+    """[stamp s, the 37 doubles] of a deserialized message."""
     q, w, a = m.orientation, m.angular_velocity, m.linear_acceleration
-    return [_stamp(st.sec, ns), q.x, q.y, q.z, q.w, *np.asarray(m.orientation_covariance, float).ravel(),
+    return [stamp_seconds(m), q.x, q.y, q.z, q.w, *np.asarray(m.orientation_covariance, float).ravel(),
             w.x, w.y, w.z, *np.asarray(m.angular_velocity_covariance, float).ravel(),
             a.x, a.y, a.z, *np.asarray(m.linear_acceleration_covariance, float).ravel()]
 
@@ -95,7 +84,7 @@ class _Layout:
         if self.reference is not None:
             return self.reference(raw)
         sec, nsec = self.stamp.unpack_from(raw, CDR_HEADER)
-        return [_stamp(sec, nsec), *self.doubles.unpack_from(raw, len(raw) - 8 * NUM_DOUBLES)]
+        return [ros_seconds(sec, nsec), *self.doubles.unpack_from(raw, len(raw) - 8 * NUM_DOUBLES)]
 
 
 class ImuDecoder:
@@ -103,8 +92,7 @@ class ImuDecoder:
     checked against the reference deserializer (an input's property, not an estimate)."""
 
     def __init__(self):
-        from rosbags.typesys import Stores, get_typestore  # the reference CDR implementation
-        self._typestore = get_typestore(Stores.ROS2_JAZZY)
+        self._typestore = None  # the reference, loaded with the first layout to check (0.2 s: not at start-up)
         self._layouts: dict = {}  # (size, byte order) -> its _Layout
 
     def decode(self, raws: list) -> ImuBlock:
@@ -135,6 +123,9 @@ class ImuDecoder:
         return fast if np.array_equal(ours, theirs, equal_nan=True) else reference
 
     def _reference(self, raw) -> list:
+        if self._typestore is None:
+            from rosbags.typesys import Stores, get_typestore  # the reference CDR implementation
+            self._typestore = get_typestore(Stores.ROS2_JAZZY)
         return _row(self._typestore.deserialize_cdr(bytes(raw), IMU_TYPE))
 
 
