@@ -74,7 +74,8 @@ def take_waiting(sub, limit: int):
 class TakenByTimer(CallbackGroup):
     """Subscriptions the executor neither waits on nor runs: a timer takes their waiting messages. A 1 kHz IMU
     would otherwise wake the executor a thousand times a second, and each wake (the wait set built again over
-    every subscription, timer and QoS event of the node) costs more than the sample it brings."""
+    every subscription, timer and QoS event of the node) costs more than the sample it brings; and the executor
+    takes one message per subscription per wake, so after a stall one input would run ahead of the others."""
 
     def can_execute(self, entity) -> bool:
         return False
@@ -103,6 +104,7 @@ class EstimatorNode(Node):
         self.service = EstimatorService(self.rig, cfg, pipe_cfg, self.camera_topics, imu, self.publish_hold, self._log,
                                         publish_poses=self.publish_poses, publish_status=self.publish_markers)
         self._subs, self._transport = [None] * self.rig.num_cameras, [None] * self.rig.num_cameras
+        self._taken = TakenByTimer() if cfg.take_period_s > 0 else None
         for i in range(self.rig.num_cameras):
             self._subscribe_camera(i)
         self._info = {i: self.create_subscription(CameraInfo, self.resolve_topic_name(c.info_topic),
@@ -111,13 +113,12 @@ class EstimatorNode(Node):
         self._imu_sub = None
         if imu:
             self._imu_decoder = ImuDecoder()
-            taken = cfg.imu_take_period_s > 0
             self._imu_sub = self.create_subscription(Imu, imu, self._on_imu, _sensor_qos(cfg.imu_queue_size),
-                                                     raw=True, callback_group=TakenByTimer() if taken else None)
-            if taken:
-                # a steady clock: draining a queue is no matter of ROS time (a simulated clock may be paused,
-                # slow, or not published yet while the IMU's messages keep arriving)
-                self.create_timer(cfg.imu_take_period_s, self._take_imu, clock=Clock(clock_type=ClockType.STEADY_TIME))
+                                                     raw=True, callback_group=self._taken)
+        if self._taken is not None:
+            # a steady clock: draining queues is no matter of ROS time (a simulated clock may be paused, slow,
+            # or not published yet while the messages keep arriving)
+            self.create_timer(cfg.take_period_s, self._take_inputs, clock=Clock(clock_type=ClockType.STEADY_TIME))
         outputs = {**OUTPUTS, "diag": ("diagnostic_msgs/msg/DiagnosticArray", "/diagnostics")}
         if not cfg.publish_tf or importlib.util.find_spec("tf2_msgs") is None:  # not always installed
             del outputs["tf"]
@@ -172,7 +173,7 @@ class EstimatorNode(Node):
         self._transport[i] = choice
         self._subs[i] = self.create_subscription(CompressedImage if choice[1] else Image, choice[0],
                                                  lambda m, i=i: self.service.on_image(i, m, self._now()),
-                                                 _sensor_qos(self.cfg.image_queue_size))
+                                                 _sensor_qos(self.cfg.image_queue_size), callback_group=self._taken)
 
     def _on_info(self, i: int, msg) -> None:
         if i not in self.service.camera_info:  # the first one only
@@ -187,16 +188,17 @@ class EstimatorNode(Node):
         block: the executor takes one message per subscription per turn, so a 200-1000 Hz IMU would fall seconds
         behind the cameras' 10-60 frames a second whenever the process is busy, and turning each message into a
         Python object would cost more than what the pipeline does with it (docs/ARCHITECTURE.md, "The node's
-        two workers"). Runs only with ``imu_take_period_s`` 0; otherwise :meth:`_take_imu` takes them."""
-        self._hand_over_imu([raw, *take_waiting(self._imu_sub, IMU_DRAIN_MAX)])
+        two workers"). Runs only with ``take_period_s`` 0; otherwise :meth:`_take_inputs` takes them."""
+        self.service.on_imu_block(self._imu_decoder.decode([raw, *take_waiting(self._imu_sub, IMU_DRAIN_MAX)]),
+                                  self._now())
 
-    def _take_imu(self) -> None:
-        """The IMU samples waiting, taken by the timer of ``imu_take_period_s`` (see :class:`TakenByTimer`)."""
-        self._hand_over_imu(list(take_waiting(self._imu_sub, IMU_DRAIN_MAX)))
-
-    def _hand_over_imu(self, raws: list) -> None:
-        if raws:
-            self.service.on_imu_block(self._imu_decoder.decode(raws), self._now())
+    def _take_inputs(self) -> None:
+        """Every message waiting in the camera and IMU subscriptions, taken by the timer of ``take_period_s``
+        (see :class:`TakenByTimer`) and handed over in stamp order (frontend/taken.py)."""
+        images = [list(take_waiting(sub, self.cfg.image_queue_size)) if sub is not None else [] for sub in self._subs]
+        raws = list(take_waiting(self._imu_sub, IMU_DRAIN_MAX)) if self._imu_sub is not None else []
+        if raws or any(images):
+            self.service.on_taken(images, self._imu_decoder.decode(raws) if raws else None, self._now())
 
     def _on_timer(self) -> None:
         self.service.tick()

@@ -51,6 +51,11 @@ class ImuBlock:
     def __len__(self) -> int:
         return len(self.stamps)
 
+    def part(self, start: int, stop: int) -> ImuBlock:
+        """Samples ``start`` to ``stop`` (exclusive), as views."""
+        k = slice(start, stop)
+        return ImuBlock(self.stamps[k], self.accel[k], self.gyro[k], self.accel_cov[k], self.gyro_cov[k])
+
     @classmethod
     def _from_rows(cls, stamps, doubles) -> ImuBlock:
         return cls(stamps, doubles[:, ACCEL], doubles[:, GYRO], doubles[:, ACCEL_COV], doubles[:, GYRO_COV])

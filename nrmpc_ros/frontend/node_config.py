@@ -42,10 +42,12 @@ class NodeConfig:
                                   "camera's first image); raw; compressed", choices=TRANSPORTS)
     image_queue_size: int = option(10, "depth of each image subscription (messages)", lo=1, hi=10000)
     imu_queue_size: int = option(2000, "depth of the IMU subscription (samples; 2 s at 1 kHz)", lo=1, hi=1000000)
-    imu_take_period_s: float = option(0.01, "the IMU samples waiting in the subscription are taken together this "
-                                      "often (s): the node wakes for them at this rate, not at the IMU's, and "
-                                      "they reach the pipeline at most this much later, well within a camera "
-                                      "frame period; 0: each message as it arrives", lo=0.0, hi=1.0)
+    take_period_s: float = option(0.01, "the messages waiting in the camera and IMU subscriptions are taken "
+                                  "together this often (s) and handed over in the order of their stamps: the node "
+                                  "wakes at this rate, not at every message (a 1 kHz IMU), a stall of the process "
+                                  "does not let one input run ahead of the others, and a message reaches the "
+                                  "pipeline at most this much later; 0: each message as the executor hands it "
+                                  "over", lo=0.0, hi=1.0)
     work_queue_size: int = option(8, "frame sets waiting for the estimator; sets arriving while it is full are "
                                   "dropped and counted", lo=1, hi=100000)
     camera_timeout_s: float = option(2.0, "a camera silent this long while another publishes is reported stopped; "

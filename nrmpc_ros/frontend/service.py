@@ -44,12 +44,14 @@ from .diagnostics import ERROR, OK, WARN, ServiceDiagnostics, Status
 from .droplog import DropLog
 from .drops import Drop
 from .extrinsics import NO_IMU_NOTE, imu_mount_warning
-from .feeder import Feeder
+from .feeder import IMU, Feeder
+from .images import stamp_seconds
 from .liveness import CameraWatch
 from .node_config import NodeConfig
 from .outputs import FrameNames, FramePosesOutput, HoldOutput, hold_output
 from .pipeline import PIPELINE_METHODS, PipelineConfig, RigState
 from .runner import PipelineRunner
+from .taken import stamp_order
 from .work import Work, WorkKind
 
 SHUTDOWN_S = 2.0  # SIGINT or SIGTERM to the end of the process: what launch files and test harnesses wait for
@@ -273,6 +275,17 @@ class EstimatorService:
         """IMU samples taken together (an :class:`~nrmpc_ros.frontend.imu_block.ImuBlock`), as :meth:`on_imu`."""
         self.received[self.imu_topic] += len(block)
         self._guarded(self.imu_topic, self.feeder.imu_block, block, now)
+
+    def on_taken(self, images: list, block, now: float | None) -> None:
+        """Messages taken from the subscriptions together: ``images[i]`` camera ``i``'s image messages and
+        ``block`` the IMU's samples (an :class:`~nrmpc_ros.frontend.imu_block.ImuBlock`, or None), each in
+        arrival order; handed over merged by stamp (:mod:`~nrmpc_ros.frontend.taken`)."""
+        imu_stamps = block.stamps if block is not None else ()
+        for run in stamp_order([[stamp_seconds(m) for m in msgs] for msgs in images], imu_stamps):
+            if run.stream == IMU:
+                self.on_imu_block(block.part(run.start, run.stop), now)
+            else:
+                self.on_image(run.stream, images[run.stream][run.start], now)
 
     def _guarded(self, source: str, fn, *args) -> None:
         """Run an input step; a failure (a bug, not bad input: that is dropped on its own) is counted and logged,
