@@ -63,7 +63,8 @@ def test_after_stalls_longer_than_the_imu_wait_the_service_gives_the_replays_est
     """A stall of 0.6 s (more than ``input.imu_wait_s``) before every take: handed over input by input, the IMU's
     samples would be half a second newer than every camera's last frame and the feeder would let them go on
     without the cameras; merged by stamp the estimates are the replay's, bit for bit."""
-    from rendered_bags import CAMERAS, IMU as IMU_TOPIC, stream_bag
+    from rendered_bags import CAMERAS, stream_bag
+    from rendered_bags import IMU as IMU_TOPIC
     from test_service import _replayed, _same_estimates
 
     from nrmpc_ros.core import load_rig
