@@ -245,8 +245,9 @@ def test_stop_estimates_the_open_hold_only_when_it_fits_in_the_budget(rig):
 
 
 # --------------------------------------------------------------------------- the two workers on a rendered bag
-def _feed_bag(s, path, topics, imu_topic) -> None:
-    """Every message of the bag to the service, as the node's executor would hand them over (bag time as now)."""
+def _feed_bag(s, path, topics, imu_topic, end: bool = True) -> None:
+    """Every message of the bag to the service, as the node's executor would hand them over (bag time as now);
+    then the end of the input, or (``end`` False) nothing: the node is stopped before it saw the input end."""
     from nrmpc_ros.bag.reader import BagReader
 
     index = {t: i for i, t in enumerate(topics)}
@@ -256,7 +257,8 @@ def _feed_bag(s, path, topics, imu_topic) -> None:
                 s.on_imu(msg, t_ns * 1e-9)
             else:
                 s.on_image(index[topic], msg, t_ns * 1e-9)
-    s.feeder.end()
+    if end:
+        s.feeder.end()
 
 
 def _replayed(path, rig, imu_topic) -> list:
@@ -332,6 +334,30 @@ def test_the_two_worker_threads_give_the_replays_estimates_and_report_both_laten
     est = s.diagnostics()[2].values
     assert float(est["frame set latency p95 (ms)"]) > 0 and float(est["hold latency p95 (ms)"]) > 0
     assert est["holds waiting"] == 0 and est["work waiting"] == 0
+
+
+@pytest.mark.slow
+def test_the_open_hold_estimated_at_shutdown_is_the_replays_last_estimate(tmp_path_factory):
+    """Stopped before it saw the input end (a simulated clock that never ran, a shutdown right after the bag):
+    the open hold is measured on everything received, the frames still grouped and the IMU samples held after
+    the last frame set included, so its estimate is the replay's, which saw the bag's end."""
+    import time
+
+    from rendered_bags import CAMERAS, IMU, stream_bag
+
+    path, rig_path, _ = stream_bag(tmp_path_factory)
+    rig = load_rig(rig_path)
+    out = []
+    s = EstimatorService(rig, NodeConfig(rig_file=str(rig_path), work_queue_size=100000), PipelineConfig(), CAMERAS,
+                         IMU, out.append, lambda level, line: None)
+    s.start()
+    _feed_bag(s, path, CAMERAS, IMU, end=False)
+    deadline = time.monotonic() + 300.0
+    while (len(s.queue) or s.holds_waiting()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert s.runner.hold_open
+    assert s.stop(60.0) == "open hold estimated at shutdown"
+    _same_estimates([o.estimate for o in out], _replayed(path, rig, IMU))
 
 
 def test_a_failing_hold_estimate_is_counted_and_the_estimation_worker_goes_on(rig):

@@ -372,7 +372,8 @@ class EstimatorService:
         item if it can within the budget, else that item is abandoned (the threads are daemons: they end with
         the process). The open hold is then measured and handed to the estimation worker only when the longest
         hold estimate measured so far, times the holds still ahead of it, fits in what is left; without a
-        measurement it is tried. The estimation worker goes on with the holds waiting until the deadline.
+        measurement it is tried. It is measured on everything received, as at the end of a replay: the frames
+        the feeder still groups and the IMU samples it holds after the last frame set go in first. The estimation worker goes on with the holds waiting until the deadline.
         """
         end = time.monotonic() + budget_s
         self._stop.set()
@@ -408,13 +409,17 @@ class EstimatorService:
             return (f"open hold not estimated: would not fit in the {budget_s:g} s of the shutdown (hold "
                     f"estimates took up to {1e3 * need / ahead:.0f} ms, {ahead - 1} holds waited ahead of it, "
                     f"{max(0.0, 1e3 * left):.0f} ms were left)")
-        self.queue.put(Work(WorkKind.FLUSH))
-        flush = threading.Thread(target=self.work_once, name="nrmpc-shutdown-flush", daemon=True)
+        self.feeder.end()  # what the feeder still holds, then a flush: the open hold on all that was received
+        flush = threading.Thread(target=self._work_left, name="nrmpc-shutdown-flush", daemon=True)
         flush.start()
         flush.join(max(0.0, end - time.monotonic()))
         if flush.is_alive():
             return f"open hold abandoned: its measurement did not end within the {budget_s:g} s of the shutdown"
         return ""  # handed to the estimation worker: estimated if it ends in time
+
+    def _work_left(self) -> None:
+        while len(self.queue):
+            self.work_once()
 
     def _work_loop(self) -> None:
         while not self._stop.is_set():
