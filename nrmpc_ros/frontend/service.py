@@ -373,7 +373,8 @@ class EstimatorService:
         the process). The open hold is then measured and handed to the estimation worker only when the longest
         hold estimate measured so far, times the holds still ahead of it, fits in what is left; without a
         measurement it is tried. It is measured on everything received, as at the end of a replay: the frames
-        the feeder still groups and the IMU samples it holds after the last frame set go in first. The estimation worker goes on with the holds waiting until the deadline.
+        the feeder still groups and the IMU samples it holds after the last frame set go in first. The
+        estimation worker goes on with the holds waiting until the deadline.
         """
         end = time.monotonic() + budget_s
         self._stop.set()
