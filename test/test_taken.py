@@ -37,9 +37,10 @@ def test_every_message_is_handed_over_once_each_input_in_its_arrival_order(image
 
 
 # --------------------------------------------------------------------------- the service after stalls
-def _takes(path, cameras, imu_topic, stall_s: float) -> list:
+def _takes(path, cameras, imu_topic, stall_s: float, camera_latency_s: float = 0.0) -> list:
     """The bag's messages as a node takes them when it stalls ``stall_s`` between takes: per take, each camera's
-    image messages and the IMU's serialized messages that arrived meanwhile (bag time)."""
+    image messages and the IMU's serialized messages that arrived meanwhile (bag time; the images
+    ``camera_latency_s`` after their bag time)."""
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
@@ -47,8 +48,10 @@ def _takes(path, cameras, imu_topic, stall_s: float) -> list:
     takes: list = []
     with Reader(path) as reader:
         conns = [c for c in reader.connections if c.topic in index or c.topic == imu_topic]
-        for conn, t_ns, raw in reader.messages(connections=conns):
-            k = int(t_ns * 1e-9 // stall_s)
+        arrivals = sorted(((t_ns * 1e-9 + (0.0 if c.topic == imu_topic else camera_latency_s), n), c, raw)
+                          for n, (c, t_ns, raw) in enumerate(reader.messages(connections=conns)))
+        for (arrival, _), conn, raw in arrivals:
+            k = int(arrival // stall_s)
             if not takes or takes[-1][0] != k:
                 takes.append((k, [[] for _ in cameras], []))
             if conn.topic == imu_topic:
@@ -59,10 +62,13 @@ def _takes(path, cameras, imu_topic, stall_s: float) -> list:
 
 
 @pytest.mark.slow
-def test_after_stalls_longer_than_the_imu_wait_the_service_gives_the_replays_estimates(tmp_path_factory):
+@pytest.mark.parametrize(("stall_s", "camera_latency_s"), [(0.6, 0.0), (0.02, 1.2)])
+def test_after_stalls_or_with_late_cameras_the_service_gives_the_replays_estimates(tmp_path_factory, stall_s,
+                                                                                    camera_latency_s):
     """A stall of 0.6 s (more than ``input.imu_wait_s``) before every take: handed over input by input, the IMU's
     samples would be half a second newer than every camera's last frame and the feeder would let them go on
-    without the cameras; merged by stamp the estimates are the replay's, bit for bit."""
+    without the cameras; merged by stamp the estimates are the replay's, bit for bit. So are they when every
+    image arrives 1.2 s after the IMU samples of its instant (the IMU's first second comes before any frame)."""
     from rendered_bags import CAMERAS, stream_bag
     from rendered_bags import IMU as IMU_TOPIC
     from test_service import _replayed, _same_estimates
@@ -79,7 +85,7 @@ def test_after_stalls_longer_than_the_imu_wait_the_service_gives_the_replays_est
     s = EstimatorService(rig, NodeConfig(rig_file=str(rig_path), work_queue_size=100000), PipelineConfig(), CAMERAS,
                          IMU_TOPIC, out.append, lambda level, line: None)
     decoder = ImuDecoder()
-    for now, images, raws in _takes(path, CAMERAS, IMU_TOPIC, 0.6):
+    for now, images, raws in _takes(path, CAMERAS, IMU_TOPIC, stall_s, camera_latency_s):
         s.on_taken(images, decoder.decode(raws) if raws else None, now)
     s.feeder.end()
     while len(s.queue):

@@ -26,7 +26,9 @@ are the replay's whenever the same messages arrive. Per message:
    camera has sent a frame that new, and the frame grouping holds none older.
    A camera is live while its stamps are within ``imu_wait_s`` of the IMU's,
    or it sent a frame while the IMU advanced by less than that, up to
-   ``imu_max_lag_s`` behind. Whether an input stopped is judged by what
+   ``imu_max_lag_s`` behind; a camera that has sent nothing yet is live up to
+   ``imu_max_lag_s`` behind (drivers start after the IMU's, and cameras
+   deliver their frames later than an IMU does). Whether an input stopped is judged by what
    arrived, not by stamps alone: a busy process takes its subscriptions'
    queues in turns, one message of each at a time, so a 200 Hz IMU's
    samples arrive seconds of stamps behind 10 Hz frames although nothing
@@ -282,6 +284,7 @@ class Feeder:
         wait, lag, newest = self.config.imu_wait_s, self.config.imu_max_lag_s, self._imu_newest
         live = [t for t, seen in zip(self._cam_newest, self._cam_seen)
                 if t >= newest - wait or (t >= newest - lag and seen >= newest - wait)]
+        live += [newest - lag for t in self._cam_newest if t == -math.inf]  # not started yet: the IMU may lead
         waiting = self._frames[0][0].stamp if self._frames else math.inf
         return min(waiting, self.sync.oldest, min(live, default=math.inf), newest - wait)
 
