@@ -261,6 +261,18 @@ def _feed_bag(s, path, topics, imu_topic, end: bool = True) -> None:
         s.feeder.end()
 
 
+def _stream_service(tmp_path_factory, clock=None) -> tuple:
+    """(service, its outputs, bag, rig) on the rendered stream bag, with a work queue no frame set overflows."""
+    from rendered_bags import CAMERAS, IMU, stream_bag
+
+    path, rig_path, _ = stream_bag(tmp_path_factory)
+    rig = load_rig(rig_path)
+    out = []
+    s = EstimatorService(rig, NodeConfig(rig_file=str(rig_path), work_queue_size=100000), PipelineConfig(), CAMERAS,
+                         IMU, out.append, lambda level, line: None, *([clock] if clock is not None else []))
+    return s, out, path, rig
+
+
 def _replayed(path, rig, imu_topic) -> list:
     from nrmpc_ros.bag.reader import BagReader
     from nrmpc_ros.frontend.replay import replay_bag
@@ -281,14 +293,10 @@ def test_frame_intake_goes_on_while_holds_wait_and_both_workers_give_the_replays
     """The intake worker takes every frame set while the measured holds wait for the estimation worker (here: it
     is not run until the input ended), and the estimates it then publishes are the replay's, bit for bit, over
     a bag played twice (its stamps jump back: a restart between the passes)."""
-    from rendered_bags import CAMERAS, IMU, played_twice, stream_bag
+    from rendered_bags import CAMERAS, IMU, played_twice
 
-    path, rig_path, _ = stream_bag(tmp_path_factory)
+    s, out, path, rig = _stream_service(tmp_path_factory, Clock())
     twice = played_twice(path, tmp_path_factory.mktemp("twice") / "twice")
-    rig = load_rig(rig_path)
-    out = []
-    s = EstimatorService(rig, NodeConfig(rig_file=str(rig_path), work_queue_size=100000), PipelineConfig(), CAMERAS,
-                         IMU, out.append, lambda level, line: None, Clock())
     _feed_bag(s, twice, CAMERAS, IMU)
     sets = s.queue.frames()
     while s.work_once():
@@ -314,13 +322,9 @@ def test_the_two_worker_threads_give_the_replays_estimates_and_report_both_laten
     enough), the estimates are the replay's, and the diagnostics give both latencies."""
     import time
 
-    from rendered_bags import CAMERAS, IMU, stream_bag
+    from rendered_bags import CAMERAS, IMU
 
-    path, rig_path, _ = stream_bag(tmp_path_factory)
-    rig = load_rig(rig_path)
-    out = []
-    s = EstimatorService(rig, NodeConfig(rig_file=str(rig_path), work_queue_size=100000), PipelineConfig(), CAMERAS,
-                         IMU, out.append, lambda level, line: None)
+    s, out, path, rig = _stream_service(tmp_path_factory)
     s.start()
     try:
         _feed_bag(s, path, CAMERAS, IMU)
@@ -343,13 +347,9 @@ def test_the_open_hold_estimated_at_shutdown_is_the_replays_last_estimate(tmp_pa
     the last frame set included, so its estimate is the replay's, which saw the bag's end."""
     import time
 
-    from rendered_bags import CAMERAS, IMU, stream_bag
+    from rendered_bags import CAMERAS, IMU
 
-    path, rig_path, _ = stream_bag(tmp_path_factory)
-    rig = load_rig(rig_path)
-    out = []
-    s = EstimatorService(rig, NodeConfig(rig_file=str(rig_path), work_queue_size=100000), PipelineConfig(), CAMERAS,
-                         IMU, out.append, lambda level, line: None)
+    s, out, path, rig = _stream_service(tmp_path_factory)
     s.start()
     _feed_bag(s, path, CAMERAS, IMU, end=False)
     deadline = time.monotonic() + 300.0

@@ -69,21 +69,13 @@ def test_after_stalls_or_with_late_cameras_the_service_gives_the_replays_estimat
     samples would be half a second newer than every camera's last frame and the feeder would let them go on
     without the cameras; merged by stamp the estimates are the replay's, bit for bit. So are they when every
     image arrives 1.2 s after the IMU samples of its instant (the IMU's first second comes before any frame)."""
-    from rendered_bags import CAMERAS, stream_bag
+    from rendered_bags import CAMERAS
     from rendered_bags import IMU as IMU_TOPIC
-    from test_service import _replayed, _same_estimates
+    from test_service import _replayed, _same_estimates, _stream_service
 
-    from nrmpc_ros.core import load_rig
     from nrmpc_ros.frontend.imu_block import ImuDecoder
-    from nrmpc_ros.frontend.node_config import NodeConfig
-    from nrmpc_ros.frontend.pipeline import PipelineConfig
-    from nrmpc_ros.frontend.service import EstimatorService
 
-    path, rig_path, _ = stream_bag(tmp_path_factory)
-    rig = load_rig(rig_path)
-    out = []
-    s = EstimatorService(rig, NodeConfig(rig_file=str(rig_path), work_queue_size=100000), PipelineConfig(), CAMERAS,
-                         IMU_TOPIC, out.append, lambda level, line: None)
+    s, out, path, rig = _stream_service(tmp_path_factory)
     decoder = ImuDecoder()
     for now, images, raws in _takes(path, CAMERAS, IMU_TOPIC, stall_s, camera_latency_s):
         s.on_taken(images, decoder.decode(raws) if raws else None, now)

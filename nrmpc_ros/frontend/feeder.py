@@ -28,9 +28,9 @@ are the replay's whenever the same messages arrive. Per message:
    or it sent a frame while the IMU advanced by less than that, up to
    ``imu_max_lag_s`` behind; a camera that has sent nothing yet is live up to
    ``imu_max_lag_s`` behind (drivers start after the IMU's, and cameras
-   deliver their frames later than an IMU does). Whether an input stopped is judged by what
-   arrived, not by stamps alone: a busy process takes its subscriptions'
-   queues in turns, one message of each at a time, so a 200 Hz IMU's
+   deliver their frames later than an IMU does). Whether an input stopped
+   is judged by what arrived, not by stamps alone: a busy process takes its
+   subscriptions' queues in turns, one message of each at a time, so a 200 Hz IMU's
    samples arrive seconds of stamps behind 10 Hz frames although nothing
    stopped.
 
