@@ -406,15 +406,7 @@ class Injector:
             n.close()
 
 
-SATURATED_XFAIL = pytest.mark.xfail(strict=False, reason=(
-    "known: with every core saturated the node's single-threaded executor takes one message per subscription per "
-    "wait, so the 200 Hz IMU falls seconds behind the images; the IMU samples of the first pass then arrive after "
-    "the second pass's images and read as a second jump back in time. With the IMU in an executor thread of its "
-    "own every hold of the second pass came at the replay's stamp (gravity 0.1 deg off), but the idle run's "
-    "stamp-guard counts of the faults changed: that thread needs the guard's view of the faults kept"))
-
-
-@pytest.mark.parametrize("saturated", [False, pytest.param(True, marks=[pytest.mark.slow, SATURATED_XFAIL])],
+@pytest.mark.parametrize("saturated", [False, pytest.param(True, marks=pytest.mark.slow)],
                          ids=["idle", "cpu-saturated"])
 def test_faults_are_dropped_counted_reported_and_estimates_resume(bag, replayed, tmp_path, saturated):
     """A frame set and an IMU sample in 2038, a NaN IMU burst, a camera silent for 5 s, a burst of 500 frame
