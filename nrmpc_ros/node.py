@@ -15,11 +15,13 @@ import importlib.util
 import os
 import signal
 import sys
+import threading
 import time
 
 from .core.rig import load_rig
 from .errors import ROS_EXTRA_HINT, InputError, NrmpcError
 from .frontend import node_config as cfgs
+from .frontend.image_cdr import read_image
 from .frontend.imu_block import ImuDecoder
 from .frontend.markers import build_markers, marker_array_fields
 from .frontend.outputs import OUTPUTS, HoldOutput, fill_message, frame_pose_fields, message_fields
@@ -31,7 +33,6 @@ try:  # rclpy is optional for the package; --help works without it
     from diagnostic_msgs.msg import DiagnosticArray
     from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
     from rclpy.callback_groups import CallbackGroup
-    from rclpy.clock import Clock, ClockType
     from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, InvalidParameterValueException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
@@ -72,10 +73,11 @@ def take_waiting(sub, limit: int):
 
 
 class TakenByTimer(CallbackGroup):
-    """Subscriptions the executor neither waits on nor runs: a timer takes their waiting messages. A 1 kHz IMU
-    would otherwise wake the executor a thousand times a second, and each wake (the wait set built again over
-    every subscription, timer and QoS event of the node) costs more than the sample it brings; and the executor
-    takes one message per subscription per wake, so after a stall one input would run ahead of the others."""
+    """Subscriptions the executor neither waits on nor runs: a thread of the node takes their waiting messages
+    (:meth:`EstimatorNode._take_loop`). A 1 kHz IMU would otherwise wake the executor a thousand times a second,
+    and each wake (the wait set built again over every subscription, timer and QoS event of the node: about
+    1.6 ms of CPU for a 6-camera rig) costs more than the sample it brings; and the executor takes one message
+    per subscription per wake, so after a stall one input would run ahead of the others."""
 
     def can_execute(self, entity) -> bool:
         return False
@@ -115,10 +117,6 @@ class EstimatorNode(Node):
             self._imu_decoder = ImuDecoder()
             self._imu_sub = self.create_subscription(Imu, imu, self._on_imu, _sensor_qos(cfg.imu_queue_size),
                                                      raw=True, callback_group=self._taken)
-        if self._taken is not None:
-            # a steady clock: draining queues is no matter of ROS time (a simulated clock may be paused, slow,
-            # or not published yet while the messages keep arriving)
-            self.create_timer(cfg.take_period_s, self._take_inputs, clock=Clock(clock_type=ClockType.STEADY_TIME))
         outputs = {**OUTPUTS, "diag": ("diagnostic_msgs/msg/DiagnosticArray", "/diagnostics")}
         if not cfg.publish_tf or importlib.util.find_spec("tf2_msgs") is None:  # not always installed
             del outputs["tf"]
@@ -136,6 +134,11 @@ class EstimatorNode(Node):
                           f"publishing {outputs}")
         if start_worker:
             self.service.start()
+        self._taking = threading.Event()
+        self._taker = None
+        if self._taken is not None:
+            self._taker = threading.Thread(target=self._take_loop, name="nrmpc-take", daemon=True)
+            self._taker.start()
 
     # ------------------------------------------------------------------ parameters and inputs
     def _declare_parameters(self) -> dict:
@@ -172,8 +175,13 @@ class EstimatorNode(Node):
             self._log("info", f"camera {self.rig.cameras[i].name}: subscribing to {choice[0]} instead (published)")
         self._transport[i] = choice
         self._subs[i] = self.create_subscription(CompressedImage if choice[1] else Image, choice[0],
-                                                 lambda m, i=i: self.service.on_image(i, m, self._now()),
-                                                 _sensor_qos(self.cfg.image_queue_size), callback_group=self._taken)
+                                                 lambda raw, i=i: self._on_image(i, raw),
+                                                 _sensor_qos(self.cfg.image_queue_size), callback_group=self._taken,
+                                                 raw=True)  # read in place (frontend/image_cdr.py)
+
+    def _on_image(self, i: int, raw) -> None:
+        """One serialized image of camera ``i``; runs only with ``take_period_s`` 0 (see :meth:`_on_imu`)."""
+        self.service.on_image(i, read_image(raw, self._transport[i][1]), self._now())
 
     def _on_info(self, i: int, msg) -> None:
         if i not in self.service.camera_info:  # the first one only
@@ -192,10 +200,38 @@ class EstimatorNode(Node):
         self.service.on_imu_block(self._imu_decoder.decode([raw, *take_waiting(self._imu_sub, IMU_DRAIN_MAX)]),
                                   self._now())
 
+    def _take_loop(self) -> None:
+        """Every ``take_period_s`` on a steady clock (draining queues is no matter of ROS time: a simulated clock
+        may be paused, slow, or not published yet while messages keep arriving), until :meth:`stop_taking`.
+        A thread, not an executor timer: a wake costs a few microseconds here, an executor turn 1.6 ms."""
+        period = self.cfg.take_period_s
+        due = time.monotonic()
+        while not self._taking.wait(max(0.0, due - time.monotonic())):
+            due = max(due + period, time.monotonic())  # after a stall: one take of everything, no catch-up run
+            try:
+                self._take_inputs()
+            except Exception as exc:  # noqa: BLE001 - the node must outlive it (a context shut down under it)
+                if not self.context.ok():
+                    return
+                self.service.input_failed("inputs", exc)
+
+    def stop_taking(self) -> None:
+        """End the thread that takes the inputs (before the service stops; idempotent)."""
+        self._taking.set()
+        if self._taker is not None and self._taker is not threading.current_thread():
+            self._taker.join()
+
+    def destroy_node(self) -> None:
+        self.stop_taking()
+        super().destroy_node()
+
     def _take_inputs(self) -> None:
-        """Every message waiting in the camera and IMU subscriptions, taken by the timer of ``take_period_s``
-        (see :class:`TakenByTimer`) and handed over in stamp order (frontend/taken.py)."""
-        images = [list(take_waiting(sub, self.cfg.image_queue_size)) if sub is not None else [] for sub in self._subs]
+        """Every message waiting in the camera and IMU subscriptions (see :class:`TakenByTimer`), handed over in
+        stamp order (frontend/taken.py). A subscription's message type says how to read its images: the
+        transport of a camera may change meanwhile (``image_transport: auto``)."""
+        limit = self.cfg.image_queue_size
+        images = [[] if sub is None else [read_image(raw, sub.msg_type is CompressedImage)
+                                          for raw in take_waiting(sub, limit)] for sub in self._subs]
         raws = list(take_waiting(self._imu_sub, IMU_DRAIN_MAX)) if self._imu_sub is not None else []
         if raws or any(images):
             self.service.on_taken(images, self._imu_decoder.decode(raws) if raws else None, self._now())
@@ -259,6 +295,7 @@ class EstimatorNode(Node):
     def shutdown(self, budget_s: float = SHUTDOWN_S) -> None:
         """Stop the workers and log the summary (while the context still carries it to /rosout), all within
         ``budget_s`` of the call (README, "The ROS 2 node", Drops and logs)."""
+        self.stop_taking()
         worker = self.service.stop(max(0.0, budget_s - SUMMARY_LINGER_S - EXIT_S))
         self._log("info", f"shutting down: {self.service.summary()}; {worker}")
         time.sleep(SUMMARY_LINGER_S)  # DDS delivers it to /rosout's subscribers before the context goes

@@ -19,7 +19,8 @@ its own process (``--cpus 0`` pins it to one core with taskset).
    the same images measured in this run, frame-set latency median and p95 (its /diagnostics), hold latency
    median and p95 (arrival of the frame set that completed a hold to its estimate published), holds measured
    against the bag's and estimates published, frame sets dropped while busy, and the time from SIGINT to the
-   node's exit. ``--matrix-rows 6x30 6x15 2x30`` runs only those camera x rate rows.
+   node's exit. ``--matrix-rows 6x30 6x15 2x30`` runs only those camera x rate rows; ``--raw-encoding bgr8``
+   sends the raw images in colour, as most camera drivers do.
 
     python scripts/bench_node.py [--bag BAG --rig RIG] [--cpus 0] [--rate 1] [--seconds 20] [--json OUT]
     python scripts/bench_node.py --matrix BAG RIG [--cpus 0] [--json OUT]
@@ -174,9 +175,10 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def matrix_messages(bag: Path, cameras: int, rate_hz: float, raw: bool) -> tuple:
+def matrix_messages(bag: Path, cameras: int, rate_hz: float, raw: bool, raw_encoding: str = "mono8") -> tuple:
     """([(t_ns, topic, rclpy message)] of the first ``cameras`` cameras at ``rate_hz`` and the IMU, raw Image
-    (decoded once here) or CompressedImage; seconds of data; images)."""
+    in ``raw_encoding`` (decoded once here; bgr8 as a colour camera's driver sends it) or CompressedImage;
+    seconds of data; images)."""
     import cv2
     from rclpy.serialization import deserialize_message
     from rosbags.rosbag2 import Reader
@@ -198,8 +200,10 @@ def matrix_messages(bag: Path, cameras: int, rate_hz: float, raw: bool) -> tuple
             images += 1
             if raw:
                 img = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_GRAYSCALE)
-                msg = Image(header=msg.header, height=img.shape[0], width=img.shape[1], step=img.shape[1],
-                            encoding="mono8", data=img.tobytes())
+                if raw_encoding == "bgr8":
+                    img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+                msg = Image(header=msg.header, height=img.shape[0], width=img.shape[1],
+                            step=img.shape[1] * img[0, 0].size, encoding=raw_encoding, data=img.tobytes())
                 topic = topic[: -len("/compressed")]
             out.append((t, topic, msg))
     return out, (stamps[-1] - stamps[0]) * 1e-9, images
@@ -228,7 +232,7 @@ def publish_at_1x(domain: int, msgs: list) -> None:
 
 
 def matrix(bag: Path, rig: Path, cpus: str, views: int, cameras=(2, 4, 6), rates=(15.0, 30.0),
-           rows_only=None) -> list:
+           rows_only=None, raw_encoding: str = "mono8") -> list:
     """The DDS matrix (module docstring, 3.); one dict per configuration."""
     import bench_replay_speed as speed
 
@@ -241,7 +245,7 @@ def matrix(bag: Path, rig: Path, cpus: str, views: int, cameras=(2, 4, 6), rates
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for cams, rate in (rows_only or [(c, r) for c in cameras for r in rates]):
         for raw in (True, False):
-            msgs, seconds, images = matrix_messages(bag, cams, rate, raw)
+            msgs, seconds, images = matrix_messages(bag, cams, rate, raw, raw_encoding)
             unit = speed.unit_costs(messages, rig)
             domain = random.randint(1, 100)
             env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_LOG_DIR=str(work / "ros_log"))
@@ -267,7 +271,7 @@ def matrix(bag: Path, rig: Path, cpus: str, views: int, cameras=(2, 4, 6), rates
                 listener.close()
             est = listener.diag.get("estimation", ("", {}))[1]
             per_image = 1e3 * cpu / images
-            row = {"cameras": cams, "rate_hz": rate, "transport": "raw" if raw else "compressed",
+            row = {"cameras": cams, "rate_hz": rate, "transport": raw_encoding if raw else "compressed",
                    "images": images, "data_s": seconds, "cpu_per_data_s": cpu / seconds,
                    "ms_per_image": per_image, **unit, "x_decode": per_image / unit["decode_ms"],
                    "x_klt": per_image / unit["klt_forward_ms"],
@@ -305,6 +309,8 @@ def main(argv=None) -> int:
     ap.add_argument("--matrix-rates", type=float, nargs="+", default=[15.0, 30.0], help="frame rates of --matrix")
     ap.add_argument("--matrix-rows", nargs="+", metavar="CAMSxHZ",
                     help="only these rows of --matrix, e.g. 6x30 6x15 2x30 (instead of cameras x rates)")
+    ap.add_argument("--raw-encoding", choices=("mono8", "bgr8"), default="mono8",
+                    help="encoding of the raw images of --matrix (bgr8: as a colour camera's driver sends them)")
     args = ap.parse_args(argv)
     if args.matrix:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -314,7 +320,8 @@ def main(argv=None) -> int:
                 only = [(int(c), float(r)) for c, r in (row.lower().split("x") for row in args.matrix_rows)]
             except ValueError:
                 ap.error(f"--matrix-rows: expected CAMERASxHZ such as 6x30, got {' '.join(args.matrix_rows)}")
-        rows = matrix(*args.matrix, args.cpus, args.views, args.matrix_cameras, args.matrix_rates, only)
+        rows = matrix(*args.matrix, args.cpus, args.views, args.matrix_cameras, args.matrix_rates, only,
+                      args.raw_encoding)
         print(f"load average {os.getloadavg()[0]:.1f} (machine shared: compare ratios, not absolute times)")
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=2))

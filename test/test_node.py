@@ -5,10 +5,12 @@ descriptors, start-up errors naming what is wrong, transports, the published mes
 from __future__ import annotations
 
 import random
+import threading
 import time
 from collections import Counter
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -138,10 +140,25 @@ def test_auto_transport_switches_when_a_compressed_camera_appears_after_the_node
             executor.spin_once(timeout_sec=0.1)  # the diagnostics timer looks at the graph again
         assert node.image_subscriptions[:3] == [("/cam0/image_raw/compressed", True), ("/cam1/image_raw", False),
                                                 ("/cam2/image_raw", False)]
+        # both read in place from their serialized messages, each by its subscription's type
+        img = np.random.default_rng(0).integers(0, 256, (480, 640), dtype=np.uint8)
+        jpeg = CompressedImage(format="jpeg", data=cv2.imencode(".jpg", img)[1].tobytes())
+        raw = Image(height=480, width=640, encoding="mono8", step=640, data=img.tobytes())
+        pubs = [camera.create_publisher(CompressedImage, "/cam0/image_raw/compressed", 10),
+                camera.create_publisher(Image, "/cam1/image_raw", 10)]
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not all(node.service.received[t] for t in node.camera_topics[:2]):
+            for pub, msg in zip(pubs, (jpeg, raw)):
+                msg.header.stamp.sec += 1
+                pub.publish(msg)
+            executor.spin_once(timeout_sec=0.1)
+        assert all(node.service.received[t] for t in node.camera_topics[:2])
+        assert node.service.drops.total() == 0, node.service.drops.summary()
     finally:
         executor.shutdown(timeout_sec=1.0)
         camera.destroy_node()
         node.destroy_node()
+    assert "nrmpc-take" not in [t.name for t in threading.enumerate()], "destroying the node ends its take thread"
 
 
 def hold_estimate():

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from .image_cdr import Unreadable
 
 # encoding -> (channels, dtype, cv2 conversion to grey or None)
 _RAW = {
@@ -98,7 +99,10 @@ def decode_compressed(msg, source: str) -> np.ndarray:
 
 
 def decode_image(msg, source: str, depth_bits: int | None = None) -> np.ndarray:
-    """Image or CompressedImage message -> 2-D uint8 grey image; InputError naming ``source`` otherwise."""
+    """Image or CompressedImage message (or a view of one, :mod:`~nrmpc_ros.frontend.image_cdr`) -> 2-D uint8
+    grey image; InputError naming ``source`` otherwise."""
+    if isinstance(msg, Unreadable):
+        raise InputError(source, msg.problem)
     if hasattr(msg, "encoding"):
         return decode_raw(msg, source, depth_bits)
     if hasattr(msg, "format"):

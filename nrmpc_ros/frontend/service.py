@@ -248,6 +248,8 @@ class EstimatorService:
         self.last: HoldOutput | None = None
         self._holds: dict = {}  # sequence -> {stamp: hold index} (reference frame names)
         self._lock = threading.Lock()
+        self._input_lock = threading.RLock()  # the inputs, the liveness timer, resets and method changes come from
+        # the node's executor and its thread that takes the inputs: one at a time into the feeder
         self._stop = threading.Event()  # the intake worker stops
         self._drain = threading.Event()  # the estimation worker stops once no hold waits
         self._halt = threading.Event()  # the estimation worker stops after its item
@@ -259,33 +261,37 @@ class EstimatorService:
         self.reports = ServiceDiagnostics(self)
         self._small: list = [None] * rig.num_cameras  # the last frame set's images, subsampled (image_change)
 
-    # ------------------------------------------------------------------ inputs (the node's executor thread)
+    # ------------------------------------------------------------------ inputs (the node's threads, one at a time)
     def on_image(self, index: int, msg, now: float | None) -> None:
         """An image message of camera ``index``; ``now`` is the node's clock (s), None while it does not run."""
-        for level, line in self.watch.seen(index, self.clock()):
-            self.log(level, line)
-        self.received[self.camera_topics[index]] += 1
-        self._guarded(self.camera_topics[index], self.feeder.image, index, msg, now)
+        with self._input_lock:
+            for level, line in self.watch.seen(index, self.clock()):
+                self.log(level, line)
+            self.received[self.camera_topics[index]] += 1
+            self._guarded(self.camera_topics[index], self.feeder.image, index, msg, now)
 
     def on_imu(self, msg, now: float | None) -> None:
-        self.received[self.imu_topic] += 1
-        self._guarded(self.imu_topic, self.feeder.imu_msg, msg, now)
+        with self._input_lock:
+            self.received[self.imu_topic] += 1
+            self._guarded(self.imu_topic, self.feeder.imu_msg, msg, now)
 
     def on_imu_block(self, block, now: float | None) -> None:
         """IMU samples taken together (an :class:`~nrmpc_ros.frontend.imu_block.ImuBlock`), as :meth:`on_imu`."""
-        self.received[self.imu_topic] += len(block)
-        self._guarded(self.imu_topic, self.feeder.imu_block, block, now)
+        with self._input_lock:
+            self.received[self.imu_topic] += len(block)
+            self._guarded(self.imu_topic, self.feeder.imu_block, block, now)
 
     def on_taken(self, images: list, block, now: float | None) -> None:
         """Messages taken from the subscriptions together: ``images[i]`` camera ``i``'s image messages and
         ``block`` the IMU's samples (an :class:`~nrmpc_ros.frontend.imu_block.ImuBlock`, or None), each in
         arrival order; handed over merged by stamp (:mod:`~nrmpc_ros.frontend.taken`)."""
         imu_stamps = block.stamps if block is not None else ()
-        for run in stamp_order([[stamp_seconds(m) for m in msgs] for msgs in images], imu_stamps):
-            if run.stream == IMU:
-                self.on_imu_block(block.part(run.start, run.stop), now)
-            else:
-                self.on_image(run.stream, images[run.stream][run.start], now)
+        with self._input_lock:
+            for run in stamp_order([[stamp_seconds(m) for m in msgs] for msgs in images], imu_stamps):
+                if run.stream == IMU:
+                    self.on_imu_block(block.part(run.start, run.stop), now)
+                else:
+                    self.on_image(run.stream, images[run.stream][run.start], now)
 
     def _guarded(self, source: str, fn, *args) -> None:
         """Run an input step; a failure (a bug, not bad input: that is dropped on its own) is counted and logged,
@@ -293,10 +299,14 @@ class EstimatorService:
         try:
             fn(*args)
         except Exception as exc:  # noqa: BLE001 - the node must outlive it
-            line = self.drops.drop(source, Drop.INPUT_FAILED, f"{source}: handling a message failed: "
-                                                              f"{type(exc).__name__}: {exc}")
-            if line:
-                self.log("error", line)
+            self.input_failed(source, exc)
+
+    def input_failed(self, source: str, exc: Exception) -> None:
+        """Count and log (when due) a failure in handling the inputs of ``source``: a bug, not bad input."""
+        line = self.drops.drop(source, Drop.INPUT_FAILED, f"{source}: handling a message failed: "
+                                                          f"{type(exc).__name__}: {exc}")
+        if line:
+            self.log("error", line)
 
     def on_camera_info(self, index: int, msg, topic: str) -> None:
         """The first CameraInfo of a camera: reported once when it disagrees with the rig file."""
@@ -307,7 +317,8 @@ class EstimatorService:
 
     def reset(self, why: str = "requested") -> str:
         """Start a new sequence: the next hold is the origin."""
-        self.feeder.reset(why)
+        with self._input_lock:
+            self.feeder.reset(why)
         self.counts["resets"] += 1
         return f"a new sequence starts with the next hold ({why})"
 
@@ -316,19 +327,21 @@ class EstimatorService:
         why not when ``method`` is not one."""
         if method not in PIPELINE_METHODS:
             return f"parameter method: must be one of {', '.join(PIPELINE_METHODS)}, got {method!r}"
-        self.feeder.end()
-        self._put(Work(WorkKind.METHOD, data=method))
+        with self._input_lock:
+            self.feeder.end()
+            self._put(Work(WorkKind.METHOD, data=method))
         self.log("info", f"method {method} from the next hold on (a new sequence)")
         return None
 
     def tick(self) -> None:
         """Timer: camera liveness (the end of the input flushes the open hold) and the drop counts due."""
-        for level, line in self.watch.check(self.clock()):
-            if level == "ended":
-                self.log("info", line)
-                self.feeder.end()
-            else:
-                self.log(level, line)
+        with self._input_lock:
+            for level, line in self.watch.check(self.clock()):
+                if level == "ended":
+                    self.log("info", line)
+                    self.feeder.end()
+                else:
+                    self.log(level, line)
         for line in self.drops.due():
             self.log("warn", line)
 
@@ -410,7 +423,8 @@ class EstimatorService:
             return (f"open hold not estimated: would not fit in the {budget_s:g} s of the shutdown (hold "
                     f"estimates took up to {1e3 * need / ahead:.0f} ms, {ahead - 1} holds waited ahead of it, "
                     f"{max(0.0, 1e3 * left):.0f} ms were left)")
-        self.feeder.end()  # what the feeder still holds, then a flush: the open hold on all that was received
+        with self._input_lock:
+            self.feeder.end()  # what the feeder still holds, then a flush: the open hold on all that was received
         flush = threading.Thread(target=self._work_left, name="nrmpc-shutdown-flush", daemon=True)
         flush.start()
         flush.join(max(0.0, end - time.monotonic()))
