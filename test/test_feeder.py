@@ -268,3 +268,64 @@ def test_bad_samples_in_a_block_are_dropped_as_one_by_one(rig):
     g.end()
     imu_stamps = [(WorkKind.IMU, 100.01), (WorkKind.IMU, 100.02), (WorkKind.IMU, 100.03)]
     assert trace(blocks) == trace(work) == imu_stamps + [(WorkKind.FLUSH, None)]
+
+
+def in_bursts(msgs, kind: str, burst_s: float, phase_s: float, t0: float = 100.0):
+    """The messages of ``kind`` received in bursts: each at the end of the ``burst_s`` interval its stamp falls
+    in (intervals starting at t0 - phase_s; the frames of one instant in one burst), the others as they were; in
+    arrival order."""
+    def arrival(m):
+        if m[1] != kind:
+            return m[0]
+        return t0 - phase_s + math.ceil((m[3] - t0 + phase_s) / burst_s - 1e-9) * burst_s
+    return sorted(msgs, key=lambda m: (arrival(m), m[0]))
+
+
+@pytest.mark.parametrize("burst_s, phase_s", [(1.0, 0.0), (1.0, 0.3), (2.5, 1.0), (0.7, 0.2)])
+def test_cameras_that_deliver_in_bursts_are_waited_for(rig, burst_s, phase_s):
+    """A camera driver (or link) that buffers: every frame of an interval received at its end, seconds after the
+    IMU samples of their instants. The IMU waits for the frames, its first burst included (a camera is waited for
+    up to imu_max_lag_s while it is young, then for the silences it has shown): the work of steady delivery."""
+    f, work, _ = feeder(rig)
+    feed(f, messages(seconds=8.0))
+    f.end()
+    g, bursty, _ = feeder(rig)
+    feed(g, in_bursts(messages(seconds=8.0), "image", burst_s, phase_s))
+    g.end()
+    assert trace(bursty) == trace(work)
+
+
+def test_an_imu_that_delivers_in_bursts_is_waited_for_after_its_first(rig):
+    """An IMU driver that sends its samples in 1 s bursts: after the first burst has shown its silence, every
+    frame set leaves after the IMU samples stamped before it, as with steady delivery (frame sets are not held
+    back for a young IMU: that would delay every set of a start-up)."""
+    f, work, _ = feeder(rig)
+    feed(f, messages(seconds=8.0))
+    f.end()
+    g, bursty, _ = feeder(rig)
+    feed(g, in_bursts(messages(seconds=8.0), "imu", 1.0, 0.0))
+    g.end()
+    def imu_before(w):
+        out, n = {}, 0
+        for kind, t in trace(w):
+            n += kind is WorkKind.IMU
+            if kind is WorkKind.FRAMES:
+                out[t] = n
+        return out
+    steady, late = imu_before(work), imu_before(bursty)
+    assert [t for t in steady if steady[t] != late[t]] and all(steady[t] == late[t] for t in steady if t >= 102.0)
+
+
+def test_delivery_gaps_are_a_sliding_maximum_of_silences_and_ages():
+    from nrmpc_ros.frontend.feeder import DeliveryGaps
+
+    gaps = DeliveryGaps(window_s=10.0)
+    assert gaps.largest(0.0) == 0.0
+    gaps.delivered(0.0, 0.0)
+    gaps.delivered(0.0, -0.4)  # a message 0.4 s old when it came: its input was silent that long
+    assert gaps.largest(0.0) == pytest.approx(0.4)
+    for t in np.arange(0.1, 3.0, 0.1):
+        gaps.delivered(t, t)
+    gaps.delivered(5.0, 5.0)  # 2.1 s of silence
+    assert gaps.largest(5.0) == pytest.approx(2.1) and gaps.largest(14.9) == pytest.approx(2.1)
+    assert gaps.largest(15.1) == 0.0, "forgotten after window_s of the other input's stamps"

@@ -264,6 +264,7 @@ def styles(tmp_path_factory):
     return {name: make(d, name, *base, *extra)[0] for name, extra in {
         "plain": [], "jitter": ["--jitter-ms", "4"], "drops": ["--drop-rate", "0.3"],
         "png": ["--encoding", "png"], "jpeg": ["--encoding", "jpeg", "--jpeg-quality", "40"],
+        "bursts": ["--camera-latency-ms", "150", "--camera-burst-s", "1"],
     }.items()}
 
 
@@ -315,6 +316,25 @@ def test_jitter_moves_each_camera_stamp_but_not_the_content(styles):
     assert np.count_nonzero(offsets[0] != offsets[1]) == len(trigger), "cameras are not synchronised"
     # The IMU and the ground truth are untouched; the bag stays in time order.
     assert [t for t, _ in jit["/imu/data"]] == [t for t, _ in plain["/imu/data"]]
+
+
+@pytest.mark.slow
+def test_late_cameras_in_bursts_keep_their_stamps_and_are_received_later(styles):
+    """--camera-latency-ms and --camera-burst-s move the bag time of images and camera infos (when the recorder
+    received them), never their stamps or pixels; the IMU is received at its stamps."""
+    plain, late = styles["plain"], styles["bursts"]
+    start = plain["/imu/data"][0][0]
+    for i in range(2):
+        for topic in (f"/cam{i}/image_raw", f"/cam{i}/camera_info"):
+            got = late[topic]
+            assert [stamp(m) for _, m in got] == [stamp(m) for _, m in plain[topic]]
+            received = np.array([t for t, _ in got])
+            due = np.array([stamp(m) for _, m in got]) + 150_000_000
+            assert np.all(received >= due) and np.all(received - due < 1_000_000_000)
+            assert np.all((received - start) % 1_000_000_000 == 0), "at the end of a 1 s burst"
+        for (_, a), (_, b) in zip(late[f"/cam{i}/image_raw"], plain[f"/cam{i}/image_raw"]):
+            assert np.array_equal(a.data, b.data)
+    assert [t for t, _ in late["/imu/data"]] == [stamp(m) for _, m in late["/imu/data"]]
 
 
 @pytest.mark.slow
@@ -526,6 +546,7 @@ def test_bad_scenario_files(tmp_path, capsys, text, key):
     (["--motion", "static", "--capture", "stream"], "--motion"), (["--imu-noise", "-1"], "--imu-noise"),
     (["--rig", "config/sample_cross4.yaml", "--resolution", "320x240"], "--resolution"),
     (["--width", "1"], "--width"), (["--cameras", "0", "--layout", "ring"], "--cameras"), (["--seed", "-1"], "--seed"),
+    (["--camera-burst-s", "-1"], "--camera-burst-s"), (["--camera-latency-ms", "nan"], "--camera-latency-ms"),
 ])
 def test_bad_options_name_the_flag(tmp_path, capsys, args, flag):
     try:

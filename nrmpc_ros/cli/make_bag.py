@@ -45,7 +45,8 @@ DEFAULTS = {
     "imu_time_offset_ms": _B.imu_time_offset_ms, "camera_rates": None, "camera_phases_ms": None,
     "hold_seconds_range": None, "snapshot_delay": None, "exposure_drift": _B.exposure_drift,
     "exposure_period_s": _B.exposure_period_s, "creep_fraction": _M.creep_fraction,
-    "creep_deg_per_s": _M.creep_deg_per_s, "bar_hz": None,
+    "creep_deg_per_s": _M.creep_deg_per_s, "bar_hz": None, "camera_latency_ms": _B.camera_latency_ms,
+    "camera_burst_s": _B.camera_burst_s,
 }
 _INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
 
@@ -187,6 +188,11 @@ def register(sub):
     se.add_argument("--jitter-ms", type=float,
                     help="each camera's stamp is off the trigger by a uniform random amount within +-J ms (default 0)")
     se.add_argument("--drop-rate", type=float, help="probability that a camera loses a frame, in [0, 1) (default 0)")
+    se.add_argument("--camera-latency-ms", type=float, metavar="MS", help="every image is received (its bag time) "
+                    "this long after its stamp, the IMU's samples at theirs: a slow camera driver (default 0)")
+    se.add_argument("--camera-burst-s", type=float, metavar="S",
+                    help="images are received in bursts, all of an S-second interval at its end: a driver or "
+                         "link that buffers (default 0: one by one)")
     se.add_argument("--encoding", choices=ENCODINGS,
                     help="raw sensor_msgs/Image encoding, or png/jpeg for CompressedImage on <image_topic>/compressed "
                          "(default mono8)")
@@ -347,7 +353,8 @@ def bag_options(o: dict):
                       gyro_noise=o["gyro_noise"], imu_bias=o["imu_bias"], gyro_bias=o["gyro_bias"],
                       imu=not o["no_imu"], damping=o["damping"], jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
-                      exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"])
+                      exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],
+                      camera_latency_ms=o["camera_latency_ms"], camera_burst_s=o["camera_burst_s"])
 
 
 def _check_outputs(o: dict, scenario) -> None:

@@ -28,7 +28,17 @@ are the replay's whenever the same messages arrive. Per message:
    or it sent a frame while the IMU advanced by less than that, up to
    ``imu_max_lag_s`` behind; a camera that has sent nothing yet is live up to
    ``imu_max_lag_s`` behind (drivers start after the IMU's, and cameras
-   deliver their frames later than an IMU does). Whether an input stopped
+   deliver their frames later than an IMU does). An input that delivers in
+   bursts (a driver or link that buffers) is given the silence it has shown:
+   the IMU waits for a camera, and a frame set for the IMU, up to
+   ``BURST_MARGIN`` times the largest advance of the other input's stamps
+   between two of its deliveries in the last ``2 imu_max_lag_s`` of them
+   (:class:`DeliveryGaps`), when that is longer than ``imu_wait_s``, still up
+   to ``imu_max_lag_s``. A camera seen for less than ``imu_max_lag_s`` is
+   waited for that long (its first silence may be its first burst): holding
+   IMU samples back delays no frame set, since a set leaves with the samples
+   before it; frame sets are not held back so for a young IMU. Whether an
+   input stopped
    is judged by what arrived, not by stamps alone: a busy process takes its
    subscriptions' queues in turns, one message of each at a time, so a 200 Hz IMU's
    samples arrive seconds of stamps behind 10 Hz frames although nothing
@@ -64,6 +74,41 @@ IMU = "imu"  # stream id of the IMU in the stamp guard (cameras are 0..M-1)
 HELD_QUEUES = 4  # a candidate jump back holds up to this many frame queues of messages: every camera's and the
 # IMU's messages of the new time wait there until a second input (or jump_confirm of one) confirms it
 STAMPS_KEPT = 4096  # frame stamps remembered as received (sec, nanosec): far more than the sets waiting
+BURST_MARGIN = 1.5  # an input that delivers in bursts is live this many times its largest silence seen: its next
+# burst may come somewhat later than the longest one so far
+
+
+class DeliveryGaps:
+    """How long one input has been seen to stay silent while it was live, in another input's stamps, over the
+    last ``window_s`` of them (a sliding maximum): the largest advance of the other input's stamps between two
+    of its deliveries, or the largest age of a message it delivered (the other input's newest stamp then, minus
+    the message's): the first burst of a driver that buffers shows its silence in the age of its oldest
+    message, before a second burst shows it as a gap."""
+
+    def __init__(self, window_s: float):
+        self.window_s = window_s
+        self.first = math.inf  # the other input's newest stamp at the first delivery
+        self._last = -math.inf  # the other input's newest stamp at the latest delivery
+        self._gaps: deque = deque()  # (at, gap), gaps decreasing: the candidates for the maximum
+
+    def delivered(self, other_newest: float, stamp: float) -> None:
+        """A message stamped ``stamp`` delivered while the other input's newest stamp was ``other_newest``."""
+        if other_newest == -math.inf:
+            return
+        self.first = min(self.first, other_newest)
+        gap = max(other_newest - stamp, other_newest - self._last if self._last > -math.inf else 0.0)
+        self._last = max(self._last, other_newest)
+        if gap <= 0.0:
+            return
+        while self._gaps and self._gaps[-1][1] <= gap:
+            self._gaps.pop()
+        self._gaps.append((other_newest, gap))
+
+    def largest(self, other_newest: float) -> float:
+        """The largest gap (s) within ``window_s`` of ``other_newest``; 0 before two deliveries."""
+        while self._gaps and self._gaps[0][0] < other_newest - self.window_s:
+            self._gaps.popleft()
+        return self._gaps[0][1] if self._gaps else 0.0
 
 
 @dataclass
@@ -133,6 +178,9 @@ class Feeder:
         self._cams_at_imu = -math.inf  # the cameras' newest stamp when the latest IMU sample arrived
         self._cam_newest = [-math.inf] * self.rig.num_cameras  # newest frame accepted per camera
         self._cam_seen = [-math.inf] * self.rig.num_cameras  # the IMU's newest stamp when each camera last sent
+        window = 2 * c.imu_max_lag_s
+        self._cam_gaps = [DeliveryGaps(window) for _ in range(self.rig.num_cameras)]  # in the IMU's stamps
+        self._imu_gaps = DeliveryGaps(window)  # in the cameras' newest stamps
 
     # ------------------------------------------------------------------ input
     def image(self, index: int, msg, now: float | None = None) -> None:
@@ -185,6 +233,7 @@ class Feeder:
         if good and t[0] > self._imu_newest and self.guard.accept_run(IMU, t, now):
             self._imu_newest = float(t[-1])
             self._cams_at_imu = max(self._cam_newest)
+            self._imu_gaps.delivered(self._cams_at_imu, float(t[0]))
             covs = zip(block.accel_cov, block.gyro_cov)
             self._imu.extend((s, ai, wi, c) for s, ai, wi, c in zip(t.tolist(), a.tolist(), w.tolist(), covs))
             self._release()
@@ -261,10 +310,12 @@ class Feeder:
                 return
             self._imu_newest = stamp
             self._cams_at_imu = max(self._cam_newest)
+            self._imu_gaps.delivered(self._cams_at_imu, stamp)
             self._imu.append((stamp, *payload))
         else:
             self._cam_newest[stream] = max(self._cam_newest[stream], stamp)
             self._cam_seen[stream] = self._imu_newest
+            self._cam_gaps[stream].delivered(self._imu_newest, stamp)
             self._emit_sets(self.sync.add(stream, stamp, payload))
         self._release()
 
@@ -282,8 +333,8 @@ class Feeder:
         """No frame set to come is older than this (s): the sets waiting, the frames grouped, the live cameras'
         newest frames (module docstring, step 4); and IMU samples leave at least imu_wait_s behind the newest."""
         wait, lag, newest = self.config.imu_wait_s, self.config.imu_max_lag_s, self._imu_newest
-        live = [t for t, seen in zip(self._cam_newest, self._cam_seen)
-                if t >= newest - wait or (t >= newest - lag and seen >= newest - wait)]
+        live = [t for t, seen, gaps in zip(self._cam_newest, self._cam_seen, self._cam_gaps)
+                if t >= newest - wait or (t >= newest - lag and seen >= newest - self._silence(gaps, newest, True))]
         live += [newest - lag for t in self._cam_newest if t == -math.inf]  # not started yet: the IMU may lead
         waiting = self._frames[0][0].stamp if self._frames else math.inf
         return min(waiting, self.sync.oldest, min(live, default=math.inf), newest - wait)
@@ -293,7 +344,16 @@ class Feeder:
         imu_wait_s newer came, and as much since the IMU's latest sample arrived; or frames imu_max_lag_s newer."""
         newest, wait = max(self._cam_newest), self.config.imu_wait_s
         ahead = newest - stamp
-        return ahead > self.config.imu_max_lag_s or (ahead > wait and newest - self._cams_at_imu > wait)
+        silence = self._silence(self._imu_gaps, newest)
+        return ahead > self.config.imu_max_lag_s or (ahead > wait and newest - self._cams_at_imu > silence)
+
+    def _silence(self, gaps: DeliveryGaps, other_newest: float, young: bool = False) -> float:
+        """How long (in the other input's stamps) an input may stay silent and still be waited for (module
+        docstring, step 4): ``imu_wait_s``, or the bursts it has shown; with ``young``, ``imu_max_lag_s``
+        while it has been seen for less than that (its first silence may be its first burst)."""
+        if young and other_newest - gaps.first < self.config.imu_max_lag_s:
+            return self.config.imu_max_lag_s
+        return max(self.config.imu_wait_s, BURST_MARGIN * gaps.largest(other_newest))
 
     def _release(self, final: bool = False) -> None:
         """Frame sets and IMU samples out, merged by stamp (module docstring, step 4)."""
