@@ -315,17 +315,3 @@ def test_an_imu_that_delivers_in_bursts_is_waited_for_after_its_first(rig):
     steady, late = imu_before(work), imu_before(bursty)
     assert [t for t in steady if steady[t] != late[t]] and all(steady[t] == late[t] for t in steady if t >= 102.0)
 
-
-def test_delivery_gaps_are_a_sliding_maximum_of_silences_and_ages():
-    from nrmpc_ros.frontend.feeder import DeliveryGaps
-
-    gaps = DeliveryGaps(window_s=10.0)
-    assert gaps.largest(0.0) == 0.0
-    gaps.delivered(0.0, 0.0)
-    gaps.delivered(0.0, -0.4)  # a message 0.4 s old when it came: its input was silent that long
-    assert gaps.largest(0.0) == pytest.approx(0.4)
-    for t in np.arange(0.1, 3.0, 0.1):
-        gaps.delivered(t, t)
-    gaps.delivered(5.0, 5.0)  # 2.1 s of silence
-    assert gaps.largest(5.0) == pytest.approx(2.1) and gaps.largest(14.9) == pytest.approx(2.1)
-    assert gaps.largest(15.1) == 0.0, "forgotten after window_s of the other input's stamps"

@@ -68,3 +68,39 @@ def test_a_check_after_a_stall_of_the_process_judges_nothing():
     for i in range(3):
         stalled.seen(i, 2.0)
     assert stalled.check(2.0) == [] and [lvl for lvl, _ in stalled.check(4.0)] == ["ended"]
+
+
+def in_bursts(watch, cams, t0, t1, burst_s, epoch=0, rate=10.0):
+    """Frames stamped at ``rate`` from t0 to t1, received at the end of each ``burst_s`` interval; the watch
+    checked every 0.1 s in between. Returns the events."""
+    events, t = [], t0
+    stamps = [t0 + k / rate for k in range(int((t1 - t0) * rate))]
+    while t < t1:
+        due = [s for s in stamps if t - burst_s < s <= t] if round((t - t0) / burst_s, 6) % 1 == 0 else []
+        for s in due:
+            for i in cams:
+                events += watch.seen(i, t, s, epoch)
+        events += watch.check(t)
+        t = round(t + 0.1, 6)
+    return events
+
+
+def test_a_camera_that_delivers_in_bursts_is_neither_stopped_nor_ended_between_them():
+    """A driver that buffers 2.5 s of frames: once a burst has shown the spread of its delays, the silences
+    between bursts are waited through (1.5 x the spread); a stop is still found, later."""
+    w = CameraWatch(NAMES, timeout_s=1.0)
+    events = in_bursts(w, [0, 1, 2], 0.0, 20.0, 2.5)
+    assert [e for e in events if e[0] == "ended"][:1] == [events[0]] and w.ends == 1, \
+        "only the first silence, before any burst showed it, reads as an end"
+    assert w.timeout(0, 20.0) > 3.5
+    assert w.check(20.5) == [] and w.check(21.5)[0][0] == "ended", "a real end (the last burst at 17.5 s)"
+
+
+def test_steady_cameras_keep_the_timeout_and_a_jump_back_starts_their_delays_afresh():
+    w = CameraWatch(NAMES, timeout_s=1.0)
+    in_bursts(w, [0, 1, 2], 0.0, 10.0, 0.1)
+    assert w.timeout(0, 10.0) == 1.0
+    w.seen(0, 10.0, 5.0)  # a frame stamped 5 s back, in the same epoch: a delay 5 s longer
+    assert w.timeout(0, 10.0) > 7.0
+    w.seen(0, 10.1, -100.0, epoch=1)  # after a jump back in time: another timeline
+    assert w.timeout(0, 10.1) == 1.0

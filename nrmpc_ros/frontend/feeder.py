@@ -33,7 +33,7 @@ are the replay's whenever the same messages arrive. Per message:
    the IMU waits for a camera, and a frame set for the IMU, up to
    ``BURST_MARGIN`` times the largest advance of the other input's stamps
    between two of its deliveries in the last ``2 imu_max_lag_s`` of them
-   (:class:`DeliveryGaps`), when that is longer than ``imu_wait_s``, still up
+   (:class:`~nrmpc_ros.frontend.delivery.DeliveryGaps`), when that is longer than ``imu_wait_s``, still up
    to ``imu_max_lag_s``. A camera seen for less than ``imu_max_lag_s`` is
    waited for that long (its first silence may be its first burst): holding
    IMU samples back delays no frame set, since a set leaves with the samples
@@ -61,6 +61,7 @@ import numpy as np
 from ..config import check, option
 from ..core.rig import Rig
 from ..errors import InputError
+from .delivery import BURST_MARGIN, DeliveryGaps
 from .droplog import DropLog
 from .drops import Drop
 from .images import decode_image, ros_seconds, stamp_seconds
@@ -74,41 +75,6 @@ IMU = "imu"  # stream id of the IMU in the stamp guard (cameras are 0..M-1)
 HELD_QUEUES = 4  # a candidate jump back holds up to this many frame queues of messages: every camera's and the
 # IMU's messages of the new time wait there until a second input (or jump_confirm of one) confirms it
 STAMPS_KEPT = 4096  # frame stamps remembered as received (sec, nanosec): far more than the sets waiting
-BURST_MARGIN = 1.5  # an input that delivers in bursts is live this many times its largest silence seen: its next
-# burst may come somewhat later than the longest one so far
-
-
-class DeliveryGaps:
-    """How long one input has been seen to stay silent while it was live, in another input's stamps, over the
-    last ``window_s`` of them (a sliding maximum): the largest advance of the other input's stamps between two
-    of its deliveries, or the largest age of a message it delivered (the other input's newest stamp then, minus
-    the message's): the first burst of a driver that buffers shows its silence in the age of its oldest
-    message, before a second burst shows it as a gap."""
-
-    def __init__(self, window_s: float):
-        self.window_s = window_s
-        self.first = math.inf  # the other input's newest stamp at the first delivery
-        self._last = -math.inf  # the other input's newest stamp at the latest delivery
-        self._gaps: deque = deque()  # (at, gap), gaps decreasing: the candidates for the maximum
-
-    def delivered(self, other_newest: float, stamp: float) -> None:
-        """A message stamped ``stamp`` delivered while the other input's newest stamp was ``other_newest``."""
-        if other_newest == -math.inf:
-            return
-        self.first = min(self.first, other_newest)
-        gap = max(other_newest - stamp, other_newest - self._last if self._last > -math.inf else 0.0)
-        self._last = max(self._last, other_newest)
-        if gap <= 0.0:
-            return
-        while self._gaps and self._gaps[-1][1] <= gap:
-            self._gaps.pop()
-        self._gaps.append((other_newest, gap))
-
-    def largest(self, other_newest: float) -> float:
-        """The largest gap (s) within ``window_s`` of ``other_newest``; 0 before two deliveries."""
-        while self._gaps and self._gaps[0][0] < other_newest - self.window_s:
-            self._gaps.popleft()
-        return self._gaps[0][1] if self._gaps else 0.0
 
 
 @dataclass
@@ -181,6 +147,10 @@ class Feeder:
         window = 2 * c.imu_max_lag_s
         self._cam_gaps = [DeliveryGaps(window) for _ in range(self.rig.num_cameras)]  # in the IMU's stamps
         self._imu_gaps = DeliveryGaps(window)  # in the cameras' newest stamps
+
+    def newest_frame(self, index: int) -> float:
+        """The newest stamp (s) of a frame of camera ``index`` accepted in this epoch (-inf: none yet)."""
+        return self._cam_newest[index]
 
     # ------------------------------------------------------------------ input
     def image(self, index: int, msg, now: float | None = None) -> None:

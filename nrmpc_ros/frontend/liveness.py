@@ -1,7 +1,12 @@
 """Which cameras publish: "stopped publishing" and "publishing again", and the end of the input.
 
-Times are arrival times on one monotonic clock (never message stamps, never
-ROS time). With ``timeout_s``:
+Times are arrival times on one monotonic clock (never ROS time). Each camera
+is given its own timeout: ``timeout_s``, or, for a driver or link that
+delivers in bursts, ``BURST_MARGIN`` times the spread of its delays (arrival
+minus the stamps of the frames the feeder accepted, over the last
+``SPREAD_WINDOW_S`` of arrivals: a few milliseconds for a steady camera, the
+burst interval for one that buffers; :mod:`~nrmpc_ros.frontend.delivery`).
+With those timeouts:
 
 - a camera is **stopped** when it has been silent for ``timeout_s`` while
   another camera went on publishing for ``timeout_s`` after its last image
@@ -9,7 +14,7 @@ ROS time). With ``timeout_s``:
 - a camera that never sent an image is **missing** once another camera has
   been publishing for ``timeout_s`` (wrong topic or transport?); until then
   the first images may simply still be on their way;
-- when every camera has been silent for ``timeout_s`` the **input ended**
+- when every camera has been silent for its timeout the **input ended**
   (a bag ended, a driver stopped): not a fault, and nothing is "stopped";
 - a stopped or missing camera that sends an image again is **publishing
   again**; so is the input after it ended.
@@ -28,7 +33,11 @@ from __future__ import annotations
 
 import math
 
+from .delivery import BURST_MARGIN, DelaySpread
+
 STALL_PERIODS = 1.5  # a check this many timer periods after the previous one came late: the process was stalled
+SPREAD_WINDOW_S = 60.0  # a camera's delays are judged over this much of its latest arrivals: a recording that
+# changes its habits is judged by its recent ones
 
 
 class CameraWatch:
@@ -45,9 +54,21 @@ class CameraWatch:
         self.state = ["waiting"] * len(self.names)  # waiting | live | stopped | missing
         self.ended: float | None = None  # when the input ended (arrival of its last image)
         self.ends = 0
+        self._delays = [DelaySpread(SPREAD_WINDOW_S) for _ in self.names]
+        self._epoch = 0
 
-    def seen(self, i: int, now: float) -> list:
-        """Camera ``i`` sent an image at ``now``."""
+    def timeout(self, i: int, now: float) -> float:
+        """Camera ``i``'s timeout (s): ``timeout_s``, or longer for a camera that delivers in bursts."""
+        return max(self.timeout_s, BURST_MARGIN * self._delays[i].spread(now))
+
+    def seen(self, i: int, now: float, stamp: float | None = None, epoch: int = 0) -> list:
+        """Camera ``i`` sent an image at ``now``; ``stamp``: its stamp (s) when the input accepted it (its
+        delay measures how the camera delivers), else None; ``epoch``: the input's count of jumps back in time
+        (the stamps of another epoch are on another timeline: the delays start afresh)."""
+        if epoch != self._epoch:
+            self._epoch, self._delays = epoch, [DelaySpread(SPREAD_WINDOW_S) for _ in self.names]
+        if stamp is not None:
+            self._delays[i].add(now, stamp)
         events = []
         if self.ended is not None:
             events.append(("info", f"the input resumed after {now - self.ended:.1f} s of silence: "
@@ -75,20 +96,21 @@ class CameraWatch:
         if self.first_any is None or self.ended is not None:
             return []
         newest = max(t for t in self.last if t is not None)
-        if now - newest > self.timeout_s:
+        timeouts = [self.timeout(i, now) for i in range(len(self.names))]
+        if all(t is None or now - t > limit for t, limit in zip(self.last, timeouts)):
             self.ended = newest
             self.ends += 1
             return [("ended", f"no images for {now - newest:.1f} s on any camera: the input ended (the open hold "
                               "is estimated now)")]
         events = []
         for i, name in enumerate(self.names):
-            t = self.last[i]
+            t, limit = self.last[i], timeouts[i]
             if t is None:
                 if self.state[i] != "missing" and newest - self.first_any > self.timeout_s:
                     self.state[i] = "missing"
                     events.append(("warn", f"camera {name}: no image yet while the other cameras publish for "
                                            f"{newest - self.first_any:.1f} s (wrong topic or transport?)"))
-            elif self.state[i] == "live" and now - t > self.timeout_s and newest - t > self.timeout_s:
+            elif self.state[i] == "live" and now - t > limit and newest - t > limit:
                 self.state[i] = "stopped"
                 events.append(("warn", f"camera {name} stopped publishing (nothing for {now - t:.1f} s while the "
                                        "other cameras publish)"))

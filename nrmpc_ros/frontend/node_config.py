@@ -40,7 +40,9 @@ class NodeConfig:
     image_transport: str = option("auto", "auto: raw sensor_msgs/Image on each camera's image topic if that is "
                                   "published, else CompressedImage on <topic>/compressed (looked at until the "
                                   "camera's first image); raw; compressed", choices=TRANSPORTS)
-    image_queue_size: int = option(10, "depth of each image subscription (messages)", lo=1, hi=10000)
+    image_queue_size: int = option(100, "depth of each image subscription (messages): what a camera may deliver "
+                                   "at once (a driver or link that buffers sends seconds of frames in one burst; "
+                                   "the node takes them every take_period_s)", lo=1, hi=10000)
     imu_queue_size: int = option(2000, "depth of the IMU subscription (samples; 2 s at 1 kHz)", lo=1, hi=1000000)
     take_period_s: float = option(0.01, "the messages waiting in the camera and IMU subscriptions are taken "
                                   "together this often (s) and handed over in the order of their stamps: the node "
@@ -52,7 +54,8 @@ class NodeConfig:
                                   "dropped and counted", lo=1, hi=100000)
     camera_timeout_s: float = option(2.0, "a camera silent this long while another publishes is reported stopped; "
                                      "every camera silent this long: the input ended and the open hold is "
-                                     "estimated (s)", lo=0.0, hi=3600.0, lo_open=True)
+                                     "estimated (s); longer for a camera that delivers in bursts (1.5 x the "
+                                     "spread of its delays)", lo=0.0, hi=3600.0, lo_open=True)
     diagnostics_period_s: float = option(1.0, "period of /diagnostics (s)", lo=0.0, hi=3600.0, lo_open=True)
     log_every_s: float = option(10.0, "dropped inputs of one kind after the first are logged as a count at most "
                                 "this often (s)", lo=0.0, hi=86400.0, lo_open=True)

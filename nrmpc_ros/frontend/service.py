@@ -265,10 +265,13 @@ class EstimatorService:
     def on_image(self, index: int, msg, now: float | None) -> None:
         """An image message of camera ``index``; ``now`` is the node's clock (s), None while it does not run."""
         with self._input_lock:
-            for level, line in self.watch.seen(index, self.clock()):
-                self.log(level, line)
+            before = self.feeder.newest_frame(index)
             self.received[self.camera_topics[index]] += 1
             self._guarded(self.camera_topics[index], self.feeder.image, index, msg, now)
+            after = self.feeder.newest_frame(index)  # the stamp of an accepted frame tells how the camera delivers
+            for level, line in self.watch.seen(index, self.clock(), after if after != before else None,
+                                               self.feeder.events["time jumps back"]):
+                self.log(level, line)
 
     def on_imu(self, msg, now: float | None) -> None:
         with self._input_lock:

@@ -1,0 +1,85 @@
+"""How an input delivers its messages: the silences it keeps while live, and the spread of its delays.
+
+A camera driver or link that buffers delivers in bursts: seconds of silence, then every frame of them at
+once. Neither the feeder's wait for an input nor the liveness check may take such a silence for a stop, so
+both measure it (README, "The ROS 2 node"; docs/ARCHITECTURE.md, "The node's two workers"):
+
+- :class:`DeliveryGaps`: the largest advance of another input's stamps between two deliveries of one input,
+  or the largest age of a message it delivered (the first burst shows its silence in the age of its oldest
+  message, before a second burst shows it as a gap);
+- :class:`DelaySpread`: the spread of arrival minus stamp over an input's messages, on any two clocks (their
+  offset cancels): a few milliseconds for a steady driver, the burst interval for one that buffers; a stop
+  and a restart leave it as it was (fresh frames come as fresh as before).
+
+Both forget what is older than their window, so a recording that changes its habits is judged by its recent
+ones. :data:`BURST_MARGIN` is how much longer than the longest silence seen an input is still waited for.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+BURST_MARGIN = 1.5  # an input that delivers in bursts is waited for this many times its longest silence seen:
+# its next burst may come somewhat later than the longest one so far
+
+
+class SlidingMax:
+    """The maximum of the values added within ``window_s`` of a time (a monotonic deque: O(1) amortised)."""
+
+    def __init__(self, window_s: float):
+        self.window_s = window_s
+        self._items: deque = deque()  # (at, value), values decreasing: the candidates for the maximum
+
+    def add(self, at: float, value: float) -> None:
+        while self._items and self._items[-1][1] <= value:
+            self._items.pop()
+        self._items.append((at, value))
+
+    def largest(self, now: float, default: float = 0.0) -> float:
+        while self._items and self._items[0][0] < now - self.window_s:
+            self._items.popleft()
+        return self._items[0][1] if self._items else default
+
+
+class DeliveryGaps:
+    """How long one input has been seen to stay silent while it was live, in another input's stamps, over the
+    last ``window_s`` of them (module docstring)."""
+
+    def __init__(self, window_s: float):
+        self.first = math.inf  # the other input's newest stamp at the first delivery
+        self._last = -math.inf  # the other input's newest stamp at the latest delivery
+        self._gaps = SlidingMax(window_s)
+
+    def delivered(self, other_newest: float, stamp: float) -> None:
+        """A message stamped ``stamp`` delivered while the other input's newest stamp was ``other_newest``."""
+        if other_newest == -math.inf:
+            return
+        self.first = min(self.first, other_newest)
+        gap = max(other_newest - stamp, other_newest - self._last if self._last > -math.inf else 0.0)
+        self._last = max(self._last, other_newest)
+        if gap > 0.0:
+            self._gaps.add(other_newest, gap)
+
+    def largest(self, other_newest: float) -> float:
+        """The largest gap (s) within the window of ``other_newest``; 0 before two deliveries."""
+        return self._gaps.largest(other_newest)
+
+
+class DelaySpread:
+    """The spread (s) of arrival minus stamp over one input's messages of the last ``window_s`` of arrivals."""
+
+    def __init__(self, window_s: float):
+        self._high, self._low = SlidingMax(window_s), SlidingMax(window_s)
+
+    def add(self, arrival: float, stamp: float) -> None:
+        delay = arrival - stamp
+        self._high.add(arrival, delay)
+        self._low.add(arrival, -delay)
+
+    def spread(self, now: float) -> float:
+        """Largest minus smallest delay within the window of ``now``; 0 before a message."""
+        return max(0.0, self._high.largest(now) + self._low.largest(now))
+
+
+__all__ = ["BURST_MARGIN", "DelaySpread", "DeliveryGaps", "SlidingMax"]
