@@ -33,6 +33,7 @@ try:  # rclpy is optional for the package; --help works without it
     from diagnostic_msgs.msg import DiagnosticArray
     from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
     from rclpy.callback_groups import CallbackGroup
+    from rclpy.event_handler import SubscriptionEventCallbacks
     from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, InvalidParameterValueException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
@@ -106,6 +107,7 @@ class EstimatorNode(Node):
         self.service = EstimatorService(self.rig, cfg, pipe_cfg, self.camera_topics, imu, self.publish_hold, self._log,
                                         publish_poses=self.publish_poses, publish_status=self.publish_markers)
         self._subs, self._transport = [None] * self.rig.num_cameras, [None] * self.rig.num_cameras
+        self._reliable = [None] * self.rig.num_cameras
         self._taken = TakenByTimer() if cfg.take_period_s > 0 else None
         for i in range(self.rig.num_cameras):
             self._subscribe_camera(i)
@@ -164,20 +166,34 @@ class EstimatorNode(Node):
         return values
 
     def _subscribe_camera(self, i: int) -> None:
+        """Subscribe camera ``i`` on the topic its transport says, reliably unless a publisher offers only best
+        effort (``node_config.images_reliable``); again when either changes while nothing came (the new
+        subscription first: the take thread always finds one). Reliable while no publisher is known: a
+        best-effort publisher then delivers nothing to it (incompatible), so the switch loses no image."""
         topic = self.rig.cameras[i].image_topic
-        publishers = {t: [p.topic_type for p in self.get_publishers_info_by_topic(t)]
-                      for t in cfgs.transport_topics(topic, self.resolve_topic_name)}  # not our own subscription
+        infos = {t: self.get_publishers_info_by_topic(t)
+                 for t in cfgs.transport_topics(topic, self.resolve_topic_name)}  # not our own subscription
+        publishers = {t: [p.topic_type for p in v] for t, v in infos.items()}
         choice = cfgs.transport(topic, self.cfg.image_transport, publishers, self.resolve_topic_name)
-        if choice == self._transport[i]:
+        reliable = cfgs.images_reliable([p.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+                                         for p in infos.get(choice[0], [])])
+        if (choice, reliable) == (self._transport[i], self._reliable[i]):
             return
-        if self._subs[i] is not None:
-            self.destroy_subscription(self._subs[i])
-            self._log("info", f"camera {self.rig.cameras[i].name}: subscribing to {choice[0]} instead (published)")
-        self._transport[i] = choice
+        qos = _sensor_qos(self.cfg.image_queue_size)
+        if reliable:
+            qos.reliability = ReliabilityPolicy.RELIABLE
+        old = self._subs[i]
+        self._transport[i], self._reliable[i] = choice, reliable
+        quiet = SubscriptionEventCallbacks(incompatible_qos=lambda _event: None)  # the switch below says it
         self._subs[i] = self.create_subscription(CompressedImage if choice[1] else Image, choice[0],
-                                                 lambda raw, i=i: self._on_image(i, raw),
-                                                 _sensor_qos(self.cfg.image_queue_size), callback_group=self._taken,
+                                                 lambda raw, i=i: self._on_image(i, raw), qos,
+                                                 callback_group=self._taken, event_callbacks=quiet,
                                                  raw=True)  # read in place (frontend/image_cdr.py)
+        if old is not None:
+            self.destroy_subscription(old)
+            how = "" if reliable else ", best effort as its publisher offers"
+            self._log("info", f"camera {self.rig.cameras[i].name}: subscribing to {choice[0]} instead "
+                              f"(published{how})")
 
     def _on_image(self, i: int, raw) -> None:
         """One serialized image of camera ``i``; runs only with ``take_period_s`` 0 (see :meth:`_on_imu`)."""
@@ -240,10 +256,9 @@ class EstimatorNode(Node):
         self.service.tick()
         for i in [i for i in self._info if i in self.service.camera_info]:
             self.destroy_subscription(self._info.pop(i))
-        if self.cfg.image_transport == "auto":
-            for i, topic in enumerate(self.camera_topics):
-                if not self.service.received[topic]:
-                    self._subscribe_camera(i)
+        for i, topic in enumerate(self.camera_topics):  # publishers that came since, while nothing came
+            if not self.service.received[topic]:
+                self._subscribe_camera(i)
         array = fill_message(DiagnosticArray(), self.service.diagnostic_fields(self.get_fully_qualified_name()))
         array.header.stamp = self.get_clock().now().to_msg()
         self.pubs["diag"].publish(array)

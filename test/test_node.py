@@ -161,6 +161,38 @@ def test_auto_transport_switches_when_a_compressed_camera_appears_after_the_node
     assert "nrmpc-take" not in [t.name for t in threading.enumerate()], "destroying the node ends its take thread"
 
 
+@pytest.mark.parametrize("reliable", [False, True], ids=["best effort", "reliable"])
+def test_images_are_taken_as_their_publisher_offers_whichever_starts_first(ctx, reliable):
+    """A camera driver that publishes best effort (most do) started after the node: the node, reliable while
+    it knows no publisher, goes best effort and receives its images; a reliable publisher (a bag played back)
+    is taken reliably, so a burst is not lost in the middleware."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
+
+    node = make_node(ctx, image_transport="raw", diagnostics_period_s=0.1)
+    camera = rclpy.create_node("camera", context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    try:
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE if reliable else
+                         ReliabilityPolicy.BEST_EFFORT)
+        pub = camera.create_publisher(Image, "/cam0/image_raw", qos)
+        raw = Image(height=480, width=640, encoding="mono8", step=640, data=bytes(640 * 480))
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not node.service.received[node.camera_topics[0]]:
+            raw.header.stamp.sec += 1
+            pub.publish(raw)
+            executor.spin_once(timeout_sec=0.1)
+        assert node.service.received[node.camera_topics[0]] > 0
+        sub = next(s for s in node.subscriptions if s.topic_name == "/cam0/image_raw")
+        want = ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT
+        assert sub.qos_profile.reliability == want
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        camera.destroy_node()
+        node.destroy_node()
+
+
 def hold_estimate():
     rng = np.random.default_rng(7)
     R0k = exp_so3(rng.normal(scale=0.3, size=3))

@@ -49,21 +49,27 @@ class DeliveryGaps:
     def __init__(self, window_s: float):
         self.first = math.inf  # the other input's newest stamp at the first delivery
         self._last = -math.inf  # the other input's newest stamp at the latest delivery
-        self._gaps = SlidingMax(window_s)
+        self._gaps, self._ages = SlidingMax(window_s), SlidingMax(window_s)
 
     def delivered(self, other_newest: float, stamp: float) -> None:
         """A message stamped ``stamp`` delivered while the other input's newest stamp was ``other_newest``."""
         if other_newest == -math.inf:
             return
         self.first = min(self.first, other_newest)
-        gap = max(other_newest - stamp, other_newest - self._last if self._last > -math.inf else 0.0)
+        if self._last > -math.inf and other_newest > self._last:
+            self._gaps.add(other_newest, other_newest - self._last)
         self._last = max(self._last, other_newest)
-        if gap > 0.0:
-            self._gaps.add(other_newest, gap)
+        if other_newest > stamp:
+            self._ages.add(other_newest, other_newest - stamp)
 
     def largest(self, other_newest: float) -> float:
-        """The largest gap (s) within the window of ``other_newest``; 0 before two deliveries."""
-        return self._gaps.largest(other_newest)
+        """The longest silence (s) within the window of ``other_newest``: a gap or an age; 0 before any."""
+        return max(self._gaps.largest(other_newest), self._ages.largest(other_newest))
+
+    def largest_age(self, other_newest: float) -> float:
+        """The largest age (s) of a message delivered within the window: a burst's backlog (a camera that
+        stopped and started again delivers fresh messages: a gap, not an age)."""
+        return self._ages.largest(other_newest)
 
 
 class DelaySpread:

@@ -148,6 +148,17 @@ class Feeder:
         self._cam_gaps = [DeliveryGaps(window) for _ in range(self.rig.num_cameras)]  # in the IMU's stamps
         self._imu_gaps = DeliveryGaps(window)  # in the cameras' newest stamps
 
+    def burst_frame_sets(self) -> int:
+        """The most frame sets one delivery of a camera has brought lately: the largest age of a frame it
+        delivered (:class:`~nrmpc_ros.frontend.delivery.DeliveryGaps`, in the IMU's stamps) over the smallest
+        frame period; 0 without an IMU, or when no frame came more than ``imu_wait_s`` old (latency, not a
+        backlog)."""
+        periods = [p for p in self.sync.periods if p > 0]
+        if not periods or self._imu_newest == -math.inf:
+            return 0
+        backlog = max(g.largest_age(self._imu_newest) for g in self._cam_gaps)
+        return math.ceil(backlog / min(periods)) if backlog > self.config.imu_wait_s else 0
+
     def newest_frame(self, index: int) -> float:
         """The newest stamp (s) of a frame of camera ``index`` accepted in this epoch (-inf: none yet)."""
         return self._cam_newest[index]

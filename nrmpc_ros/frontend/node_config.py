@@ -214,6 +214,15 @@ def transport_topics(topic: str, resolve) -> tuple:
     return base, resolve(comp) if resolve(comp) != resolve(comp, only_expand=True) else compressed_topic(base)
 
 
+def images_reliable(offers: list) -> bool:
+    """Whether to subscribe a camera's images reliably, given whether each of its publishers offers reliable
+    delivery: unless one offers only best effort (then best effort, which matches every publisher). A burst of
+    images (a driver or link that buffers, a bag played back) overflows the middleware's buffers, and best
+    effort loses frames without a trace. With no publisher seen yet: reliable, which a best-effort publisher
+    does not serve, so the node can still switch without losing an image."""
+    return all(offers)
+
+
 def transport(topic: str, how: str, publishers: dict, resolve) -> tuple:
     """(topic to subscribe, compressed?) for a rig file's image ``topic`` with ``image_transport`` ``how``, the
     message types *published* per topic (:func:`transport_topics` names the topics that matter; subscriptions,
@@ -257,5 +266,6 @@ def find_file(path: str, what: str, shares: list | None = None) -> Path:
 
 
 __all__ = ["NodeConfig", "PACKAGE", "TRANSPORTS", "command_line", "configs_from_parameters", "describe_parameter",
+           "images_reliable",
            "find_file", "imu_topic", "parameter_descriptor", "parameter_fields", "parameter_range", "parameters_help",
            "share_directories", "transport", "unknown_parameters", "usage", "user_arguments"]

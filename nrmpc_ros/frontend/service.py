@@ -40,6 +40,7 @@ import numpy as np
 
 from ..core.rig import Rig
 from .camera_info import camera_info_mismatch
+from .delivery import BURST_MARGIN
 from .diagnostics import ERROR, OK, WARN, ServiceDiagnostics, Status
 from .droplog import DropLog
 from .drops import Drop
@@ -352,6 +353,10 @@ class EstimatorService:
         change = 0.0
         if work.kind is WorkKind.FRAMES:
             change, self._small = image_change(self._small, work.data[0].images)
+            # a camera that delivers in bursts brings seconds of frame sets at once: room for a burst, not a
+            # drop of its moves while the estimator would catch up before the next one
+            burst = math.ceil(BURST_MARGIN * self.feeder.burst_frame_sets())
+            self.queue.max_frames = max(self.config.work_queue_size, burst)
         elif work.kind.ends_sequence:  # the next set is compared with nothing: it starts a sequence
             self._small = [None] * self.rig.num_cameras
         dropped = self.queue.put(work, change)
