@@ -167,8 +167,9 @@ class EstimatorNode(Node):
 
     def _subscribe_camera(self, i: int) -> None:
         """Subscribe camera ``i`` on the topic its transport says, reliably unless a publisher offers only best
-        effort (``node_config.images_reliable``); again when either changes while nothing came (the new
-        subscription first: the take thread always finds one). Reliable while no publisher is known: a
+        effort (``node_config.images_reliable``); again when either changes while nothing comes (before the
+        first image, or while the camera is silent: a driver started again with other QoS), the new
+        subscription first: the take thread always finds one. Reliable while no publisher is known: a
         best-effort publisher then delivers nothing to it (incompatible), so the switch loses no image."""
         topic = self.rig.cameras[i].image_topic
         infos = {t: self.get_publishers_info_by_topic(t)
@@ -256,8 +257,8 @@ class EstimatorNode(Node):
         self.service.tick()
         for i in [i for i in self._info if i in self.service.camera_info]:
             self.destroy_subscription(self._info.pop(i))
-        for i, topic in enumerate(self.camera_topics):  # publishers that came since, while nothing came
-            if not self.service.received[topic]:
+        for i, topic in enumerate(self.camera_topics):  # publishers that came since, while nothing comes
+            if not self.service.received[topic] or self.service.watch.is_silent(i):
                 self._subscribe_camera(i)
         array = fill_message(DiagnosticArray(), self.service.diagnostic_fields(self.get_fully_qualified_name()))
         array.header.stamp = self.get_clock().now().to_msg()

@@ -161,6 +161,36 @@ def test_auto_transport_switches_when_a_compressed_camera_appears_after_the_node
     assert "nrmpc-take" not in [t.name for t in threading.enumerate()], "destroying the node ends its take thread"
 
 
+def test_a_camera_started_again_best_effort_after_a_reliable_one_is_followed(ctx):
+    """A bag played back (reliable), then the live driver (best effort): once the camera is silent the node
+    looks at its publishers again and takes the driver's images."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
+
+    node = make_node(ctx, image_transport="raw", diagnostics_period_s=0.1, camera_timeout_s=0.3)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    raw = Image(height=480, width=640, encoding="mono8", step=640, data=bytes(640 * 480))
+    topic = node.camera_topics[0]
+    try:
+        for reliability in (ReliabilityPolicy.RELIABLE, ReliabilityPolicy.BEST_EFFORT):
+            camera = rclpy.create_node("camera", context=ctx)
+            pub = camera.create_publisher(Image, "/cam0/image_raw", QoSProfile(depth=10, reliability=reliability))
+            before, deadline = node.service.received[topic], time.monotonic() + 10
+            while time.monotonic() < deadline and node.service.received[topic] <= before:
+                raw.header.stamp.sec += 1
+                pub.publish(raw)
+                executor.spin_once(timeout_sec=0.1)
+            assert node.service.received[topic] > before, reliability
+            camera.destroy_node()
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline and not node.service.watch.is_silent(0):
+                executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+
+
 @pytest.mark.parametrize("reliable", [False, True], ids=["best effort", "reliable"])
 def test_images_are_taken_as_their_publisher_offers_whichever_starts_first(ctx, reliable):
     """A camera driver that publishes best effort (most do) started after the node: the node, reliable while

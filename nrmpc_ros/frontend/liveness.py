@@ -116,6 +116,10 @@ class CameraWatch:
                                        "other cameras publish)"))
         return events
 
+    def is_silent(self, i: int) -> bool:
+        """Whether camera ``i`` is stopped or missing, or the input ended."""
+        return self.ended is not None or self.state[i] in ("stopped", "missing")
+
     def silent(self) -> list:
         """Names of the cameras stopped or missing now."""
         return [n for n, s in zip(self.names, self.state) if s in ("stopped", "missing")]
