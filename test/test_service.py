@@ -123,6 +123,26 @@ def test_sets_arriving_while_the_estimator_is_busy_are_dropped_counted_and_logge
     assert "worker: frame set dropped while the estimator is busy" in s.summary()
 
 
+def test_a_burst_of_late_frames_finds_room_in_the_work_queue_and_steady_frames_do_not_widen_it(rig):
+    """A camera link that buffers: 2 s of frame sets arrive at once, 2 s after the IMU samples of their time.
+    They are a backlog, not a busy estimator's surplus: the queue holds them all (none dropped); frames that
+    come on time keep the configured bound."""
+    s, _, _ = service(rig, work_queue_size=4)
+    def imu_until(t0, t1):
+        for k in range(int(round((t1 - t0) * 200))):
+            s.on_imu(imu(t0 + k / 200), None)
+    for k in range(10):  # one steady second, the worker keeping up
+        imu_until(100.0 + 0.1 * k, 100.1 + 0.1 * k)
+        feed_sets(s, [100.0 + 0.1 * k])
+        while s.queue.frames():
+            s.work_once()
+    assert s.queue.max_frames == 4, "on time: the configured bound"
+    imu_until(101.0, 103.0)
+    feed_sets(s, [101.0 + 0.1 * k for k in range(20)])  # the burst
+    assert s.drops.counts().get(("worker", Drop.BUSY_FRAME_SET), 0) == 0
+    assert s.queue.frames() >= 19 and s.queue.max_frames >= 20
+
+
 def test_the_end_of_the_input_flushes_and_the_diagnostics_say_so(rig):
     clock = Clock()
     s, _, logs = service(rig, clock=clock, camera_timeout_s=1.0)
