@@ -62,6 +62,11 @@ class DeliveryGaps:
         if other_newest > stamp:
             self._ages.add(other_newest, other_newest - stamp)
 
+    @property
+    def last(self) -> float:
+        """The other input's newest stamp at this input's latest delivery (-inf before one)."""
+        return self._last
+
     def largest(self, other_newest: float) -> float:
         """The longest silence (s) within the window of ``other_newest``: a gap or an age; 0 before any."""
         return max(self._gaps.largest(other_newest), self._ages.largest(other_newest))

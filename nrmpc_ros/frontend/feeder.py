@@ -141,12 +141,11 @@ class Feeder:
         self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
         self._imu: deque = deque()  # (stamp, accel, gyro, covariances or None)
         self._imu_newest = -math.inf
-        self._cams_at_imu = -math.inf  # the cameras' newest stamp when the latest IMU sample arrived
         self._cam_newest = [-math.inf] * self.rig.num_cameras  # newest frame accepted per camera
-        self._cam_seen = [-math.inf] * self.rig.num_cameras  # the IMU's newest stamp when each camera last sent
-        window = 2 * c.imu_max_lag_s
-        self._cam_gaps = [DeliveryGaps(window) for _ in range(self.rig.num_cameras)]  # in the IMU's stamps
-        self._imu_gaps = DeliveryGaps(window)  # in the cameras' newest stamps
+        window = 2 * c.imu_max_lag_s  # each camera's deliveries in the IMU's stamps (.last: the IMU's newest
+        # when it last sent), the IMU's in the cameras' newest stamps (.last: theirs when its latest sample came)
+        self._cam_gaps = [DeliveryGaps(window) for _ in range(self.rig.num_cameras)]
+        self._imu_gaps = DeliveryGaps(window)
 
     def burst_frame_sets(self) -> int:
         """The most frame sets one delivery of a camera has brought lately: the largest age of a frame it
@@ -213,8 +212,7 @@ class Feeder:
         good = bool(n) and bool(np.isfinite(a).all() and np.isfinite(w).all() and a.any(axis=1).all())
         if good and t[0] > self._imu_newest and self.guard.accept_run(IMU, t, now):
             self._imu_newest = float(t[-1])
-            self._cams_at_imu = max(self._cam_newest)
-            self._imu_gaps.delivered(self._cams_at_imu, float(t[0]))
+            self._imu_gaps.delivered(max(self._cam_newest), float(t[0]))
             covs = zip(block.accel_cov, block.gyro_cov)
             self._imu.extend((s, ai, wi, c) for s, ai, wi, c in zip(t.tolist(), a.tolist(), w.tolist(), covs))
             self._release()
@@ -290,12 +288,10 @@ class Feeder:
                            f"{stamp:.6f} s is not newer than the last one ({self._imu_newest:.6f} s)")
                 return
             self._imu_newest = stamp
-            self._cams_at_imu = max(self._cam_newest)
-            self._imu_gaps.delivered(self._cams_at_imu, stamp)
+            self._imu_gaps.delivered(max(self._cam_newest), stamp)
             self._imu.append((stamp, *payload))
         else:
             self._cam_newest[stream] = max(self._cam_newest[stream], stamp)
-            self._cam_seen[stream] = self._imu_newest
             self._cam_gaps[stream].delivered(self._imu_newest, stamp)
             self._emit_sets(self.sync.add(stream, stamp, payload))
         self._release()
@@ -314,8 +310,8 @@ class Feeder:
         """No frame set to come is older than this (s): the sets waiting, the frames grouped, the live cameras'
         newest frames (module docstring, step 4); and IMU samples leave at least imu_wait_s behind the newest."""
         wait, lag, newest = self.config.imu_wait_s, self.config.imu_max_lag_s, self._imu_newest
-        live = [t for t, seen, gaps in zip(self._cam_newest, self._cam_seen, self._cam_gaps)
-                if t >= newest - wait or (t >= newest - lag and seen >= newest - self._silence(gaps, newest, True))]
+        live = [t for t, g in zip(self._cam_newest, self._cam_gaps)
+                if t >= newest - wait or (t >= newest - lag and newest - g.last <= self._silence(g, newest, True))]
         live += [newest - lag for t in self._cam_newest if t == -math.inf]  # not started yet: the IMU may lead
         waiting = self._frames[0][0].stamp if self._frames else math.inf
         return min(waiting, self.sync.oldest, min(live, default=math.inf), newest - wait)
@@ -326,7 +322,7 @@ class Feeder:
         newest, wait = max(self._cam_newest), self.config.imu_wait_s
         ahead = newest - stamp
         silence = self._silence(self._imu_gaps, newest)
-        return ahead > self.config.imu_max_lag_s or (ahead > wait and newest - self._cams_at_imu > silence)
+        return ahead > self.config.imu_max_lag_s or (ahead > wait and newest - self._imu_gaps.last > silence)
 
     def _silence(self, gaps: DeliveryGaps, other_newest: float, young: bool = False) -> float:
         """How long (in the other input's stamps) an input may stay silent and still be waited for (module

@@ -84,19 +84,18 @@ class _Cursor:
         if self.pos + n > len(self.buf):
             raise IndexError(f"a field at byte {self.pos} needs {n} bytes, the message has {len(self.buf)}")
 
-    def uint32(self) -> int:
-        self._align(4)
-        self._need(4)
-        (v,) = self.u32.unpack_from(self.buf, self.pos)
-        self.pos += 4
+    def _scalar(self, fmt: struct.Struct) -> int:
+        self._align(fmt.size)
+        self._need(fmt.size)
+        (v,) = fmt.unpack_from(self.buf, self.pos)
+        self.pos += fmt.size
         return v
 
+    def uint32(self) -> int:
+        return self._scalar(self.u32)
+
     def int32(self) -> int:
-        self._align(4)
-        self._need(4)
-        (v,) = self.i32.unpack_from(self.buf, self.pos)
-        self.pos += 4
-        return v
+        return self._scalar(self.i32)
 
     def uint8(self) -> int:
         self._need(1)

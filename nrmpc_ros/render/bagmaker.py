@@ -124,11 +124,10 @@ class BagOptions:
         if not (_real(self.exposure_period_s) and self.exposure_period_s > 0):
             raise OptionError(_OWNER, "exposure_period_s", f"must be a finite number > 0, "
                               f"got {self.exposure_period_s!r}")
-        for name in ("camera_latency_ms", "camera_burst_s"):
+        for name, top in (("camera_latency_ms", 10000), ("camera_burst_s", 10)):
             value = getattr(self, name)
-            if not (_real(value) and 0 <= value <= (1e4 if name == "camera_latency_ms" else 10.0)):
-                raise OptionError(_OWNER, name, f"must be a finite number in [0, "
-                                                f"{'10000' if name == 'camera_latency_ms' else '10'}], got {value!r}")
+            if not (_real(value) and 0 <= value <= top):
+                raise OptionError(_OWNER, name, f"must be a finite number in [0, {top}], got {value!r}")
         if not (_real(self.drop_rate) and 0 <= self.drop_rate < 1):
             raise OptionError(_OWNER, "drop_rate", f"must be in [0, 1), got {self.drop_rate!r}")
         if self.damping is not None:
