@@ -130,20 +130,23 @@ def test_settled_views_are_placed_by_resection(noisy, monkeypatch):
 
 def test_a_noisier_view_weighs_less_and_its_std_grows():
     """A view that says its bearings carry extra noise (a hold whose bars may still ring) gets the noise scale
-    sqrt(1 + (extra / nominal)^2): its observations weigh less, its pose's std grows by about the scale, and
-    the (shared) gravity's std grows a little."""
+    sqrt(1 + (extra / nominal)^2): its observations weigh less, its pose's std grows by most of the scale, and
+    the (shared) gravity's std grows a little. With the window's a posteriori noise per (hold, camera)
+    (camera_noise) the view's residuals, small for the noise it claimed, take back most of the scale (a
+    factor of 0.15-0.3 here: the residuals measure the view's noise), and its pose's std still grows."""
     p = make_sequence(SequenceScenario(rig=RING3, num_views=5, pixel_noise=0.3), seed=3)
     plain = IncrementalSequence(p.rig, "6pt-bending")
     assert plain.noise_scale(0.0) == 1.0 and plain.noise_scale(math.nan) == 1.0
     assert plain.noise_scale(3.0 * plain.noise_rad) == pytest.approx(math.sqrt(10.0))
-    out = feed(plain, p)
-    told = IncrementalSequence(p.rig, "6pt-bending")
-    for k, (c, t, f, g) in enumerate(views(p)):
-        last = told.add_view(c, t, f, g, None, noise_scale=10.0 if k == 4 else 1.0)
-    assert not isinstance(out[-1], str) and not isinstance(last, str)
-    assert last.gravity_sigma_rad > out[-1].gravity_sigma_rad
-    rot = [math.sqrt(np.trace(v.cov_pose[:3, :3])) for v in (out[-1], last)]
-    assert rot[1] > 4.0 * rot[0]
+    for options, growth in (({"camera_noise": False}, 4.0), ({}, 1.3)):
+        out = feed(IncrementalSequence(p.rig, "6pt-bending", options), p)
+        told = IncrementalSequence(p.rig, "6pt-bending", options)
+        for k, (c, t, f, g) in enumerate(views(p)):
+            last = told.add_view(c, t, f, g, None, noise_scale=10.0 if k == 4 else 1.0)
+        assert not isinstance(out[-1], str) and not isinstance(last, str)
+        assert last.gravity_sigma_rad > out[-1].gravity_sigma_rad
+        rot = [math.sqrt(np.trace(v.cov_pose[:3, :3])) for v in (out[-1], last)]
+        assert rot[1] > growth * rot[0], (options, rot)
 
 
 def test_a_view_back_at_an_old_place_continues_the_sequence(noisy):

@@ -722,7 +722,8 @@ class IncrementalSequence:
                                    max_iterations=self.options.max_iterations, rounds=self.options.window_rounds,
                                    huber_k=self.options.estimator.huber_k, inliers=start,
                                    min_rounds=1 if warm else 2, tol=self.options.relative_tolerance,
-                                   camera_noise=self.options.camera_noise)
+                                   camera_noise=self.options.camera_noise,
+                                   inlier_sigmas=self.options.inlier_sigmas)
         st = res.state
         for i in free:
             s.views[i].R, s.views[i].t = st.R[i], st.t[i]

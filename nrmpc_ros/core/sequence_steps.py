@@ -31,6 +31,7 @@ from .bundle import (
     adjust_bundle,
     camera_noise_factors,
     cluster_robust_covariance,
+    robust_sigma,
 )
 from .estimators import RIGID_REASON, EstimatorOptions, estimate, pair_method
 from .loss import msac_score
@@ -101,6 +102,10 @@ class SequenceOptions:
                                            "apart", lo=0.0, hi=0.5, lo_open=True)
     window_rounds: int = option(2, "view by view: joint adjustments of the window while its inliers change",
                                 lo=1, hi=100)
+    inlier_sigmas: float = option(5.0, "after a joint adjustment, an observation stays an inlier within this many "
+                                  "of its (hold, camera)'s bulk noise (per axis, from the median residual), the "
+                                  "fixed threshold at most (null: the fixed threshold alone)", lo=1.0,
+                                  nullable=True)
 
     def __post_init__(self):
         check(self, "sequence options")
@@ -277,11 +282,13 @@ def camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, huber_k: 
 
 
 def hold_camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, huber_k: float,
-                            bias_floor_px: float = CORRESPONDENCE_BIAS_FLOOR_PX) -> np.ndarray:
+                            bias_floor_px: float = CORRESPONDENCE_BIAS_FLOOR_PX,
+                            measured_on: Observations | None = None) -> np.ndarray:
     """Each observation's angular noise relative to ``res.sigma_rad`` (N,): the a posteriori variance factor of
     its (hold, camera) from the residuals of the solve ``res`` on ``obs``, with the correspondence-bias floor
     ``bias_floor_px`` / focal length added in quadrature (docs/PIPELINE.md, "The joint estimate over the
-    sequence", step 5).
+    sequence", step 5). ``measured_on``: observations of the same views (a superset of ``obs``, landmarks
+    triangulated at the solve) whose residuals measure the noise instead, never below that of ``obs``.
 
     The correspondences' remaining bias is the same in every frame of a hold and differs between holds and
     cameras (the viewpoint change to the landmark's reference patch, the settling of that hold's bars): one
@@ -291,11 +298,17 @@ def hold_camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, hube
     keeps the factor 1 (too few to tell)."""
     _, prob = triangulated(rig, obs, res.state)
     M = rig.num_cameras
-    group = obs.view * M + obs.cam
-    factors = camera_noise_factors(prob.residuals(res.state), group, obs.num_views * M, huber_k)
+    e = prob.residuals(res.state)
+    factors = camera_noise_factors(e, obs.view * M + obs.cam, obs.num_views * M, huber_k)
+    if measured_on is not None and len(measured_on) >= 10:
+        wide, wprob = triangulated(rig, measured_on, res.state)
+        ew = wprob.residuals(wide)
+        level = robust_sigma(ew, 0, 0, huber_k=huber_k) / max(robust_sigma(e, 0, 0, huber_k=huber_k), 1e-300)
+        factors = max(level, 1.0) * camera_noise_factors(ew, measured_on.view * M + measured_on.cam,
+                                                          obs.num_views * M, huber_k)
     focal = np.array([c.focal_px for c in rig.cameras])[obs.cam]
     floor = bias_floor_px / focal / max(res.sigma_rad, 1e-12)
-    return np.sqrt(factors[group] ** 2 + floor**2)
+    return np.sqrt(factors[obs.view * M + obs.cam] ** 2 + floor**2)
 
 
 # Significance of the test of the measured gravities against the joint solution (chi-square, upper tail).
@@ -379,16 +392,54 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
     return best, len(candidates)
 
 
+# Median length of a 2-D Gaussian error of unit std per axis (Rayleigh): a residual norm's median over it is
+# the per-axis noise of the bulk, blind to a tail of any weight below half.
+RAYLEIGH_MEDIAN = math.sqrt(2.0 * math.log(2.0))
+# Fewest inliers of one (hold, camera) whose median gives its own noise; fewer take the bulk of all.
+MIN_GROUP_INLIERS = 10
+
+
+def inlier_bounds(errors: np.ndarray, group: np.ndarray, inliers: np.ndarray, threshold: float,
+                  sigmas: float | None) -> np.ndarray:
+    """Each observation's inlier bound (N,), rad: ``sigmas`` times the bulk noise of its group (per axis,
+    the median residual norm of the group's current ``inliers`` over :data:`RAYLEIGH_MEDIAN`; a group with
+    fewer than :data:`MIN_GROUP_INLIERS` takes all inliers'), never above the fixed ``threshold``.
+
+    The fixed threshold (pixels chosen for a rough start) is tens of times the noise of averaged tracks: a
+    tail of correspondences at 0.1-2 px, each within it, pulls gravity more than the slight bending of a
+    stiff bar tells (docs/PIPELINE.md, "The joint estimate over the sequence"). A bound from the measured
+    noise cuts that tail and keeps a Gaussian bulk whole (beyond 5 stds: 4e-6 of it); each hold's camera
+    its own noise, so a hold that rings or a blurrier camera is judged by its own spread, not the sharpest."""
+    errors = np.asarray(errors, float)
+    if sigmas is None or not np.any(inliers):
+        return np.full(len(errors), threshold)
+    group = np.asarray(group, np.int64)
+    inl = np.asarray(inliers, bool)
+    noise = np.full(int(group.max()) + 1, float(np.median(errors[inl])) / RAYLEIGH_MEDIAN)
+    count = np.bincount(group[inl], minlength=len(noise))
+    order = np.argsort(group[inl], kind="stable")
+    e_sorted, g_sorted = errors[inl][order], group[inl][order]
+    starts = np.searchsorted(g_sorted, np.flatnonzero(count >= MIN_GROUP_INLIERS))
+    for g, a in zip(np.flatnonzero(count >= MIN_GROUP_INLIERS), starts):  # groups, not observations
+        noise[g] = float(np.median(e_sorted[a:a + count[g]])) / RAYLEIGH_MEDIAN
+    return np.minimum(threshold, sigmas * noise[group])
+
+
 def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float, *, priors=None,
                     gravity_information: GravityInformation | None = None, points=None, free_views=None,
                     max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0,
-                    inliers=None, min_rounds: int = 2, tol: float = 1e-6, camera_noise: bool = False):
+                    inliers=None, min_rounds: int = 2, tol: float = 1e-6, camera_noise: bool = False,
+                    inlier_sigmas: float | None = None):
     """Robust joint adjustment: classify observations as inliers (angular error below ``threshold``, rad,
     ``start_factor`` times that at the start, where the poses are only roughly right, and within the given
     ``inliers`` mask, for a start that is already adjusted and classified), adjust on the inliers, re-classify every
     observation and repeat (at least ``min_rounds`` times, each round from landmarks triangulated at the
     poses so far) while the inlier set changes by more than 1 %; ``tol``: relative cost decrease that ends an
-    adjustment. ``camera_noise``: a last adjustment weighs each hold's camera by its own noise
+    adjustment. ``inlier_sigmas``: after an adjustment an observation is an inlier within that many of its
+    (hold, camera)'s measured noise, ``threshold`` at most (:func:`inlier_bounds`); the noise the
+    ``camera_noise`` weighing measures stays that of every observation within ``threshold``: the tail the bound
+    cuts no longer pulls the estimate, but it is part of the noise the std must carry. ``camera_noise``: a last
+    adjustment weighs each hold's camera by its own noise
     (:func:`hold_camera_noise_scale` of the solve so far, at that solve's sigma, kept fixed), so its covariance
     carries each (hold, camera)'s a posteriori variance factor and the correspondence-bias floor; with measured
     gravity priors that disagree with the solve beyond their stds, vision's noise is inflated by the excess
@@ -414,14 +465,22 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
         new_full, prob = triangulated(rig, obs, res.state)
         new_full.points[used] = res.state.points
         full = new_full
-        new = _seen_twice(obs, observation_errors(prob, full) < threshold)
+        errors = observation_errors(prob, full)
+        bound = inlier_bounds(errors, obs.view * rig.num_cameras + obs.cam, inl & (errors < threshold), threshold,
+                              inlier_sigmas)
+        new = _seen_twice(obs, errors < bound)
         changed = int(np.count_nonzero(new != inl))
         inl = new
         if r + 1 >= min_rounds and changed <= max(2, 0.01 * np.count_nonzero(inl)):
             break  # a rough start always gets a second round: from landmarks triangulated at the refined poses
     if camera_noise and res is not None:  # on the observations of the last adjustment (its landmarks)
         st = res.state
-        scale = hold_camera_noise_scale(rig, sub, res, huber_k) * math.sqrt(measured_gravity_excess(priors, st))
+        # the noise is measured on every observation within the fixed threshold: the bound from the bulk noise
+        # keeps the tail from pulling the estimate, but the tail is noise the std must carry (robust_sigma)
+        within = _seen_twice(obs, errors < threshold) if inlier_sigmas is not None else None
+        scale = hold_camera_noise_scale(rig, sub, res, huber_k,
+                                        measured_on=None if within is None else obs.subset(within)[0])
+        scale = scale * math.sqrt(measured_gravity_excess(priors, st))
         sub = replace(sub, scale=scale if sub.scale is None else sub.scale * scale)
         weighed = adjust_bundle(rig, sub, st.R, st.t, st.gravity, st.points, priors=priors,
                                 gravity_information=gravity_information, free_views=free_views,
@@ -545,7 +604,7 @@ def adjust_sequence(model_rig: Rig, tracks: Tracks, obs: Observations, obs_index
     robust adjustment (:func:`refine_sequence`) is followed by the repair of broken links (:func:`repair_links`);
     every view's gravity and its std come from the adjusted sequence's one gravity."""
     refine = dict(priors=priors, max_iterations=opts.max_iterations, rounds=opts.inlier_rounds,
-                  huber_k=opts.estimator.huber_k, tol=opts.relative_tolerance)
+                  huber_k=opts.estimator.huber_k, tol=opts.relative_tolerance, inlier_sigmas=opts.inlier_sigmas)
     res, inl = refine_sequence(model_rig, obs, R, t, gravity, threshold, **refine)
     res, inl, repairs = repair_links(model_rig, tracks, obs, res, inl, method, threshold, opts, seed, **refine)
     inliers = np.zeros(len(tracks), bool)
