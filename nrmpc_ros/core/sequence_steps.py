@@ -288,7 +288,8 @@ def hold_camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, hube
     its (hold, camera) from the residuals of the solve ``res`` on ``obs``, with the correspondence-bias floor
     ``bias_floor_px`` / focal length added in quadrature (docs/PIPELINE.md, "The joint estimate over the
     sequence", step 5). ``measured_on``: observations of the same views (a superset of ``obs``, landmarks
-    triangulated at the solve) whose residuals measure the noise instead, never below that of ``obs``.
+    triangulated at the solve) whose residuals give the noise's level instead, never below that of ``obs``
+    (the factors between holds' cameras, which decide the estimate, stay those of ``obs``).
 
     The correspondences' remaining bias is the same in every frame of a hold and differs between holds and
     cameras (the viewpoint change to the landmark's reference patch, the settling of that hold's bars): one
@@ -302,10 +303,8 @@ def hold_camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, hube
     factors = camera_noise_factors(e, obs.view * M + obs.cam, obs.num_views * M, huber_k)
     if measured_on is not None and len(measured_on) >= 10:
         wide, wprob = triangulated(rig, measured_on, res.state)
-        ew = wprob.residuals(wide)
-        level = robust_sigma(ew, 0, 0, huber_k=huber_k) / max(robust_sigma(e, 0, 0, huber_k=huber_k), 1e-300)
-        factors = max(level, 1.0) * camera_noise_factors(ew, measured_on.view * M + measured_on.cam,
-                                                          obs.num_views * M, huber_k)
+        level = robust_sigma(wprob.residuals(wide), 0, 0, huber_k=huber_k)
+        factors = factors * max(level / max(robust_sigma(e, 0, 0, huber_k=huber_k), 1e-300), 1.0)
     focal = np.array([c.focal_px for c in rig.cameras])[obs.cam]
     floor = bias_floor_px / focal / max(res.sigma_rad, 1e-12)
     return np.sqrt(factors[obs.view * M + obs.cam] ** 2 + floor**2)
@@ -436,9 +435,9 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
     observation and repeat (at least ``min_rounds`` times, each round from landmarks triangulated at the
     poses so far) while the inlier set changes by more than 1 %; ``tol``: relative cost decrease that ends an
     adjustment. ``inlier_sigmas``: after an adjustment an observation is an inlier within that many of its
-    (hold, camera)'s measured noise, ``threshold`` at most (:func:`inlier_bounds`); the noise the
-    ``camera_noise`` weighing measures stays that of every observation within ``threshold``: the tail the bound
-    cuts no longer pulls the estimate, but it is part of the noise the std must carry. ``camera_noise``: a last
+    (hold, camera)'s measured noise, ``threshold`` at most (:func:`inlier_bounds`); the level of the noise
+    the ``camera_noise`` weighing measures stays that of every observation within ``threshold``: the tail the
+    bound cuts no longer pulls the estimate, but it is part of the noise the std must carry. ``camera_noise``: a last
     adjustment weighs each hold's camera by its own noise
     (:func:`hold_camera_noise_scale` of the solve so far, at that solve's sigma, kept fixed), so its covariance
     carries each (hold, camera)'s a posteriori variance factor and the correspondence-bias floor; with measured
@@ -475,8 +474,8 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
             break  # a rough start always gets a second round: from landmarks triangulated at the refined poses
     if camera_noise and res is not None:  # on the observations of the last adjustment (its landmarks)
         st = res.state
-        # the noise is measured on every observation within the fixed threshold: the bound from the bulk noise
-        # keeps the tail from pulling the estimate, but the tail is noise the std must carry (robust_sigma)
+        # the noise's level is measured on every observation within the fixed threshold: the bound from the bulk
+        # noise keeps the tail from pulling the estimate, but the tail is noise the std must carry (robust_sigma)
         within = _seen_twice(obs, errors < threshold) if inlier_sigmas is not None else None
         scale = hold_camera_noise_scale(rig, sub, res, huber_k,
                                         measured_on=None if within is None else obs.subset(within)[0])
