@@ -132,13 +132,13 @@ def test_a_noisier_view_weighs_less_and_its_std_grows():
     """A view that says its bearings carry extra noise (a hold whose bars may still ring) gets the noise scale
     sqrt(1 + (extra / nominal)^2): its observations weigh less, its pose's std grows by most of the scale, and
     the (shared) gravity's std grows a little. With the window's a posteriori noise per (hold, camera)
-    (camera_noise) the view's residuals, small for the noise it claimed, take back most of the scale (a
-    factor of 0.15-0.3 here: the residuals measure the view's noise), and its pose's std still grows."""
+    (camera_noise) too: the view's residuals, small for the noise it claimed (ringing that turns a camera's
+    bearings alike does not show in them), do not take the scale back."""
     p = make_sequence(SequenceScenario(rig=RING3, num_views=5, pixel_noise=0.3), seed=3)
     plain = IncrementalSequence(p.rig, "6pt-bending")
     assert plain.noise_scale(0.0) == 1.0 and plain.noise_scale(math.nan) == 1.0
     assert plain.noise_scale(3.0 * plain.noise_rad) == pytest.approx(math.sqrt(10.0))
-    for options, growth in (({"camera_noise": False}, 4.0), ({}, 1.3)):
+    for options in ({"camera_noise": False}, {}):
         out = feed(IncrementalSequence(p.rig, "6pt-bending", options), p)
         told = IncrementalSequence(p.rig, "6pt-bending", options)
         for k, (c, t, f, g) in enumerate(views(p)):
@@ -146,7 +146,7 @@ def test_a_noisier_view_weighs_less_and_its_std_grows():
         assert not isinstance(out[-1], str) and not isinstance(last, str)
         assert last.gravity_sigma_rad > out[-1].gravity_sigma_rad
         rot = [math.sqrt(np.trace(v.cov_pose[:3, :3])) for v in (out[-1], last)]
-        assert rot[1] > growth * rot[0], (options, rot)
+        assert rot[1] > 4.0 * rot[0], (options, rot)
 
 
 def test_a_view_back_at_an_old_place_continues_the_sequence(noisy):

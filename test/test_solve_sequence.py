@@ -57,9 +57,10 @@ def test_one_result_per_file_in_order_close_to_the_truth(files, capsys):
         assert max(errs) < 0.5, errs
         assert all(0 < v["gravity_sigma_deg"] < 0.5 for v in r["views"])
         assert np.linalg.norm(r["views"][-1]["t"] - seq.t[-1]) < 0.05
-        # the outliers are found: the inliers are about the inlier observations
+        # the outliers are found: the inliers are about the inlier observations (the bound from the measured
+        # noise keeps fewer of the bulk's far end than the fixed 2 px: 85-90 % of them on these four views)
         n_in = int(np.count_nonzero(seq.inlier_mask))
-        assert 0.9 * n_in < r["num_inliers"] <= len(seq.tracks)
+        assert 0.85 * n_in < r["num_inliers"] <= len(seq.tracks)
         assert 0 < r["time_s"] < 60
 
 

@@ -296,7 +296,10 @@ def hold_camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, hube
     hold's camera can carry residuals ten times another's. One factor per camera would weigh a clean hold as
     much as a biased one and let the biased hold pull gravity, most of all on a rig that observes one of
     gravity's components weakly (two cameras on one bar). A (hold, camera) with fewer than 10 observations
-    keeps the factor 1 (too few to tell)."""
+    keeps the factor 1 (too few to tell). A hold whose bearings were told to carry extra noise (``obs.scale``
+    above 1: residual ringing of its bars) keeps it: ringing turns a camera's bearings alike, the hold's pose
+    absorbs most of it and its residuals do not show it, so the factor measured from the residuals (on the
+    told noise) and the told extra add in quadrature instead of the residuals taking the extra back."""
     _, prob = triangulated(rig, obs, res.state)
     M = rig.num_cameras
     e = prob.residuals(res.state)
@@ -307,7 +310,10 @@ def hold_camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, hube
         factors = factors * max(level / max(robust_sigma(e, 0, 0, huber_k=huber_k), 1e-300), 1.0)
     focal = np.array([c.focal_px for c in rig.cameras])[obs.cam]
     floor = bias_floor_px / focal / max(res.sigma_rad, 1e-12)
-    return np.sqrt(factors[obs.view * M + obs.cam] ** 2 + floor**2)
+    # a told extra noise (obs.scale = sqrt(1 + extra^2 / nominal^2)) stays: the measured factor and the extra
+    # add in quadrature, relative to the told noise
+    told_extra = 0.0 if obs.scale is None else 1.0 - 1.0 / np.maximum(np.asarray(obs.scale, float), 1.0) ** 2
+    return np.sqrt(factors[obs.view * M + obs.cam] ** 2 + told_extra + floor**2)
 
 
 # Significance of the test of the measured gravities against the joint solution (chi-square, upper tail).
@@ -407,8 +413,9 @@ def inlier_bounds(errors: np.ndarray, group: np.ndarray, inliers: np.ndarray, th
     The fixed threshold (pixels chosen for a rough start) is tens of times the noise of averaged tracks: a
     tail of correspondences at 0.1-2 px, each within it, pulls gravity more than the slight bending of a
     stiff bar tells (docs/PIPELINE.md, "The joint estimate over the sequence"). A bound from the measured
-    noise cuts that tail and keeps a Gaussian bulk whole (beyond 5 stds: 4e-6 of it); each hold's camera
-    its own noise, so a hold that rings or a blurrier camera is judged by its own spread, not the sharpest."""
+    noise cuts that tail and keeps most of a Gaussian bulk (residuals of landmarks seen twice are half the
+    noise, so the median mixes tracks of every length); each hold's camera its own noise, so a hold that
+    rings or a blurrier camera is judged by its own spread, not the sharpest."""
     errors = np.asarray(errors, float)
     if sigmas is None or not np.any(inliers):
         return np.full(len(errors), threshold)
@@ -418,8 +425,8 @@ def inlier_bounds(errors: np.ndarray, group: np.ndarray, inliers: np.ndarray, th
     count = np.bincount(group[inl], minlength=len(noise))
     order = np.argsort(group[inl], kind="stable")
     e_sorted, g_sorted = errors[inl][order], group[inl][order]
-    starts = np.searchsorted(g_sorted, np.flatnonzero(count >= MIN_GROUP_INLIERS))
-    for g, a in zip(np.flatnonzero(count >= MIN_GROUP_INLIERS), starts):  # groups, not observations
+    measured = np.flatnonzero(count >= MIN_GROUP_INLIERS)
+    for g, a in zip(measured, np.searchsorted(g_sorted, measured)):  # groups, not observations
         noise[g] = float(np.median(e_sorted[a:a + count[g]])) / RAYLEIGH_MEDIAN
     return np.minimum(threshold, sigmas * noise[group])
 
