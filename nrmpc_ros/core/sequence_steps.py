@@ -413,9 +413,8 @@ def inlier_bounds(errors: np.ndarray, group: np.ndarray, inliers: np.ndarray, th
     The fixed threshold (pixels chosen for a rough start) is tens of times the noise of averaged tracks: a
     tail of correspondences at 0.1-2 px, each within it, pulls gravity more than the slight bending of a
     stiff bar tells (docs/PIPELINE.md, "The joint estimate over the sequence"). A bound from the measured
-    noise cuts that tail and keeps most of a Gaussian bulk (residuals of landmarks seen twice are half the
-    noise, so the median mixes tracks of every length); each hold's camera its own noise, so a hold that
-    rings or a blurrier camera is judged by its own spread, not the sharpest."""
+    noise cuts that tail and keeps a Gaussian bulk (4e-6 of it lies beyond 5 stds); each hold's camera its
+    own noise, so a hold that rings or a blurrier camera is judged by its own spread, not the sharpest."""
     errors = np.asarray(errors, float)
     if sigmas is None or not np.any(inliers):
         return np.full(len(errors), threshold)
