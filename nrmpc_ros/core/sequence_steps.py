@@ -302,8 +302,9 @@ def hold_camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, hube
     told noise) and the told extra add in quadrature instead of the residuals taking the extra back."""
     _, prob = triangulated(rig, obs, res.state)
     M = rig.num_cameras
+    group = obs.view * M + obs.cam
     e = prob.residuals(res.state)
-    factors = camera_noise_factors(e, obs.view * M + obs.cam, obs.num_views * M, huber_k)
+    factors = camera_noise_factors(e, group, obs.num_views * M, huber_k)
     if measured_on is not None and len(measured_on) >= 10:
         wide, wprob = triangulated(rig, measured_on, res.state)
         level = robust_sigma(wprob.residuals(wide), 0, 0, huber_k=huber_k)
@@ -313,7 +314,7 @@ def hold_camera_noise_scale(rig: Rig, obs: Observations, res: BundleResult, hube
     # a told extra noise (obs.scale = sqrt(1 + extra^2 / nominal^2)) stays: the measured factor and the extra
     # add in quadrature, relative to the told noise
     told_extra = 0.0 if obs.scale is None else 1.0 - 1.0 / np.maximum(np.asarray(obs.scale, float), 1.0) ** 2
-    return np.sqrt(factors[obs.view * M + obs.cam] ** 2 + told_extra + floor**2)
+    return np.sqrt(factors[group] ** 2 + told_extra + floor**2)
 
 
 # Significance of the test of the measured gravities against the joint solution (chi-square, upper tail).
