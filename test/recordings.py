@@ -3,7 +3,9 @@
 Rigs: two cameras on one straight bar, three cameras of which one fisheye, the four-camera cross, all at
 320x240 with bars that ring at about 4.3 Hz (EI 1 N m^2, 0.15 kg, 0.3 m). Styles: one snapshot per hold with
 and without an IMU, a 10 Hz stream with smooth (minimum-jerk) moves, a stream with abrupt (trapezoidal) moves,
-ringing bars (damping 0.03), +-8 ms camera stamp jitter and 2 % frame drops, JPEG-compressed images.
+ringing bars (damping 0.03), +-8 ms camera stamp jitter and 2 % frame drops, JPEG-compressed images, and
+each camera at its own rate (10, 15, 30, 20 Hz, the first of them; phases 7 ms apart) on bars that ring through
+the hold (damping 0.02).
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ STYLES = {
     "stream-ringing": ({**BASE, "hold_seconds": 4.0, "capture": "stream", "rate": 10.0, "move_profile": "trapezoid"},
                        {"damping": 0.03, "jitter_ms": 8.0, "drop_rate": 0.02}),
     "compressed": ({**BASE, "capture": "stream", "rate": 10.0}, {"encoding": "jpeg"}),
+    "camrates-ringing": ({**BASE, "hold_seconds": 2.5, "capture": "stream", "rate": 10.0,
+                          "camera_rates": (10.0, 15.0, 30.0, 20.0)}, {"damping": 0.02}),
 }
 
 
@@ -53,6 +57,10 @@ def recording(root: Path, rig_name: str, style: str, seed: int = 0):
     root.mkdir(parents=True, exist_ok=True)
     r = rig(rig_name)
     motion, bag = STYLES[style]
+    if "camera_rates" in motion:  # one rate and phase per camera of this rig
+        M = r.num_cameras
+        motion = {**motion, "camera_rates": motion["camera_rates"][:M],
+                  "camera_phases_ms": tuple(7.0 * i for i in range(M))}
     if not bag.get("imu", True):
         r = replace(r, imu=None)
     rig_file = root / f"{rig_name}-{style}.yaml"

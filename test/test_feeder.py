@@ -270,15 +270,26 @@ def test_bad_samples_in_a_block_are_dropped_as_one_by_one(rig):
     assert trace(blocks) == trace(work) == imu_stamps + [(WorkKind.FLUSH, None)]
 
 
-def in_bursts(msgs, kind: str, burst_s: float, phase_s: float, t0: float = 100.0):
+def in_bursts(msgs, kind: str, burst_s: float, phase_s: float, t0: float = 100.0, by_topic: bool = False):
     """The messages of ``kind`` received in bursts: each at the end of the ``burst_s`` interval its stamp falls
     in (intervals starting at t0 - phase_s; the frames of one instant in one burst), the others as they were; in
-    arrival order."""
+    arrival order (``by_topic``: within a burst topic by topic, each message's arrival its burst's end)."""
     def arrival(m):
         if m[1] != kind:
             return m[0]
         return t0 - phase_s + math.ceil((m[3] - t0 + phase_s) / burst_s - 1e-9) * burst_s
+    if by_topic:
+        return sorted([(arrival(m), *m[1:]) for m in msgs], key=lambda m: (m[0], m[1] == kind, m[2] or 0, m[3]))
     return sorted(msgs, key=lambda m: (arrival(m), m[0]))
+
+
+def feed_arriving(f, msgs):
+    """``feed`` with each message's arrival as the present."""
+    for arrival, kind, i, t in msgs:
+        if kind == "image":
+            f.image(i, image(t), arrival)
+        else:
+            f.imu_msg(imu(t), arrival)
 
 
 @pytest.mark.parametrize("burst_s, phase_s", [(1.0, 0.0), (1.0, 0.3), (2.5, 1.0), (0.7, 0.2)])
@@ -293,6 +304,20 @@ def test_cameras_that_deliver_in_bursts_are_waited_for(rig, burst_s, phase_s):
     feed(g, in_bursts(messages(seconds=8.0), "image", burst_s, phase_s))
     g.end()
     assert trace(bursty) == trace(work)
+
+
+@pytest.mark.parametrize("burst_s, phase_s", [(1.0, 0.0), (2.5, 1.0), (0.7, 0.2)])
+def test_bursts_that_come_topic_by_topic_are_grouped_as_steady_frames(rig, burst_s, phase_s):
+    """A driver that buffers each camera's topic: within a burst one camera's frames of the whole interval, then
+    the next camera's. The frame grouping waits through the spread of delays the burst shows, so the work is that
+    of steady delivery, every frame set complete (not the partial sets of the cameras first in the burst)."""
+    f, work, _ = feeder(rig)
+    feed_arriving(f, messages(seconds=8.0))
+    f.end()
+    g, bursty, _ = feeder(rig)
+    feed_arriving(g, in_bursts(messages(seconds=8.0), "image", burst_s, phase_s, by_topic=True))
+    g.end()
+    assert trace(bursty) == trace(work) and g.sync.complete == g.sync.emitted == 80
 
 
 def test_an_imu_that_delivers_in_bursts_is_waited_for_after_its_first(rig):

@@ -265,6 +265,7 @@ def styles(tmp_path_factory):
         "plain": [], "jitter": ["--jitter-ms", "4"], "drops": ["--drop-rate", "0.3"],
         "png": ["--encoding", "png"], "jpeg": ["--encoding", "jpeg", "--jpeg-quality", "40"],
         "bursts": ["--camera-latency-ms", "150", "--camera-burst-s", "1"],
+        "by_topic": ["--camera-burst-s", "1", "--camera-burst-stagger-ms", "7"],
     }.items()}
 
 
@@ -335,6 +336,20 @@ def test_late_cameras_in_bursts_keep_their_stamps_and_are_received_later(styles)
         for (_, a), (_, b) in zip(late[f"/cam{i}/image_raw"], plain[f"/cam{i}/image_raw"]):
             assert np.array_equal(a.data, b.data)
     assert [t for t, _ in late["/imu/data"]] == [stamp(m) for _, m in late["/imu/data"]]
+
+
+@pytest.mark.slow
+def test_a_staggered_burst_comes_topic_by_topic(styles):
+    """--camera-burst-stagger-ms: camera i's images of a burst are received i x MS after its end, so a burst
+    reaches a reader camera by camera; stamps stay."""
+    plain, late = styles["plain"], styles["by_topic"]
+    start = plain["/imu/data"][0][0]
+    for i in range(2):
+        got = late[f"/cam{i}/image_raw"]
+        assert [stamp(m) for _, m in got] == [stamp(m) for _, m in plain[f"/cam{i}/image_raw"]]
+        received = np.array([t for t, _ in got])
+        assert np.all((received - start) % 1_000_000_000 == i * 7_000_000)
+        assert np.all(received >= [stamp(m) for _, m in got])
 
 
 @pytest.mark.slow
@@ -547,6 +562,7 @@ def test_bad_scenario_files(tmp_path, capsys, text, key):
     (["--rig", "config/sample_cross4.yaml", "--resolution", "320x240"], "--resolution"),
     (["--width", "1"], "--width"), (["--cameras", "0", "--layout", "ring"], "--cameras"), (["--seed", "-1"], "--seed"),
     (["--camera-burst-s", "-1"], "--camera-burst-s"), (["--camera-latency-ms", "nan"], "--camera-latency-ms"),
+    (["--camera-burst-stagger-ms", "-1"], "--camera-burst-stagger-ms"),
 ])
 def test_bad_options_name_the_flag(tmp_path, capsys, args, flag):
     try:

@@ -306,3 +306,73 @@ def test_a_fast_camera_beside_a_slow_one_does_not_overflow_its_queue():
     sets = run(sync, rated((5.0, 60.0, 30.0)))
     assert sum(sync.dropped.values()) == 0 and sync.grouped == 30 + 360 + 180
     assert all(b.stamp > a.stamp for a, b in zip(sets, sets[1:]))
+
+
+def camera_by_camera(rng, num_cams, rate, seconds, burst_s, jitter=0.002, drop=0.0, silent=()):
+    """Triggered frames received in bursts: every frame of a ``burst_s`` interval at its end, and within a burst
+    camera by camera (all of one camera's frames, then the next camera's: a driver that buffers each topic);
+    (arrival, stream, stamp, (stream, k)) in arrival order, and the (camera, k) lost."""
+    n = int(round(seconds * rate))
+    trig = 100.0 + np.arange(n) / rate
+    keep = rng.random((num_cams, n)) >= drop
+    keep[list(silent)] = False
+    msgs = []
+    for c in range(num_cams):
+        for k in np.flatnonzero(keep[c]):
+            t = trig[k] + rng.uniform(-jitter, jitter)
+            msgs.append((100.0 + np.ceil((t - 100.0) / burst_s + 1e-9) * burst_s, c, t, (c, int(k))))
+    msgs.sort(key=lambda m: (m[0], m[1], m[2]))
+    return msgs, {(c, int(k)) for c in range(num_cams) for k in np.flatnonzero(~keep[c])}
+
+
+@pytest.mark.parametrize("num_cams, rate, burst_s", [(2, 5.0, 1.0), (3, 15.0, 1.0), (4, 10.0, 2.5), (6, 30.0, 1.0),
+                                                     (6, 60.0, 0.5), (2, 60.0, 2.0)])
+def test_bursts_that_come_camera_by_camera_are_grouped_whole(rng, num_cams, rate, burst_s):
+    """A burst reaches the grouping topic by topic: one camera's whole interval before the next camera's. The
+    others are waited for through the spread of delays the burst shows (its first one too), so every set is
+    complete and no queue overflows; without arrival times the first bursts split, later ones are whole (the
+    lag measured behind the others)."""
+    msgs, dropped = camera_by_camera(rng, num_cams, rate, 8.0, burst_s)
+    sync = StampSynchronizer(num_cams)
+    sets = []
+    for arrival, stream, stamp, item in msgs:
+        sets += sync.add(stream, stamp, item, arrival=arrival)
+    sets += sync.flush()
+    assert check_triggered(sets, num_cams, int(8.0 * rate), dropped) == 0
+    assert sync.complete == sync.emitted == int(8.0 * rate) and sum(sync.dropped.values()) == 0
+    blind = StampSynchronizer(num_cams)
+    sets = run(blind, [m[1:] for m in msgs])
+    late = [s for s in sets if s.stamp > 100.0 + 2 * burst_s]
+    assert blind.emitted > blind.complete and all(s.complete for s in late)
+
+
+def test_a_silent_camera_beside_bursts_is_waited_for_then_left_and_queues_stay_bounded(rng):
+    """With one camera unplugged, the sets of the others leave partial once the streams moved on by the burst's
+    backlog (1.5 x its 1 s spread), not earlier, not never; the queues hold what comes meanwhile."""
+    msgs, dropped = camera_by_camera(rng, 3, 15.0, 10.0, 1.0, drop=0.05, silent=[1])
+    sync = StampSynchronizer(3)
+    sets, waited, newest = [], [], {}
+    for arrival, stream, stamp, item in msgs:
+        newest[stream] = max(newest.get(stream, stamp), stamp)
+        out = sync.add(stream, stamp, item, arrival=arrival)
+        waited += [min(newest.values()) - s.reference for s in out]  # how far both cameras moved on
+        sets += out
+    assert 0.5 < sync.backlog_s(1) <= 1.5 + 1e-9
+    sets += sync.flush()
+    assert check_triggered(sets, 3, 150, dropped) == 0 and sum(sync.dropped.values()) == 0
+    assert all(1 in s.missing for s in sets) and 1.4 < min(waited) and max(waited) < 1.7
+    capped = StampSynchronizer(3, config=SyncConfig(max_backlog_s=0.3))
+    for arrival, stream, stamp, item in msgs:
+        capped.add(stream, stamp, item, arrival=arrival)
+    assert capped.backlog_s(1) == 0.3
+
+
+def test_a_camera_with_a_longer_steady_latency_is_waited_for(rng):
+    """One camera's frames always come 0.6 s after the others' (six 10 Hz periods, beyond wait_periods): once
+    its first frame shows the lag, its sets are complete; the jump of the timeline forgets it."""
+    stamps = [100.0 + 0.1 * k for k in range(60)]
+    msgs = sorted([(t + 0.6 * (c == 2), c, t, (c, k)) for k, t in enumerate(stamps) for c in range(3)])
+    sync = StampSynchronizer(3)
+    sets = run(sync, [m[1:] for m in msgs])
+    assert check_triggered(sets, 3, 60, set()) > 0
+    assert all(s.complete for s in sets if s.stamp > 101.0) and 0.6 <= sync.backlog_s(2) < 1.0

@@ -46,7 +46,7 @@ DEFAULTS = {
     "hold_seconds_range": None, "snapshot_delay": None, "exposure_drift": _B.exposure_drift,
     "exposure_period_s": _B.exposure_period_s, "creep_fraction": _M.creep_fraction,
     "creep_deg_per_s": _M.creep_deg_per_s, "bar_hz": None, "camera_latency_ms": _B.camera_latency_ms,
-    "camera_burst_s": _B.camera_burst_s,
+    "camera_burst_s": _B.camera_burst_s, "camera_burst_stagger_ms": _B.camera_burst_stagger_ms,
 }
 _INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
 
@@ -193,6 +193,9 @@ def register(sub):
     se.add_argument("--camera-burst-s", type=float, metavar="S",
                     help="images are received in bursts, all of an S-second interval at its end: a driver or "
                          "link that buffers (default 0: one by one)")
+    se.add_argument("--camera-burst-stagger-ms", type=float, metavar="MS",
+                    help="within a burst camera i's images are received i x MS after its end: a driver or link "
+                         "that delivers a burst topic by topic (default 0: in stamp order)")
     se.add_argument("--encoding", choices=ENCODINGS,
                     help="raw sensor_msgs/Image encoding, or png/jpeg for CompressedImage on <image_topic>/compressed "
                          "(default mono8)")
@@ -354,7 +357,8 @@ def bag_options(o: dict):
                       imu=not o["no_imu"], damping=o["damping"], jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
                       exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],
-                      camera_latency_ms=o["camera_latency_ms"], camera_burst_s=o["camera_burst_s"])
+                      camera_latency_ms=o["camera_latency_ms"], camera_burst_s=o["camera_burst_s"],
+                      camera_burst_stagger_ms=o["camera_burst_stagger_ms"])
 
 
 def _check_outputs(o: dict, scenario) -> None:

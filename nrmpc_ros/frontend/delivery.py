@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from collections import deque
 
+DELIVERY_WINDOW_S = 60.0  # how an input delivers is judged over this much of its latest messages: a recording
+# that changes its habits is judged by its recent ones
 BURST_MARGIN = 1.5  # an input that delivers in bursts is waited for this many times its longest silence seen:
 # its next burst may come somewhat later than the longest one so far
 
@@ -93,4 +95,4 @@ class DelaySpread:
         return max(0.0, self._high.largest(now) + self._low.largest(now))
 
 
-__all__ = ["BURST_MARGIN", "DelaySpread", "DeliveryGaps", "SlidingMax"]
+__all__ = ["BURST_MARGIN", "DELIVERY_WINDOW_S", "DelaySpread", "DeliveryGaps", "SlidingMax"]

@@ -267,7 +267,7 @@ class Feeder:
         if verdict.jump is not None:
             self._jump_back(verdict.jump)
         elif verdict.accept:
-            self._accept(stream, stamp, payload)
+            self._accept(stream, stamp, payload, now)
 
     def _jump_back(self, jump) -> None:
         why = jump.describe(self._name(jump.stream))
@@ -281,7 +281,7 @@ class Feeder:
         for stream, stamp, payload in jump.held:
             self._accept(stream, stamp, payload)
 
-    def _accept(self, stream, stamp: float, payload) -> None:
+    def _accept(self, stream, stamp: float, payload, now: float | None = None) -> None:
         if stream == IMU:
             if stamp <= self._imu_newest:
                 self._drop(self._name(IMU), Drop.IMU_OUT_OF_ORDER, f"{self._name(IMU)}: IMU sample at "
@@ -293,7 +293,7 @@ class Feeder:
         else:
             self._cam_newest[stream] = max(self._cam_newest[stream], stamp)
             self._cam_gaps[stream].delivered(self._imu_newest, stamp)
-            self._emit_sets(self.sync.add(stream, stamp, payload))
+            self._emit_sets(self.sync.add(stream, stamp, payload, arrival=now))
         self._release()
 
     def _emit_sets(self, sets: list) -> None:

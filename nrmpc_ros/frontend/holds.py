@@ -255,13 +255,18 @@ class HoldRecorder:
         self.anchor_images = anchor_images
         self.snapshot = snapshot
         self.stamps: list = []
+        self.taken: list = []  # per frame: each camera's image stamp (s), None for a camera without an image
         self.positions: list = []  # per frame: list of (ids, uv) or None per camera
         self.measured = False  # estimated already (a long hold is measured once, before it ends)
         self.prediction = None  # a snapshot's ringing predicted from the IMU (.snapshot_ringing.RingingPrediction)
 
-    def add(self, stamp: float, positions: list) -> None:
+    def add(self, stamp: float, positions: list, taken: list | None = None) -> None:
+        """One frame of the hold at ``stamp``: per camera its tracks' (ids, uv) or None, ``taken`` the stamp of
+        each camera's image (None: the frame's stamp, for every camera with positions)."""
         self.stamps.append(float(stamp))
         self.positions.append(positions)
+        self.taken.append([None if p is None else float(stamp if taken is None or taken[i] is None else taken[i])
+                           for i, p in enumerate(positions)])
 
     def __len__(self) -> int:
         return len(self.stamps)
@@ -300,6 +305,7 @@ class HoldRecorder:
             return None, HoldRefusal(Refusal.NO_FRAMES, "")
         t = np.array(self.stamps)
         M = len(self.anchors)
+        taken = np.array([[np.nan if x is None else x for x in row] for row in self.taken], float).reshape(F, M)
         cams = [i for i in range(M) if self.anchors[i] is not None and len(self.anchors[i][0]) >= cfg.min_tracks]
         if not cams:
             return None, HoldRefusal(Refusal.NO_TRACKS, f"fewer than {cfg.min_tracks} in every camera")
@@ -336,12 +342,13 @@ class HoldRecorder:
             span = float(tau[after][-1] - tau[after][0]) if after.sum() > 1 else 0.0
             if bars.period_s and after.sum() >= MIN_FIT_FRAMES and span >= bars.period_s:  # a period pins the rest
                 for k, i in enumerate(cams):
-                    fit = fit_damped_response([(tau, offsets[:, k])], bars.camera_freq(i), None)
+                    tau_i = np.where(np.isfinite(taken[:, i]), taken[:, i], t) - start  # its images' own times
+                    fit = fit_damped_response([(tau_i, offsets[:, k])], bars.camera_freq(i), None)
                     if fit is None or not _explains(fit, offsets[after, k], noise):
                         continue
                     fits[i] = fit
-                    model[:, k] = fit.oscillation(0, tau)
-                    env = np.maximum(env, fit.amplitude(0, tau))
+                    model[:, k] = fit.oscillation(0, tau_i)
+                    env = np.maximum(env, fit.amplitude(0, tau_i))
                     rest[k] = fit.rest[0]
                     fitted = True
             dev = np.nanmax(np.linalg.norm(offsets - rest[None], axis=2), axis=1)

@@ -4,7 +4,7 @@ Times are arrival times on one monotonic clock (never ROS time). Each camera
 is given its own timeout: ``timeout_s``, or, for a driver or link that
 delivers in bursts, ``BURST_MARGIN`` times the spread of its delays (arrival
 minus the stamps of the frames the feeder accepted, over the last
-``SPREAD_WINDOW_S`` of arrivals: a few milliseconds for a steady camera, the
+``DELIVERY_WINDOW_S`` of arrivals: a few milliseconds for a steady camera, the
 burst interval for one that buffers; :mod:`~nrmpc_ros.frontend.delivery`).
 With those timeouts:
 
@@ -33,11 +33,9 @@ from __future__ import annotations
 
 import math
 
-from .delivery import BURST_MARGIN, DelaySpread
+from .delivery import BURST_MARGIN, DELIVERY_WINDOW_S, DelaySpread
 
 STALL_PERIODS = 1.5  # a check this many timer periods after the previous one came late: the process was stalled
-SPREAD_WINDOW_S = 60.0  # a camera's delays are judged over this much of its latest arrivals: a recording that
-# changes its habits is judged by its recent ones
 
 
 class CameraWatch:
@@ -54,7 +52,7 @@ class CameraWatch:
         self.state = ["waiting"] * len(self.names)  # waiting | live | stopped | missing
         self.ended: float | None = None  # when the input ended (arrival of its last image)
         self.ends = 0
-        self._delays = [DelaySpread(SPREAD_WINDOW_S) for _ in self.names]
+        self._delays = [DelaySpread(DELIVERY_WINDOW_S) for _ in self.names]
         self._epoch = 0
 
     def timeout(self, i: int, now: float) -> float:
@@ -66,7 +64,7 @@ class CameraWatch:
         delay measures how the camera delivers), else None; ``epoch``: the input's count of jumps back in time
         (the stamps of another epoch are on another timeline: the delays start afresh)."""
         if epoch != self._epoch:
-            self._epoch, self._delays = epoch, [DelaySpread(SPREAD_WINDOW_S) for _ in self.names]
+            self._epoch, self._delays = epoch, [DelaySpread(DELIVERY_WINDOW_S) for _ in self.names]
         if stamp is not None:
             self._delays[i].add(now, stamp)
         events = []

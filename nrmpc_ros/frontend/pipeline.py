@@ -308,6 +308,8 @@ class Pipeline:
         """
         images = self._check(frames)
         stamp = float(frames.stamp)
+        taken = [None if img is None else stamp if frames.stamps is None or frames.stamps[i] is None
+                 else float(frames.stamps[i]) for i, img in enumerate(images)]
         if stamp <= self.last_stamp:
             self.stats.dropped[Drop.FRAME_SET_OUT_OF_ORDER] += 1
             return []
@@ -332,13 +334,13 @@ class Pipeline:
         imu_moved = settling and lost and self.rig.imu is not None and len(self.imu) and \
             self.zupt.is_still(self.last_stamp, stamp) is False
         if lost and settling and gap <= lone_gap and not imu_moved:
-            self._reanchor(stamp, images)  # the bars ring too far for the tracks: anchor again, keep the stop
+            self._reanchor(stamp, images, taken)  # the bars ring too far for the tracks: anchor again, keep the stop
             self._note_period(gap)
         elif gap > lone_gap or lost:
             # a new stream, a snapshot, or a jump the tracks could not follow: what was open ends with the
             # previous frame, and this one may start a hold (the rig may be at rest here, its bars ringing)
             out += self._close()
-            self._open(stamp, images, snapshot=True)
+            self._open(stamp, images, taken, snapshot=True)
             self._hold.prediction = self._predict_ringing(frames, images)
             if gap <= lone_gap:
                 self._note_period(gap)
@@ -346,11 +348,11 @@ class Pipeline:
             self._note_period(gap)
             still, why = self._still(self.last_stamp, stamp, steps)
             if self._hold is not None and still:
-                self._record(stamp, images)
+                self._record(stamp, images, taken)
             elif self._hold is not None and why.kind is MotionKind.LEFT_HOLD and settling:
                 # the image left the hold before the bars could have settled: ringing, not a move (a move this
                 # soon after a stop could not give a settled hold anyway). Anchor again, keep the stop time.
-                self._reanchor(stamp, images)
+                self._reanchor(stamp, images, taken)
             elif self._hold is not None:
                 if len(self._hold) == 1 and self._hold.snapshot:
                     self._moving(why)  # the first frame of a moving stream
@@ -358,7 +360,7 @@ class Pipeline:
                 else:
                     out += self._close()
             elif still:
-                self._open(stamp, images, snapshot=False)
+                self._open(stamp, images, taken, snapshot=False)
             else:
                 self._moving(why)
         self.last_stamp = stamp
@@ -434,7 +436,7 @@ class Pipeline:
                 return False, Motion(MotionKind.LEFT_HOLD, name, s.offset_px)
         return True, None
 
-    def _open(self, stamp: float, images: list, snapshot: bool) -> None:
+    def _open(self, stamp: float, images: list, taken: list, snapshot: bool) -> None:
         anchors, anchor_images = [], []
         for trk, img in zip(self.trackers, images):
             if img is None:
@@ -446,7 +448,7 @@ class Pipeline:
             anchors.append(trk.positions())
             anchor_images.append(img)
         self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot)
-        self._record(stamp, images)
+        self._record(stamp, images, taken)
         self._last_check = stamp
         self._settled_s = 0.0
 
@@ -510,19 +512,23 @@ class Pipeline:
             return True  # the IMU tells a move from ringing
         return len(h) < 2 or h.stamps[-1] - h.stamps[0] < self.bar_period_s
 
-    def _reanchor(self, stamp: float, images: list) -> None:
+    def _reanchor(self, stamp: float, images: list, taken: list) -> None:
         """The open hold starts again from this frame (new anchor) but keeps the time the rig stopped."""
         start, snapshot = self._hold.start, self._hold.snapshot
-        self._open(stamp, images, snapshot=snapshot)
+        self._open(stamp, images, taken, snapshot=snapshot)
         self._hold.start = start
 
-    def _record(self, stamp: float, images: list) -> None:
+    def _record(self, stamp: float, images: list, taken: list) -> None:
+        """One frame set of the open hold: the track positions of each camera that has an image in it, taken at
+        that image's own stamp (``taken``). A camera without one adds nothing: its tracker still holds its
+        previous image's positions, which at its own slower rate would be counted again, at the wrong time."""
         h = self._hold
         for i, (trk, img) in enumerate(zip(self.trackers, images)):
             if img is not None and h.anchors[i] is None:  # the camera's frame was missing when the hold began
                 trk.start_hold()
                 h.anchors[i], h.anchor_images[i] = trk.positions(), img
-        h.add(stamp, [trk.positions() if trk.in_hold else None for trk in self.trackers])
+        h.add(stamp, [trk.positions() if trk.in_hold and img is not None else None
+                      for trk, img in zip(self.trackers, images)], taken)
 
     def _discard(self) -> None:
         self._hold = None

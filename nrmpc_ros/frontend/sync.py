@@ -35,8 +35,19 @@ Policy:
 - **Partial sets.** A set missing a stream is emitted, with None for that
   stream, once the missing frame can no longer arrive: the stream has a
   message newer than the set's reference + tolerance, or the streams of the
-  set have moved on by ``wait_periods`` frame periods beyond it (a silent or
-  unplugged camera). Sets with fewer than ``min_streams`` messages are
+  set have moved on beyond it by ``wait_periods`` frame periods (a silent or
+  unplugged camera) or by the stream's measured backlog, whichever is longer.
+  The backlog is :data:`~nrmpc_ros.frontend.delivery.BURST_MARGIN` times the
+  larger of how far the stream's own frames have come behind the other
+  streams' newest (a camera with a longer steady latency) and the spread of
+  arrival minus stamp of any stream (the cameras of a driver or link that
+  buffers deliver in bursts, and a burst comes topic by topic: one camera's
+  whole second before the next camera's), both over the recent
+  :data:`~nrmpc_ros.frontend.delivery.DELIVERY_WINDOW_S`, capped by
+  ``max_backlog_s``. The spread needs the arrival times (``add(...,
+  arrival=)``); a burst shows its spread with its first frames, so even the
+  first burst is waited through. A steady recording's backlog is a few
+  milliseconds and changes nothing. Sets with fewer than ``min_streams`` messages are
   dropped ("unmatched"); ``min_streams`` = the number of streams emits
   complete sets only. :meth:`StampSynchronizer.flush` (end of a bag) emits
   what is left, partial sets included.
@@ -56,7 +67,8 @@ Policy:
   too; its frames are held until the second camera's frame arrives, not lost).
 - **Cost.** Queues are bounded (``queue_size`` per stream, plus, for a
   stream faster than the slowest, what it sends beyond the slowest one's pace
-  in ``wait_periods`` + 1 of its periods; the oldest message is dropped as
+  in ``wait_periods`` + 1 of its periods, plus what it sends in twice the
+  largest backlog; the oldest message is dropped as
   "queue overflow"; keep
   ``queue_size`` above ``wait_periods`` + 1 so a silent camera does not
   overflow the others' queues). Every message is
@@ -75,6 +87,7 @@ from statistics import median
 
 from ..config import check, option
 from ..errors import OptionError
+from .delivery import BURST_MARGIN, DELIVERY_WINDOW_S, DelaySpread, SlidingMax
 from .drops import Drop
 from .stamps import HeldJump, JumpPolicy
 
@@ -113,6 +126,10 @@ class SyncConfig:
                               "cameras: complete sets only)", lo=1, hi=1000)
     wait_periods: float = option(4.0, "a partial set leaves once the cameras in it moved this many frame periods "
                                  "past it (a silent camera)", lo=0.0, hi=1000.0, lo_open=True)
+    max_backlog_s: float = option(5.0, "... or once they moved on by the missing camera's measured backlog "
+                                  "(module docstring), at most this long (s): a camera that delivers later is "
+                                  "not waited for (the other cameras' frames are held meanwhile)", lo=0.0,
+                                  hi=600.0)
     gap_periods: float = option(3.0, "frame intervals longer than this many periods (pauses between snapshots) "
                                 "are left out of the period estimate", lo=1.0, hi=1000.0)
     jump_periods: float = option(5.0, "a stamp this many frame periods behind its camera's newest, or ahead of "
@@ -183,6 +200,7 @@ class StampSynchronizer:
         self.initial_tolerance_s = cfg.initial_tolerance_s
         self.min_streams = cfg.min_streams
         self.wait_periods = cfg.wait_periods
+        self.max_backlog_s = cfg.max_backlog_s
         self.gap_periods = cfg.gap_periods
         self.jump_periods = cfg.jump_periods
         self.policy = jumps or JumpPolicy()
@@ -206,6 +224,12 @@ class StampSynchronizer:
         self.grouped = 0  # messages emitted in sets
         self._restart()
 
+    def _new_delivery(self) -> None:
+        """Forget how the streams delivered (a new timeline: the delays of the old one mean nothing there)."""
+        self._delays = [DelaySpread(DELIVERY_WINDOW_S) for _ in range(self.num_streams)]  # on the arrival clock
+        self._lags = [SlidingMax(DELIVERY_WINDOW_S) for _ in range(self.num_streams)]  # on the others' stamps
+        self._arrival = -math.inf  # the newest arrival time given
+
     def _restart(self) -> None:
         """Empty queues and stream times (periods and counts are kept)."""
         self._stamps = [[] for _ in range(self.num_streams)]  # sorted stamps per stream
@@ -213,6 +237,7 @@ class StampSynchronizer:
         self._last = [-math.inf] * self.num_streams  # newest stamp that left the queue, per stream
         self._newest = [-math.inf] * self.num_streams  # newest stamp accepted, per stream
         self._pending: _Pending | None = None
+        self._new_delivery()
 
     @property
     def queued(self) -> list:
@@ -247,11 +272,24 @@ class StampSynchronizer:
     def _capacity(self, i: int) -> int:
         """Messages stream i may queue: ``queue_size``, plus what it sends beyond the slowest stream's pace while
         a set waits for that stream (``wait_periods`` + 1 of its periods): a 60 Hz camera beside a 5 Hz one
-        sends 12 frames before the 5 Hz frame that decides their sets arrives."""
-        slowest, own = self._known_period(), self._known_period(i)
-        if not own > 0 or not slowest > own:
+        sends 12 frames before the 5 Hz frame that decides their sets arrives; plus what it sends in twice the
+        largest backlog: a missing stream is waited for that long in the stamps of the set's most belated
+        stream, which may lag this one by as much."""
+        own = self._known_period(i)
+        if not own > 0:
             return self.queue_size
-        return self.queue_size + round((self.wait_periods + 1) * (slowest / own - 1.0))
+        slowest = self._known_period()
+        rates = round((self.wait_periods + 1) * (slowest / own - 1.0)) if slowest > own else 0
+        backlog = max(self.backlog_s(j) for j in range(self.num_streams))
+        return self.queue_size + rates + math.ceil(2.0 * backlog / own)
+
+    def backlog_s(self, i: int) -> float:
+        """How far (s, in the other streams' stamps) a frame of stream ``i`` may come behind them: the measured
+        backlog of the module docstring (Partial sets); 0 before anything was measured."""
+        newest = max(self._newest)
+        lag = self._lags[i].largest(newest) if newest > -math.inf else 0.0
+        spread = max(d.spread(self._arrival) for d in self._delays) if self._arrival > -math.inf else 0.0
+        return min(BURST_MARGIN * max(lag, spread), self.max_backlog_s)
 
     def _known_period(self, i: int | None = None) -> float:
         """Stream i's period (i None: the largest of all streams); nan until known."""
@@ -259,8 +297,10 @@ class StampSynchronizer:
         return max(known) if known else math.nan
 
     # ------------------------------------------------------------------ input
-    def add(self, stream: int, stamp: float, item) -> list:
-        """Queue one message; returns the sets (0 or more, oldest first) it completes or makes final."""
+    def add(self, stream: int, stamp: float, item, arrival: float | None = None) -> list:
+        """Queue one message; returns the sets (0 or more, oldest first) it completes or makes final.
+        ``arrival``: when it arrived (s, any clock, the same for every stream) or None (unknown: the spread of
+        delays is not measured, module docstring, Partial sets)."""
         if not 0 <= stream < self.num_streams:
             raise ValueError(f"stream index {stream} out of range (0..{self.num_streams - 1})")
         stamp = float(stamp)
@@ -274,6 +314,7 @@ class StampSynchronizer:
                 self._drop_pending()
             elif pend is not None:
                 pend.others_talked = True
+            self._delivered(stream, stamp, arrival)
             return self._accept(stream, stamp, item)
         if pend is not None and (pend.kind != kind or abs(stamp - pend.latest) > pend.threshold):
             self._drop_pending()  # a different jump: the first one was not confirmed
@@ -287,6 +328,16 @@ class StampSynchronizer:
         if len(pend.messages) > self.queue_size:
             self._count_pending(pend.messages.pop(0))
         return []
+
+    def _delivered(self, i: int, stamp: float, arrival: float | None) -> None:
+        """Measure how stream i delivers: how far its message came behind the others' newest stamp, and (given
+        the arrival time) its delay."""
+        others = max((t for j, t in enumerate(self._newest) if j != i), default=-math.inf)
+        if others > stamp:
+            self._lags[i].add(others, others - stamp)
+        if arrival is not None and math.isfinite(arrival):
+            self._delays[i].add(arrival, stamp)
+            self._arrival = max(self._arrival, arrival)
 
     def _classify(self, i: int, stamp: float):
         """(None, 0) for a stamp consistent with the streams' time, else ("back" | "ahead", threshold)."""
@@ -327,6 +378,7 @@ class StampSynchronizer:
             self._restart()
             self.events["time jump back"] += 1
         else:
+            self._new_delivery()
             self.events["time jump ahead"] += 1
         for stream, stamp, item in pend.messages:
             out += self._accept(stream, stamp, item, jumped=True)
@@ -414,8 +466,8 @@ class StampSynchronizer:
             missing = [i for i in range(self.num_streams) if i not in members]
             if missing and not final:
                 moved_on = min(self._newest[i] for i in members)
-                if not all(i in claimed or self._newest[i] > ref + tol
-                           or moved_on > ref + tol + self.wait_periods * self._stream_period(i) for i in missing):
+                if not all(i in claimed or self._newest[i] > ref + tol or moved_on > ref + tol + max(
+                        self.wait_periods * self._stream_period(i), self.backlog_s(i)) for i in missing):
                     break  # a missing frame may still arrive
             out += self._emit(members, ref, missing)
         return out

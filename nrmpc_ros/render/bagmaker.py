@@ -19,8 +19,9 @@ rig's ``imu`` mount) plus white noise and a constant bias, and the body
 angular velocity; its stamps may be off the cameras' clock by a constant
 ``imu_time_offset_ms``. A camera driver may deliver its images late: each image's bag time (when the
 recorder received it) may trail its stamp by ``camera_latency_ms`` and, with ``camera_burst_s``, come in
-bursts (a driver or link that buffers, every image of a burst received together at the burst's end), while
-the IMU's samples are received at their stamps. Ground truth ``/ground_truth/pose`` (body in world,
+bursts (a driver or link that buffers, every image of a burst received together at the burst's end; with
+``camera_burst_stagger_ms`` topic by topic, camera i's images i x that later), while the IMU's samples are
+received at their stamps. Ground truth ``/ground_truth/pose`` (body in world,
 world z up), ``/ground_truth/gravity`` (gravity in the body frame) and
 ``/ground_truth/angular_velocity`` (body rate, rad/s, body frame: zero exactly
 while the body is still, non-zero in a creeping hold or a move) is written at
@@ -98,6 +99,8 @@ class BagOptions:
     exposure_period_s: float = 20.0  # typical period of the exposure drift
     camera_latency_ms: float = 0.0  # each image is received (bag time) this long after its stamp
     camera_burst_s: float = 0.0  # images received in bursts: at the end of every such interval (0: one by one)
+    camera_burst_stagger_ms: float = 0.0  # within a burst camera i's images are received i x this after its end:
+    # a driver or link that delivers a burst topic by topic (0: the images of a burst in stamp order)
 
     def validate(self) -> None:
         """One OptionError naming the field of the first bad option."""
@@ -124,7 +127,7 @@ class BagOptions:
         if not (_real(self.exposure_period_s) and self.exposure_period_s > 0):
             raise OptionError(_OWNER, "exposure_period_s", f"must be a finite number > 0, "
                               f"got {self.exposure_period_s!r}")
-        for name, top in (("camera_latency_ms", 10000), ("camera_burst_s", 10)):
+        for name, top in (("camera_latency_ms", 10000), ("camera_burst_s", 10), ("camera_burst_stagger_ms", 1000)):
             value = getattr(self, name)
             if not (_real(value) and 0 <= value <= top):
                 raise OptionError(_OWNER, name, f"must be a finite number in [0, {top}], got {value!r}")
@@ -273,11 +276,15 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     exposure = Exposure(M, opts, rng_exposure) if opts.exposure_drift else None
     imu_offset_ns = int(round(opts.imu_time_offset_ms * 1e6))
     latency_ns, burst_ns = int(round(opts.camera_latency_ms * 1e6)), int(round(opts.camera_burst_s * 1e9))
+    stagger_ns = int(round(opts.camera_burst_stagger_ms * 1e6))
 
-    def received(stamp_ns: int) -> int:
-        """An image's bag time: its stamp, plus the driver's latency, at the end of its burst."""
+    def received(stamp_ns: int, camera: int) -> int:
+        """An image's bag time: its stamp, plus the driver's latency, at the end of its burst (camera by camera
+        when staggered)."""
         t = stamp_ns + latency_ns
-        return t if burst_ns <= 0 else traj.start_ns + -(-(t - traj.start_ns) // burst_ns) * burst_ns
+        if burst_ns <= 0:
+            return t
+        return traj.start_ns + -(-(t - traj.start_ns) // burst_ns) * burst_ns + camera * stagger_ns
     if opts.imu:
         imu_period = int(round(1e9 / opts.motion.imu_rate))
         imu_t = np.arange(traj.start_ns, traj.end_ns, imu_period, dtype=np.int64)
@@ -334,8 +341,8 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                         img = gain * img + offset
                     u8 = np.clip(np.rint(img + noise), 0, 255).astype(np.uint8)
                     ts = t + int(jitter_ns[n, i])
-                    push(received(ts), topics[i][0], bag.image_msg(u8, ts, cam.name, opts.encoding, **quality))
-                    push(received(ts), topics[i][1], bag.camera_info_msg(cam, ts))
+                    push(received(ts, i), topics[i][0], bag.image_msg(u8, ts, cam.name, opts.encoding, **quality))
+                    push(received(ts, i), topics[i][1], bag.camera_info_msg(cam, ts))
                     push(ts, EXTRINSICS_TOPIC.format(cam.name),
                          bag.pose_msg(ts, rig.body_frame, gt_W[n, i], gt_w[n, i]))
                 push(t, POSE_TOPIC, bag.pose_msg(t, WORLD_FRAME, R[n], p[n]))
