@@ -22,6 +22,19 @@ def test_static_holds_are_the_runs_of_identical_poses():
     assert static_holds(Reference()) == []
 
 
+def test_two_cameras_a_few_ms_apart_in_a_slow_move_are_no_hold():
+    """Ground truth at a 10 Hz and a 30 Hz camera's triggers (2.7 ms apart in phase): in a slow move (the end of
+    a move is one) two instants 2.7 ms apart differ by less than 0.01 deg while the rig turns at up to 3.7 deg/s.
+    Only the holds count."""
+    t = np.unique(np.round(np.r_[np.arange(0.0, 3.0, 0.1), np.arange(0.0027, 3.0, 1 / 30)], 6))
+    s = np.clip((t - 1.0) / 1.0, 0.0, 1.0)  # a slow turn: 2 deg in 1 s (minimum jerk) from 1.0 s
+    angle = np.radians(2.0) * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    R = np.array([exp_so3(np.array([0.0, 0.0, a])) for a in angle])
+    holds = static_holds(Reference(pose_t=t, pose_R=R, pose_p=np.zeros((len(t), 3))))
+    assert len(holds) == 2 and holds[0][0] == 0.0 and holds[1][1] == t[-1]
+    assert holds[0][1] < 1.1 and holds[1][0] > 1.9
+
+
 def test_evaluate_counts_the_holds_with_an_estimate_and_the_estimates_outside():
     ref = _reference()
     R = ref.pose_R[0].T @ ref.pose_R[7]

@@ -68,14 +68,18 @@ SAME_INSTANT_S = 1e-6  # ground-truth stamps closer than this are one instant (c
 def static_holds(ref: Reference, tol_deg: float = 0.01, tol_m: float = 1e-4) -> list:
     """(start, end) stamps of runs of identical ground-truth poses (the rig held still). Poses repeated at one
     stamp (a recording that writes the ground truth at every camera's trigger, cameras at different rates) count
-    once: two cameras at one instant of a move are not a hold."""
+    once: two cameras at one instant of a move are not a hold. Two instants closer than the recording's typical
+    interval (cameras a few ms apart in phase) are the same pose only within that share of ``tol_deg`` and
+    ``tol_m``: the end of a move, slow as it is, still turns the rig by 0.01 deg in 3 ms, and is no hold."""
     if not ref.has_pose:
         return []
     new = np.r_[True, np.diff(ref.pose_t) > SAME_INSTANT_S]
     pose_t, pose_R, pose_p = ref.pose_t[new], ref.pose_R[new], ref.pose_p[new]
     dR = np.einsum("nji,njk->nik", pose_R[:-1], pose_R[1:])
     ang = np.degrees(np.arccos(np.clip((np.trace(dR, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-    same = (ang < tol_deg) & (np.linalg.norm(np.diff(pose_p, axis=0), axis=1) < tol_m)
+    dt = np.diff(pose_t)
+    share = np.minimum(1.0, dt / np.median(dt)) if len(dt) else dt  # of the tolerances, for closer instants
+    same = (ang < tol_deg * share) & (np.linalg.norm(np.diff(pose_p, axis=0), axis=1) < tol_m * share)
     cut = np.flatnonzero(~same) + 1  # first pose of every run after the first
     first, last = np.r_[0, cut], np.r_[cut - 1, len(pose_t) - 1]
     min_len = 2 if np.any(last > first) else 1

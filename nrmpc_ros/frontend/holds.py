@@ -10,7 +10,10 @@ then decides which frames to use and how much to trust them:
   (:mod:`.ringing`, started at the rig file's sqrt(3 EI / (m L^3)) / (2 pi));
 - frames where the fitted ringing is predicted below the noise
   (``max(settle_px, settle_noise x the offset's noise)``) and the offset is
-  at rest are settled: their longest run is averaged;
+  at rest are settled: their longest run is averaged, and carries what the
+  average keeps of the fitted ringing (its mean over the frames used);
+- a camera's tracks count only in the frames that carry its image, at that
+  image's own stamp (cameras at their own rates and phases);
 - bars that ring through the hold: the frames the damped response explains
   are used at its rest position (the fitted oscillation removed from every
   track of the camera, ``Hold.ringing``); too few frames to fit: all of them,
@@ -357,7 +360,12 @@ class HoldRecorder:
             settled = _longest_run(at_rest) if at_rest.any() else at_rest
             if settled.sum() >= max(need, 1):
                 source = RingingSource.SETTLED if bars.period_s else RingingSource.RIGID
-                ringing_px = float(np.sqrt(np.mean(env[settled] ** 2)))
+                # what the average of the settled frames keeps of the fitted ringing: its mean over each camera's
+                # frames used (the swing about that mean is in the tracks' measured noise already)
+                present = np.isfinite(offsets[:, :, 0]) & settled[:, None]
+                kept = [float(np.linalg.norm(model[present[:, k], k].mean(axis=0)))
+                        for k in range(len(cams)) if present[:, k].any()]
+                ringing_px = max(kept, default=0.0)
             elif fitted:
                 # the bars ring through the frames: every frame whose offset the damped response explains is
                 # used at the fitted rest position (the ringing removed from every track of its camera)

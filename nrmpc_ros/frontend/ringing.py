@@ -28,7 +28,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 ZETA_BOUNDS = (1e-3, 0.7)  # damping ratios searched: lightly damped metal to strongly damped composite bars
 FREQ_BAND = (0.6, 1.6)  # the frequency is searched within this factor of its start (the rig file's)
@@ -187,6 +186,8 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
     lowest = min(g[0] for g in grid)
     # an aliased frame rate makes f and its alias fit alike: of the (near) ties, the one nearest the start wins
     best = min((g for g in grid if g[0] <= lowest * (1.0 + 1e-3) + 1e-300), key=lambda g: abs(math.log(g[1] / freq_hz)))
+    from scipy.optimize import least_squares  # imported where a fit runs: 0.5-1 s that every command paid
+
     try:
         sol = least_squares(_projected, x0=[best[1], min(max(best[2], ZETA_START[0]), ZETA_START[1])], args=(segs,),
                             bounds=([lo, ZETA_BOUNDS[0]], [hi, ZETA_BOUNDS[1]]),

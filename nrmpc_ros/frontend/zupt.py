@@ -74,7 +74,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import chdtri, gammaincinv  # chi-square quantiles without importing scipy.stats (slow)
 
 from ..config import check, option
 from ..core.loss import MAD_TO_STD
@@ -262,6 +261,7 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     mean_w, ssw, _ = _moments(w, i0, i1, np.median(w, axis=0))
     mean_a, ssa, _ = _moments(a, i0, i1, np.median(a, axis=0))
     q = cfg.noise_quantile
+    from scipy.special import gammaincinv  # a chi-square quantile; imported where used (0.3-0.5 s)
     chi_q = _per_dof(lambda k: 2.0 * gammaincinv(0.5 * k, q), 3 * (n[ok] - 1))  # chi2.ppf(q, k)
     rw, ra = ssw[ok] / chi_q, ssa[ok] / chi_q  # each an unbiased s^2 at the q quantile of still windows
     var_w, var_a = float(np.quantile(rw, q)), float(np.quantile(ra, q))
@@ -285,6 +285,7 @@ def _norm_spread(w_unbiased, mean_a, ssa, i0, i1, ok, s_a: float, s_w: float, cf
     _, _, ssw = _moments(w_unbiased, i0, i1, np.zeros(3))
     n = i1 - i0
     stat = ssw / s_w ** 2 + ssa / s_a ** 2
+    from scipy.special import chdtri  # a chi-square quantile; imported where used (0.3-0.5 s)
     passed = ok & (stat < _per_dof(lambda k: chdtri(k, cfg.significance), np.maximum(6 * n - 3, 1)))
     if passed.sum() < 2:
         return cfg.accel_norm_floor_m_s2
@@ -313,6 +314,7 @@ def _statistic(t, a, w, noise: ImuNoise, cfg: ZuptConfig):
     ok = n >= cfg.min_window_samples
     out = np.full(len(t), np.nan)
     if ok.any():
+        from scipy.special import chdtri  # a chi-square quantile; imported where used (0.3-0.5 s)
         out[ok] = stat[ok] / _per_dof(lambda k: chdtri(k, cfg.significance), dof[ok])  # chi2.isf
     return out, brk
 
