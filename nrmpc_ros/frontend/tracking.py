@@ -27,6 +27,8 @@ from ..cameras import bearings_to_pixels, pixels_to_bearings
 from ..config import check, option
 from ..core.epipolar import essential_matrix, in_front
 from ..core.rig import Camera
+from .exposure import NONE as NO_CHANGE
+from .exposure import grid_quantiles, undo_exposure
 
 MODES = ("auto", "klt", "descriptors")
 DESCRIPTORS = ("orb", "sift")
@@ -53,6 +55,8 @@ class TrackingConfig:
     grid_rows: int = option(6, "rows of the bucketing grid that spreads corners over the image", lo=1, hi=100)
     grid_cols: int = option(8, "columns of the bucketing grid", lo=1, hi=100)
     max_tracks: int = option(150, "KLT tracks per camera", lo=8, hi=5000)
+    undo_exposure: bool = option(True, "inside a hold, a frame's gain and offset against the anchor's (auto-"
+                                 "exposure) are undone before it is tracked (frontend/exposure.py)")
     replenish_fraction: float = option(0.7, "outside holds, new corners are detected when fewer tracks than "
                                        "this share of max_tracks remain", lo=0.0, hi=1.0)
     min_distance_px: float = option(8.0, "least distance between corners (px)", lo=1.0, hi=200.0)
@@ -311,6 +315,7 @@ class TrackerStats:
     tracks: int = 0
     dropped_tracks: int = 0
     lost: int = 0
+    exposure_frames: int = 0  # frames of a hold tracked after their exposure change was undone
 
 
 @dataclass
@@ -385,6 +390,7 @@ class KltTracker:
         self.ids = np.zeros(0, np.int64)
         self._next_id = 0
         self._anchor = None  # (image, uv, ids) of the hold's first frame
+        self._anchor_levels = None  # its intensity quantiles (frontend/exposure.py)
         self._in_anchor = np.zeros(0, np.int64)  # index in the anchor of each track (inside a hold)
         self.lost = 0  # frames where the tracks were lost and started afresh
         self.flow = np.zeros((0, 2), np.float32)  # each track's motion between the last two frames (px)
@@ -472,7 +478,11 @@ class KltTracker:
                 a_uv = a_uv[self._in_anchor]  # the anchor's tracks still alive, in the order of self.uv
                 guesses = None if turned_all is None else turned_all
                 guess = self.uv if turned is None else turned
-                p1, ok = _lk_predicted(a_img, img, a_uv, guess, self.cfg, self.deviation_px, st)
+                seen = img
+                if self.cfg.undo_exposure:
+                    seen, change = undo_exposure(self._anchor_levels, img)
+                    st.exposure_frames += change is not NO_CHANGE
+                p1, ok = _lk_predicted(a_img, seen, a_uv, guess, self.cfg, self.deviation_px, st)
                 if ok.any():
                     offset = float(_median(_norm(p1[ok] - a_uv[ok])))
             else:  # predicted: moving on as in the last frame, or turned plus the last motion's remainder
@@ -527,6 +537,7 @@ class KltTracker:
             ok = moved <= self.cfg.corner_refinement_px  # else no corner near it: it keeps its position
             self.uv = np.where(ok[:, None], ref, self.uv).astype(np.float32)
         self._anchor = (self.prev, self.uv.copy(), self.ids.copy())
+        self._anchor_levels = grid_quantiles(self.prev) if self.cfg.undo_exposure else None
         self._in_anchor = np.arange(len(self.uv))
 
     def end_hold(self) -> None:
