@@ -92,6 +92,11 @@ class FrameSet:
     images: list
     stamps: list | None = None  # each camera's own stamp (None: the set's stamp)
 
+    def camera_stamp(self, i: int) -> float:
+        """Camera ``i``'s own stamp (s), the set's where none is given."""
+        own = None if self.stamps is None else self.stamps[i]
+        return float(self.stamp if own is None else own)
+
 
 class RigState(enum.Enum):
     """What the rig is doing as the pipeline sees it after its latest frame set (docs/PIPELINE.md)."""
@@ -308,8 +313,7 @@ class Pipeline:
         """
         images = self._check(frames)
         stamp = float(frames.stamp)
-        taken = [None if img is None else stamp if frames.stamps is None or frames.stamps[i] is None
-                 else float(frames.stamps[i]) for i, img in enumerate(images)]
+        taken = [None if img is None else frames.camera_stamp(i) for i, img in enumerate(images)]
         if stamp <= self.last_stamp:
             self.stats.dropped[Drop.FRAME_SET_OUT_OF_ORDER] += 1
             return []
@@ -590,7 +594,7 @@ class Pipeline:
         if since is None:
             return None
         cams = [i for i, img in enumerate(images) if img is not None]
-        stamps = [t if frames.stamps is None or frames.stamps[i] is None else float(frames.stamps[i]) for i in cams]
+        stamps = [frames.camera_stamp(i) for i in cams]
         # the accelerometer's bias cancels in the ringing (docs/PIPELINE.md, "Settling"): the estimation stage's
         # newest bias is not taken here, so this intake decision does not depend on when that stage ran
         off = self.config.imu_time_offset_s  # the still onset in the cameras' clock, as the propagator's stamps

@@ -280,14 +280,18 @@ class StampSynchronizer:
             return self.queue_size
         slowest = self._known_period()
         rates = round((self.wait_periods + 1) * (slowest / own - 1.0)) if slowest > own else 0
-        backlog = max(self.backlog_s(j) for j in range(self.num_streams))
-        return self.queue_size + rates + math.ceil(2.0 * backlog / own)
+        return self.queue_size + rates + math.ceil(2.0 * self._backlog_s(range(self.num_streams)) / own)
 
     def backlog_s(self, i: int) -> float:
         """How far (s, in the other streams' stamps) a frame of stream ``i`` may come behind them: the measured
         backlog of the module docstring (Partial sets); 0 before anything was measured."""
+        return self._backlog_s((i,))
+
+    def _backlog_s(self, streams) -> float:
+        """The largest backlog of ``streams``: their largest lag and the spread of every stream's delays (shared:
+        computed once)."""
         newest = max(self._newest)
-        lag = self._lags[i].largest(newest) if newest > -math.inf else 0.0
+        lag = max(self._lags[i].largest(newest) for i in streams) if newest > -math.inf else 0.0
         spread = max(d.spread(self._arrival) for d in self._delays) if self._arrival > -math.inf else 0.0
         return min(BURST_MARGIN * max(lag, spread), self.max_backlog_s)
 
