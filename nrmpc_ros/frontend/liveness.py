@@ -1,20 +1,30 @@
 """Which cameras publish: "stopped publishing" and "publishing again", and the end of the input.
 
 Times are arrival times on one monotonic clock (never ROS time). Each camera
-is given its own timeout: ``timeout_s``, or, for a driver or link that
-delivers in bursts, ``BURST_MARGIN`` times the spread of its delays (arrival
-minus the stamps of the frames the feeder accepted, over the last
-``DELIVERY_WINDOW_S`` of arrivals: a few milliseconds for a steady camera, the
-burst interval for one that buffers; :mod:`~nrmpc_ros.frontend.delivery`).
+is given two timeouts, ``timeout_s`` or longer for a driver or link that
+delivers in bursts (over the last ``DELIVERY_WINDOW_S`` of arrivals,
+:mod:`~nrmpc_ros.frontend.delivery`):
+
+- its **stop timeout**, against the other cameras: ``BURST_MARGIN`` times
+  how far its frames have come behind the other cameras' newest stamps (a
+  frame period for cameras that deliver alike, the burst interval for one
+  that buffers while the others do not). A stall of the whole process, or
+  of a publisher of every camera, delays every camera alike and leaves it
+  as it was: a camera that stops on a busy machine is still found;
+- its **end timeout**, against the clock: ``BURST_MARGIN`` times the
+  spread of its delays (arrival minus the stamps of the frames the feeder
+  accepted): a few milliseconds for a steady camera, the burst interval for
+  cameras that all buffer together, and, on a busy machine, its stalls.
+
 With those timeouts:
 
-- a camera is **stopped** when it has been silent for ``timeout_s`` while
-  another camera went on publishing for ``timeout_s`` after its last image
+- a camera is **stopped** when it has been silent for its stop timeout while
+  another camera went on publishing for as long after its last image
   (a camera that fails while the others run);
 - a camera that never sent an image is **missing** once another camera has
   been publishing for ``timeout_s`` (wrong topic or transport?); until then
   the first images may simply still be on their way;
-- when every camera has been silent for its timeout the **input ended**
+- when every camera has been silent for its end timeout the **input ended**
   (a bag ended, a driver stopped): not a fault, and nothing is "stopped";
 - a stopped or missing camera that sends an image again is **publishing
   again**; so is the input after it ended.
@@ -33,7 +43,7 @@ from __future__ import annotations
 
 import math
 
-from .delivery import BURST_MARGIN, DELIVERY_WINDOW_S, DelaySpread
+from .delivery import BURST_MARGIN, DELIVERY_WINDOW_S, DelaySpread, SlidingMax
 
 STALL_PERIODS = 1.5  # a check this many timer periods after the previous one came late: the process was stalled
 
@@ -52,11 +62,23 @@ class CameraWatch:
         self.state = ["waiting"] * len(self.names)  # waiting | live | stopped | missing
         self.ended: float | None = None  # when the input ended (arrival of its last image)
         self.ends = 0
-        self._delays = [DelaySpread(DELIVERY_WINDOW_S) for _ in self.names]
         self._epoch = 0
+        self._new_timeline()
 
-    def timeout(self, i: int, now: float) -> float:
-        """Camera ``i``'s timeout (s): ``timeout_s``, or longer for a camera that delivers in bursts."""
+    def _new_timeline(self) -> None:
+        """Delays and lags start afresh (stamps of another timeline)."""
+        self._delays = [DelaySpread(DELIVERY_WINDOW_S) for _ in self.names]  # arrival minus stamp
+        self._lags = [SlidingMax(DELIVERY_WINDOW_S) for _ in self.names]  # the others' newest stamp minus its own
+        self._newest = [-math.inf] * len(self.names)  # stamp of the newest accepted frame
+
+    def stop_timeout(self, i: int, now: float) -> float:
+        """Camera ``i``'s stop timeout (s): ``timeout_s``, or longer for a camera whose frames come behind the
+        other cameras' (module docstring)."""
+        return max(self.timeout_s, BURST_MARGIN * self._lags[i].largest(now))
+
+    def end_timeout(self, i: int, now: float) -> float:
+        """Camera ``i``'s end timeout (s): ``timeout_s``, or longer for a camera whose delays spread (module
+        docstring)."""
         return max(self.timeout_s, BURST_MARGIN * self._delays[i].spread(now))
 
     def seen(self, i: int, now: float, stamp: float | None = None, epoch: int = 0) -> list:
@@ -64,9 +86,14 @@ class CameraWatch:
         delay measures how the camera delivers), else None; ``epoch``: the input's count of jumps back in time
         (the stamps of another epoch are on another timeline: the delays start afresh)."""
         if epoch != self._epoch:
-            self._epoch, self._delays = epoch, [DelaySpread(DELIVERY_WINDOW_S) for _ in self.names]
+            self._epoch = epoch
+            self._new_timeline()
         if stamp is not None:
             self._delays[i].add(now, stamp)
+            others = max((s for j, s in enumerate(self._newest) if j != i), default=-math.inf)
+            if others > -math.inf:
+                self._lags[i].add(now, others - stamp)
+            self._newest[i] = max(self._newest[i], stamp)
         events = []
         if self.ended is not None:
             events.append(("info", f"the input resumed after {now - self.ended:.1f} s of silence: "
@@ -94,15 +121,15 @@ class CameraWatch:
         if self.first_any is None or self.ended is not None:
             return []
         newest = max(t for t in self.last if t is not None)
-        timeouts = [self.timeout(i, now) for i in range(len(self.names))]
-        if all(t is None or now - t > limit for t, limit in zip(self.last, timeouts)):
+        ends = [self.end_timeout(i, now) for i in range(len(self.names))]
+        if all(t is None or now - t > limit for t, limit in zip(self.last, ends)):
             self.ended = newest
             self.ends += 1
             return [("ended", f"no images for {now - newest:.1f} s on any camera: the input ended (the open hold "
                               "is estimated now)")]
         events = []
         for i, name in enumerate(self.names):
-            t, limit = self.last[i], timeouts[i]
+            t, limit = self.last[i], self.stop_timeout(i, now)
             if t is None:
                 if self.state[i] != "missing" and newest - self.first_any > self.timeout_s:
                     self.state[i] = "missing"
