@@ -55,7 +55,7 @@ import numpy as np
 from nrmpc_ros.bag.reader import BagReader
 from nrmpc_ros.config import from_mapping, load_mapping
 from nrmpc_ros.core import load_rig, save_rig
-from nrmpc_ros.core.bundle import GravityPriors, Observations
+from nrmpc_ros.core.bundle import GravityPriors, Observations, RotationPrior
 from nrmpc_ros.core.dynamics import bar_natural_frequencies, ringing_decay_time
 from nrmpc_ros.core.rig import Camera, Rig
 from nrmpc_ros.core.sequence_steps import CORRESPONDENCE_BIAS_FLOOR_PX
@@ -348,7 +348,8 @@ def estimate_bounds(rig, pipe, ests: list, ref) -> list:
     inlier observations track (triangulated at the truth, :func:`~nrmpc_ros.experiments.crlb.
     observed_sequence_bound`; an observation beyond the pipeline's inlier threshold of its truth-triangulated
     landmark is a mismatch and dropped) and, with 4pt-bending, the measured gravity at its own std (and the
-    accelerometer's tilt, as the pipeline estimates it). Noises, per hold and camera: ``tracks`` what the
+    accelerometer's tilt, as the pipeline estimates it) and the gyro's rotations between consecutive holds at
+    theirs. Noises, per hold and camera: ``tracks`` what the
     pipeline measured (:func:`_hold_camera_noise_rad`: the averaged track noise and the correspondence-bias
     floor); ``ringing`` that and the residual ringing the estimation stage adds as noise; ``truth`` the spread
     (robust, per axis) of the bearings about their landmarks triangulated at the truth (what the bearings'
@@ -391,11 +392,13 @@ def _view_bounds(rig, seq, s, k: int, truth: list, holds: list, imu_floor_deg: f
     if seq.method == "4pt-bending":
         ms = s.measured_sigmas(k + 1)
         g = np.where(np.isfinite(ms)[:, None], np.array([gk for _, _, gk in truth]), np.nan)
-        priors = GravityPriors(g, ms, seq.options.gravity_bias_sigma)
+        # the gyro's rotations between consecutive holds at their stds, at the truth's rotations
+        turns = tuple(RotationPrior(a, b, R[a].T @ R[b], sd) for a, b, _, sd in s.turns(k + 1))
+        priors = GravityPriors(g, ms, seq.options.gravity_bias_sigma, turns)
         # the accelerometer's own white noise: its std without the floor the pipeline adds (the tilt stays)
         floor = math.radians(imu_floor_deg)
         white = GravityPriors(g, np.sqrt(np.maximum(ms**2 - floor**2, (1e-3 * floor) ** 2)),
-                              seq.options.gravity_bias_sigma)
+                              seq.options.gravity_bias_sigma, turns)
     focal = np.array([c.focal_px for c in rig.cameras])
     r = {}
 

@@ -6,6 +6,7 @@ from nrmpc_ros.core.bundle import (
     GravityPriors,
     Observations,
     ParameterLayout,
+    RotationPrior,
     SequenceBundleProblem,
     adjust_bundle,
     camera_noise_factors,
@@ -81,7 +82,10 @@ def test_jacobians_match_finite_differences(rng):
     Rs, ts, gs = _perturb(R, t, g0, rng)
     groups = np.array([0, 1, 1])
     layout = ParameterLayout(4, [1, 2, 3], True, num_compliance=2, bias=True)
-    priors = GravityPriors(np.einsum("kji,j->ki", R, g0) + 0.1 * rng.normal(size=(4, 3)), 0.01, bias_sigma_rad=0.02)
+    turns = tuple(RotationPrior(a, b, R[a].T @ R[b] @ exp_so3(0.05 * rng.normal(size=3)), 0.01)
+                  for a, b in ((0, 1), (1, 2), (2, 3)))  # one with view 0, whose pose is fixed
+    priors = GravityPriors(np.einsum("kji,j->ki", R, g0) + 0.1 * rng.normal(size=(4, 3)), 0.01, bias_sigma_rad=0.02,
+                           turns=turns)
     info = GravityInformation(normalize(g0 + 0.3 * rng.normal(size=3)), np.array([[4e4, 1e3], [1e3, 2e4]]))
     prob = SequenceBundleProblem(rig, obs, layout, 1e-3, priors=priors, gravity_information=info,
                                  compliance_groups=groups)
@@ -107,6 +111,32 @@ def test_jacobians_match_finite_differences(rng):
         P2[:, a] += eps
         e2 = prob.residuals(BundleState(st.R, st.t, st.gravity, P2, st.compliance, st.bias))
         assert np.abs((e2 - e) / eps - dX[:, :, a]).max() < 1e-5
+
+
+def test_the_gyros_rotations_separate_the_accelerometers_tilt_from_gravity():
+    """Six views at attitudes 10-20 deg apart whose images pin their rotations loosely (few landmarks, 3 mrad
+    noise) and whose measured gravity carries one tilt of 0.3 deg (an accelerometer bias): with the
+    measured rotations between consecutive views (0.01 deg) the tilt is told from gravity: over eight
+    seeded sequences the median error falls to under a third, each within three of its std."""
+    errors = []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        rig = make_rig(RigSpec(num_cameras=2, layout="line", EI=1.0, focal=500.0))
+        obs, R, t, g0, _ = _sequence(rig, 6, rng, points_per_camera=8, noise_rad=3e-3)
+        tilt = 0.005 * normalize(rng.normal(size=3))
+        measured = normalize(np.einsum("kji,j->ki", R, normalize(g0)) + tilt) + 1e-4 * rng.normal(size=(6, 3))
+        turns = tuple(RotationPrior(k - 1, k, R[k - 1].T @ R[k] @ exp_so3(2e-4 * rng.normal(size=3)), 2e-4)
+                      for k in range(1, 6))
+        Rs, ts, gs = _perturb(R, t, g0, rng, grav=0.01)
+        row = []
+        for with_turns in (False, True):
+            priors = GravityPriors(measured, 1e-3, bias_sigma_rad=0.01, turns=turns if with_turns else ())
+            res = adjust_bundle(rig, obs, Rs, ts, gs, priors=priors, max_iterations=50)
+            row.append(float(angle_between(res.gravity, g0)))
+        assert row[1] < 3.0 * res.gravity_sigma_rad(0), (seed, np.degrees(row), np.degrees(res.gravity_sigma_rad(0)))
+        errors.append(row)
+    without, with_turns = np.median(errors, axis=0)
+    assert with_turns < without / 3.0, np.degrees(errors)
 
 
 def test_two_view_is_the_two_view_case(rng):

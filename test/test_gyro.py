@@ -39,7 +39,7 @@ def test_ordered_product_keeps_the_order(rng):
 def test_the_turn_between_two_holds_is_found_within_its_std(seed):
     rng = np.random.default_rng(seed)
     buf, truth = samples(rng, bias=np.array([0.004, -0.003, 0.002]), noise=0.002)
-    turn = rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1)
+    turn = rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1, scale_error=0.01)
     err = rotation_angle(truth.T @ turn.R)
     assert err < 3 * turn.sigma_rad and turn.sigma_rad < math.radians(1.0), (math.degrees(err), turn.sigma_rad)
     assert turn.sigma_rad >= 0.01 * TURN  # the scale error bounds it from below
@@ -50,16 +50,18 @@ def test_the_turn_between_two_holds_is_found_within_its_std(seed):
 def test_the_imu_mount_turns_the_rotation_into_the_body_frame(rng):
     buf, truth = samples(rng, bias=np.zeros(3), noise=1e-4)
     M = exp_so3(np.array([0.0, 0.0, math.pi / 2]))  # IMU -> body
-    turn = rotation_between(buf, ImuMount(rotation=M), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1)
+    turn = rotation_between(buf, ImuMount(rotation=M), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1, scale_error=0.01)
     assert rotation_angle((M @ truth @ M.T).T @ turn.R) < math.radians(0.05)
 
 
 def test_no_rotation_without_gyro_samples_or_inside_a_camera(rng):
     buf, _ = samples(rng, bias=np.zeros(3), noise=0.002, gyro=False)
-    assert rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1) is None
+    assert rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1, scale_error=0.01) is None
     buf, _ = samples(rng, bias=np.zeros(3), noise=0.002)
-    assert rotation_between(buf, ImuMount(mount="cam0"), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1) is None
-    assert rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 5.0), max_age_s=0.1) is None  # samples end early
+    inside = ImuMount(mount="cam0")
+    assert rotation_between(buf, inside, (0.1, 0.99), (0.99, 2.6), max_age_s=0.1, scale_error=0.01) is None
+    # the samples end early
+    assert rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 5.0), max_age_s=0.1, scale_error=0.01) is None
 
 
 def test_gyro_turn_between_frames_integrates_the_rate_over_the_interval(rng):

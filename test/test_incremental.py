@@ -81,6 +81,24 @@ def test_measured_gravity_enters_as_priors(noisy):
     assert imu[-1].gravity_sigma_rad < vision[-1].gravity_sigma_rad
 
 
+def test_the_gyros_turns_enter_between_consecutive_views_they_were_measured_between():
+    """A view's turn is a prior of the joint solves where the view before it in the sequence is the one it was
+    measured from (its key): a turn from another view, or into a view that starts a new sequence, is none."""
+    p = make_sequence(SequenceScenario(rig=RING3, num_views=6, pixel_noise=0.3, gravity_noise_deg=0.2), seed=2)
+    seq = IncrementalSequence(p.rig, "4pt-bending")
+    for k, (c, t, f, g) in enumerate(views(p)):
+        turn = None if k == 0 else (k - 2 if k == 3 else k - 1, p.R[k - 1].T @ p.R[k], 1e-4)
+        out = seq.add_view(c, t, f, g, math.radians(0.2), key=k, turn=turn)
+        if k:
+            assert float(angle_between(out.gravity, p.gravity[k])) < math.radians(0.5)
+    assert [(r.first, r.second) for r in seq.seq.turns()] == [(0, 1), (1, 2), (3, 4), (4, 5)]
+    turn = seq.seq.turns()[0]
+    assert np.allclose(turn.rotation, p.R[0].T @ p.R[1]) and turn.sigma_rad == 1e-4
+    c, t, f, g = next(views(p))
+    assert isinstance(seq.add_view(c, t + 10**6, f, g, key=6, turn=(5, np.eye(3), 1e-4)), NewSequence)
+    assert seq.seq.turns() == ()
+
+
 def test_a_view_without_shared_landmarks_starts_a_new_sequence_and_reset_does_too(noisy):
     p = noisy
     seq = IncrementalSequence(p.rig, "6pt-bending", keep_history=True)

@@ -105,6 +105,27 @@ def test_hold_tracks_from_the_anchor_without_drift(texture, rng):
     assert trk.track(moved).motion_px > 5.0  # after the hold, frame to frame again
 
 
+def test_a_hold_that_starts_with_part_of_its_tracks_is_topped_up(texture):
+    """The first frame after a move is tracked from the previous hold's anchor; where part of the view
+    changed, the rest survives (not lost) and the new hold's anchor is topped up with new corners to the
+    full count (they keep no id of the old hold)."""
+    cfg = TrackingConfig()
+    trk = KltTracker(cfg)
+    img = view(texture, np.eye(3))
+    trk.track(img)
+    trk.start_hold()
+    ids_a, _ = trk.positions()
+    changed = img.copy()
+    cut = int(0.6 * img.shape[1])
+    changed[:, :cut] = view(texture, exp_so3(np.array([0.0, 0.5, 0.0])))[:, :cut]  # most of it another scene now
+    step = trk.track(changed)
+    assert not step.lost and step.tracks < 0.7 * cfg.max_tracks
+    trk.end_hold()
+    trk.start_hold(top_up=True)
+    ids, _ = trk.positions()
+    assert len(ids) == cfg.max_tracks and len(np.setdiff1d(ids, ids_a)) > 0.3 * cfg.max_tracks
+
+
 def test_anchor_moves_tracks_to_the_subpixel_corner():
     """At a hold's anchor a track moves to the corner under it: the corners of a checkerboard drawn at a known
     sub-pixel offset are found to a few hundredths of a pixel."""

@@ -264,6 +264,25 @@ def test_online_stillness_between_frames_at_every_rate(rng, imu_rate, camera_rat
     assert moving and not any(moving)
 
 
+@pytest.mark.parametrize("imu_rate", [50.0, 200.0, 1000.0])
+def test_the_still_run_of_a_hold_spans_the_hold_and_a_move_has_none(rng, imu_rate):
+    """still_run of any instant of a hold: its first and last still samples, at the hold's ends within a window
+    (before and after the instant: a snapshot's run goes on after its image); none inside a move; while the
+    rig still rests, the run ends at the newest sample."""
+    plan = [("hold", 3.0), ("move", 1.0), ("hold", 2.0), ("move", 1.0), ("hold", 2.0)]
+    t, a, w, holds = trace(rng, imu_rate, plan)
+    det = ZuptDetector(noise=estimate_noise(t, a, w))
+    win = max(ZuptConfig().window_s, ZuptConfig().min_window_samples / imu_rate)
+    for k in range(len(t)):
+        det.add(t[k], a[k], w[k])
+    for h0, h1 in holds[:-1]:
+        for at in (h0 + 0.3, 0.5 * (h0 + h1), h1 - 0.3):
+            first, last = det.still_run(at)
+            assert abs(first - h0) <= win and abs(last - h1) <= win, (at, first, last, h0, h1)
+    assert det.still_run(3.5) is None and det.still_run(6.5) is None
+    assert det.still_run(holds[-1][0] + 1.0)[1] == t[-1]
+
+
 @pytest.mark.parametrize("rate", [50.0, 200.0, 1000.0])
 def test_an_accelerometer_bias_does_not_split_holds_at_any_rate(rng, rate):
     """A biased accelerometer's still norm |-g + b| differs between attitudes; that mismatch does not average

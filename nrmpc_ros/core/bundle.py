@@ -27,6 +27,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -34,7 +35,7 @@ from .deformation import deformation_jacobians
 from .lm import LinearSystem, LMOptions, LMStats, SchurStructure, Stop, group_sum, inv3, levenberg_marquardt
 from .loss import MAD_TO_STD, HuberLoss
 from .rig import Rig
-from .so3 import cross, exp_so3, normalize, right_jacobian, skew, tangent_basis
+from .so3 import cross, exp_so3, log_so3, normalize, right_jacobian, skew, tangent_basis
 
 POSE_DIM = 6  # dr (3, left perturbation Exp(dr) R_k, in view 0's frame), dt (3, metres)
 GRAVITY_DIM = 2  # tangent angles of g_0 (rad)
@@ -111,17 +112,33 @@ class Observations:
                             len(used), self.view_sequence, None if self.scale is None else self.scale[idx]), used
 
 
+class RotationPrior(NamedTuple):
+    """A measured rotation between two views of one sequence: ``rotation`` maps view ``second``'s body frame
+    into view ``first``'s (p_first = R p_second; the gyro integrated over the move between them), with its
+    angular std (rad, per axis)."""
+
+    first: int
+    second: int
+    rotation: np.ndarray  # (3, 3)
+    sigma_rad: float
+
+
 @dataclass
 class GravityPriors:
     """Measured gravity per view (body frames; NaN rows = none) with angular std per view (rad).
 
     ``bias_sigma_rad`` adds a constant tilt b of all measured directions (body frame, unit-vector units,
     prior std bias_sigma_rad): an accelerometer bias tilts every reading the same way in the sensor frame.
+    ``turns`` (:class:`RotationPrior` each): the rotations the IMU's gyro measured between views. Where the
+    images pin the views' relative rotations loosely (a few views, bars still ringing), these do, and with
+    the views at several attitudes they separate the accelerometer's tilt from gravity (docs/PIPELINE.md,
+    "The joint estimate over the sequence").
     """
 
     directions: np.ndarray  # (K, 3)
     sigma_rad: np.ndarray  # (K,)
     bias_sigma_rad: float | None = None
+    turns: tuple = ()
 
     def __post_init__(self):
         d = np.asarray(self.directions, dtype=float).reshape(-1, 3)
@@ -555,6 +572,22 @@ class SequenceBundleProblem:
                 J[:, lay.bias] = np.eye(3) / pr.bias_sigma_rad
                 rows.append(b / pr.bias_sigma_rad)
                 jacs.append(J)
+        for turn in () if pr is None else pr.turns:
+            sa, sb = lay.pose(turn.first), lay.pose(turn.second)
+            if sa is None and sb is None:
+                continue
+            Rb = state.R[turn.second]
+            # r = Log(T^T R_a^T R_b): a left perturbation d of R_b right-multiplies the argument by
+            # Exp(R_b^T d), of R_a by Exp(-R_b^T d); r moves by Jr(r)^-1 of that
+            r = log_so3(turn.rotation.T @ state.R[turn.first].T @ Rb)
+            Jb = np.linalg.solve(right_jacobian(r), Rb.T) / turn.sigma_rad
+            J = np.zeros((3, nc))
+            if sb is not None:
+                J[:, sb.start:sb.start + 3] = Jb
+            if sa is not None:
+                J[:, sa.start:sa.start + 3] = -Jb
+            rows.append(r / turn.sigma_rad)
+            jacs.append(J)
         gi = self.gravity_information
         if gi is not None and state.gravity is not None and lay.gravity is not None:
             g0 = normalize(state.origin_gravity()[0])
@@ -1130,7 +1163,8 @@ def two_view_priors(g1, g2, sigma_rad: float) -> GravityPriors:
 
 
 __all__ = ["BundleResult", "BundleState", "BundleWorkspace", "GravityInformation", "GravityPriors", "InverseDepthChart",
-           "Observations", "ParameterLayout", "SequenceBundleProblem", "TwoViewResult", "adjust_bundle",
+           "Observations", "ParameterLayout", "RotationPrior", "SequenceBundleProblem", "TwoViewResult",
+           "adjust_bundle",
            "condense_gravity", "covariance_from_information", "gravity_covariance", "inv3", "refine_two_view",
            "robust_sigma", "two_view_priors", "camera_noise_factors", "cluster_robust_covariance",
            "jackknife_widening"]

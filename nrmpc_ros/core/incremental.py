@@ -52,6 +52,7 @@ from .bundle import (
     GravityInformation,
     GravityPriors,
     Observations,
+    RotationPrior,
     condense_gravity,
     covariance_from_information,
 )
@@ -201,6 +202,8 @@ class _View:
     inlier: np.ndarray | None = None  # (n,) bool; None: all
     R: np.ndarray | None = None
     t: np.ndarray | None = None
+    key: object = None  # what names the view (the hold's stamp), for the turns of later views
+    turn: tuple | None = None  # (key of the view before it, R: p_before = R p_this, std rad) from the gyro
 
     def __post_init__(self):
         if self.inlier is None:
@@ -263,6 +266,14 @@ class _Sequence:
     def measured_sigmas(self, upto: int | None = None) -> np.ndarray:
         """(K,) the measured gravity's std (rad) of views [0, upto)."""
         return np.array([v.measured_sigma for v in self.views[:upto]])
+
+    def turns(self, upto: int | None = None) -> tuple:
+        """The gyro's rotations between consecutive views [0, upto) (:class:`~.bundle.RotationPrior` each): a
+        view's turn counts where the view before it is the one it was measured from."""
+        vs = self.views[:upto]
+        return tuple(RotationPrior(i - 1, i, np.asarray(v.turn[1], float), float(v.turn[2]))
+                     for i, v in enumerate(vs) if i > 0 and v.turn is not None and v.turn[0] is not None
+                     and v.turn[0] == vs[i - 1].key and math.isfinite(v.turn[2]) and v.turn[2] > 0)
 
     def noise_scales(self) -> np.ndarray:
         """(K,) each view's bearing noise over the nominal one."""
@@ -424,11 +435,14 @@ class IncrementalSequence:
 
     # ----------------------------------------------------------------- views
     def add_view(self, cam, track, f, measured_gravity=None, measured_sigma_rad: float | None = None,
-                 noise_scale: float = 1.0) -> ViewEstimate | NewSequence:
+                 noise_scale: float = 1.0, key=None, turn: tuple | None = None) -> ViewEstimate | NewSequence:
         """Add the next view's observations; returns its :class:`ViewEstimate`, or :class:`NewSequence` for a
         view that is the origin of a sequence (the first one, or one no earlier view links to).
         ``noise_scale`` (>= 1): the view's bearing noise std over the nominal one (a hold measured while
-        its bars may still ring): its observations weigh 1 / noise_scale^2 in every joint solve."""
+        its bars may still ring): its observations weigh 1 / noise_scale^2 in every joint solve.
+        ``key`` names the view; ``turn`` = (key of an earlier view, R, std rad): the rotation the gyro measured
+        from this view's body frame into that view's (p_that = R p_this), a prior of every joint solve with
+        measured gravity while that view precedes this one in the sequence (:class:`~.bundle.RotationPrior`)."""
         t0 = time.perf_counter()
         cam = np.asarray(cam, dtype=np.int64)
         track = np.asarray(track, dtype=np.int64)
@@ -437,7 +451,8 @@ class IncrementalSequence:
         sg = self.options.estimator.gravity_prior_sigma if measured_sigma_rad is None else float(measured_sigma_rad)
         s = self.seq
         k = s.num_views
-        new = _View(cam, track, f, g, sg, max(float(noise_scale), 1.0) if math.isfinite(noise_scale) else 1.0)
+        new = _View(cam, track, f, g, sg, max(float(noise_scale), 1.0) if math.isfinite(noise_scale) else 1.0,
+                    key=key, turn=turn)
         s.views.append(new)
         if k == 0:
             new.R, new.t = np.eye(3), np.zeros(3)
@@ -632,7 +647,7 @@ class IncrementalSequence:
         g = s.measured(K)
         if not np.isfinite(g).any():
             return None
-        return GravityPriors(g, s.measured_sigmas(K), self.options.gravity_bias_sigma)
+        return GravityPriors(g, s.measured_sigmas(K), self.options.gravity_bias_sigma, s.turns(K))
 
     def _update_gravity(self, k: int, j: int, est) -> None:
         """Choose the origin's gravity among the joint one and the new pair's candidates (see the module)."""

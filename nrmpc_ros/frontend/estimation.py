@@ -81,14 +81,15 @@ class HoldEstimate:
 class MeasuredHold:
     """A hold the intake measured, ready for the estimation stage: the hold, its averaged accelerometer gravity
     (None: no IMU or too few samples) with that gravity's angular std (rad), the gyro's rotation (R, std rad)
-    from the previous hold given to the stage since the last reset (None: no such hold or no gyro), and the
-    entry of the pipeline's hold log it fills in (None: no log kept)."""
+    from the previous hold given to the stage since the last reset (None: no such hold or no gyro) and that
+    hold's stamp, and the entry of the pipeline's hold log it fills in (None: no log kept)."""
 
     hold: Hold
     imu: ImuGravity | None
     imu_sigma_rad: float | None
     turn: tuple | None
     attempt: object | None = None
+    turn_from: float | None = None
 
 
 @dataclass(frozen=True)
@@ -150,7 +151,9 @@ class HoldEstimator:
         scale = self.sequence.noise_scale(ringing_noise_rad(self.rig, hold, obs.cam))
         st.penalized_holds += scale > 1.0
         number = self.sequence.number
-        out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale)
+        turn = None if item.turn is None else (item.turn_from, *item.turn)
+        out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale,
+                                     key=hold.stamp, turn=turn)
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):

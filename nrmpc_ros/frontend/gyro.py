@@ -18,8 +18,6 @@ from ..core.rig import ImuMount
 from ..core.so3 import exp_so3, rotation_angle
 from .imu import ImuBuffer
 
-GYRO_SCALE_ERROR = 0.01  # a MEMS gyro's scale-factor error (share of the angle turned) bounds the std from below
-
 
 @dataclass(frozen=True)
 class GyroRotation:
@@ -42,14 +40,14 @@ def ordered_product(Rs: np.ndarray) -> np.ndarray:
 
 
 def rotation_between(buffer: ImuBuffer, mount: ImuMount, still: tuple, move: tuple,
-                     max_age_s: float) -> GyroRotation | None:
+                     max_age_s: float, scale_error: float) -> GyroRotation | None:
     """The body's rotation over ``move`` = (t0, t1) (from the end of one hold to the next), bias-corrected
     with the mean rate over ``still`` = (t0, t1) (the earlier hold's still part). None with an IMU inside a
     camera (it turns with its bar), fewer than two samples in either span, no gyro (every rate exactly 0:
     a message without angular velocity), or the move's samples more than ``max_age_s`` from its ends.
 
     The std adds the samples' angle random walk (their rate noise while still), the bias's own std over the
-    move and ``GYRO_SCALE_ERROR`` of the angle turned.
+    move and ``scale_error`` (the gyro's scale-factor error, a share) of the angle turned.
     """
     if mount.mount != "body":
         return None
@@ -63,7 +61,7 @@ def rotation_between(buffer: ImuBuffer, mount: ImuMount, still: tuple, move: tup
     R_imu = ordered_product(exp_so3((w[:-1] - bias) * dt[:, None]))
     T = float(t[-1] - t[0])
     sigma = math.sqrt(sigma_w ** 2 * T * float(np.mean(dt)) + (sigma_w / math.sqrt(len(ws)) * T) ** 2
-                      + (GYRO_SCALE_ERROR * rotation_angle(R_imu)) ** 2)
+                      + (scale_error * rotation_angle(R_imu)) ** 2)
     M = mount.rotation  # IMU -> body
     return GyroRotation(M @ R_imu @ M.T, sigma, len(t))
 
@@ -150,5 +148,5 @@ class CameraTurns:
         return out
 
 
-__all__ = ["GYRO_SCALE_ERROR", "CameraTurns", "GyroRotation", "camera_turns", "gyro_turn", "ordered_product",
+__all__ = ["CameraTurns", "GyroRotation", "camera_turns", "gyro_turn", "ordered_product",
            "rotation_between"]

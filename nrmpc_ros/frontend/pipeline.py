@@ -344,7 +344,7 @@ class Pipeline:
             # a new stream, a snapshot, or a jump the tracks could not follow: what was open ends with the
             # previous frame, and this one may start a hold (the rig may be at rest here, its bars ringing)
             out += self._close()
-            self._open(stamp, images, taken, snapshot=True)
+            self._open(stamp, images, taken, snapshot=True, top_up=gap > lone_gap)
             self._hold.prediction = self._predict_ringing(frames, images)
             if gap <= lone_gap:
                 self._note_period(gap)
@@ -440,7 +440,8 @@ class Pipeline:
                 return False, Motion(MotionKind.LEFT_HOLD, name, s.offset_px)
         return True, None
 
-    def _open(self, stamp: float, images: list, taken: list, snapshot: bool) -> None:
+    def _open(self, stamp: float, images: list, taken: list, snapshot: bool, top_up: bool = False) -> None:
+        """A hold starts at this frame set (``top_up``: a frame after a gap, whose tracks may be few)."""
         anchors, anchor_images = [], []
         for trk, img in zip(self.trackers, images):
             if img is None:
@@ -448,7 +449,7 @@ class Pipeline:
                 anchor_images.append(None)
                 trk.end_hold()
                 continue
-            trk.start_hold()
+            trk.start_hold(top_up)
             anchors.append(trk.positions())
             anchor_images.append(img)
         self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot)
@@ -658,11 +659,13 @@ class Pipeline:
             white = imu.accel_std / (self.rig.gravity_magnitude * math.sqrt(max(imu.num_samples, 1)))
             sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg))
         refused = imu is None and self.method == "4pt-bending"  # the stage links it, then refuses it
-        turn = None if refused or self._last_hold is None else self._gyro_rotation(self._last_hold, hold)
+        before = self._last_hold
+        turn = None if refused or before is None else self._gyro_rotation(before, hold)
         if not refused:
             self._last_hold = hold
         self._handed += 1
-        return self._hand_over(MeasuredHold(hold, imu, sigma, turn, attempt if self.hold_log is not None else None))
+        return self._hand_over(MeasuredHold(hold, imu, sigma, turn, attempt if self.hold_log is not None else None,
+                                            None if turn is None else before.stamp))
 
     def _gyro_rotation(self, before: Hold, after: Hold):
         """(R, std rad) of the body's rotation from hold ``after`` into hold ``before`` from the gyro
@@ -672,7 +675,13 @@ class Pipeline:
         t0 = before.settled_end
         still = (t0 - self.config.imu.pad_s if before.snapshot else before.settled_start, t0)
         move = (t0, after.settled_end if after.snapshot else after.settled_start)
-        turn = rotation_between(self.imu, self.rig.imu, still, move, self.config.imu.max_age_s)
+        # where the IMU shows both holds' still runs: the gyro's bias from the whole earlier run, its rate
+        # integrated over the move between the runs only (at rest the body does not turn)
+        run_a, run_b = self.zupt.still_run(t0), self.zupt.still_run(move[1])
+        if run_a is not None and run_b is not None and run_a[1] < run_b[0]:
+            still, move = run_a, (run_a[1], run_b[0])
+        turn = rotation_between(self.imu, self.rig.imu, still, move, self.config.imu.max_age_s,
+                                self.config.imu.gyro_scale_error)
         return None if turn is None else (turn.R, turn.sigma_rad)
 
     def _imu_gravity(self, hold: Hold) -> ImuGravity | None:

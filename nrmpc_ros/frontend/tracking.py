@@ -519,8 +519,10 @@ class KltTracker:
         st.tracks += len(self.uv)
         return TrackStep(motion, len(self.uv), lost, offset)
 
-    def start_hold(self) -> None:
-        """The current frame becomes the anchor (template) of a hold.
+    def start_hold(self, top_up: bool = False) -> None:
+        """The current frame becomes the anchor (template) of a hold; ``top_up``: with new corners first, as
+        between holds (a frame after a move that was tracked from the previous hold's anchor, a snapshot, may
+        keep only part of its tracks).
 
         Each track moves to the sub-pixel corner under it (cornerSubPix): a track that came through a move
         carries the small errors of every frame it was followed in, and a new one sits on the detector's
@@ -528,6 +530,8 @@ class KltTracker:
         """
         if self.prev is None:
             return
+        if top_up:
+            self._replenish(self.prev)
         if len(self.uv) and self.cfg.corner_refinement_px > 0:
             crit = SUBPIX_CRITERIA
             half = int(self.cfg.corner_window_px) // 2

@@ -486,6 +486,22 @@ class ZuptDetector:
         _, i, _, first = r
         return first is not None and first <= i
 
+    def still_run(self, t: float) -> tuple | None:
+        """(first, last) stamps of the still run holding ``t`` as far as the samples so far show it (its last
+        sample the newest one while the rig is still at rest); None when ``t`` is not in one."""
+        v = self._verdicts()
+        if v is None:
+            return None
+        ts, still, brk = v
+        j = int(np.searchsorted(ts, t, side="right")) - 1
+        if j < 0 or t - ts[j] > self.config.gap_periods * _period(ts, self._noise):
+            return None
+        starts, ends = _runs(ts, still, brk, _min_run(self.config, _period(ts, self._noise)))
+        k = int(np.searchsorted(starts, j, side="right")) - 1
+        if k < 0 or ends[k] < j:
+            return None
+        return float(ts[starts[k]]), float(ts[ends[k]])
+
     def still_since(self, t: float) -> float | None:
         """Stamp of the first sample of the still run holding ``t`` (its newest sample at most a gap before
         ``t``); None when ``t`` is not in one."""
