@@ -64,6 +64,33 @@ def test_no_rotation_without_gyro_samples_or_inside_a_camera(rng):
     assert rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 5.0), max_age_s=0.1, scale_error=0.01) is None
 
 
+def test_a_move_there_and_back_carries_the_scale_error_of_the_way_travelled(rng):
+    """25 deg about the axis and back: the net rotation is none, found as such, and its std still holds the
+    scale-factor error of the 50 deg travelled (which would not cancel about two different axes)."""
+    buf = ImuBuffer()
+    for t in np.arange(0.0, 5.0, 1.0 / RATE_HZ):
+        u = min(max((t - 1.0) / 1.5, 0.0), 2.0)
+        rate = TURN * 0.5 * math.pi * math.sin(math.pi * u) / 1.5 if 0.0 < u < 2.0 else 0.0  # + then -
+        buf.add(t, [0.0, 0.0, 9.81], rate * AXIS + rng.normal(scale=0.002, size=3))
+    turn = rotation_between(buf, ImuMount(), (0.1, 0.99), (0.99, 4.1), max_age_s=0.1, scale_error=0.01)
+    assert rotation_angle(turn.R) < 3.0 * turn.sigma_rad and rotation_angle(turn.R) < math.radians(0.1)
+    assert turn.sigma_rad >= 0.01 * 2.0 * TURN * 0.99
+
+
+def test_no_rotation_across_a_gap_in_the_moves_samples(rng):
+    """0.3 s of the move's samples lost (a dropped stretch of the IMU stream): what the body turned then is
+    unknown, so no rotation (the still parts' gaps do not matter)."""
+    full, _ = samples(rng, bias=np.zeros(3), noise=0.002)
+    t, a, w = full.window(0.0, 3.5)
+    for lost, expect in (((1.6, 1.9), None), ((0.3, 0.6), "a rotation")):
+        buf = ImuBuffer()
+        for k in np.flatnonzero((t < lost[0]) | (t > lost[1])):
+            buf.add(t[k], a[k], w[k])
+        assert buf.gaps
+        turn = rotation_between(buf, ImuMount(), (0.7, 0.99), (0.99, 2.6), max_age_s=0.1, scale_error=0.01)
+        assert (turn is None) == (expect is None), lost
+
+
 def test_gyro_turn_between_frames_integrates_the_rate_over_the_interval(rng):
     """Piecewise-constant integration over [t0, t1] (interior of the cosine turn, frame times off the sample
     grid) matches the truth; None where the samples do not cover the interval or inside a camera."""

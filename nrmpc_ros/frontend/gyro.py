@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.rig import ImuMount
-from ..core.so3 import exp_so3, rotation_angle
+from ..core.so3 import exp_so3
 from .imu import ImuBuffer
 
 
@@ -44,10 +44,13 @@ def rotation_between(buffer: ImuBuffer, mount: ImuMount, still: tuple, move: tup
     """The body's rotation over ``move`` = (t0, t1) (from the end of one hold to the next), bias-corrected
     with the mean rate over ``still`` = (t0, t1) (the earlier hold's still part). None with an IMU inside a
     camera (it turns with its bar), fewer than two samples in either span, no gyro (every rate exactly 0:
-    a message without angular velocity), or the move's samples more than ``max_age_s`` from its ends.
+    a message without angular velocity), the move's samples more than ``max_age_s`` from its ends, or a gap in
+    them (:attr:`~.imu.ImuBuffer.gaps`: what the body turned while no sample came is unknown).
 
     The std adds the samples' angle random walk (their rate noise while still), the bias's own std over the
-    move and ``scale_error`` (the gyro's scale-factor error, a share) of the angle turned.
+    move and ``scale_error`` (the gyro's scale-factor error, a share) of the angle travelled (the integral of
+    the rate's magnitude: a move that turns one way and back, or about several axes, travels more than its net
+    rotation, and the scale error of each part need not cancel).
     """
     if mount.mount != "body":
         return None
@@ -55,13 +58,17 @@ def rotation_between(buffer: ImuBuffer, mount: ImuMount, still: tuple, move: tup
     t, _, w = buffer.window(*move)
     if len(ts) < 2 or len(t) < 2 or not np.any(w) or t[0] - move[0] > max_age_s or move[1] - t[-1] > max_age_s:
         return None
+    if any(after > t[0] and before < t[-1] for before, after in buffer.gaps):
+        return None
     bias = ws.mean(axis=0)
     sigma_w = float(np.sqrt(np.mean(np.var(ws, axis=0))))  # one sample's rate noise (rad/s) while still
     dt = np.diff(t)
-    R_imu = ordered_product(exp_so3((w[:-1] - bias) * dt[:, None]))
+    steps = (w[:-1] - bias) * dt[:, None]
+    R_imu = ordered_product(exp_so3(steps))
     T = float(t[-1] - t[0])
+    travelled = float(np.sum(np.linalg.norm(steps, axis=1)))
     sigma = math.sqrt(sigma_w ** 2 * T * float(np.mean(dt)) + (sigma_w / math.sqrt(len(ws)) * T) ** 2
-                      + (scale_error * rotation_angle(R_imu)) ** 2)
+                      + (scale_error * travelled) ** 2)
     M = mount.rotation  # IMU -> body
     return GyroRotation(M @ R_imu @ M.T, sigma, len(t))
 
