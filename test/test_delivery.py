@@ -1,9 +1,11 @@
 """How inputs deliver: sliding maxima of silences and ages, and the spread of delays (frontend/delivery.py)."""
 
+import math
+
 import numpy as np
 import pytest
 
-from nrmpc_ros.frontend.delivery import DelaySpread, DeliveryGaps, SlidingMax
+from nrmpc_ros.frontend.delivery import DelaySpread, DeliveryGaps, SlidingMax, StampLags
 
 
 def test_delivery_gaps_are_a_sliding_maximum_of_silences_and_ages():
@@ -36,3 +38,15 @@ def test_the_delay_spread_does_not_see_clock_offsets_and_measures_bursts():
         bursty.add(10.0 + 2.0 * np.ceil(0.1 * k / 2.0) + 0.05, stamp)
     assert steady.spread(20.0) < 0.004 and bursty.spread(20.0) == pytest.approx(1.9)
     assert DelaySpread(60.0).spread(0.0) == 0.0
+
+
+def test_stamp_lags_see_one_input_fall_behind_not_all_of_them():
+    """One input delivering 2 s behind the others lags by 2 s; all of them late together lag by nothing."""
+    lags, newest = StampLags(3, 60.0), [-math.inf] * 3
+    for k in range(40):
+        stamp = 0.1 * k
+        for i, s in ((0, stamp), (1, stamp), (2, stamp - 2.0)):  # input 2 comes 2 s behind
+            lags.delivered(i, s, newest)
+            newest[i] = max(newest[i], s)
+    assert lags.largest(2, newest) == pytest.approx(2.0) and lags.largest(0, newest) < 0.11
+    assert StampLags(2, 60.0).largest(0, [-math.inf] * 2) == 0.0

@@ -92,7 +92,7 @@ def test_a_camera_that_delivers_in_bursts_is_neither_stopped_nor_ended_between_t
     events = in_bursts(w, [0, 1, 2], 0.0, 20.0, 2.5)
     assert [e for e in events if e[0] == "ended"][:1] == [events[0]] and w.ends == 1, \
         "only the first silence, before any burst showed it, reads as an end"
-    assert w.end_timeout(0, 20.0) > 3.5 and w.stop_timeout(0, 20.0) < 1.5, \
+    assert w.end_timeout(0, 20.0) > 3.5 and w.stop_timeout(0) < 1.5, \
         "cameras that buffer together: the silence is long, none comes behind the others"
     assert w.check(20.5) == [] and w.check(21.5)[0][0] == "ended", "a real end (the last burst at 17.5 s)"
 
@@ -100,11 +100,11 @@ def test_a_camera_that_delivers_in_bursts_is_neither_stopped_nor_ended_between_t
 def test_steady_cameras_keep_the_timeout_and_a_jump_back_starts_their_delays_afresh():
     w = CameraWatch(NAMES, timeout_s=1.0)
     in_bursts(w, [0, 1, 2], 0.0, 10.0, 0.1)
-    assert w.end_timeout(0, 10.0) == 1.0 and w.stop_timeout(0, 10.0) == 1.0
+    assert w.end_timeout(0, 10.0) == 1.0 and w.stop_timeout(0) == 1.0
     w.seen(0, 10.0, 5.0)  # a frame stamped 5 s back, in the same epoch: a delay 5 s longer, 5 s behind the others
-    assert w.end_timeout(0, 10.0) > 7.0 and w.stop_timeout(0, 10.0) > 7.0
+    assert w.end_timeout(0, 10.0) > 7.0 and w.stop_timeout(0) > 7.0
     w.seen(0, 10.1, -100.0, epoch=1)  # after a jump back in time: another timeline
-    assert w.end_timeout(0, 10.1) == 1.0 and w.stop_timeout(0, 10.1) == 1.0
+    assert w.end_timeout(0, 10.1) == 1.0 and w.stop_timeout(0) == 1.0
 
 
 def test_a_camera_that_buffers_alone_is_waited_for_and_a_stop_is_still_found():
@@ -120,8 +120,8 @@ def test_a_camera_that_buffers_alone_is_waited_for_and_a_stop_is_still_found():
                 events += w.seen(2, t, t - 2.5 + 0.1 * (k + 1))
         events += w.check(t)
         t = round(t + 0.1, 6)
-    assert [e for e in events if "stopped" in e[1]] == [] and w.stop_timeout(2, 20.0) > 3.5
-    assert w.stop_timeout(0, 20.0) == 1.0, "the steady cameras keep the timeout"
+    assert [e for e in events if "stopped" in e[1]] == [] and w.stop_timeout(2) > 3.5
+    assert w.stop_timeout(0) == 1.0, "the steady cameras keep the timeout"
     stop = []
     while t < 25.0:  # its driver fails after the burst at 17.5 s
         for i in (0, 1):
@@ -147,6 +147,6 @@ def test_a_stall_of_the_process_does_not_hide_a_camera_that_stops():
         stamp = taken
         events += w.check(taken + 0.05)
         events += w.check(taken + 1.5)
-    assert w.end_timeout(0, 24.0) > 2.5 and w.stop_timeout(0, 24.0) < 1.5
+    assert w.end_timeout(0, 24.0) > 2.5 and w.stop_timeout(0) < 1.5
     stops = [e for e in events if "stopped" in e[1]]
     assert len(stops) == 1 and "/cam2" in stops[0][1] and not [e for e in events if e[0] == "ended"]

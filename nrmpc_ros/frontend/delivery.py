@@ -9,7 +9,9 @@ both measure it (README, "The ROS 2 node"; docs/ARCHITECTURE.md, "The node's two
   message, before a second burst shows it as a gap);
 - :class:`DelaySpread`: the spread of arrival minus stamp over an input's messages, on any two clocks (their
   offset cancels): a few milliseconds for a steady driver, the burst interval for one that buffers; a stop
-  and a restart leave it as it was (fresh frames come as fresh as before).
+  and a restart leave it as it was (fresh frames come as fresh as before);
+- :class:`StampLags`: how far an input's messages came behind the other inputs' newest stamps (one camera
+  that buffers, not a stall of the whole process).
 
 Both forget what is older than their window, so a recording that changes its habits is judged by its recent
 ones. :data:`BURST_MARGIN` is how much longer than the longest silence seen an input is still waited for.
@@ -79,6 +81,27 @@ class DeliveryGaps:
         return self._ages.largest(other_newest)
 
 
+class StampLags:
+    """How far each input's messages came behind the other inputs' newest stamp (s): the largest over the last
+    ``window_s`` of those stamps, per input. A camera whose driver buffers falls behind the others by its burst;
+    a stall of the whole process, or of one publisher of every input, delays them all alike and leaves this as
+    it was (unlike :class:`DelaySpread`). The caller keeps the newest stamps (it accepts them)."""
+
+    def __init__(self, num_inputs: int, window_s: float):
+        self._largest = [SlidingMax(window_s) for _ in range(num_inputs)]
+
+    def delivered(self, i: int, stamp: float, newest: list) -> None:
+        """Input ``i`` delivered a message stamped ``stamp`` while ``newest`` were every input's newest stamps."""
+        others = max((t for j, t in enumerate(newest) if j != i), default=-math.inf)
+        if others > stamp:
+            self._largest[i].add(others, others - stamp)
+
+    def largest(self, i: int, newest: list) -> float:
+        """Input ``i``'s largest lag (s) within the window of the newest of ``newest``; 0 before any."""
+        at = max(newest, default=-math.inf)
+        return self._largest[i].largest(at) if at > -math.inf else 0.0
+
+
 class DelaySpread:
     """The spread (s) of arrival minus stamp over one input's messages of the last ``window_s`` of arrivals."""
 
@@ -95,4 +118,4 @@ class DelaySpread:
         return max(0.0, self._high.largest(now) + self._low.largest(now))
 
 
-__all__ = ["BURST_MARGIN", "DELIVERY_WINDOW_S", "DelaySpread", "DeliveryGaps", "SlidingMax"]
+__all__ = ["BURST_MARGIN", "DELIVERY_WINDOW_S", "DelaySpread", "DeliveryGaps", "SlidingMax", "StampLags"]

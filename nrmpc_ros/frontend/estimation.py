@@ -80,16 +80,15 @@ class HoldEstimate:
 @dataclass
 class MeasuredHold:
     """A hold the intake measured, ready for the estimation stage: the hold, its averaged accelerometer gravity
-    (None: no IMU or too few samples) with that gravity's angular std (rad), the gyro's rotation (R, std rad)
-    from the previous hold given to the stage since the last reset (None: no such hold or no gyro) and that
-    hold's stamp, and the entry of the pipeline's hold log it fills in (None: no log kept)."""
+    (None: no IMU or too few samples) with that gravity's angular std (rad), the gyro's rotation from the
+    previous hold given to the stage since the last reset as (that hold's stamp, R, std rad) (None: no such
+    hold or no gyro), and the entry of the pipeline's hold log it fills in (None: no log kept)."""
 
     hold: Hold
     imu: ImuGravity | None
     imu_sigma_rad: float | None
     turn: tuple | None
     attempt: object | None = None
-    turn_from: float | None = None
 
 
 @dataclass(frozen=True)
@@ -151,9 +150,8 @@ class HoldEstimator:
         scale = self.sequence.noise_scale(ringing_noise_rad(self.rig, hold, obs.cam))
         st.penalized_holds += scale > 1.0
         number = self.sequence.number
-        turn = None if item.turn is None else (item.turn_from, *item.turn)
         out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale,
-                                     key=hold.stamp, turn=turn)
+                                     key=hold.stamp, turn=item.turn)
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):
@@ -162,7 +160,7 @@ class HoldEstimator:
                 keep = self.sequence.options.merge_sequences
                 self._broken_stamps = dict(list(self._broken_stamps.items())[-keep:]) if keep else {}
             if out.reason is not StartReason.FIRST_VIEW and item.turn is not None and \
-                    self.sequence.bridge(*item.turn):
+                    self.sequence.bridge(*item.turn[1:]):
                 st.bridges += 1
             self._hold_stamps = [hold.stamp]
             st.sequences = max(st.sequences, out.sequence + 1)

@@ -57,7 +57,7 @@ class ImuConfig:
     pad_s: float = option(0.05, "a hold of one frame uses the samples of this long a window before it (s), and "
                           "never fewer than min_samples sample periods", lo=0.0, hi=60.0, lo_open=True)
     min_samples: int = option(3, "samples a hold's averaged accelerometer needs", lo=1, hi=100000)
-    gyro_scale_error: float = option(0.01, "the gyro's scale-factor error (a share of the angle turned; MEMS "
+    gyro_scale_error: float = option(0.01, "the gyro's scale-factor error (a share of the angle travelled; MEMS "
                                      "datasheets: 0.1-3 %): the least std of the rotation it measures between "
                                      "two holds", lo=0.0, hi=0.5)
 

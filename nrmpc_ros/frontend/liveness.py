@@ -2,7 +2,7 @@
 
 Times are arrival times on one monotonic clock (never ROS time). Each camera
 is given two timeouts, ``timeout_s`` or longer for a driver or link that
-delivers in bursts (over the last ``DELIVERY_WINDOW_S`` of arrivals,
+delivers in bursts (measured over the last ``DELIVERY_WINDOW_S``,
 :mod:`~nrmpc_ros.frontend.delivery`):
 
 - its **stop timeout**, against the other cameras: ``BURST_MARGIN`` times
@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 
-from .delivery import BURST_MARGIN, DELIVERY_WINDOW_S, DelaySpread, SlidingMax
+from .delivery import BURST_MARGIN, DELIVERY_WINDOW_S, DelaySpread, StampLags
 
 STALL_PERIODS = 1.5  # a check this many timer periods after the previous one came late: the process was stalled
 
@@ -68,13 +68,13 @@ class CameraWatch:
     def _new_timeline(self) -> None:
         """Delays and lags start afresh (stamps of another timeline)."""
         self._delays = [DelaySpread(DELIVERY_WINDOW_S) for _ in self.names]  # arrival minus stamp
-        self._lags = [SlidingMax(DELIVERY_WINDOW_S) for _ in self.names]  # the others' newest stamp minus its own
+        self._lags = StampLags(len(self.names), DELIVERY_WINDOW_S)
         self._newest = [-math.inf] * len(self.names)  # stamp of the newest accepted frame
 
-    def stop_timeout(self, i: int, now: float) -> float:
+    def stop_timeout(self, i: int) -> float:
         """Camera ``i``'s stop timeout (s): ``timeout_s``, or longer for a camera whose frames come behind the
         other cameras' (module docstring)."""
-        return max(self.timeout_s, BURST_MARGIN * self._lags[i].largest(now))
+        return max(self.timeout_s, BURST_MARGIN * self._lags.largest(i, self._newest))
 
     def end_timeout(self, i: int, now: float) -> float:
         """Camera ``i``'s end timeout (s): ``timeout_s``, or longer for a camera whose delays spread (module
@@ -90,9 +90,7 @@ class CameraWatch:
             self._new_timeline()
         if stamp is not None:
             self._delays[i].add(now, stamp)
-            others = max((s for j, s in enumerate(self._newest) if j != i), default=-math.inf)
-            if others > -math.inf:
-                self._lags[i].add(now, others - stamp)
+            self._lags.delivered(i, stamp, self._newest)
             self._newest[i] = max(self._newest[i], stamp)
         events = []
         if self.ended is not None:
@@ -129,7 +127,7 @@ class CameraWatch:
                               "is estimated now)")]
         events = []
         for i, name in enumerate(self.names):
-            t, limit = self.last[i], self.stop_timeout(i, now)
+            t, limit = self.last[i], self.stop_timeout(i)
             if t is None:
                 if self.state[i] != "missing" and newest - self.first_any > self.timeout_s:
                     self.state[i] = "missing"

@@ -659,17 +659,15 @@ class Pipeline:
             white = imu.accel_std / (self.rig.gravity_magnitude * math.sqrt(max(imu.num_samples, 1)))
             sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg))
         refused = imu is None and self.method == "4pt-bending"  # the stage links it, then refuses it
-        before = self._last_hold
-        turn = None if refused or before is None else self._gyro_rotation(before, hold)
+        turn = None if refused or self._last_hold is None else self._gyro_rotation(self._last_hold, hold)
         if not refused:
             self._last_hold = hold
         self._handed += 1
-        return self._hand_over(MeasuredHold(hold, imu, sigma, turn, attempt if self.hold_log is not None else None,
-                                            None if turn is None else before.stamp))
+        return self._hand_over(MeasuredHold(hold, imu, sigma, turn, attempt if self.hold_log is not None else None))
 
     def _gyro_rotation(self, before: Hold, after: Hold):
-        """(R, std rad) of the body's rotation from hold ``after`` into hold ``before`` from the gyro
-        (:func:`.gyro.rotation_between`); None without an IMU or its samples over the move."""
+        """(``before``'s stamp, R, std rad): the body's rotation from hold ``after`` into hold ``before`` from the
+        gyro (:func:`.gyro.rotation_between`); None without an IMU or its samples over the move."""
         if self.rig.imu is None or not len(self.imu):
             return None
         t0 = before.settled_end
@@ -682,7 +680,7 @@ class Pipeline:
             still, move = run_a, (run_a[1], run_b[0])
         turn = rotation_between(self.imu, self.rig.imu, still, move, self.config.imu.max_age_s,
                                 self.config.imu.gyro_scale_error)
-        return None if turn is None else (turn.R, turn.sigma_rad)
+        return None if turn is None else (before.stamp, turn.R, turn.sigma_rad)
 
     def _imu_gravity(self, hold: Hold) -> ImuGravity | None:
         if self.rig.imu is None or not len(self.imu):

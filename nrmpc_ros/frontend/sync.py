@@ -87,7 +87,7 @@ from statistics import median
 
 from ..config import check, option
 from ..errors import OptionError
-from .delivery import BURST_MARGIN, DELIVERY_WINDOW_S, DelaySpread, SlidingMax
+from .delivery import BURST_MARGIN, DELIVERY_WINDOW_S, DelaySpread, StampLags
 from .drops import Drop
 from .stamps import HeldJump, JumpPolicy
 
@@ -227,7 +227,7 @@ class StampSynchronizer:
     def _new_delivery(self) -> None:
         """Forget how the streams delivered (a new timeline: the delays of the old one mean nothing there)."""
         self._delays = [DelaySpread(DELIVERY_WINDOW_S) for _ in range(self.num_streams)]  # on the arrival clock
-        self._lags = [SlidingMax(DELIVERY_WINDOW_S) for _ in range(self.num_streams)]  # on the others' stamps
+        self._lags = StampLags(self.num_streams, DELIVERY_WINDOW_S)
         self._arrival = -math.inf  # the newest arrival time given
 
     def _restart(self) -> None:
@@ -290,8 +290,7 @@ class StampSynchronizer:
     def _backlog_s(self, streams) -> float:
         """The largest backlog of ``streams``: their largest lag and the spread of every stream's delays (shared:
         computed once)."""
-        newest = max(self._newest)
-        lag = max(self._lags[i].largest(newest) for i in streams) if newest > -math.inf else 0.0
+        lag = max(self._lags.largest(i, self._newest) for i in streams)
         spread = max(d.spread(self._arrival) for d in self._delays) if self._arrival > -math.inf else 0.0
         return min(BURST_MARGIN * max(lag, spread), self.max_backlog_s)
 
@@ -336,9 +335,7 @@ class StampSynchronizer:
     def _delivered(self, i: int, stamp: float, arrival: float | None) -> None:
         """Measure how stream i delivers: how far its message came behind the others' newest stamp, and (given
         the arrival time) its delay."""
-        others = max((t for j, t in enumerate(self._newest) if j != i), default=-math.inf)
-        if others > stamp:
-            self._lags[i].add(others, others - stamp)
+        self._lags.delivered(i, stamp, self._newest)
         if arrival is not None and math.isfinite(arrival):
             self._delays[i].add(arrival, stamp)
             self._arrival = max(self._arrival, arrival)

@@ -455,8 +455,9 @@ class ZuptDetector:
         return t, still, brk
 
     def _run_of(self, t0: float, t1: float):
-        """(stamps, i, j, first): samples i..j lie in [t0, t1] (j the newest); ``first`` starts the still run
-        holding j (None if j is not in one). None without noise, or when no sample lies in [t0, t1]."""
+        """(stamps, i, j, run): samples i..j lie in [t0, t1] (j the newest); ``run`` = (first, last) indices of
+        the still run holding j (None if j is not in one). None without noise, or when no sample lies in
+        [t0, t1]."""
         v = self._verdicts()
         if v is None:
             return None
@@ -471,8 +472,8 @@ class ZuptDetector:
             i = j = i if after else j
         starts, ends = _runs(t, still, brk, _min_run(self.config, _period(t, self._noise)))
         k = int(np.searchsorted(starts, j, side="right")) - 1
-        first = int(starts[k]) if k >= 0 and ends[k] >= j else None
-        return t, i, j, first
+        run = (int(starts[k]), int(ends[k])) if k >= 0 and ends[k] >= j else None
+        return t, i, j, run
 
     def is_still(self, t0: float, t1: float) -> bool | None:
         """True when every sample in [t0, t1] lies in one still run (at least one window long).
@@ -483,34 +484,26 @@ class ZuptDetector:
         r = self._run_of(t0, t1)
         if r is None:
             return None
-        _, i, _, first = r
-        return first is not None and first <= i
+        _, i, _, run = r
+        return run is not None and run[0] <= i
 
     def still_run(self, t: float) -> tuple | None:
-        """(first, last) stamps of the still run holding ``t`` as far as the samples so far show it (its last
-        sample the newest one while the rig is still at rest); None when ``t`` is not in one."""
-        v = self._verdicts()
-        if v is None:
-            return None
-        ts, still, brk = v
-        j = int(np.searchsorted(ts, t, side="right")) - 1
-        if j < 0 or t - ts[j] > self.config.gap_periods * _period(ts, self._noise):
-            return None
-        starts, ends = _runs(ts, still, brk, _min_run(self.config, _period(ts, self._noise)))
-        k = int(np.searchsorted(starts, j, side="right")) - 1
-        if k < 0 or ends[k] < j:
-            return None
-        return float(ts[starts[k]]), float(ts[ends[k]])
-
-    def still_since(self, t: float) -> float | None:
-        """Stamp of the first sample of the still run holding ``t`` (its newest sample at most a gap before
-        ``t``); None when ``t`` is not in one."""
+        """(first, last) stamps of the still run holding ``t`` (its newest sample at most a gap before ``t``) as
+        far as the samples so far show it (its last sample the newest one while the rig is still at rest);
+        None when ``t`` is not in one."""
         r = self._run_of(-math.inf, t)
         if r is None or r[3] is None:
             return None
-        if t - r[0][r[2]] > self.config.gap_periods * _period(r[0], self._noise):
+        ts, _, j, (first, last) = r
+        if t - ts[j] > self.config.gap_periods * _period(ts, self._noise):
             return None
-        return float(r[0][r[3]])
+        return float(ts[first]), float(ts[last])
+
+    def still_since(self, t: float) -> float | None:
+        """Stamp of the first sample of the still run holding ``t`` (:meth:`still_run`); None when ``t`` is not
+        in one."""
+        run = self.still_run(t)
+        return None if run is None else run[0]
 
 
 __all__ = ["ImuNoise", "ZuptConfig", "ZuptDetector", "estimate_noise", "still_intervals", "still_mask",
