@@ -12,7 +12,9 @@ bar, ``ring3``, ``cross4``, ``ring5``, ``ring6``), each with soft (2 Hz) or stif
 at 10 Hz, IMU at 200 Hz unless said): ``imu100`` / ``imu200`` / ``imu500`` the IMU rate; ``snap0.5`` one image
 per camera 0.5 s after each stop; ``camrates`` each camera its own rate (10, 15, 30, 20, 12, 25 Hz) and phase;
 ``exposure`` auto-exposure drift (gain 1 +- 0.3, 10 s periods); ``creep`` random 2-4 s holds of which a third
-creep at 0.5 deg/s (not still); ``imuclock`` random 1.5-3.5 s holds and an IMU clock 15 ms off the cameras'.
+creep at 0.5 deg/s (not still); ``imuclock`` random 1.5-3.5 s holds and an IMU clock 15 ms off the cameras';
+``swsync`` software-synchronised cameras streaming through the moves (+-8 ms stamp jitter, 2 % of frames
+dropped), bars damped at 0.03 that ring through the holds, IMU at 1000 Hz.
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -260,12 +262,14 @@ def matrix_styles() -> dict:
         "creep": lambda M: ({**base, "views": 7, "hold_seconds_range": (2.0, 4.0), "creep_fraction": 1 / 3,
                              "creep_deg_per_s": 0.5}, bag),
         "imuclock": lambda M: ({**base, "hold_seconds_range": (1.5, 3.5)}, {**bag, "imu_time_offset_ms": 15.0}),
+        "swsync": lambda M: ({**base, "capture": "stream", "imu_rate": 1000.0},
+                             {"damping": 0.03, "jitter_ms": 8.0, "drop_rate": 0.02}),
     }
 
 
 QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross4-soft"),
          ("snap0.5", "line2-soft"), ("camrates", "ring5-stiff"), ("exposure", "ring6-soft"),
-         ("creep", "cross4-stiff"), ("imuclock", "line2-stiff")]
+         ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft")]
 
 
 def matrix_cells(full: bool) -> list:

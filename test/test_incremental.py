@@ -146,6 +146,26 @@ def test_settled_views_are_placed_by_resection(noisy, monkeypatch):
         assert err < 4 * sig + 0.05, errs
 
 
+def test_a_settled_view_whose_landmarks_one_camera_sees_is_placed_by_resection(noisy):
+    """Past the young views a view whose shared landmarks all fall in one camera (the others lost theirs in
+    the move) is still placed, on the landmarks the window triangulates: their 3D positions fix the pose from
+    one camera. Too few for a two-view estimate (the relative pose's scale needs two cameras), so before it
+    started a new sequence."""
+    p = noisy
+    items = list(views(p))
+    seq = IncrementalSequence(p.rig, "6pt-bending", window=6, seed=0)
+    k = 8
+    for c, t, f, g in items[:k]:
+        seq.add_view(c, t, f, g)
+    c, t, f, g = items[k]
+    t = np.where(c == 0, t, t + 10**6)  # only camera 0's landmarks were seen before
+    out = seq.add_view(c, t, f, g)
+    assert isinstance(out, ViewEstimate) and out.sequence == 0 and out.view == k, out
+    assert rotation_angle(p.R[k].T @ out.R) < math.radians(0.5)
+    err = math.degrees(float(angle_between(out.gravity, p.gravity[k])))
+    assert err < 4 * math.degrees(out.gravity_sigma_rad) + 0.05
+
+
 def test_a_noisier_view_weighs_less_and_its_std_grows():
     """A view that says its bearings carry extra noise (a hold whose bars may still ring) gets the noise scale
     sqrt(1 + (extra / nominal)^2): its observations weigh less, its pose's std grows by most of the scale, and

@@ -543,9 +543,10 @@ class IncrementalSequence:
         _, ia, ib = np.intersect1d(s.views[j].keys(), s.views[k].keys(), assume_unique=False, return_indices=True)
         return ia, ib
 
-    def _links(self, k: int):
+    def _links(self, k: int, min_cameras: int = 2):
         """The earlier views view k may be paired with: (j, shared observation indices in j and in k, pair
-        method) of those that share enough landmarks from two cameras; the newest ``max_pair_gap`` views first
+        method) of those that share enough landmarks from ``min_cameras`` cameras (two for a two-view estimate:
+        one camera's bearings leave a generalized relative pose's scale free); the newest ``max_pair_gap`` views first
         (newest first), then any older view of the sequence, most shared landmarks first (docs/PIPELINE.md,
         "The joint estimate over the sequence"), and, where there are none, what the best ones shared (for the
         user: the views tried of a :class:`NewSequence`)."""
@@ -558,7 +559,7 @@ class IncrementalSequence:
         per_cam = np.bincount(view[hit] * ncam + cam[hit], minlength=k * ncam).reshape(k, ncam)
         shared = per_cam.sum(axis=1)
         cams = np.count_nonzero(per_cam, axis=1)
-        ok = (shared >= opts.min_pair_matches) & (cams >= 2)
+        ok = (shared >= opts.min_pair_matches) & (cams >= min_cameras)
         recent = np.arange(k - 1, max(-1, k - 1 - opts.max_pair_gap), -1)
         older = np.arange(k - 1 - opts.max_pair_gap, -1, -1)
         older = older[np.argsort(-shared[older], kind="stable")]
@@ -585,7 +586,7 @@ class IncrementalSequence:
             return None
         if s.rivals:
             return None  # gravity still ambiguous: each new pair's candidates compete (_update_gravity)
-        links, _ = self._links(k)
+        links, _ = self._links(k, min_cameras=1)  # landmarks known in 3D place a view from one camera
         if not links:
             return None
         j, _, _, pm = links[0]
@@ -597,7 +598,7 @@ class IncrementalSequence:
                                      [v.R for v in s.views[:k]], [v.t for v in s.views[:k]],
                                      s.gravity if self.with_gravity else None,
                                      (vk.cam, vk.track, vk.f), (vj.R, vj.t), self.threshold,
-                                     opts.min_pair_matches, self.seed + k)
+                                     opts.min_pair_matches, self.seed + k, min_cameras=1)
         if placed is None:
             return None
         res, hit = placed

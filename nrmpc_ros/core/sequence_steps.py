@@ -204,7 +204,7 @@ class Chain:
 
 
 def resect_on_landmarks(rig: Rig, known, R, t, gravity, new, guess, threshold: float, min_inliers: int,
-                        seed: int = 0):
+                        seed: int = 0, min_cameras: int = 2):
     """Place a new view by resection on the landmarks earlier views triangulate.
 
     ``known`` = (view, cam, track, f) of the earlier views' observations (views index ``R``, ``t``: poses in
@@ -212,7 +212,8 @@ def resect_on_landmarks(rig: Rig, known, R, t, gravity, new, guess, threshold: f
     those poses (cameras bent at ``gravity`` = g_0, None for straight) and the new view's observations of
     them resected (:func:`.resection.resect_view`) from ``guess`` = (R, t). Returns (Resection, indices into
     ``new`` of the observations used), or None with fewer than ``min_inliers`` landmarks or inliers, or
-    inliers from one camera only.
+    inliers from fewer than ``min_cameras`` cameras (one suffices for the pose: the landmarks are known in 3D
+    and the camera's bent extrinsics at the view's gravity give the body's).
     """
     view, cam, track, f = known
     new_cam, new_track, new_f = new
@@ -232,7 +233,7 @@ def resect_on_landmarks(rig: Rig, known, R, t, gravity, new, guess, threshold: f
         return None
     res = resect_view(rig, points[pos[hit]], new_f[hit], new_cam[hit], guess[0], guess[1], gravity, threshold,
                       seed=seed)
-    if res is None or res.num_inliers < min_inliers or len(np.unique(new_cam[hit[res.inliers]])) < 2:
+    if res is None or res.num_inliers < min_inliers or len(np.unique(new_cam[hit[res.inliers]])) < min_cameras:
         return None
     return res, hit
 

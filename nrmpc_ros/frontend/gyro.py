@@ -110,48 +110,75 @@ def camera_turns(R_body: np.ndarray, W0: np.ndarray, W1: np.ndarray) -> np.ndarr
 
 
 class CameraTurns:
-    """Each camera's rotation from one frame set to the next, from the gyro: the start of every KLT track's
-    search through a move (docs/PIPELINE.md, "Performance notes").
+    """Each camera's rotation from one image to its next, from the gyro and the bars: the start of every KLT
+    track's search (docs/PIPELINE.md, "Performance notes").
 
     ``extrinsics`` (:class:`~.extrinsics.FrameExtrinsics`, None without an IMU) names the rig; ``buffer``/
-    ``mount`` the gyro. :meth:`advance` answers per frame set with the body's turn seen through each camera's
-    canonical rotation. Not through the bent one: the bars' state follows the accelerometer bias that the
-    estimation stage finds, so a start from it would make the tracks (and every estimate) depend on when that
-    stage ran, and the node would no longer give the replay's estimates; the bending changes the turn's axis
-    by its few degrees, a fraction of a pixel to a few pixels of the start. None for every camera without an
-    IMU on the body, for a camera's first frame, or while the gyro's samples do not cover the interval: the
-    trackers then predict from the images alone."""
+    ``mount`` the gyro; ``bars`` (a :class:`~nrmpc_ros.core.bar_state.BarPropagator` the pipeline feeds every
+    IMU sample as it came, no bias subtracted; None: none) the bars' state. :meth:`advance` answers per frame
+    set with candidates of each camera's turn: the body's turn seen through the camera's canonical rotation
+    and, with ``bars``, through its bent rotations at its two images (the change of the bars' bending: a bar
+    that rings turns its camera by tens of pixels between frames while the body is still). The tracker starts
+    from the candidate that predicted its tracks best so far (a rig file whose bars do not behave as modelled
+    does not mislead it). The bars' state here is its own, driven by the samples alone: not the one whose
+    accelerometer bias the estimation stage corrects, so the tracks (and every estimate) do not depend on when
+    that stage ran, and the node gives the replay's estimates (the bias moves the static bending, which
+    cancels in the change). None for every camera without an IMU on the body, for a camera's first image, or
+    while the gyro's samples do not cover the interval: the trackers then predict from the images alone."""
 
     def __init__(self, buffer: ImuBuffer, mount: ImuMount | None, extrinsics, num_cameras: int,
-                 time_offset_s: float = 0.0):
+                 time_offset_s: float = 0.0, bars=None):
         self.buffer, self.mount, self.extrinsics = buffer, mount, extrinsics
+        self.bars = bars if bars is not None and not np.all(bars.rigid) else None
         self.num_cameras = int(num_cameras)
         self.time_offset_s = float(time_offset_s)
         self._stamp = np.full(self.num_cameras, np.nan)  # each camera's previous image (frame set stamp)
+        self._taken = np.full(self.num_cameras, np.nan)  # and its own stamp (the bars ring between the two)
 
-    def advance(self, stamp: float, present=None, max_interval_s: float = math.inf) -> list:
-        """The rotation of each camera (f_now = R f_last) since its previous image, (1, 3, 3), or None each;
-        ``present (M,) bool: the cameras with an image in this frame set
-        (default all). None too for a camera whose previous image is more than ``max_interval_s`` old: across
-        the gap between two streams or snapshots the tracks are not followed but linked by descriptors (a
-        whole move's translation leaves the turn's prediction far off, and a wrong KLT link is worse than
-        none)."""
+    @property
+    def candidates(self) -> int:
+        """How many candidate turns :meth:`advance` gives a camera (the tracker keeps a deviation for each)."""
+        return 1 if self.bars is None else 2
+
+    def advance(self, stamp: float, present=None, max_interval_s: float = math.inf, taken=None) -> list:
+        """The candidate rotations of each camera (f_now = R f_last) since its previous image, (K, 3, 3), or
+        None each; ``present`` (M,) bool: the cameras with an image in this frame set (default all); ``taken``
+        (M,): each camera's own image stamp (default the set's; the bars' bending is taken there). None too for
+        a camera whose previous image is more than ``max_interval_s`` old: across the gap between two streams
+        or snapshots the tracks are not followed but linked by descriptors (a whole move's translation leaves
+        the turn's prediction far off, and a wrong KLT link is worse than none)."""
         out = [None] * self.num_cameras
         if self.mount is None or self.mount.mount != "body" or self.extrinsics is None:
             return out
         cams = np.arange(self.num_cameras) if present is None else np.flatnonzero(np.asarray(present, bool))
+        now = np.array([float(stamp) if taken is None or taken[i] is None else float(taken[i])
+                        for i in range(self.num_cameras)])
         W = self.extrinsics.rig.rotations
         body = {}  # the body's turn since each distinct previous stamp
+        use = []
         for i in cams:
             t0 = float(self._stamp[i])
             if not stamp - t0 <= max_interval_s:  # (NaN: the camera's first image)
                 continue
             if t0 not in body:
                 body[t0] = gyro_turn(self.buffer, self.mount, t0, stamp, self.time_offset_s)
-            R = body.get(t0)
-            if R is not None:  # the gyro's turn through the camera's canonical rotation
-                out[i] = camera_turns(R, W[i], W[i])[None]
+            if body.get(t0) is not None:
+                use.append(i)
+        bent = None
+        if use and self.bars is not None and self.bars.ready:
+            idx = np.asarray(use)
+            q = np.concatenate([self._taken[idx], now[idx]])
+            got = self.bars.extrinsics_at(q, np.concatenate([idx, idx]))
+            if got is not None:
+                bent = dict(zip(use, zip(got[1][: len(idx)], got[1][len(idx):])))
+        for i in use:
+            R = body[float(self._stamp[i])]  # the gyro's turn through the camera's canonical rotation
+            turns = [camera_turns(R, W[i], W[i])]
+            if self.bars is not None:  # and through its bent rotations (the canonical again until the bars know)
+                turns.append(camera_turns(R, *bent[i]) if bent is not None else turns[0])
+            out[i] = np.stack(turns)
         self._stamp[cams] = stamp
+        self._taken[cams] = now[cams]
         return out
 
 

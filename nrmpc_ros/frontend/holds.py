@@ -369,15 +369,24 @@ class HoldRecorder:
             elif fitted:
                 # the bars ring through the frames: every frame whose offset the damped response explains is
                 # used at the fitted rest position (the ringing removed from every track of its camera)
-                dev_model = np.nanmax(np.linalg.norm(offsets - rest[None] - model, axis=2), axis=1)
-                settled = _longest_run(after & (dev_model <= thr))
+                # a frame the fit explains lies within the fit's own scatter of it (what the model does not
+                # follow of a large ringing, e.g. the stamps' jitter times its speed), at least within thr
+                per_cam = np.linalg.norm(offsets - rest[None] - model, axis=2)  # (F, cams)
+                tol = np.array([thr if fits[i] is None else
+                                max(thr, EXPLAINED_NOISE_SIGMAS * math.sqrt(2.0) * fits[i].residual_rms)
+                                for i in cams])
+                dev_model = np.nanmax(per_cam, axis=1)
+                settled = _longest_run(after & np.all(~(per_cam > tol[None]), axis=1))
                 if settled.sum() < need:
                     return None, HoldRefusal(Refusal.NOT_STILL, (
                         f"the damped response explains no {need} frames in a row within {thr:.3f} px"))
                 for k, i in enumerate(cams):
                     correction[:, i] = model[:, k]
                 ringing, source = True, RingingSource.FIT
-                extra = [fits[i].rest_std[0] ** 2 - (fits[i].residual_rms ** 2) / max(int(settled.sum()), 1)
+                # the fitted rest's uncertainty beyond the tracks' own noise, which their average carries already
+                # (what the fit does not follow, e.g. the stamps' jitter, moves all tracks of a frame alike: their
+                # average does not shrink it)
+                extra = [fits[i].rest_std[0] ** 2 - noise ** 2 / max(int(settled.sum()), 1)
                          for i in cams if fits[i] is not None]
                 ringing_px = float(math.sqrt(max(max(extra, default=0.0), 0.0)))
                 dev = dev_model

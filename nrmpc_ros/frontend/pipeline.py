@@ -28,6 +28,7 @@ import numpy as np
 from ..cameras import check_image_size
 from ..config import check, from_mapping, option
 from ..core import METHODS
+from ..core.bar_state import BarPropagator
 from ..core.incremental import IncrementalSequence
 from ..core.rig import Rig
 from ..core.sequence_steps import CORRESPONDENCE_BIAS_FLOOR_PX, SequenceOptions
@@ -215,8 +216,12 @@ class Pipeline:
         self.handoff: list | None = None  # None: a measured hold is estimated at once; a list: it is appended
         self._handed = 0  # measured holds handed to the estimation stage
         self.trackers = [KltTracker(self.config.tracking, cam) for cam in rig.cameras]
-        # each camera's turn between frame sets (gyro and bars): where KLT starts through a move
-        self.turns = CameraTurns(self.imu, rig.imu, self.extrinsics, rig.num_cameras, self.config.imu_time_offset_s)
+        # each camera's turn between its images (gyro and bars): where KLT starts. The bars' state for it is
+        # driven by the samples as they came: the intake's tracks do not wait for the estimated bias
+        self._tracking_bars = BarPropagator(rig, imu_time_offset_s=self.config.imu_time_offset_s) \
+            if self.extrinsics is not None and self.config.tracking.imu_prediction else None
+        self.turns = CameraTurns(self.imu, rig.imu, self.extrinsics, rig.num_cameras, self.config.imu_time_offset_s,
+                                 self._tracking_bars)
         self.thinning = HoldThinning(CORRESPONDENCE_BIAS_FLOOR_PX)  # frames of a settled hold left untracked
         self._hold: HoldRecorder | None = None
         self._last_hold: Hold | None = None  # the latest hold given to the sequence (a gyro bridge starts there)
@@ -241,6 +246,8 @@ class Pipeline:
             self._observe_gravity()
             a, w = _vec3(accel), None if gyro is None else _vec3(gyro)
             self.extrinsics.add_imu(stamp, a, (0.0, 0.0, 0.0) if w is None else w)
+            if self._tracking_bars is not None:
+                self._tracking_bars.add_imu(stamp, a, (0.0, 0.0, 0.0) if w is None else w)
             if w is not None:
                 self.imu_clock.add_imu(stamp, w, a)
 
@@ -323,7 +330,7 @@ class Pipeline:
             self._note_period(gap)
             self.last_stamp = stamp
             return self._measure_early(stamp)
-        turns = self.turns.advance(stamp, [img is not None for img in images], self._lone_gap()) \
+        turns = self.turns.advance(stamp, [img is not None for img in images], self._lone_gap(), taken) \
             if self.config.tracking.imu_prediction else [None] * len(images)
         steps = [None if img is None else trk.track(img, turn)
                  for trk, img, turn in zip(self.trackers, images, turns)]
