@@ -329,3 +329,32 @@ def test_online_with_covariances_the_first_bias_estimate_is_soon_replaced(rng, r
     assert det.noise.source == "covariance" and answers and all(s is True for s in answers)
     bias_std = 0.002 / math.sqrt(len(t))  # of the mean over all samples; the quietest windows' median is near it
     assert np.abs(det.noise.gyro_bias - BIAS).max() < 10 * bias_std < np.abs(first - BIAS).max()
+
+
+@pytest.mark.parametrize("imu_rate", [50.0, 200.0, 1000.0])
+def test_the_streams_first_window_and_one_after_a_gap_are_no_move(rng, imu_rate):
+    """A recording that starts (or an IMU stream that resumes after a gap) while the rig rests: its first
+    samples are still, but fewer than a still run needs. Nothing says the rig moved, so the answer is unknown
+    (None: the images decide), not "moved": before, a hold at a recording's start was cut after its first
+    frame and measured twice, a pair without any motion between. A young run after a move is "moved" as
+    before, and the samples of a move are too."""
+    plan = [("hold", 3.0), ("move", 1.0), ("hold", 3.0)]
+    t, a, w, holds = trace(rng, imu_rate, plan)
+    det = ZuptDetector(noise=ImuNoise(0.02, 0.002, BIAS, "covariance", 9.81, 1.0 / imu_rate))
+    win = max(ZuptConfig().window_s, ZuptConfig().min_window_samples / imu_rate)
+    first = [k for k in range(len(t)) if t[k] < 0.5 * win]
+    for k in first:
+        det.add(t[k], a[k], w[k])
+    assert det.is_still(t[first[0]], t[first[-1]]) is None
+    gap = 0.5  # no sample from 1.0 to 1.5 s: then the stream resumes, the rig still at rest
+    for k in range(first[-1] + 1, len(t)):
+        if 1.0 <= t[k] < 1.0 + gap:
+            continue
+        det.add(t[k], a[k], w[k])
+        if t[k] >= 1.0 + gap and t[k] - (1.0 + gap) < 0.5 * win:
+            assert det.is_still(1.0 + gap, t[k]) is None  # young after the gap
+        if 3.0 + 0.2 <= t[k] < 4.0 - 0.2:
+            assert det.is_still(t[k] - 0.05, t[k]) is False  # the move
+        if 4.0 + 0.05 <= t[k] < 4.0 + 0.5 * win:
+            assert det.is_still(t[k] - 0.02, t[k]) is False  # young after the move: it just stopped
+    assert det.is_still(t[-1] - 0.5, t[-1]) is True

@@ -318,6 +318,7 @@ class HoldRecorder:
         ringing, fits = False, [None] * M
         trace = np.full((F, M, 2), np.nan)
         correction = np.zeros((F, M, 2))  # the fitted ringing removed from every track of a camera
+        track_correction = {}  # camera -> (F, n, 2): each track's own fitted ringing, where fitted
         settling = None
         if F == 1:
             settled = np.ones(1, bool)
@@ -382,6 +383,12 @@ class HoldRecorder:
                         f"the damped response explains no {need} frames in a row within {thr:.3f} px"))
                 for k, i in enumerate(cams):
                     correction[:, i] = model[:, k]
+                    if fits[i] is not None:  # each track's own ringing where it was seen long enough
+                        tau_i = np.where(np.isfinite(taken[:, i]), taken[:, i], t) - start
+                        own, fitted_tracks = fits[i].track_oscillations(tau_i, tracks[i][2], settled,
+                                                                        MIN_FIT_FRAMES)
+                        track_correction[i] = np.where(fitted_tracks[None, :, None], own,
+                                                       model[:, k][:, None, :])
                 ringing, source = True, RingingSource.FIT
                 # the fitted rest's uncertainty beyond the tracks' own noise, which their average carries already
                 # (what the fit does not follow, e.g. the stamps' jitter, moves all tracks of a frame alike: their
@@ -410,7 +417,7 @@ class HoldRecorder:
         cam_holds = [None] * M
         for i in cams:
             a_ids, a_uv, X = tracks[i]
-            Xs = X[idx] - correction[idx, i][:, None, :]
+            Xs = X[idx] - (track_correction[i][idx] if i in track_correction else correction[idx, i][:, None, :])
             present = np.isfinite(Xs[:, :, 0])
             frames = int(np.count_nonzero(present.any(axis=1)))
             if frames == 0:
@@ -421,7 +428,7 @@ class HoldRecorder:
             mean = np.nanmean(Xs[:, keep], axis=0)
             n = present[:, keep].sum(axis=0)
             dev2 = np.nansum((Xs[:, keep] - mean[None]) ** 2, axis=(0, 2))
-            dof = 2 * (n - 1)
+            dof = 2 * (n - (3 if i in track_correction else 1))  # (rest, and each track's own cos and sin)
             noise = math.sqrt(float(dev2.sum() / dof.sum())) if dof.sum() > 0 else math.nan
             cam_holds[i] = CameraHold(a_ids[keep], mean, a_uv[keep], frames, noise)
         if all(c is None for c in cam_holds):

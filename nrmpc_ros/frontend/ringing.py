@@ -64,6 +64,26 @@ class RingingFit:
         return A[:, 1:] @ self.coef[segment]
 
 
+    def track_oscillations(self, tau, X: np.ndarray, used: np.ndarray, min_frames: int) -> tuple:
+        """Each track's own ringing at this fit's frequency and damping: X (F, n, D) the tracks' positions at
+        times tau (F,) (NaN: not seen), ``used`` (F,) the frames to fit on. A camera's ringing is a turn and a
+        shift of its bar's tip: tracks at different places of the image (and depths) ring with different
+        amplitudes and phases, which one oscillation of their median does not remove. Returns ((F, n, D) the
+        oscillation part of each track at every frame, (n,) bool the tracks fitted: those seen in at least
+        ``min_frames`` used frames; the others' oscillation is zero)."""
+        A = _design(np.asarray(tau, dtype=float), self.freq_hz, self.zeta)  # (F, 3)
+        seen = np.isfinite(X).all(axis=2) & np.asarray(used, bool)[:, None]  # (F, n)
+        fitted = seen.sum(axis=0) >= min_frames
+        w = seen[:, fitted].astype(float)
+        Y = np.where(seen[:, fitted, None], X[:, fitted], 0.0)
+        N = np.einsum("fn,fa,fb->nab", w, A, A)
+        N += 1e-12 * np.trace(N, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+        coef = np.linalg.solve(N, np.einsum("fn,fa,fnd->nad", w, A, Y))  # (n', 3, D)
+        out = np.zeros(X.shape)
+        out[:, fitted] = np.einsum("fa,nad->fnd", A[:, 1:], coef[:, 1:])
+        return out, fitted
+
+
 def _design(tau: np.ndarray, f: float, zeta: float) -> np.ndarray:
     """Columns 1, exp(-zeta w tau) cos(w_d tau), exp(-zeta w tau) sin(w_d tau) (K, 3)."""
     w = 2.0 * math.pi * f

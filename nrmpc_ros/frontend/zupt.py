@@ -395,8 +395,8 @@ class ZuptDetector:
         self._noise_stamp = -math.inf  # newest sample stamp at the last noise estimate
         self._noise_span = 0.0  # the span of the samples that estimate used (s)
         self._covariance = covariance
-        self._cache_t = np.empty(0)  # stamps and verdicts of the samples whose window is complete
-        self._cache_still = np.empty(0, dtype=bool)
+        self._cache_t = np.empty(0)  # stamps and statistics of the samples whose window is complete
+        self._cache_stat = np.empty(0)
         self._cache_noise = None
 
     def add(self, t: float, accel, gyro, covariance=None) -> ImuReject | None:
@@ -431,28 +431,29 @@ class ZuptDetector:
         return self._noise
 
     def _verdicts(self):
-        """(stamps, still flags, gap flags) of the buffered samples, or None without noise or samples."""
+        """(stamps, still flags, gap flags, unknown flags: too few samples in the window to tell) of the buffered
+        samples, or None without noise or samples."""
         noise = self.noise
         t, a, w = self.buffer.window(-math.inf, math.inf)
         if noise is None or not len(t):
             return None
         if noise is not self._cache_noise:
-            self._cache_t, self._cache_still, self._cache_noise = np.empty(0), np.empty(0, dtype=bool), noise
+            self._cache_t, self._cache_stat, self._cache_noise = np.empty(0), np.empty(0), noise
         k = int(np.searchsorted(self._cache_t, t[0]))  # samples trimmed from the buffer
-        ct, cs = self._cache_t[k:], self._cache_still[k:]
+        ct, cs = self._cache_t[k:], self._cache_stat[k:]
         done = ct[-1] if len(ct) else -math.inf
         win = _window_length(self.config, _period(t, noise))
         i = int(np.searchsorted(t, done - win))  # one window of context before the first new verdict
         stat, _ = _statistic(t[i:], a[i:], w[i:], noise, self.config)
-        with np.errstate(invalid="ignore"):
-            new_still = stat[len(ct) - i:] < 1.0
+        new_stat = stat[len(ct) - i:]
         new_t = t[len(ct):]
         settled = new_t <= t[-1] - 0.5 * win
-        self._cache_t, self._cache_still = np.append(ct, new_t[settled]), np.append(cs, new_still[settled])
-        still = np.append(cs, new_still)
+        self._cache_t, self._cache_stat = np.append(ct, new_t[settled]), np.append(cs, new_stat[settled])
+        stat = np.append(cs, new_stat)
         brk = np.ones(len(t), dtype=bool)
         brk[1:] = np.diff(t) > self.config.gap_periods * _period(t, noise)
-        return t, still, brk
+        with np.errstate(invalid="ignore"):
+            return t, stat < 1.0, brk, np.isnan(stat)
 
     def _run_of(self, t0: float, t1: float):
         """(stamps, i, j, run): samples i..j lie in [t0, t1] (j the newest); ``run`` = (first, last) indices of
@@ -461,7 +462,7 @@ class ZuptDetector:
         v = self._verdicts()
         if v is None:
             return None
-        t, still, brk = v
+        t, still, brk, _ = v
         i = int(np.searchsorted(t, t0, side="left"))
         j = int(np.searchsorted(t, t1, side="right")) - 1
         if j < i:  # no sample inside (an IMU slower than the cameras): the nearest sample within a gap answers
@@ -475,17 +476,39 @@ class ZuptDetector:
         run = (int(starts[k]), int(ends[k])) if k >= 0 and ends[k] >= j else None
         return t, i, j, run
 
+    def _young_after_break(self, t0: float, t1: float) -> bool:
+        """The stream began, or resumed after a gap, less than a still run's length before ``t1``, and no sample
+        since (nor in [t0, t1]) shows a move (each is still, or has too few samples around it to tell): what the
+        rig did before is unknown (it may have stood still for long), so the young run is no evidence of a
+        move."""
+        v = self._verdicts()
+        if v is None:
+            return False
+        t, still, brk, unknown = v
+        i = int(np.searchsorted(t, t0, side="left"))
+        j = int(np.searchsorted(t, t1, side="right")) - 1
+        if j < 0:
+            return False
+        b = int(np.flatnonzero(brk[: j + 1])[-1])  # the stream's start or the last gap (brk[0] is set)
+        if t[j] - t[b] >= _min_run(self.config, _period(t, self._noise)):
+            return False  # the stream has run long enough since to tell a still run: it would have one
+        return bool(np.all(still[min(i, b): j + 1] | unknown[min(i, b): j + 1]))
+
     def is_still(self, t0: float, t1: float) -> bool | None:
         """True when every sample in [t0, t1] lies in one still run (at least one window long).
 
         Without a sample inside [t0, t1] (an IMU slower than the cameras), the nearest sample within a gap of
-        the interval answers. None when there is none or the noise is not known yet.
+        the interval answers. None when there is none, the noise is not known yet, or the samples are still
+        in a run too young to tell that began with the stream or after a gap in it (the rig may have stood
+        still before: the stream's first window is no move).
         """
         r = self._run_of(t0, t1)
         if r is None:
             return None
         _, i, _, run = r
-        return run is not None and run[0] <= i
+        if run is not None and run[0] <= i:
+            return True
+        return None if self._young_after_break(t0, t1) else False
 
     def still_run(self, t: float) -> tuple | None:
         """(first, last) stamps of the still run holding ``t`` (its newest sample at most a gap before ``t``) as
