@@ -456,43 +456,32 @@ class ZuptDetector:
             return t, stat < 1.0, brk, np.isnan(stat)
 
     def _run_of(self, t0: float, t1: float):
-        """(stamps, i, j, run): samples i..j lie in [t0, t1] (j the newest); ``run`` = (first, last) indices of
-        the still run holding j (None if j is not in one). None without noise, or when no sample lies in
-        [t0, t1]."""
+        """(stamps, i, j, run, young): samples i..j lie in [t0, t1] (j the newest); ``run`` = (first, last)
+        indices of the still run holding j (None if j is not in one); ``young``: the stream began, or resumed
+        after a gap, less than a still run's length before sample j, and no sample since (nor in i..j) shows a
+        move (each is still, or has too few samples around it to tell): what the rig did before is unknown (it
+        may have stood still for long), so a run too short yet is no evidence of a move. None without noise,
+        or when no sample lies in [t0, t1]."""
         v = self._verdicts()
         if v is None:
             return None
-        t, still, brk, _ = v
+        t, still, brk, unknown = v
         i = int(np.searchsorted(t, t0, side="left"))
         j = int(np.searchsorted(t, t1, side="right")) - 1
+        period = _period(t, self._noise)
         if j < i:  # no sample inside (an IMU slower than the cameras): the nearest sample within a gap answers
-            gap = self.config.gap_periods * _period(t, self._noise)
+            gap = self.config.gap_periods * period
             after, before = i < len(t) and t[i] - t1 <= gap, j >= 0 and t0 - t[j] <= gap
             if not (after or before):
                 return None
             i = j = i if after else j
-        starts, ends = _runs(t, still, brk, _min_run(self.config, _period(t, self._noise)))
+        min_run = _min_run(self.config, period)
+        starts, ends = _runs(t, still, brk, min_run)
         k = int(np.searchsorted(starts, j, side="right")) - 1
         run = (int(starts[k]), int(ends[k])) if k >= 0 and ends[k] >= j else None
-        return t, i, j, run
-
-    def _young_after_break(self, t0: float, t1: float) -> bool:
-        """The stream began, or resumed after a gap, less than a still run's length before ``t1``, and no sample
-        since (nor in [t0, t1]) shows a move (each is still, or has too few samples around it to tell): what the
-        rig did before is unknown (it may have stood still for long), so the young run is no evidence of a
-        move."""
-        v = self._verdicts()
-        if v is None:
-            return False
-        t, still, brk, unknown = v
-        i = int(np.searchsorted(t, t0, side="left"))
-        j = int(np.searchsorted(t, t1, side="right")) - 1
-        if j < 0:
-            return False
         b = int(np.flatnonzero(brk[: j + 1])[-1])  # the stream's start or the last gap (brk[0] is set)
-        if t[j] - t[b] >= _min_run(self.config, _period(t, self._noise)):
-            return False  # the stream has run long enough since to tell a still run: it would have one
-        return bool(np.all(still[min(i, b): j + 1] | unknown[min(i, b): j + 1]))
+        young = t[j] - t[b] < min_run and bool(np.all(still[min(i, b): j + 1] | unknown[min(i, b): j + 1]))
+        return t, i, j, run, young
 
     def is_still(self, t0: float, t1: float) -> bool | None:
         """True when every sample in [t0, t1] lies in one still run (at least one window long).
@@ -505,10 +494,10 @@ class ZuptDetector:
         r = self._run_of(t0, t1)
         if r is None:
             return None
-        _, i, _, run = r
+        _, i, _, run, young = r
         if run is not None and run[0] <= i:
             return True
-        return None if self._young_after_break(t0, t1) else False
+        return None if young else False
 
     def still_run(self, t: float) -> tuple | None:
         """(first, last) stamps of the still run holding ``t`` (its newest sample at most a gap before ``t``) as
@@ -517,7 +506,7 @@ class ZuptDetector:
         r = self._run_of(-math.inf, t)
         if r is None or r[3] is None:
             return None
-        ts, _, j, (first, last) = r
+        ts, _, j, (first, last), _ = r
         if t - ts[j] > self.config.gap_periods * _period(ts, self._noise):
             return None
         return float(ts[first]), float(ts[last])
