@@ -42,6 +42,7 @@ from ..core.dynamics import bar_natural_frequencies
 from ..core.loss import MAD_TO_STD
 from ..core.rig import Rig
 from .ringing import RingingFit, fit_damped_response
+from .ringing_turns import turn_back
 
 EXPLAINED_NOISE_SIGMAS = 3.0  # a fit explains a camera's offsets: residual within this many of their noise ...
 EXPLAINED_SHARE = 0.1  # ... or within this share of the offsets' spread (the ringing it removed)
@@ -146,6 +147,7 @@ class BarRinging:
     zeta: float
     px_per_load: np.ndarray  # (M,)
     camera_freq_hz: np.ndarray | None = None  # (M,) each camera's own bar (inf: rigid); None: all at freq_hz
+    cameras: tuple | None = None  # the rig's cameras: their models turn a ringing camera's tracks back (None: pixels)
 
     @classmethod
     def of(cls, rig: Rig, cfg: HoldConfig | None = None) -> BarRinging:
@@ -157,7 +159,8 @@ class BarRinging:
         zeta = min(zs) if zs else cfg.damping  # the slowest decay rules the settling
         cr_ux = rig.bar_derivatives[1]  # (M, 3, 3): bend rotation per unit load
         px = np.array([np.linalg.norm(cr_ux[i], 2) * c.focal_px for i, c in enumerate(rig.cameras)])
-        return cls(float(f[flex].min()) if flex.any() else math.inf, float(zeta), px, np.where(flex, f, math.inf))
+        return cls(float(f[flex].min()) if flex.any() else math.inf, float(zeta), px, np.where(flex, f, math.inf),
+                   tuple(rig.cameras))
 
     def camera_freq(self, i: int) -> float:
         """Camera i's bar frequency (Hz): its ringing in the image is at its own bar's frequency."""
@@ -381,19 +384,28 @@ class HoldRecorder:
                 if settled.sum() < need:
                     return None, HoldRefusal(Refusal.NOT_STILL, (
                         f"the damped response explains no {need} frames in a row within {thr:.3f} px"))
+                turn_std = {}  # camera -> the std of its rest turn (px through its focal length)
                 for k, i in enumerate(cams):
                     correction[:, i] = model[:, k]
-                    if fits[i] is not None:  # each track's own ringing where it was seen long enough
-                        tau_i = np.where(np.isfinite(taken[:, i]), taken[:, i], t) - start
-                        own, fitted_tracks = fits[i].track_oscillations(tau_i, tracks[i][2], settled,
-                                                                        MIN_FIT_FRAMES)
-                        track_correction[i] = np.where(fitted_tracks[None, :, None], own,
-                                                       model[:, k][:, None, :])
+                    if fits[i] is None:
+                        continue
+                    tau_i = np.where(np.isfinite(taken[:, i]), taken[:, i], t) - start
+                    X = tracks[i][2]
+                    # the camera's turns taken back to its rest through its own model (ringing_turns), then
+                    # each track's own remaining ringing (the bar tip's shift) where it was seen long enough
+                    turned = None if bars.cameras is None else turn_back(
+                        bars.cameras[i], tracks[i][1], X, tau_i, settled, bars.camera_freq(i), MIN_FIT_FRAMES)
+                    if turned is not None:
+                        turn_std[i] = float(np.max(turned[1].rest_std)) * bars.cameras[i].focal_px
+                    Xb = X if turned is None else turned[0]
+                    own, fitted_tracks = fits[i].track_oscillations(tau_i, Xb, settled, MIN_FIT_FRAMES)
+                    left = 0.0 if turned is not None else model[:, k][:, None, :]
+                    track_correction[i] = X - Xb + np.where(fitted_tracks[None, :, None], own, left)
                 ringing, source = True, RingingSource.FIT
                 # the fitted rest's uncertainty beyond the tracks' own noise, which their average carries already
                 # (what the fit does not follow, e.g. the stamps' jitter, moves all tracks of a frame alike: their
                 # average does not shrink it)
-                extra = [fits[i].rest_std[0] ** 2 - noise ** 2 / max(int(settled.sum()), 1)
+                extra = [turn_std.get(i, fits[i].rest_std[0]) ** 2 - noise ** 2 / max(int(settled.sum()), 1)
                          for i in cams if fits[i] is not None]
                 ringing_px = float(math.sqrt(max(max(extra, default=0.0), 0.0)))
                 dev = dev_model
