@@ -164,6 +164,21 @@ def test_each_track_rings_with_its_own_amplitude_and_is_measured_at_its_own_rest
     assert ch.noise_px < 0.1  # the roll is not in the tracks' noise (2 px with the median's oscillation alone)
 
 
+def test_a_short_hold_ringing_as_far_as_its_measured_stop_allows_is_used():
+    """A hold shorter than a bar period after an abrupt stop (too few frames to fit the ringing): its frames are
+    used with their spread as the penalty when they ring no further than the stop the IMU measured sets off,
+    even beyond what the default stop load would; without that measurement they are refused as before."""
+    f_bar = 3.0
+    t = np.arange(8) / 30.0
+    offsets = np.stack([4.0 * np.cos(2 * math.pi * f_bar * t), np.zeros_like(t)], 1)  # 4 px of ringing
+    rec, _ = record(offsets, noise=0.02, stamps=t)
+    bars = BarRinging(f_bar, 0.05, np.array([0.5, 0.5]))  # px per m/s^2: the default 3 m/s^2 stop rings 1.5 px
+    refused, why = rec.measure(HoldConfig(), 1.0 / f_bar, imu_still_since=0.0, bars=bars)
+    assert refused is None and why.rule is Refusal.NOT_STILL
+    hold, why = rec.measure(HoldConfig(), 1.0 / f_bar, imu_still_since=0.0, bars=bars, stop_amplitude_px=4.0)
+    assert hold is not None and hold.ringing_source is RingingSource.SPREAD and hold.ringing_px > 2.0, why
+
+
 def test_a_still_hold_on_bars_is_settled_at_once():
     """No ringing in the images: settled from the first frame after the stop, whatever the bar period."""
     rec, _ = record(np.zeros((30, 2)))

@@ -295,7 +295,8 @@ class HoldRecorder:
         """(Hold, None) of the hold's frames, or (None, :class:`HoldRefusal`).
 
         ``bars`` (default: the slowest bar at ``bar_period_s``, damping ``cfg.damping``) predicts the ringing;
-        ``stop_amplitude_px``: the image ringing the stop set off (from the IMU's deceleration), for snapshots.
+        ``stop_amplitude_px``: the image ringing the stop set off (from the IMU's deceleration): a snapshot's
+        residual ringing, and how far a hold too short to fit its ringing may plausibly ring.
         """
         if bars is None:
             f = 1.0 / bar_period_s if bar_period_s > 0 else math.inf
@@ -409,7 +410,7 @@ class HoldRecorder:
                          for i in cams if fits[i] is not None]
                 ringing_px = float(math.sqrt(max(max(extra, default=0.0), 0.0)))
                 dev = dev_model
-            elif bars.period_s and np.nanmax(dev[after], initial=0.0) <= _radius_px(cfg, bars) \
+            elif bars.period_s and np.nanmax(dev[after], initial=0.0) <= _radius_px(cfg, bars, stop_amplitude_px) \
                     and (imu_still_since is not None or _oscillates(tau[after], offsets[after], bars.period_s)):
                 # too few frames (or less than a period) to fit the ringing: all of them, trusted as far as their
                 # own spread allows
@@ -463,11 +464,14 @@ class HoldRecorder:
         return hold.settled_end - hold.settled_start
 
 
-def _radius_px(cfg: HoldConfig, bars: BarRinging) -> float:
+def _radius_px(cfg: HoldConfig, bars: BarRinging, stop_amplitude_px: float | None = None) -> float:
     """Largest image offset a ringing bar plausibly gives (px): the ringing a stop of ``stop_load_m_s2`` sets
-    off, at least 1 px; unbounded when the bars' image offset per load is not known."""
+    off, or twice the one the IMU measured for this stop (``stop_amplitude_px``) where that is larger (a swing to
+    either side of a rest that a part of a period only roughly gives), at least 1 px; unbounded when the bars'
+    image offset per load is not known."""
     px = float(np.max(bars.px_per_load, initial=0.0))
-    return max(cfg.stop_load_m_s2 * px, 1.0) if px > 0 else math.inf
+    measured = stop_amplitude_px if stop_amplitude_px is not None and math.isfinite(stop_amplitude_px) else 0.0
+    return max(cfg.stop_load_m_s2 * px, 2.0 * measured, 1.0) if px > 0 else math.inf
 
 
 def _oscillates(tau: np.ndarray, offsets: np.ndarray, period_s: float) -> bool:

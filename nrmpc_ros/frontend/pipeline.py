@@ -579,9 +579,9 @@ class Pipeline:
         return self._estimate_hold(h)
 
     def _stop_amplitude_px(self, rec: HoldRecorder, since: float | None) -> float | None:
-        """The image ringing a snapshot's stop set off (px, largest camera): the IMU's largest change of
+        """The image ringing a hold's stop set off (px, largest camera): the IMU's largest change of
         specific force over the bar period before the still onset, times each camera's offset per load."""
-        if since is None or len(rec) != 1 or not self.bars.period_s:
+        if since is None or not len(rec) or not self.bars.period_s:
             return None
         t, a, _ = self.imu.window(since - 2.0 * self.bars.period_s, rec.stamps[0])
         still = t >= since
