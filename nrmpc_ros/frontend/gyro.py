@@ -135,11 +135,6 @@ class CameraTurns:
         self._stamp = np.full(self.num_cameras, np.nan)  # each camera's previous image (frame set stamp)
         self._taken = np.full(self.num_cameras, np.nan)  # and its own stamp (the bars ring between the two)
 
-    @property
-    def candidates(self) -> int:
-        """How many candidate turns :meth:`advance` gives a camera (the tracker keeps a deviation for each)."""
-        return 1 if self.bars is None else 2
-
     def advance(self, stamp: float, present=None, max_interval_s: float = math.inf, taken=None) -> list:
         """The candidate rotations of each camera (f_now = R f_last) since its previous image, (K, 3, 3), or
         None each; ``present`` (M,) bool: the cameras with an image in this frame set (default all); ``taken``

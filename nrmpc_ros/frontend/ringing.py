@@ -63,7 +63,6 @@ class RingingFit:
         A = _design(np.asarray(tau, dtype=float), self.freq_hz, self.zeta)
         return A[:, 1:] @ self.coef[segment]
 
-
     def track_oscillations(self, tau, X: np.ndarray, used: np.ndarray, min_frames: int) -> tuple:
         """Each track's own ringing at this fit's frequency and damping: X (F, n, D) the tracks' positions at
         times tau (F,) (NaN: not seen), ``used`` (F,) the frames to fit on. A camera's ringing is a turn and a
@@ -74,11 +73,9 @@ class RingingFit:
         A = _design(np.asarray(tau, dtype=float), self.freq_hz, self.zeta)  # (F, 3)
         seen = np.isfinite(X).all(axis=2) & np.asarray(used, bool)[:, None]  # (F, n)
         fitted = seen.sum(axis=0) >= min_frames
-        w = seen[:, fitted].astype(float)
-        Y = np.where(seen[:, fitted, None], X[:, fitted], 0.0)
-        N = np.einsum("fn,fa,fb->nab", w, A, A)
-        N += 1e-12 * np.trace(N, axis1=1, axis2=2)[:, None, None] * np.eye(3)
-        coef = np.linalg.solve(N, np.einsum("fn,fa,fnd->nad", w, A, Y))  # (n', 3, D)
+        w = seen[:, fitted].T[:, :, None]  # (n', F, 1): a track's unseen frames take no part in its fit
+        Y = np.where(w, np.swapaxes(X[:, fitted], 0, 1), 0.0)
+        coef = _solve(w * A[None], Y)  # (n', 3, D)
         out = np.zeros(X.shape)
         out[:, fitted] = np.einsum("fa,nad->fnd", A[:, 1:], coef[:, 1:])
         return out, fitted

@@ -47,8 +47,10 @@ def frame_turns(cam: Camera, anchor_uv: np.ndarray, X: np.ndarray) -> tuple:
         U[:, :, 2] *= d[:, None]
         R = U @ Vt
         r = np.linalg.norm(b - np.einsum("fij,nj->fni", R, a), axis=2)  # (F, n) rad
-        med = np.median(np.where(w, r, np.inf), axis=1, keepdims=True)  # (inf where a frame has no track)
-        w = w & (r <= OUTLIER_FACTOR * np.where(np.isfinite(med), med, 0.0) + 1e-12)
+        med = np.zeros((len(X), 1))  # each frame's median over its own tracks (0 where it has none)
+        rows = w.any(axis=1)
+        med[rows, 0] = np.nanmedian(np.where(w[rows], r[rows], np.nan), axis=1)
+        w = w & (r <= OUTLIER_FACTOR * med + 1e-12)
     return R, w.sum(axis=1) >= MIN_TRACKS
 
 

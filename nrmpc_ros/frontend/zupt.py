@@ -457,7 +457,8 @@ class ZuptDetector:
 
     def _run_of(self, t0: float, t1: float):
         """(stamps, i, j, run, young): samples i..j lie in [t0, t1] (j the newest); ``run`` = (first, last)
-        indices of the still run holding j (None if j is not in one); ``young``: the stream began, or resumed
+        indices of the still run holding j (None if j is not in one); ``young`` (False where i..j lie in one still
+        run): the stream began, or resumed
         after a gap, less than a still run's length before sample j, and no sample since (nor in i..j) shows a
         move (each is still, or has too few samples around it to tell): what the rig did before is unknown (it
         may have stood still for long), so a run too short yet is no evidence of a move. None without noise,
@@ -479,8 +480,10 @@ class ZuptDetector:
         starts, ends = _runs(t, still, brk, min_run)
         k = int(np.searchsorted(starts, j, side="right")) - 1
         run = (int(starts[k]), int(ends[k])) if k >= 0 and ends[k] >= j else None
-        b = int(np.flatnonzero(brk[: j + 1])[-1])  # the stream's start or the last gap (brk[0] is set)
-        young = t[j] - t[b] < min_run and bool(np.all(still[min(i, b): j + 1] | unknown[min(i, b): j + 1]))
+        young = False
+        if run is None or run[0] > i:  # (only asked where the samples are not all in one still run)
+            b = int(np.flatnonzero(brk[: j + 1])[-1])  # the stream's start or the last gap (brk[0] is set)
+            young = t[j] - t[b] < min_run and bool(np.all(still[min(i, b): j + 1] | unknown[min(i, b): j + 1]))
         return t, i, j, run, young
 
     def is_still(self, t0: float, t1: float) -> bool | None:
