@@ -13,14 +13,14 @@ from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 RATE = 10.0
 
 
-def record(offsets, noise=0.02, cams=2, n=40, seed=0, missing=(), stamps=None):
+def record(offsets, noise=0.02, cams=2, n=40, seed=0, missing=(), stamps=None, snapshot=False):
     """A recorder whose frames move every track of camera c by offsets[f] (F, 2) (same for all cameras) plus
     Gaussian noise; frames in ``missing`` lack camera 1; ``stamps`` (F,) the frames' stamps (default f / RATE)."""
     rng = np.random.default_rng(seed)
     ids = np.arange(n)
     base = rng.uniform(20, 300, size=(n, 2))
     anchors = [(ids, base.copy()) for _ in range(cams)]
-    rec = HoldRecorder(0.0, anchors, [None] * cams)
+    rec = HoldRecorder(0.0, anchors, [None] * cams, snapshot=snapshot)
     for f, o in enumerate(offsets):
         pos = []
         for c in range(cams):
@@ -164,6 +164,39 @@ def test_each_track_rings_with_its_own_amplitude_and_is_measured_at_its_own_rest
     assert ch.noise_px < 0.1  # the roll is not in the tracks' noise (2 px with the median's oscillation alone)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_without_an_imu_a_ringing_hold_seen_to_end_late_is_measured_before_the_move(seed):
+    """Without an IMU the images see the next move only once it outgrows the ringing: the hold's last frames (here
+    0.5 s of a move's smooth start after 4 s of ringing) spoil the damped response's fit of the rest. The fit
+    without the last frames explains them, and the hold is measured at its rest, its settled part ending before
+    the move, at most its first frame within the fit's scatter (the old code refused it)."""
+    t, _, ring = decaying(1.5, 0.03, 6.0, 45, 0.4 + seed)
+    offsets = ring.copy()
+    offsets[40:, 0] += 0.4 * np.arange(1, 6) ** 2  # 0.4, 1.6, 3.6, 6.4, 10 px
+    rec, base = record(offsets, noise=0.01, seed=seed)
+    hold, why = rec.measure(HoldConfig(), bar_period_s=1.0 / 1.5)
+    assert hold is not None and hold.ringing_source is RingingSource.FIT, why
+    assert hold.settled_end <= t[40] + 1e-9  # the move's first 0.4 px lie within the fit's scatter
+    assert max(np.abs(ch.uv - base).max() for ch in hold.cameras) < 0.1
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_without_an_imu_a_hold_whose_ringing_creeps_is_refused(seed):
+    """Bars ringing through a 4 s hold while the rig turns slowly (0.3 px/s, 0.1 deg/s at 235 px): every frame
+    stays near the first and the damped response explains them within a few percent of the ringing, but its
+    rest moves. Without an IMU that is a move (refused); with one that says still, the images do not judge it."""
+    t, _, ring = decaying(1.5, 0.02, 6.0, 40, 0.7)
+    creep = np.stack([0.3 * t, 0.15 * t], axis=1)
+    cfg = HoldConfig()
+    still, why = record(ring, noise=0.01, seed=seed)[0].measure(cfg, bar_period_s=1.0 / 1.5)
+    assert still is not None and still.ringing_source is RingingSource.FIT, why
+    rec = record(ring + creep, noise=0.01, seed=seed)[0]
+    moving, why = rec.measure(cfg, bar_period_s=1.0 / 1.5)
+    assert moving is None and why.rule is Refusal.NOT_STILL and "moves by" in why.detail, why
+    told, why = rec.measure(cfg, bar_period_s=1.0 / 1.5, imu_still_since=0.0)
+    assert told is not None and told.ringing_source is RingingSource.FIT, why
+
+
 def test_a_short_hold_ringing_as_far_as_its_measured_stop_allows_is_used():
     """A hold shorter than a bar period after an abrupt stop (too few frames to fit the ringing): its frames are
     used with their spread as the penalty when they ring no further than the stop the IMU measured sets off,
@@ -215,10 +248,15 @@ def test_a_hold_that_never_settles_says_why():
 
 def test_snapshots():
     """A snapshot is never refused for its time after the stop: it carries the ringing the stop's load may have
-    left (from the IMU's deceleration, or the default load), decayed at the bars' damping."""
-    rec, base = record(np.zeros((1, 2)))
+    left (from the IMU's deceleration, or the default load), decayed at the bars' damping. A stream's hold cut
+    to one frame is no snapshot: without an IMU nothing shows the rig at rest there."""
+    rec, base = record(np.zeros((1, 2)), snapshot=True)
     hold, _ = rec.measure(HoldConfig(), bar_period_s=0.5)  # no IMU: nothing says when the rig stopped
     assert hold is not None and hold.snapshot and hold.settled_frames == 1
+    cut, _ = record(np.zeros((1, 2)))
+    none, why = cut.measure(HoldConfig(), bar_period_s=0.5)
+    assert none is None and why.rule is Refusal.NOT_STILL
+    assert cut.measure(HoldConfig(), bar_period_s=0.5, imu_still_since=-1.0)[0] is not None  # the IMU says still
     assert hold.ringing_source is RingingSource.UNKNOWN and hold.ringing_px == 0.0
     assert math.isnan(hold.noise_px)
     cfg = HoldConfig(damping=0.03)
@@ -269,7 +307,7 @@ def test_the_settling_series_is_each_cameras_offset_from_its_rest_position():
     assert s.settle_after == pytest.approx(hold.settled_start)  # frames count from the settled part
     settled = (t >= hold.settled_start) & (t <= hold.settled_end)
     assert np.nanmax(s.offset_px[settled]) <= s.threshold_px
-    assert record(np.zeros((1, 2)))[0].measure(cfg, bar_period_s=0.5)[0].settling is None  # a snapshot
+    assert record(np.zeros((1, 2)), snapshot=True)[0].measure(cfg, bar_period_s=0.5)[0].settling is None  # a snapshot
 
 
 def test_each_camera_rings_at_its_own_bars_frequency():

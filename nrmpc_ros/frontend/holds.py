@@ -46,6 +46,9 @@ from .ringing_turns import turn_back
 
 EXPLAINED_NOISE_SIGMAS = 3.0  # a fit explains a camera's offsets: residual within this many of their noise ...
 EXPLAINED_SHARE = 0.1  # ... or within this share of the offsets' spread (the ringing it removed)
+CREEP_SIGMAS = 3.0  # without an IMU a hold whose ringing's rest moves beyond this many stds (and thr) creeps
+TRIMMED_SHARES = (0.125, 0.25, 0.375)  # without an IMU, a fit is tried again without this share of the last frames
+OUTLIER_FACTOR = 5.0  # a frame further off a camera's fit than this many times its median frame is left out
 MIN_FIT_FRAMES = 8  # the damped response has 8 parameters per camera (rest, cos, sin per axis; frequency, damping)
 # for 2 numbers per frame: 8 frames leave as many degrees of freedom for its noise as it has parameters
 
@@ -265,6 +268,7 @@ class HoldRecorder:
         self.positions: list = []  # per frame: list of (ids, uv) or None per camera
         self.measured = False  # estimated already (a long hold is measured once, before it ends)
         self.prediction = None  # a snapshot's ringing predicted from the IMU (.snapshot_ringing.RingingPrediction)
+        self.jumped = ""  # the camera whose lost tracks opened it inside a stream (a jump, not a lone frame)
 
     def add(self, stamp: float, positions: list, taken: list | None = None) -> None:
         """One frame of the hold at ``stamp``: per camera its tracks' (ids, uv) or None, ``taken`` the stamp of
@@ -324,6 +328,10 @@ class HoldRecorder:
         correction = np.zeros((F, M, 2))  # the fitted ringing removed from every track of a camera
         track_correction = {}  # camera -> (F, n, 2): each track's own fitted ringing, where fitted
         settling = None
+        if F == 1 and not self.snapshot and imu_still_since is None:
+            # a stream's hold cut to one frame (the next one moved, the ones before left it): nothing shows the rig
+            # at rest there (a snapshot's stillness is its capture's promise; a stream shows it in its frames)
+            return None, HoldRefusal(Refusal.NOT_STILL, "one frame of a stream, and the images moved around it")
         if F == 1:
             settled = np.ones(1, bool)
             residual = 0.0
@@ -351,8 +359,8 @@ class HoldRecorder:
             if bars.period_s and after.sum() >= MIN_FIT_FRAMES and span >= bars.period_s:  # a period pins the rest
                 for k, i in enumerate(cams):
                     tau_i = np.where(np.isfinite(taken[:, i]), taken[:, i], t) - start  # its images' own times
-                    fit = fit_damped_response([(tau_i, offsets[:, k])], bars.camera_freq(i), None)
-                    if fit is None or not _explains(fit, offsets[after, k], noise):
+                    fit = _camera_fit(tau_i, offsets[:, k], after, bars.camera_freq(i), noise, imu_still_since is None)
+                    if fit is None:
                         continue
                     fits[i] = fit
                     model[:, k] = fit.oscillation(0, tau_i)
@@ -385,6 +393,13 @@ class HoldRecorder:
                 if settled.sum() < need:
                     return None, HoldRefusal(Refusal.NOT_STILL, (
                         f"the damped response explains no {need} frames in a row within {thr:.3f} px"))
+                if imu_still_since is None:  # the images alone judge stillness: a rest that creeps is a move
+                    own_tau = np.where(np.isfinite(taken), taken, t[:, None]) - start  # each camera's image times
+                    creep = _creep_px(fits, cams, own_tau, offsets, settled)
+                    if creep is not None and creep[1] > max(thr, CREEP_SIGMAS * creep[2]):
+                        return None, HoldRefusal(Refusal.NOT_STILL, (
+                            f"the rest of camera {creep[0]}'s ringing moves by {creep[1]:.2f} px over the hold "
+                            f"(std {creep[2]:.2f} px, threshold {thr:.3f} px)"))
                 turn_std = {}  # camera -> the std of its rest turn (px through its focal length)
                 for k, i in enumerate(cams):
                     correction[:, i] = model[:, k]
@@ -494,6 +509,53 @@ def _explains(fit: RingingFit, offsets: np.ndarray, noise: float) -> bool:
     fraction of the ringing it removed), not a motion the model cannot follow."""
     spread = float(np.sqrt(np.nanmean(np.sum((offsets - np.nanmean(offsets, axis=0)) ** 2, axis=1))))
     return fit.residual_rms <= max(EXPLAINED_NOISE_SIGMAS * noise, EXPLAINED_SHARE * spread)
+
+
+def _camera_fit(tau: np.ndarray, offsets: np.ndarray, after: np.ndarray, freq_hz: float, noise: float,
+                late_end: bool) -> RingingFit | None:
+    """The damped response of one camera's offsets (F, 2) at times tau (F,) that explains them (:func:`_explains`)
+    over the frames ``after`` the stop, or None. A fit that does not is tried again without the frames far off it
+    (beyond OUTLIER_FACTOR times the median frame's distance, at least 3 noise stds): a hold may be seen to end a
+    frame or two after the next move began, and that frame alone can spoil the fit of the rest. ``late_end``
+    (without an IMU, where the images see a move start only once it outgrows the ringing, a few tenths of a
+    second in): then also without the hold's last TRIMMED_SHARES of its frames, the first that explains."""
+    fit = fit_damped_response([(tau, offsets)], freq_hz, None)
+    if fit is None or _explains(fit, offsets[after], noise):
+        return fit
+    r = np.linalg.norm(offsets - fit.rest[0] - fit.oscillation(0, tau), axis=1)
+    tries = [after & (r <= max(OUTLIER_FACTOR * float(np.nanmedian(r[after])), EXPLAINED_NOISE_SIGMAS * noise))]
+    if late_end:
+        F = len(tau)
+        tries += [after & (np.arange(F) < F - math.ceil(share * F)) for share in TRIMMED_SHARES]
+    for keep in tries:
+        if keep.sum() < MIN_FIT_FRAMES or keep.sum() == after.sum():
+            continue
+        fit = fit_damped_response([(tau[keep], offsets[keep])], freq_hz, None)
+        if fit is not None and _explains(fit, offsets[keep], noise):
+            return fit
+    return None
+
+
+def _creep_px(fits: list, cams: list, tau: np.ndarray, offsets: np.ndarray, settled: np.ndarray) -> tuple | None:
+    """(camera, drift px, its std px) of the fitted camera whose rest moves furthest over the ``settled`` frames
+    (tau (F, M): each camera's images' times after the stop)
+    (:meth:`.ringing.RingingFit.drift`: ringing about a rest that moves linearly), or None without a fitted
+    camera. A hold that creeps slowly while its bars ring keeps its frames near their first one and its
+    ringing explained; only its rest moves."""
+    worst = None
+    for k, i in enumerate(cams):
+        if fits[i] is None:
+            continue
+        tau_i = tau[:, i]
+        use = settled & np.isfinite(offsets[:, k]).all(axis=1)
+        if use.sum() < MIN_FIT_FRAMES:
+            continue
+        v, sd = fits[i].drift(tau_i[use], offsets[use, k])
+        span = float(np.ptp(tau_i[use]))
+        drift, std = float(np.linalg.norm(v)) * span, float(np.linalg.norm(sd)) * span
+        if worst is None or drift - CREEP_SIGMAS * std > worst[1] - CREEP_SIGMAS * worst[2]:
+            worst = (i, drift, std)
+    return worst
 
 
 def _offset_noise(shifts: list, offsets: np.ndarray) -> float:

@@ -43,6 +43,7 @@ from .imu_clock import ImuClockEstimator
 from .linking import HoldLinker
 from .motion import Motion, MotionKind
 from .patch_align import PatchAlignConfig
+from .ringing_watch import RingingWatch
 from .snapshot_ringing import correct_pixels, correction_rotations, predict, residual_px, uncertainty
 from .tracking import HoldThinning, KltTracker, TrackingConfig
 from .zupt import ZuptConfig, ZuptDetector
@@ -223,7 +224,11 @@ class Pipeline:
         self.turns = CameraTurns(self.imu, rig.imu, self.extrinsics, rig.num_cameras, self.config.imu_time_offset_s,
                                  self._tracking_bars)
         self.thinning = HoldThinning(CORRESPONDENCE_BIAS_FLOOR_PX)  # frames of a settled hold left untracked
+        # each camera's image path: without an IMU, ringing about a rest that stays put is no move
+        self.watch = RingingWatch(self.bars.camera_freq_hz if self.bars.camera_freq_hz is not None else
+                                  np.full(rig.num_cameras, self.bars.freq_hz), self.bars.zeta)
         self._hold: HoldRecorder | None = None
+        self._hold_rest: list = []  # per camera: the open hold's rest in the camera's image path (None: unknown)
         self._last_hold: Hold | None = None  # the latest hold given to the sequence (a gyro bridge starts there)
         self._periods: list = []  # recent intervals between frame sets (s)
         self.last_stamp = -math.inf
@@ -335,6 +340,13 @@ class Pipeline:
         steps = [None if img is None else trk.track(img, turn)
                  for trk, img, turn in zip(self.trackers, images, turns)]
         lone_gap = self._lone_gap()
+        if gap > lone_gap:
+            self.watch.reset()
+        for i, s in enumerate(steps):
+            if s is not None:
+                self.watch.add(i, stamp if taken[i] is None else taken[i], s.shift_px, s.lost)
+                if s.lost and i < len(self._hold_rest):
+                    self._hold_rest[i] = None  # its path starts again: the hold's rest in it is not known
         if gap <= lone_gap:  # the images' rotation rate over this frame interval, for the IMU clock
             rates = [math.nan if s is None else s.motion_px / cam.focal_px / gap
                      for s, cam in zip(steps, self.rig.cameras)]
@@ -353,7 +365,8 @@ class Pipeline:
             out += self._close()
             self._open(stamp, images, taken, snapshot=True, top_up=gap > lone_gap)
             self._hold.prediction = self._predict_ringing(frames, images)
-            if gap <= lone_gap:
+            if gap <= lone_gap:  # a jump inside a stream (tracks lost), not a lone frame
+                self._hold.jumped = next(c.name for c, s in zip(self.rig.cameras, steps) if s is not None and s.lost)
                 self._note_period(gap)
         else:
             self._note_period(gap)
@@ -426,7 +439,9 @@ class Pipeline:
 
         With an IMU sample in between, the IMU decides (the bars may ring while the body is still); the images
         only say that the tracks were lost. Without one, a hold starts when the image barely moved between
-        two frames and lasts while it stays near the hold's first frame (ringing stays near, a move leaves).
+        two frames and lasts while it stays near the hold's first frame (ringing stays near, a move leaves); or,
+        on bars that ring far and long, where each camera's image rings about a rest that stays within the hold's
+        radius of the one it had when the hold began (:mod:`.ringing_watch`).
         """
         imu = self.zupt.is_still(t0, t1) if self.rig.imu is not None and len(self.imu) else None
         if imu is False:
@@ -440,12 +455,32 @@ class Pipeline:
                 return False, Motion(MotionKind.TRACKS_LOST, name)
             if imu is True:
                 continue
-            if self._hold is None and math.isfinite(s.motion_px) and s.motion_px > cfg.still_step_px:
-                return False, Motion(MotionKind.IMAGE_MOVED, name, s.motion_px)
             radius = math.radians(cfg.hold_radius_deg) * self.rig.cameras[i].focal_px
-            if self._hold is not None and math.isfinite(s.offset_px) and s.offset_px > radius:
+            stepped = math.isfinite(s.motion_px) and s.motion_px > cfg.still_step_px
+            path = self.watch.judge(i) if stepped or (math.isfinite(s.offset_px) and s.offset_px > radius) else None
+            if self._hold is None and stepped and not self._rings_about(path, i, radius):
+                return False, Motion(MotionKind.IMAGE_MOVED, name, s.motion_px)
+            if self._hold is None:
+                continue
+            if math.isfinite(s.offset_px) and s.offset_px > radius and not self._rings_about(path, i, radius):
+                return False, Motion(MotionKind.LEFT_HOLD, name, s.offset_px)
+            if stepped and path.kept() is False:  # near the hold, but no longer ringing about its rest: moving
                 return False, Motion(MotionKind.LEFT_HOLD, name, s.offset_px)
         return True, None
+
+    def _rings_about(self, path, i: int, radius_px: float) -> bool:
+        """Whether camera i's image rings about a rest (``path``, :meth:`.ringing_watch.RingingWatch.judge`): no
+        hold open, any rest; inside one, ringing on (the looser bound) about a rest within ``radius_px`` of the
+        hold's. The hold's rest is the first one fitted over a window that lies wholly after the stop (an earlier
+        window holds the end of the move)."""
+        if self._hold is None:
+            return bool(path.rings)
+        if not path.kept():
+            return False
+        ref = self._hold_rest[i]
+        if ref is None and path.rings and path.since >= self._hold.start:
+            self._hold_rest[i] = ref = path.rest
+        return ref is None or float(np.linalg.norm(path.rest - ref)) <= radius_px
 
     def _open(self, stamp: float, images: list, taken: list, snapshot: bool, top_up: bool = False) -> None:
         """A hold starts at this frame set (``top_up``: a frame after a gap, whose tracks may be few)."""
@@ -460,6 +495,7 @@ class Pipeline:
             anchors.append(trk.positions())
             anchor_images.append(img)
         self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot)
+        self._hold_rest = [None] * len(anchors)
         self._record(stamp, images, taken)
         self._last_check = stamp
         self._settled_s = 0.0
@@ -526,9 +562,10 @@ class Pipeline:
 
     def _reanchor(self, stamp: float, images: list, taken: list) -> None:
         """The open hold starts again from this frame (new anchor) but keeps the time the rig stopped."""
-        start, snapshot = self._hold.start, self._hold.snapshot
+        start, snapshot, rests, jumped = self._hold.start, self._hold.snapshot, self._hold_rest, self._hold.jumped
         self._open(stamp, images, taken, snapshot=snapshot)
-        self._hold.start = start
+        self._hold.start, self._hold.jumped = start, jumped
+        self._hold_rest = rests  # the rests the camera's paths ring about stay (a lost path's is None already)
 
     def _record(self, stamp: float, images: list, taken: list) -> None:
         """One frame set of the open hold: the track positions of each camera that has an image in it, taken at
@@ -576,6 +613,11 @@ class Pipeline:
             if self.zupt.is_still(t - max(self.imu.pad_s, self.config.zupt.window_s), t) is False:
                 self.stats.dropped[Drop.SNAPSHOT_MOVED] += 1
                 return []
+        elif h.snapshot and len(h) == 1 and h.jumped:
+            # without an IMU, a stream's frame whose tracks were lost and that no still frame followed is a jump
+            # the images could not follow (a fast move, far ringing), not a snapshot taken at rest
+            self._moving(Motion(MotionKind.TRACKS_LOST, h.jumped))
+            return []
         return self._estimate_hold(h)
 
     def _stop_amplitude_px(self, rec: HoldRecorder, since: float | None) -> float | None:

@@ -63,6 +63,27 @@ class RingingFit:
         A = _design(np.asarray(tau, dtype=float), self.freq_hz, self.zeta)
         return A[:, 1:] @ self.coef[segment]
 
+    def drift(self, tau, y: np.ndarray) -> tuple:
+        """How fast the rest itself moves: the damped response at this fit's frequency and damping refitted to y
+        (K, D) at times tau (K,) with a rest that drifts linearly. Returns (velocity (D,), its std (D,)), units of y
+        per second; a rest that stays put gives a velocity within its std. The std allows for residuals correlated
+        from frame to frame (what the model does not follow is smooth): the white-noise variance times
+        (1 + rho) / (1 - rho), rho their lag-one autocorrelation (an AR(1) process's effective sample size)."""
+        tau = np.asarray(tau, dtype=float)
+        y = np.asarray(y, dtype=float).reshape(len(tau), -1)
+        A = np.concatenate([_design(tau, self.freq_hz, self.zeta), (tau - tau.mean())[:, None]], axis=1)
+        if len(tau) <= A.shape[1]:
+            return np.zeros(y.shape[1]), np.full(y.shape[1], np.inf)
+        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+        r = y - A @ coef
+        s2 = np.sum(r * r, axis=0) / (len(tau) - A.shape[1])
+        rho = min(max(float(np.sum(r[1:] * r[:-1]) / max(float(np.sum(r * r)), 1e-300)), 0.0), 0.95)
+        try:
+            var = np.linalg.inv(A.T @ A)[-1, -1] * s2 * (1.0 + rho) / (1.0 - rho)
+        except np.linalg.LinAlgError:
+            return np.zeros(y.shape[1]), np.full(y.shape[1], np.inf)
+        return coef[-1], np.sqrt(var)
+
     def track_oscillations(self, tau, X: np.ndarray, used: np.ndarray, min_frames: int) -> tuple:
         """Each track's own ringing at this fit's frequency and damping: X (F, n, D) the tracks' positions at
         times tau (F,) (NaN: not seen), ``used`` (F,) the frames to fit on. A camera's ringing is a turn and a
@@ -122,21 +143,38 @@ def _projected(theta, segs):
     return np.concatenate(res) if res else np.zeros(0)
 
 
+def _grid_solve(tau: np.ndarray, y: np.ndarray, f: np.ndarray, z: np.ndarray) -> tuple:
+    """The linear parameters (G, 3, D) and residuals (G, K, D) of y (K, D) at every grid point (f[g], z[g])."""
+    w = 2.0 * math.pi * f[:, None]
+    wd = w * np.sqrt(1.0 - z[:, None] ** 2)
+    e = np.exp(-z[:, None] * w * tau[None])
+    A = np.stack([np.ones_like(e), e * np.cos(wd * tau[None]), e * np.sin(wd * tau[None])], axis=2)  # (G, K, 3)
+    coef = _solve(A, np.broadcast_to(y, (len(f),) + y.shape))
+    return coef, y[None] - A @ coef
+
+
 def _grid_costs(segs, fgrid: np.ndarray, zgrid: np.ndarray) -> np.ndarray:
     """Sum of squared projected residuals at every (f, zeta) of the grid (G,), all grid points at once."""
     f = np.repeat(fgrid, len(zgrid))
     z = np.tile(zgrid, len(fgrid))
-    w = 2.0 * math.pi * f[:, None]
-    wd = w * np.sqrt(1.0 - z[:, None] ** 2)
     cost = np.zeros(len(f))
     for tau, y in segs:
         if not len(tau):
             continue
-        e = np.exp(-z[:, None] * w * tau[None])
-        A = np.stack([np.ones_like(e), e * np.cos(wd * tau[None]), e * np.sin(wd * tau[None])], axis=2)  # (G, K, 3)
-        r = y[None] - A @ _solve(A, np.broadcast_to(y, (len(f),) + y.shape))
+        r = _grid_solve(tau, y, f, z)[1]
         cost += np.einsum("gkd,gkd->g", r, r)
     return cost
+
+
+def best_on_grid(tau: np.ndarray, y: np.ndarray, freqs_hz: np.ndarray, zetas: np.ndarray) -> tuple:
+    """The damped response at the best of a grid of frequencies and damping ratios, without refinement (cheap
+    enough for every frame): (residual RMS per component, rest offset (D,)) of y (K, D) at times tau (K,)."""
+    f = np.repeat(np.asarray(freqs_hz, float), len(zetas))
+    z = np.tile(np.asarray(zetas, float), len(freqs_hz))
+    coef, r = _grid_solve(np.asarray(tau, float), np.asarray(y, float), f, z)
+    cost = np.einsum("gkd,gkd->g", r, r)
+    g = int(np.argmin(cost))
+    return math.sqrt(float(cost[g]) / max(y.size, 1)), coef[g, 0]
 
 
 def lag_window(resid: np.ndarray, sizes: list, D: int) -> int:
@@ -268,4 +306,4 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
                       residual_rms=math.sqrt(s2), num_samples=n, success=bool(sol.success))
 
 
-__all__ = ["FREQ_BAND", "RingingFit", "ZETA_BOUNDS", "fit_damped_response"]
+__all__ = ["FREQ_BAND", "RingingFit", "ZETA_BOUNDS", "ZETA_GRID", "best_on_grid", "fit_damped_response"]

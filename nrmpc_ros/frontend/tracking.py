@@ -292,13 +292,15 @@ def turn_pixels(cam: Camera, R: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 class TrackStep(NamedTuple):
     """What one frame did to a camera's tracks: median motion since the previous frame (px, NaN when unknown),
-    tracks alive, whether the tracks were lost (a jump: too few survived, all were dropped) and, inside a
-    hold, the median offset from the hold's anchor frame (px, NaN outside a hold)."""
+    tracks alive, whether the tracks were lost (a jump: too few survived, all were dropped), inside a hold the
+    median offset from the hold's anchor frame (px, NaN outside a hold), and the median shift of the tracks since
+    the previous frame (x, y px; NaN when unknown): the image's path, whose shape tells ringing from a move."""
 
     motion_px: float
     tracks: int
     lost: bool
     offset_px: float = math.nan
+    shift_px: tuple = (math.nan, math.nan)
 
 
 @dataclass
@@ -459,6 +461,7 @@ class KltTracker:
         predicts what the images show."""
         lost = False
         motion = offset = math.nan
+        shift = (math.nan, math.nan)
         st = self.stats
         st.frames += 1
         cands = None if turn is None or self.camera is None else np.asarray(turn, float).reshape(-1, 3, 3)
@@ -494,7 +497,9 @@ class KltTracker:
             n_ok = int(ok.sum())
             st.dropped_tracks += len(ok) - n_ok
             if n_ok:
-                motion = float(_median(_norm(p1[ok] - self.uv[ok])))
+                moved = p1[ok] - self.uv[ok]
+                motion = float(_median(_norm(moved)))
+                shift = tuple(float(v) for v in _median(moved))
             if guesses is not None:  # each candidate's deviation, averaged over the last few frames
                 dev = np.array([self._deviation(p1, g, ok) for g in guesses])
                 old = self.turn_deviation_px
@@ -517,7 +522,7 @@ class KltTracker:
         if self._anchor is None:
             self._replenish(img)
         st.tracks += len(self.uv)
-        return TrackStep(motion, len(self.uv), lost, offset)
+        return TrackStep(motion, len(self.uv), lost, offset, shift)
 
     def start_hold(self, top_up: bool = False) -> None:
         """The current frame becomes the anchor (template) of a hold; ``top_up``: with new corners first, as
