@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from nrmpc_ros.frontend.ringing_watch import EXPLAINED_SHARE, KEPT_SHARE, RingingWatch
+from nrmpc_ros.frontend.ringing_watch import KEPT_SHARE, RINGING_SHARE, RingingWatch
 
 # (bar Hz, camera Hz): soft and stiff bars, slow and fast cameras
 CASES = [(1.5, 5.0), (1.5, 30.0), (3.0, 10.0), (4.3, 15.0), (8.0, 30.0), (8.0, 60.0)]
@@ -45,7 +45,7 @@ def test_ringing_about_a_rest_is_no_move_and_gives_the_rest(f, rate, jittered):
         watch = RingingWatch([f], 0.03)  # the rig file's frequency 10 % off the bar's
         _feed(watch, stamped, xy)
         v = watch.judge(0)
-        assert v.rings is True and v.share <= EXPLAINED_SHARE, (amp, v.share)
+        assert v.rings is True and v.share <= RINGING_SHARE, (amp, v.share)
         # the path starts at the first image: its rest there is rest - xy[0]
         assert np.linalg.norm(v.rest - (rest - xy[0])) <= 0.1 * amp + 0.1
 
@@ -65,7 +65,7 @@ def test_a_move_is_no_ringing_even_with_ringing_on_top(f, rate, kind):
     watch = RingingWatch([f], 0.03)
     _feed(watch, t, xy)
     v = watch.judge(0)
-    assert v.rings is False and v.share > EXPLAINED_SHARE, v.share
+    assert v.rings is False and v.share > RINGING_SHARE, v.share
     if kind != "starting":  # a move under way is out of the looser bound an open hold keeps
         assert v.share > KEPT_SHARE and v.kept() is False
 

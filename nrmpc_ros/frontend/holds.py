@@ -48,6 +48,7 @@ EXPLAINED_NOISE_SIGMAS = 3.0  # a fit explains a camera's offsets: residual with
 EXPLAINED_SHARE = 0.1  # ... or within this share of the offsets' spread (the ringing it removed)
 CREEP_SIGMAS = 3.0  # without an IMU a hold whose ringing's rest moves beyond this many stds (and thr) creeps
 TRIMMED_SHARES = (0.125, 0.25, 0.375)  # without an IMU, a fit is tried again without this share of the last frames
+TAIL_MISFIT = 3.0  # ... where the first fit's residual RMS in those frames is at least this many times the rest's
 OUTLIER_FACTOR = 5.0  # a frame further off a camera's fit than this many times its median frame is left out
 MIN_FIT_FRAMES = 8  # the damped response has 8 parameters per camera (rest, cos, sin per axis; frequency, damping)
 # for 2 numbers per frame: 8 frames leave as many degrees of freedom for its noise as it has parameters
@@ -518,15 +519,21 @@ def _camera_fit(tau: np.ndarray, offsets: np.ndarray, after: np.ndarray, freq_hz
     (beyond OUTLIER_FACTOR times the median frame's distance, at least 3 noise stds): a hold may be seen to end a
     frame or two after the next move began, and that frame alone can spoil the fit of the rest. ``late_end``
     (without an IMU, where the images see a move start only once it outgrows the ringing, a few tenths of a
-    second in): then also without the hold's last TRIMMED_SHARES of its frames, the first that explains."""
+    second in): then also without the hold's last TRIMMED_SHARES of its frames, the first that explains, where the
+    first fit's misfit sits in the frames left out (TAIL_MISFIT): a move starting, not a creep all along."""
     fit = fit_damped_response([(tau, offsets)], freq_hz, None)
     if fit is None or _explains(fit, offsets[after], noise):
         return fit
     r = np.linalg.norm(offsets - fit.rest[0] - fit.oscillation(0, tau), axis=1)
     tries = [after & (r <= max(OUTLIER_FACTOR * float(np.nanmedian(r[after])), EXPLAINED_NOISE_SIGMAS * noise))]
-    if late_end:
+    if late_end:  # only where the misfit sits in the frames left out (a move starting), not all along (a creep)
         F = len(tau)
-        tries += [after & (np.arange(F) < F - math.ceil(share * F)) for share in TRIMMED_SHARES]
+        for share in TRIMMED_SHARES:
+            keep = after & (np.arange(F) < F - math.ceil(share * F))
+            tail = after & ~keep
+            if tail.any() and keep.any() and \
+                    np.sqrt(np.nanmean(r[tail] ** 2)) >= TAIL_MISFIT * np.sqrt(np.nanmean(r[keep] ** 2)):
+                tries.append(keep)
     for keep in tries:
         if keep.sum() < MIN_FIT_FRAMES or keep.sum() == after.sum():
             continue

@@ -462,6 +462,8 @@ class Pipeline:
                 return False, Motion(MotionKind.IMAGE_MOVED, name, s.motion_px)
             if self._hold is None:
                 continue
+            if path is not None and path.rings and self._hold_rest[i] is None and path.since >= self._hold.start:
+                self._hold_rest[i] = path.rest  # the hold's rest: the first fitted over a window after the stop
             if math.isfinite(s.offset_px) and s.offset_px > radius and not self._rings_about(path, i, radius):
                 return False, Motion(MotionKind.LEFT_HOLD, name, s.offset_px)
             if stepped and path.kept() is False:  # near the hold, but no longer ringing about its rest: moving
@@ -471,15 +473,13 @@ class Pipeline:
     def _rings_about(self, path, i: int, radius_px: float) -> bool:
         """Whether camera i's image rings about a rest (``path``, :meth:`.ringing_watch.RingingWatch.judge`): no
         hold open, any rest; inside one, ringing on (the looser bound) about a rest within ``radius_px`` of the
-        hold's. The hold's rest is the first one fitted over a window that lies wholly after the stop (an earlier
-        window holds the end of the move)."""
+        hold's (``_hold_rest``: the first rest fitted over a window that lies wholly after the stop, an earlier
+        window holding the end of the move; any rest while none is known)."""
         if self._hold is None:
             return bool(path.rings)
         if not path.kept():
             return False
         ref = self._hold_rest[i]
-        if ref is None and path.rings and path.since >= self._hold.start:
-            self._hold_rest[i] = ref = path.rest
         return ref is None or float(np.linalg.norm(path.rest - ref)) <= radius_px
 
     def _open(self, stamp: float, images: list, taken: list, snapshot: bool, top_up: bool = False) -> None:

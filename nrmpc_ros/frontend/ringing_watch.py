@@ -12,7 +12,7 @@ damping ratios (no refinement: it runs every frame). The share of the path's spr
 decides: ringing leaves a few percent of it (the stamps' jitter times the ringing's speed: at most about 30 %
 for an 8 Hz bar seen at 15 Hz with +-8 ms stamps), while a steady move, an acceleration or the end of a move
 within the window leaves at least 40 % (the first harmonic of a sawtooth carries 61 % of its variance, so a
-period's fit leaves about 60 % of a ramp). ``EXPLAINED_SHARE`` lies between. A bar that rings faster than half
+period's fit leaves about 60 % of a ramp). ``RINGING_SHARE`` lies between. A bar that rings faster than half
 the camera's rate (times the grid's top, ``FREQ_SPAN[1]``) is not judged: sampled that slowly, a frequency of
 the grid aliases to one near zero, which fits a slow move as well as any ringing. Right after a stop the window
 still holds the end of the move, and the share falls through the bound as the move leaves the window: a hold
@@ -34,7 +34,7 @@ WINDOW_PERIODS = 1.25  # at least one period at the lowest frequency of the grid
 MIN_WINDOW_FRAMES = 8  # three parameters per image axis, and as many frames again to judge the fit by
 FREQ_SPAN = (0.8, 1.25)  # the grid's frequencies, relative to the rig file's (its bars may be off by that much)
 FREQ_STEPS = 9
-EXPLAINED_SHARE = 0.35  # largest residual RMS, as a share of the path's RMS spread, that ringing leaves
+RINGING_SHARE = 0.35  # largest residual RMS, as a share of the path's RMS spread, that ringing leaves
 KEPT_SHARE = 0.5  # ... and that an open hold's ringing may leave before it is taken for a move
 
 
@@ -110,7 +110,7 @@ class RingingWatch:
             return PathVerdict(None, None)
         freqs = self.freqs_hz[i] * np.geomspace(FREQ_SPAN[0], FREQ_SPAN[1], FREQ_STEPS)
         rms, rest = best_on_grid(tau, xy, freqs, self.zetas)
-        return PathVerdict(bool(rms <= EXPLAINED_SHARE * spread), rest, rms / spread, float(a[0, 0]))
+        return PathVerdict(bool(rms <= RINGING_SHARE * spread), rest, rms / spread, float(a[0, 0]))
 
     def rest(self, i: int) -> np.ndarray | None:
         """The rest camera i's image rings about (:meth:`judge`), None when it does not or is not known to."""
@@ -118,4 +118,4 @@ class RingingWatch:
         return path.rest if path.rings else None
 
 
-__all__ = ["EXPLAINED_SHARE", "KEPT_SHARE", "PathVerdict", "RingingWatch"]
+__all__ = ["RINGING_SHARE", "KEPT_SHARE", "PathVerdict", "RingingWatch"]
