@@ -85,12 +85,15 @@ def test_no_verdict_before_a_window_on_rigid_bars_or_after_lost_tracks():
     xy = _ringing(t, 2.0, 0.03, 10.0, np.zeros(2), rng)
     watch = RingingWatch([2.0, math.inf], 0.03)
     _feed(watch, t[:10], xy[:10])  # a third of a second: less than 1.25 periods
-    assert watch.judge(0).rings is None and watch.rest(0) is None
+    early = watch.judge(0)
+    assert early.rings is None and early.rest is None and math.isnan(early.share)
     _feed(watch, t[10:], xy[10:])
     assert watch.judge(0).rings is True
     _feed(watch, t, xy, cam=1)  # a rigid camera never rings
     assert watch.judge(1).rings is None
     watch.add(0, 2.5, (0.0, 0.0), True)  # tracks lost: the path starts again
-    assert watch.judge(0).rings is None and watch.position(0) is not None
-    watch.reset()
-    assert watch.position(0) is None
+    assert watch.judge(0).rings is None
+    _feed(watch, t + 3.0, xy)
+    assert watch.judge(0).rings is True
+    watch.reset()  # a gap in the stream: every path starts again
+    assert watch.judge(0).rings is None

@@ -89,11 +89,6 @@ class RingingWatch:
         for path in self._paths:
             path.clear()
 
-    def position(self, i: int) -> np.ndarray | None:
-        """Camera i's latest point of its path (px), None before its first image."""
-        path = self._paths[i]
-        return np.array(path[-1][1:]) if path else None
-
     def judge(self, i: int) -> PathVerdict:
         """Whether camera i's image rings about a rest over the last window (module docstring), and that rest
         (px, in the camera's path); ``rings`` None when the window is not covered yet or the camera's bar is
@@ -111,11 +106,6 @@ class RingingWatch:
         freqs = self.freqs_hz[i] * np.geomspace(FREQ_SPAN[0], FREQ_SPAN[1], FREQ_STEPS)
         rms, rest = best_on_grid(tau, xy, freqs, self.zetas)
         return PathVerdict(bool(rms <= RINGING_SHARE * spread), rest, rms / spread, float(a[0, 0]))
-
-    def rest(self, i: int) -> np.ndarray | None:
-        """The rest camera i's image rings about (:meth:`judge`), None when it does not or is not known to."""
-        path = self.judge(i)
-        return path.rest if path.rings else None
 
 
 __all__ = ["RINGING_SHARE", "KEPT_SHARE", "PathVerdict", "RingingWatch"]
