@@ -323,6 +323,7 @@ class HoldRecorder:
             return None, HoldRefusal(Refusal.NO_TRACKS, f"fewer than {cfg.min_tracks} in every camera")
         start = self.start if imu_still_since is None else min(self.start, imu_still_since)
         tau = t - start
+        own_tau = np.where(np.isfinite(taken), taken, t[:, None]) - start  # (F, M) each camera's images' own times
         tracks = {i: self._camera_tracks(i) for i in cams}
         ringing, fits = False, [None] * M
         trace = np.full((F, M, 2), np.nan)
@@ -359,7 +360,7 @@ class HoldRecorder:
             span = float(tau[after][-1] - tau[after][0]) if after.sum() > 1 else 0.0
             if bars.period_s and after.sum() >= MIN_FIT_FRAMES and span >= bars.period_s:  # a period pins the rest
                 for k, i in enumerate(cams):
-                    tau_i = np.where(np.isfinite(taken[:, i]), taken[:, i], t) - start  # its images' own times
+                    tau_i = own_tau[:, i]
                     fit = _camera_fit(tau_i, offsets[:, k], after, bars.camera_freq(i), noise, imu_still_since is None)
                     if fit is None:
                         continue
@@ -395,7 +396,6 @@ class HoldRecorder:
                     return None, HoldRefusal(Refusal.NOT_STILL, (
                         f"the damped response explains no {need} frames in a row within {thr:.3f} px"))
                 if imu_still_since is None:  # the images alone judge stillness: a rest that creeps is a move
-                    own_tau = np.where(np.isfinite(taken), taken, t[:, None]) - start  # each camera's image times
                     creep = _creep_px(fits, cams, own_tau, offsets, settled)
                     if creep is not None and creep[1] > max(thr, CREEP_SIGMAS * creep[2]):
                         return None, HoldRefusal(Refusal.NOT_STILL, (
@@ -406,7 +406,7 @@ class HoldRecorder:
                     correction[:, i] = model[:, k]
                     if fits[i] is None:
                         continue
-                    tau_i = np.where(np.isfinite(taken[:, i]), taken[:, i], t) - start
+                    tau_i = own_tau[:, i]
                     X = tracks[i][2]
                     # the camera's turns taken back to its rest through its own model (ringing_turns), then
                     # each track's own remaining ringing (the bar tip's shift) where it was seen long enough
