@@ -104,6 +104,30 @@ def test_an_imu_gap_holds_the_load_and_a_long_one_restarts_at_rest():
     assert np.allclose(prop.loads_at([t2[10]])[0], [1.0, 0.0, -9.81], atol=1e-12), "at rest after a long gap"
 
 
+@pytest.mark.parametrize("rate_hz", [50.0, 200.0, 1000.0])
+def test_a_still_rig_with_a_noisy_imu_starts_at_rest_and_stays_within_the_noise_the_bar_passes(rate_hz):
+    """The first sample's angular acceleration is the gyro's noise differenced over one IMU period (sqrt(2)
+    sigma_w / h: 1.1 m/s^2 at the 0.3 m lever for 0.002 rad/s at 1 kHz); a bar started at rest there would
+    ring at that for seconds. At rest at the specific force it stays within the noise the running bar
+    filters: per axis sigma_a sqrt(h w / (4 zeta)) from the accelerometer and |v| sigma_w sqrt(h w^3 /
+    (4 zeta)) from the gyro's differenced noise."""
+    rig = _rig()
+    rng = np.random.default_rng(int(rate_hz))
+    h, sa, sw = 1.0 / rate_hz, 0.02, 0.002
+    t = np.arange(int(3.0 * rate_hz)) * h
+    f = np.array([1.0, -2.0, 9.5]) + rng.normal(scale=sa, size=(len(t), 3))
+    prop = BarPropagator(rig, history_s=10.0)
+    _feed(prop, t, f, rng.normal(scale=sw, size=(len(t), 3)))
+    w = 2 * math.pi * bar_natural_frequencies(rig)
+    zeta = np.array([0.03, 0.05, 0.04])
+    lever = np.linalg.norm(rig.positions, axis=1)
+    sigma = np.hypot(sa * np.sqrt(h * w / (4 * zeta)), lever * sw * np.sqrt(h * w**3 / (4 * zeta)))
+    q = np.linspace(t[1], t[-1], 300)
+    dev = np.abs(prop.loads_at(q) + np.array([1.0, -2.0, 9.5]))  # the load is minus the specific force
+    # (plus the first sample's own accelerometer noise, the load the bar starts at rest at)
+    assert np.all(dev.max(axis=(0, 2)) < 5.0 * sigma + 3.0 * sa), dev.max(axis=(0, 2)) / sigma
+
+
 def test_queries_beyond_the_newest_sample_hold_the_last_load_and_the_clock_offset_applies():
     rig = _rig()
     t = np.arange(200) * 0.005
