@@ -25,16 +25,17 @@ def _rig(damping=0.03):
     return dataclasses.replace(rig, cameras=tuple(dataclasses.replace(c, damping=damping) for c in rig.cameras))
 
 
-def _ringing_snapshot(rig, bias_ms2: float, seed: int = 4):
-    """A noise-free IMU (with a constant accelerometer bias) through abrupt moves, and the propagated bars at a
-    snapshot DELAY_S after the second stop: (prediction, true loads (M, 3), still loads (M, 3))."""
+def _ringing_snapshot(rig, bias_ms2: float, seed: int = 4, accel_noise: float = 0.0, gyro_noise: float = 0.0):
+    """An IMU at 1 kHz (noise-free unless given, with a constant accelerometer bias) through abrupt moves, and
+    the propagated bars at a snapshot DELAY_S after the second stop: (prediction, true loads (M, 3), still
+    loads (M, 3))."""
     motion = MotionOptions(views=3, hold_seconds=2.0, rate=10, imu_rate=1000, move_seconds=0.6,
                            move_profile="min-jerk", max_step=35, min_step=25)
     traj = make_trajectory(np.random.default_rng(seed), motion)
     loads = CameraLoads(rig, traj)
     t_snap = int(traj.hold_start[2]) + int(DELAY_S * 1e9)
     imu_t = np.arange(traj.start_ns, t_snap + 1, 1_000_000, dtype=np.int64)
-    opts = BagOptions(motion=motion, imu_noise=0.0, gyro_noise=0.0, imu_bias=bias_ms2, gyro_bias=0.0)
+    opts = BagOptions(motion=motion, imu_noise=accel_noise, gyro_noise=gyro_noise, imu_bias=bias_ms2, gyro_bias=0.0)
     accel, gyro = imu_readings(rig, traj, imu_t, np.random.default_rng(seed), opts, loads)
     prop = BarPropagator(rig, history_s=5.0)
     for k in range(len(imu_t)):
@@ -72,6 +73,25 @@ def test_corrected_bearings_match_the_static_model_at_the_true_gravity(bias, tol
         assert np.linalg.norm(correct_pixels(cam, uv_seen, R[i]) - uv_true, axis=1).max() < 2 * cam.focal_px * tol_rad
 
 
+def test_the_predicted_envelope_is_the_bars_free_ringing_about_the_still_load_with_a_noisy_imu():
+    """With a MEMS-grade IMU at 1 kHz the envelope is the true bars' (|x - l| and x' / w about the still load,
+    within the noise they pass), not the amplitude about one IMU step's load line, which carries the noise's
+    slope over one period (|s| / w: about 1.5 m/s^2 here, the envelope itself 0.1-0.5 m/s^2)."""
+    rig = _rig()
+    p, x_true, still = _ringing_snapshot(rig, 0.0, accel_noise=0.02, gyro_noise=0.002)
+    w = 2 * math.pi * bar_natural_frequencies(rig)
+    loads = p.ringing.real + p.still_load  # Re(Z) is the load's offset from the still one
+    assert np.allclose(loads, p.load, atol=1e-9)
+    envelope = np.linalg.norm(np.abs(p.ringing), axis=1)
+    quiet, _, _ = _ringing_snapshot(rig, 0.0)  # the same moves, a noise-free IMU
+    truth = np.linalg.norm(np.abs(quiet.ringing), axis=1)
+    assert np.all(truth > 0.05)
+    h, zeta = 1e-3, 0.03  # the noise the bars pass (per axis: accelerometer, and the gyro's differenced)
+    lever = np.linalg.norm(rig.positions, axis=1)
+    sigma = np.hypot(0.02 * np.sqrt(h * w / (4 * zeta)), lever * 0.002 * np.sqrt(h * w**3 / (4 * zeta)))
+    assert np.all(np.abs(envelope - truth) < 0.1 * truth + 5 * sigma), (envelope, truth, sigma)
+
+
 def test_the_prediction_error_grows_with_the_time_since_the_stop_and_the_damping_uncertainty():
     """The residual: the envelope times w t s_zeta, 2 pi t s_f and w s_t; the IMU noise through the bar alone
     when the bars are known exactly; zero for a noise-free IMU and exact bars."""
@@ -106,3 +126,9 @@ def test_the_prediction_error_grows_with_the_time_since_the_stop_and_the_damping
     w = 2 * math.pi * bar_natural_frequencies(rig)  # sigma sqrt(h w / (4 zeta)) on each of two transverse axes
     expected = math.sqrt(2) * px_per_load * 0.02 * np.sqrt(0.005 * w / (4 * 0.03))
     assert n == pytest.approx(expected, rel=0.05)
+    gyro = uncertainty(rig, 0.0, 0.0, 0.0, 0.0, 0.005, gyro_sigma=0.002)
+    n_gyro = np.sqrt(residual_px(rig, zeta, p, gyro) ** 2 - residual_px(rig, zeta, p, uncertainty(
+        rig, 0.0, 0.0, 0.0, 0.0, 0.005)) ** 2)  # the gyro's noise differenced into alpha at the tip's lever
+    lever = np.linalg.norm(rig.positions, axis=1)
+    assert n_gyro == pytest.approx(math.sqrt(2) * px_per_load * lever * 0.002 * np.sqrt(0.005 * w**3 / (4 * 0.03)),
+                                   rel=0.05)

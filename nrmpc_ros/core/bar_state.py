@@ -314,8 +314,9 @@ class BarPropagator:
             return None
         return self._evaluate(np.asarray(stamps, dtype=float).reshape(-1), cams)
 
-    def _evaluate(self, q, cams):
-        """:meth:`loads_at` on the steps propagated so far (no flush)."""
+    def _evaluate(self, q, cams, rates: bool = False):
+        """:meth:`loads_at` on the steps propagated so far (no flush); with ``rates`` also the loads' rates x'
+        (m/s^3, same shape)."""
         m = slice(None) if cams is None else np.asarray(cams, dtype=int).reshape(-1)
         one = cams is not None
 
@@ -334,8 +335,9 @@ class BarPropagator:
         a, s, C = self._a[rows], self._s[rows], self._C[rows]
         rigid, lam = per_bar(self.rigid), per_bar(self.lam)
         ramp = a + s * tau
-        x = np.where(rigid, ramp, ramp - 2.0 * per_bar(self.zeta) * s / per_bar(self.w)
-                     + (C * np.exp(lam * tau)).real)
+        free = C * np.exp(lam * tau)
+        x = np.where(rigid, ramp, ramp - 2.0 * per_bar(self.zeta) * s / per_bar(self.w) + free.real)
+        v = np.where(rigid, s, s + (lam * free).real) if rates else None
         if beyond.any():  # the last load held from the newest sample on
             b = self._a[-1] + self._s[-1] * h[-1]
             C_end = np.exp(self.lam * h[-1])[:, None] * self._C[-1] - self.kappa[:, None] * self._s[-1]
@@ -343,29 +345,28 @@ class BarPropagator:
                 b, C_end = b[m], C_end[m]
             dt = q - end
             dt = dt[:, None] if one else dt[:, None, None]
-            held = b + (C_end * np.exp(lam * dt)).real
-            x[beyond] = np.where(rigid, np.broadcast_to(b, x.shape), held)[beyond]
-        return x
+            held = C_end * np.exp(lam * dt)
+            x[beyond] = np.where(rigid, np.broadcast_to(b, x.shape), b + held.real)[beyond]
+            if rates:
+                v[beyond] = np.where(rigid, 0.0, (lam * held).real)[beyond]
+        return (x, v) if rates else x
 
-    def ringing_at(self, stamps, cams):
-        """Complex ringing amplitude (K, 3) of bar cams[j] at stamps[j] (body frame, m/s^2): the free part of its
-        effective load is its real part, its envelope the modulus (zero for rigid bars). Beyond the newest sample
-        the ringing decays freely (the last load held). None before two samples have arrived."""
+    def ringing_about(self, stamps, cams, rest):
+        """Complex free ringing Z (K, 3) of bar cams[j] at stamps[j] about the load ``rest`` (K, 3) (body frame,
+        m/s^2): the damped oscillation the bar would go on with were its load ``rest`` from then on, Re(Z) =
+        x - rest and Re(lambda Z) = x' (its envelope the modulus; zero for rigid bars). From the bar's state,
+        not from the step's amplitude C: C is taken about the current step's load line, whose slope and
+        angular-acceleration jump carry the IMU's noise differenced over one period (a phantom of up to
+        |s| / w). None before two samples have arrived."""
         self.flush()
         if not len(self._t0):
             return None
-        q = np.asarray(stamps, dtype=float).reshape(-1)
         m = np.asarray(cams, dtype=int).reshape(-1)
-        t0, h = self._t0, self._h
-        k = np.clip(np.searchsorted(t0, q, side="right") - 1, 0, len(t0) - 1)
-        tau = np.clip(q - t0[k], 0.0, h[k])
-        C = self._C[k, m] * np.exp(self.lam[m] * tau)[:, None]
-        end = t0[-1] + h[-1]
-        beyond = q > end
-        if beyond.any():
-            C_end = np.exp(self.lam * h[-1])[:, None] * self._C[-1] - self.kappa[:, None] * self._s[-1]
-            C[beyond] = C_end[m[beyond]] * np.exp(self.lam[m[beyond]] * (q[beyond] - end))[:, None]
-        return np.where(self.rigid[m][:, None], 0.0, C)
+        x, v = self._evaluate(np.asarray(stamps, dtype=float).reshape(-1), m, rates=True)
+        lam = self.lam[m][:, None]
+        zr = x - np.asarray(rest, dtype=float).reshape(-1, 3)
+        Z = zr + 1j * (lam.real * zr - v) / lam.imag
+        return np.where(self.rigid[m][:, None], 0.0, Z)
 
     def mean_load(self, t0: float, t1: float):
         """Mean load (M, 3) of every bar over the propagated samples stamped in [t0, t1] (body clock, s): the

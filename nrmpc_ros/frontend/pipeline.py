@@ -660,7 +660,8 @@ class Pipeline:
         noise = self.zupt.noise
         cfg = self.config.holds
         u = uncertainty(self.rig, cfg.damping_rel_std, cfg.unknown_damping_std, cfg.frequency_rel_std,
-                        math.nan if noise is None else noise.accel_sigma, self.imu.period_s)
+                        math.nan if noise is None else noise.accel_sigma, self.imu.period_s,
+                        math.nan if noise is None else noise.gyro_sigma)
         res = residual_px(self.rig, self.extrinsics.bars.zeta, p, u,
                           math.inf if cfg.ringing_depth_m is None else cfg.ringing_depth_m)
         used = []

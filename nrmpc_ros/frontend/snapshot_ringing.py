@@ -37,7 +37,8 @@ from ..core.rig import Rig
 class RingingPrediction:
     """The ringing of the cameras of one frame set, predicted from the IMU: for the rig's cameras ``cams`` (K,)
     at their image ``stamps`` (K,), each bar's effective load ``load`` (K, 3) and the still rig's ``still_load``
-    (K, 3) (body frame, m/s^2), the complex ringing amplitude ``ringing`` (K, 3) (its modulus the envelope),
+    (K, 3) (body frame, m/s^2), the complex ringing about the still load ``ringing`` (K, 3) (its modulus the
+    envelope: :meth:`~nrmpc_ros.core.bar_state.BarPropagator.ringing_about`),
     and ``elapsed_s`` since the stop (the IMU's still onset)."""
 
     cams: np.ndarray
@@ -62,9 +63,9 @@ def predict(bars: BarPropagator, stamps, cams, still_from: float, still_to: floa
     q = np.asarray(stamps, dtype=float).reshape(-1)
     still = bars.mean_load(still_from, still_to)
     x = bars.loads_at(q, cams)
-    ring = bars.ringing_at(q, cams)
-    if still is None or x is None or ring is None:
+    if still is None or x is None:
         return None
+    ring = bars.ringing_about(q, cams, still[cams])
     return RingingPrediction(cams, q, x, still[cams], ring, max(float(np.min(q)) - float(stop), 0.0))
 
 
@@ -87,18 +88,19 @@ def correct_pixels(cam, uv, R) -> np.ndarray:
 @dataclass(frozen=True)
 class PredictionUncertainty:
     """What the prediction does not know: each bar's damping ratio std (absolute) and its frequency's relative
-    std, the stamps' std (s, where inside an IMU period the load really changed), and the accelerometer's
-    noise per sample (m/s^2) at its sample period (s)."""
+    std, the stamps' std (s, where inside an IMU period the load really changed), the accelerometer's noise
+    per sample (m/s^2) at its sample period (s), and the gyro's (rad/s)."""
 
     damping_std: np.ndarray  # (M,)
     frequency_rel_std: np.ndarray  # (M,)
     clock_std_s: float
     accel_sigma: float
     imu_period_s: float
+    gyro_sigma: float = 0.0
 
 
 def uncertainty(rig: Rig, damping_rel_std: float, unknown_damping_std: float, frequency_rel_std: float,
-                accel_sigma: float, imu_period_s: float) -> PredictionUncertainty:
+                accel_sigma: float, imu_period_s: float, gyro_sigma: float = 0.0) -> PredictionUncertainty:
     """Per bar, the damping's std: the rig file's ``damping_std`` (the bar calibration's), else
     ``damping_rel_std`` of its ``damping``, else ``unknown_damping_std`` (the propagator then assumes a default
     ratio); the frequency's: the rig file's ``frequency_std_hz`` with its identified ``frequency_hz`` (the
@@ -117,9 +119,11 @@ def uncertainty(rig: Rig, damping_rel_std: float, unknown_damping_std: float, fr
         else:
             fs.append(frequency_rel_std)
     period = float(imu_period_s) if math.isfinite(imu_period_s) and imu_period_s > 0 else 0.0
-    sigma = float(accel_sigma) if math.isfinite(accel_sigma) and accel_sigma > 0 else 0.0
+    def positive(x):
+        return float(x) if math.isfinite(x) and x > 0 else 0.0
+
     return PredictionUncertainty(np.array(zs, dtype=float), np.array(fs, dtype=float), period / math.sqrt(12.0),
-                                 sigma, period)
+                                 positive(accel_sigma), period, positive(gyro_sigma))
 
 
 def residual_px(rig: Rig, zeta, p: RingingPrediction, u: PredictionUncertainty,
@@ -133,6 +137,8 @@ def residual_px(rig: Rig, zeta, p: RingingPrediction, u: PredictionUncertainty,
     - a stamp off by s_t shifts it by w s_t;
     - white accelerometer noise of std sigma per sample at period h drives each transverse axis of the bar's
       load to a std sigma sqrt(h w / (4 zeta)) (the second-order response's noise bandwidth, w / (4 zeta));
+      the gyro's, differenced into the angular acceleration at the tip's lever |v|, to |v| sigma_w sqrt(h w^3
+      / (4 zeta)) (the response's rate has w^2 times its variance);
     - the camera's translation by the ringing, c_d (x - l) across the bar, is not removed: it turns the
       bearing of a point ``depth_m`` away by up to its length over that depth.
     """
@@ -150,7 +156,9 @@ def residual_px(rig: Rig, zeta, p: RingingPrediction, u: PredictionUncertainty,
     rel = np.sqrt((w * t * u.damping_std[cams]) ** 2 + (w * u.frequency_rel_std[cams] * t) ** 2
                   + (w * u.clock_std_s) ** 2)
     per_load = focal * np.linalg.norm(cr, ord=2, axis=(1, 2))
-    noise = u.accel_sigma * np.sqrt(u.imu_period_s * w / (4.0 * np.maximum(zeta, 1e-6)))
+    band = u.imu_period_s * w / (4.0 * np.maximum(zeta, 1e-6))
+    lever = np.linalg.norm(rig.positions[cams], axis=1)
+    noise = np.sqrt(band * (u.accel_sigma ** 2 + (lever * w * u.gyro_sigma) ** 2))
     u_dir, cd, _ = rig.bar_coefficients
     dx = p.deflection
     perp = dx - np.sum(dx * u_dir[cams], axis=1, keepdims=True) * u_dir[cams]
