@@ -110,9 +110,9 @@ class HoldConfig:
                             lo=0.0, hi=0.99, lo_open=True)
     stop_load_m_s2: float = option(3.0, "a snapshot whose stop the IMU did not see is assumed to have stopped "
                                    "with this change of load (m/s^2) setting its bars ringing", lo=0.0, hi=100.0)
-    predict_ringing: bool = option(False, "with an IMU, a snapshot's ringing predicted by the bars' state is "
-                                   "removed from its bearings and only the prediction's error is extra noise (off "
-                                   "by default: with a calibrated rig file its std is not yet kept everywhere)")
+    predict_ringing: bool = option(True, "with an IMU, a snapshot's ringing predicted by the bars' state is "
+                                   "removed from its bearings and only the prediction's error is extra noise "
+                                   "(false: the stop's decayed envelope is the extra noise)")
     damping_rel_std: float = option(0.2, "relative std of a damping ratio the rig file gives (the bar "
                                      "calibration's target), for the predicted ringing's error", lo=0.0, hi=10.0)
     unknown_damping_std: float = option(0.03, "std of the damping ratio of a bar whose rig file gives none (the "
