@@ -283,6 +283,31 @@ def test_the_still_run_of_a_hold_spans_the_hold_and_a_move_has_none(rng, imu_rat
     assert det.still_run(holds[-1][0] + 1.0)[1] == t[-1]
 
 
+@pytest.mark.parametrize("imu_rate", [50.0, 200.0, 1000.0])
+def test_an_instant_moments_after_a_stop_is_decided_half_a_window_later_in_a_run_of_any_length(rng, imu_rate):
+    """0.15 s after a stop (less than a stillness window and its shortest run at 50 Hz, 0.18 s, past the half
+    window the test cannot tell from the move): undecided until the samples reach half a window beyond it;
+    then it lies in a still run (``any_length``: also one not yet a window long) starting within a window of
+    the stop."""
+    plan = [("hold", 2.0), ("move", 1.0), ("hold", 2.0)]
+    t, a, w, holds = trace(rng, imu_rate, plan)
+    det = ZuptDetector(noise=estimate_noise(t, a, w))
+    cfg = ZuptConfig()
+    half = 0.5 * max(cfg.window_s, (2 * math.ceil((cfg.min_window_samples - 1) / 2) + 1) / imu_rate)
+    stop = holds[1][0]
+    at = stop + 0.15
+    seen = []
+    for k in range(len(t)):
+        det.add(t[k], a[k], w[k])
+        seen.append(det.decided(at))
+        if seen[-1]:
+            break
+    assert t[k] >= at + half and t[k] <= at + half + 2.0 / imu_rate, (t[k] - at, half)
+    assert not any(seen[:-1])
+    since = det.still_since(at, any_length=True)
+    assert since is not None and stop <= since <= stop + 2 * half, (since - stop, half)
+
+
 @pytest.mark.parametrize("rate", [50.0, 200.0, 1000.0])
 def test_an_accelerometer_bias_does_not_split_holds_at_any_rate(rng, rate):
     """A biased accelerometer's still norm |-g + b| differs between attitudes; that mismatch does not average

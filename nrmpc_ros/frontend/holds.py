@@ -269,6 +269,8 @@ class HoldRecorder:
         self.positions: list = []  # per frame: list of (ids, uv) or None per camera
         self.measured = False  # estimated already (a long hold is measured once, before it ends)
         self.prediction = None  # a snapshot's ringing predicted from the IMU (.snapshot_ringing.RingingPrediction)
+        self.prediction_at = None  # (stamp, cameras, their image stamps) of a snapshot whose ringing is yet to be
+        # predicted: once the IMU's stillness test has decided that instant, at the latest when the hold is measured
         self.jumped = ""  # the camera whose lost tracks opened it inside a stream (a jump, not a lone frame)
 
     def add(self, stamp: float, positions: list, taken: list | None = None) -> None:

@@ -255,6 +255,9 @@ class Pipeline:
                 self._tracking_bars.add_imu(stamp, a, (0.0, 0.0, 0.0) if w is None else w)
             if w is not None:
                 self.imu_clock.add_imu(stamp, w, a)
+            h = self._hold
+            if h is not None and h.prediction_at is not None and self.zupt.decided(h.prediction_at[0]):
+                self._predict_ringing(h)
 
     def camera_poses(self, frames: FrameSet) -> CameraPoses | None:
         """Each camera's extrinsics (body frame) at its image stamp in ``frames``, from the bars' state; None
@@ -364,7 +367,8 @@ class Pipeline:
             # previous frame, and this one may start a hold (the rig may be at rest here, its bars ringing)
             out += self._close()
             self._open(stamp, images, taken, snapshot=True, top_up=gap > lone_gap)
-            self._hold.prediction = self._predict_ringing(frames, images)
+            cams = [i for i, img in enumerate(images) if img is not None]
+            self._hold.prediction_at = (stamp, cams, [frames.camera_stamp(i) for i in cams])
             if gap <= lone_gap:  # a jump inside a stream (tracks lost), not a lone frame
                 self._hold.jumped = next(c.name for c, s in zip(self.rig.cameras, steps) if s is not None and s.lost)
                 self._note_period(gap)
@@ -609,8 +613,10 @@ class Pipeline:
         if h is None or h.measured:
             return []
         if h.snapshot and len(h) == 1 and self.rig.imu is not None and len(self.imu):
-            t = h.stamps[0]  # a snapshot is taken at the end of its hold: the IMU must be still before it
-            if self.zupt.is_still(t - max(self.imu.pad_s, self.config.zupt.window_s), t) is False:
+            # the rig must be still when the image was taken: its instant in a still run of the IMU (which starts
+            # half a stillness window after the stop; a snapshot taken sooner cannot be told from the move)
+            t = h.stamps[0]
+            if self.zupt.is_still(t, t) is False:
                 self.stats.dropped[Drop.SNAPSHOT_MOVED] += 1
                 return []
         elif h.snapshot and len(h) == 1 and h.jumped:
@@ -632,23 +638,26 @@ class Pipeline:
         load = float(np.max(np.linalg.norm(a[~still] - a[still].mean(axis=0), axis=1)))
         return load * float(np.max(self.bars.px_per_load, initial=0.0))
 
-    def _predict_ringing(self, frames: FrameSet, images: list):
-        """The ringing of a frame set that may be a snapshot, predicted by the bars' state at its cameras'
-        stamps (:func:`.snapshot_ringing.predict`), while the propagator still holds them; None without an
-        IMU, rigid bars, or an IMU not still before the frames."""
+    def _predict_ringing(self, rec: HoldRecorder) -> None:
+        """The ringing of a hold that may be a snapshot (``rec.prediction_at``), predicted by the bars' state at
+        its cameras' stamps (:func:`.snapshot_ringing.predict`) into ``rec.prediction``: once the IMU's stillness
+        test has decided its instant (half a stillness window of samples after it, while the propagator still
+        holds it), or when the hold is measured before that. None without an IMU, rigid bars, or an IMU not
+        still at the frames (a snapshot taken moments after the stop sits in a still run shorter than a window:
+        its onset is taken as it stands; whether the rig was still is decided when the hold closes)."""
+        t, cams, stamps = rec.prediction_at
+        rec.prediction_at = None
         cfg = self.config.holds
         if self.extrinsics is None or not cfg.predict_ringing or not self.bars.period_s or not len(self.imu):
-            return None
-        t = float(frames.stamp)
-        since = self.zupt.still_since(t)
+            return
+        since = self.zupt.still_since(t, any_length=True)
         if since is None:
-            return None
-        cams = [i for i, img in enumerate(images) if img is not None]
-        stamps = [frames.camera_stamp(i) for i in cams]
+            return
         # the accelerometer's bias cancels in the ringing (docs/PIPELINE.md, "Settling"): the estimation stage's
         # newest bias is not taken here, so this intake decision does not depend on when that stage ran
         off = self.config.imu_time_offset_s  # the still onset in the cameras' clock, as the propagator's stamps
-        return predict(self.extrinsics.bars, stamps, cams, max(since, t - cfg.measure_s) + off, t, since + off)
+        rec.prediction = predict(self.extrinsics.bars, stamps, cams, max(since, t - cfg.measure_s) + off, t,
+                                 since + off)
 
     def _remove_predicted_ringing(self, rec: HoldRecorder, hold: Hold) -> None:
         """A snapshot whose ringing was predicted: each camera's pixels turned to where the static model sees
@@ -677,6 +686,8 @@ class Pipeline:
     def _estimate_hold(self, rec: HoldRecorder) -> list:
         """Measure a closed (or long enough) hold and hand it to the estimation stage with what it needs of
         the IMU; returns the estimates when the stage runs at once."""
+        if rec.prediction_at is not None:
+            self._predict_ringing(rec)
         since = self._imu_still_since(rec)
         hold, why = rec.measure(self.config.holds, self.bar_period_s, since, self.bars,
                                 self._stop_amplitude_px(rec, since))
@@ -737,8 +748,14 @@ class Pipeline:
             return None
         t0, t1 = hold.settled_start, hold.settled_end
         if hold.snapshot:
-            since = self.zupt.still_since(t1)
-            t0 = t1 - self.imu.pad_s if since is None else max(since, t1 - self.config.holds.measure_s)
+            # the still run's samples before the image, at most measure_s; a snapshot taken less than pad_s into
+            # its run takes that run's samples after it too (the rig stood there until it moved again)
+            run = self.zupt.still_run(t1)
+            if run is None:
+                t0 = t1 - self.imu.pad_s
+            else:
+                t0 = max(run[0], t1 - self.config.holds.measure_s)
+                t1 = max(t1, min(run[1], t0 + self.imu.pad_s))
         imu, why = self.imu.gravity(t0, t1)
         if imu is None:
             self.stats.dropped[Drop.no_imu_gravity(why.rule)] += 1

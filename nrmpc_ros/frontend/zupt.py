@@ -455,14 +455,15 @@ class ZuptDetector:
         with np.errstate(invalid="ignore"):
             return t, stat < 1.0, brk, np.isnan(stat)
 
-    def _run_of(self, t0: float, t1: float):
+    def _run_of(self, t0: float, t1: float, any_length: bool = False):
         """(stamps, i, j, run, young): samples i..j lie in [t0, t1] (j the newest); ``run`` = (first, last)
         indices of the still run holding j (None if j is not in one); ``young`` (False where i..j lie in one still
         run): the stream began, or resumed
         after a gap, less than a still run's length before sample j, and no sample since (nor in i..j) shows a
         move (each is still, or has too few samples around it to tell): what the rig did before is unknown (it
         may have stood still for long), so a run too short yet is no evidence of a move. None without noise,
-        or when no sample lies in [t0, t1]."""
+        or when no sample lies in [t0, t1]. ``any_length``: runs of any length count (not only those a window
+        long)."""
         v = self._verdicts()
         if v is None:
             return None
@@ -477,7 +478,7 @@ class ZuptDetector:
                 return None
             i = j = i if after else j
         min_run = _min_run(self.config, period)
-        starts, ends = _runs(t, still, brk, min_run)
+        starts, ends = _runs(t, still, brk, 0.0 if any_length else min_run)
         k = int(np.searchsorted(starts, j, side="right")) - 1
         run = (int(starts[k]), int(ends[k])) if k >= 0 and ends[k] >= j else None
         young = False
@@ -485,6 +486,16 @@ class ZuptDetector:
             b = int(np.flatnonzero(brk[: j + 1])[-1])  # the stream's start or the last gap (brk[0] is set)
             young = t[j] - t[b] < min_run and bool(np.all(still[min(i, b): j + 1] | unknown[min(i, b): j + 1]))
         return t, i, j, run, young
+
+    def decided(self, t: float) -> bool:
+        """Whether the stillness of an instant ``t`` is decided: the newest sample lies half a stillness window
+        (and a sample period) after it, so the window centred on it is complete (the IMU's rate sets how long
+        that is: 0.05 s at 200 Hz and more, 0.09 s at 50 Hz)."""
+        noise = self.noise
+        period = noise.period_s if noise is not None else math.nan
+        if not (math.isfinite(period) and period > 0):
+            return False
+        return self.buffer.last_stamp >= t + 0.5 * _window_length(self.config, period) + period
 
     def is_still(self, t0: float, t1: float) -> bool | None:
         """True when every sample in [t0, t1] lies in one still run (at least one window long).
@@ -502,11 +513,12 @@ class ZuptDetector:
             return True
         return None if young else False
 
-    def still_run(self, t: float) -> tuple | None:
+    def still_run(self, t: float, any_length: bool = False) -> tuple | None:
         """(first, last) stamps of the still run holding ``t`` (its newest sample at most a gap before ``t``) as
         far as the samples so far show it (its last sample the newest one while the rig is still at rest);
-        None when ``t`` is not in one."""
-        r = self._run_of(-math.inf, t)
+        None when ``t`` is not in one. ``any_length``: also a run shorter than a window so far (a stop moments
+        ago, whose samples since are still: a provisional answer, which the samples to come confirm or not)."""
+        r = self._run_of(-math.inf, t, any_length)
         if r is None or r[3] is None:
             return None
         ts, _, j, (first, last), _ = r
@@ -514,10 +526,10 @@ class ZuptDetector:
             return None
         return float(ts[first]), float(ts[last])
 
-    def still_since(self, t: float) -> float | None:
+    def still_since(self, t: float, any_length: bool = False) -> float | None:
         """Stamp of the first sample of the still run holding ``t`` (:meth:`still_run`); None when ``t`` is not
         in one."""
-        run = self.still_run(t)
+        run = self.still_run(t, any_length)
         return None if run is None else run[0]
 
 
