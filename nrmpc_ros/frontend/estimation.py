@@ -39,11 +39,13 @@ def ringing_noise_rad(rig: Rig, hold: Hold, cam) -> float:
     predicted and removed, that prediction's error): an offset that turns
     all of a camera's bearings together, so that camera's n points tell its rotation no better than one bearing
     with the ringing's std (per point sigma^2 + n ringing^2: the information n / (sigma^2 + n ringing^2) about
-    the rotation). A stream hold's ringing is what remains after averaging or fitting many frames
-    (docs/PIPELINE.md, "Graded trust"): per point, as measured."""
+    the rotation). So is the uncertainty of a ringing stream hold's fitted rest beyond its tracks' noise (what the
+    fit does not follow, e.g. the stamps' jitter times the ringing's speed, moves all of a camera's tracks alike).
+    What remains of a settled hold's ringing after averaging many frames, or a short hold's spread, enters per
+    point, as measured (docs/PIPELINE.md, "Graded trust")."""
     focal = float(np.median([c.focal_px for c in rig.cameras]))
-    coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT, RingingSource.PREDICTED) \
-        and len(cam)
+    coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT, RingingSource.PREDICTED,
+                                       RingingSource.FIT) and len(cam)
     per_camera = float(np.median(np.unique(np.asarray(cam), return_counts=True)[1])) if coherent else 1.0
     return hold.ringing_px / focal * math.sqrt(per_camera)
 
