@@ -627,16 +627,34 @@ class Pipeline:
         return self._estimate_hold(h)
 
     def _stop_amplitude_px(self, rec: HoldRecorder, since: float | None) -> float | None:
-        """The image ringing a hold's stop set off (px, largest camera): the IMU's largest change of
-        specific force over the bar period before the still onset, times each camera's offset per load."""
+        """The image ringing a hold's stop set off (px, largest camera): the largest change of each bar's tip
+        load over the two bar periods before the still onset, times its camera's offset per load. The tip load
+        is the specific force and the turn's (docs/CONVENTIONS.md, "The rig in motion"): an abrupt stop of a turn
+        loads a tip at a lever v by alpha x v (60 deg/s stopped within 0.1 s: 4 m/s^2 at 0.4 m, more than the
+        linear deceleration). alpha is the gyro's difference over an eighth of a bar period (the band the bar
+        answers; one sample's difference is its noise over one period)."""
         if since is None or not len(rec) or not self.bars.period_s:
             return None
-        t, a, _ = self.imu.window(since - 2.0 * self.bars.period_s, rec.stamps[0])
-        still = t >= since
+        t, a, w = self.imu.window(since - 2.0 * self.bars.period_s, rec.stamps[0])
+        if len(t) < 2:
+            return None
+        k = int(np.clip(round(0.125 * self.bars.period_s / max(float(np.median(np.diff(t))), 1e-9)), 1, len(t) - 1))
+        mount = self.rig.imu
+        M = mount.rotation  # IMU -> its mount (the body, or a camera: then on to the body, unbent)
+        if mount.mount != "body":
+            M = self.rig.rotations[self.rig.camera_index(mount.mount)] @ M
+        f, w = a @ M.T, w @ M.T
+        mid = np.arange(len(t) - k) + k // 2  # the samples at the middle of each difference
+        alpha = (w[k:] - w[:-k]) / (t[k:] - t[:-k])[:, None]
+        v = self.rig.positions  # (cams, 3): each tip from the body origin
+        om = w[mid]
+        load = (-f[mid][:, None, :] - np.cross(alpha[:, None, :], v[None])
+                - np.cross(om[:, None, :], np.cross(om[:, None, :], v[None])))  # (n, cams, 3)
+        still = t[mid] >= since
         if still.sum() < 1 or (~still).sum() < 1:
             return None
-        load = float(np.max(np.linalg.norm(a[~still] - a[still].mean(axis=0), axis=1)))
-        return load * float(np.max(self.bars.px_per_load, initial=0.0))
+        change = np.max(np.linalg.norm(load[~still] - load[still].mean(axis=0), axis=2), axis=0)  # (cams,)
+        return float(np.max(change * self.bars.px_per_load, initial=0.0))
 
     def _predict_ringing(self, rec: HoldRecorder) -> None:
         """The ringing of a hold that may be a snapshot (``rec.prediction_at``), predicted by the bars' state at
