@@ -10,7 +10,8 @@ ringing with damping ratio 0.05) rendered once into --out with :func:`nrmpc_ros.
 (reused when they exist; delete the folder to re-render). Rigs: 2 to 6 cameras (``line2`` two cameras on one
 bar, ``ring3``, ``cross4``, ``ring5``, ``ring6``), each with soft (2 Hz) or stiff (6 Hz) bars. Styles (holds
 at 10 Hz, IMU at 200 Hz unless said): ``imu100`` / ``imu200`` / ``imu500`` the IMU rate; ``snap0.5`` one image
-per camera 0.5 s after each stop; ``camrates`` each camera its own rate (10, 15, 30, 20, 12, 25 Hz) and phase;
+per camera 0.5 s after each stop; ``snap0.15`` one 0.15 s after each stop, IMU at 50 Hz (its stillness window,
+0.18 s, is longer than that); ``camrates`` each camera its own rate (10, 15, 30, 20, 12, 25 Hz) and phase;
 ``exposure`` auto-exposure drift (gain 1 +- 0.3, 10 s periods); ``creep`` random 2-4 s holds of which a third
 creep at 0.5 deg/s (not still); ``imuclock`` random 1.5-3.5 s holds and an IMU clock 15 ms off the cameras';
 ``swsync`` software-synchronised cameras streaming through the moves (+-8 ms stamp jitter, 2 % of frames
@@ -259,6 +260,7 @@ def matrix_styles() -> dict:
         "imu200": lambda M: ({**base, "imu_rate": 200.0}, bag),
         "imu500": lambda M: ({**base, "imu_rate": 500.0}, bag),
         "snap0.5": lambda M: ({**base, "capture": "snapshot", "snapshot_delay": 0.5}, bag),
+        "snap0.15": lambda M: ({**base, "capture": "snapshot", "snapshot_delay": 0.15, "imu_rate": 50.0}, bag),
         "camrates": lambda M: ({**base, **rates(M)}, bag),
         "exposure": lambda M: (base, {**bag, "exposure_drift": 0.3, "exposure_period_s": 10.0}),
         "creep": lambda M: ({**base, "views": 7, "hold_seconds_range": (2.0, 4.0), "creep_fraction": 1 / 3,
@@ -272,8 +274,9 @@ def matrix_styles() -> dict:
 
 
 QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross4-soft"),
-         ("snap0.5", "line2-soft"), ("camrates", "ring5-stiff"), ("exposure", "ring6-soft"),
-         ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft"), ("noimu", "ring3-soft")]
+         ("snap0.5", "line2-soft"), ("snap0.15", "cross4-soft"), ("camrates", "ring5-stiff"),
+         ("exposure", "ring6-soft"), ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft"),
+         ("noimu", "ring3-soft")]
 
 
 def matrix_cells(full: bool) -> list:
