@@ -86,6 +86,16 @@ def bent_extrinsics_at_loads(rig: Rig, loads, cams=None):
     return w, exp_so3(phi) @ rig.rotations[m]
 
 
+def tip_loads(specific_force, omega, alpha, lever) -> np.ndarray:
+    """Each bar's load (K, M, 3) at K samples: the body's specific force (K, 3) at the IMU, angular rate and
+    angular acceleration (K, 3), tips at ``lever`` (M, 3) from the IMU, all in the body frame (docs/CONVENTIONS.md,
+    "The rig in motion"): l = -f - alpha x r - omega x (omega x r), written ([alpha]_x + omega omega^T -
+    |omega|^2 I) r."""
+    w = np.asarray(omega, dtype=float)
+    A = skew(alpha) + w[:, :, None] * w[:, None, :] - np.sum(w * w, axis=1)[:, None, None] * np.eye(3)
+    return -np.asarray(specific_force, dtype=float)[:, None, :] - np.einsum("kij,mj->kmi", A, lever)
+
+
 def _recursion(P, D, rest, fresh, C_prev, decay):
     """C_k = P_k C_{k-1} + D_k (C_k = rest_k where ``fresh``), k = 0 .. K-1, vectorised over k.
 
@@ -269,12 +279,9 @@ class BarPropagator:
         self.stats.reinitialised += int(restart.sum())
         alpha = np.where(gap[:, None], 0.0, np.diff(g, axis=0) / h[:, None])  # (K, 3) over each step
         lever = self.rig.positions - at  # (M, 3): each tip from the IMU
-        u = -f  # g_b - a (at the IMU)
 
         def load(k, a_k):  # (K, M, 3) load of every bar at samples k with the angular acceleration a_k
-            wk = g[k]  # alpha x r + omega x (omega x r) = ([alpha]_x + omega omega^T - |omega|^2 I) r
-            A = skew(a_k) + wk[:, :, None] * wk[:, None, :] - np.sum(wk * wk, axis=1)[:, None, None] * np.eye(3)
-            return u[k][:, None, :] - np.einsum("kij,mj->kmi", A, lever)
+            return tip_loads(f[k], g[k], a_k, lever)
 
         K = len(h)
         a = load(np.arange(K), alpha)
@@ -385,4 +392,4 @@ class BarPropagator:
         return None if x is None else bent_extrinsics_at_loads(self.rig, x, cams)
 
 
-__all__ = ["BarPropagator", "BarStateStats", "bent_extrinsics_at_loads", "GAP_PERIODS"]
+__all__ = ["BarPropagator", "BarStateStats", "bent_extrinsics_at_loads", "GAP_PERIODS", "tip_loads"]

@@ -28,7 +28,7 @@ import numpy as np
 from ..cameras import check_image_size
 from ..config import check, from_mapping, option
 from ..core import METHODS
-from ..core.bar_state import BarPropagator
+from ..core.bar_state import BarPropagator, tip_loads
 from ..core.incremental import IncrementalSequence
 from ..core.rig import Rig
 from ..core.sequence_steps import CORRESPONDENCE_BIAS_FLOOR_PX, SequenceOptions
@@ -646,10 +646,7 @@ class Pipeline:
         f, w = a @ M.T, w @ M.T
         mid = np.arange(len(t) - k) + k // 2  # the samples at the middle of each difference
         alpha = (w[k:] - w[:-k]) / (t[k:] - t[:-k])[:, None]
-        v = self.rig.positions  # (cams, 3): each tip from the body origin
-        om = w[mid]
-        load = (-f[mid][:, None, :] - np.cross(alpha[:, None, :], v[None])
-                - np.cross(om[:, None, :], np.cross(om[:, None, :], v[None])))  # (n, cams, 3)
+        load = tip_loads(f[mid], w[mid], alpha, self.rig.positions)  # (n, cams, 3), the tips from the body origin
         still = t[mid] >= since
         if still.sum() < 1 or (~still).sum() < 1:
             return None

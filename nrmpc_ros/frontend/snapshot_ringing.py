@@ -118,10 +118,10 @@ def uncertainty(rig: Rig, damping_rel_std: float, unknown_damping_std: float, fr
             fs.append(c.frequency_std_hz / fi)
         else:
             fs.append(frequency_rel_std)
-    period = float(imu_period_s) if math.isfinite(imu_period_s) and imu_period_s > 0 else 0.0
-    def positive(x):
+    def positive(x):  # an unknown (NaN) or absent noise or period counts as none
         return float(x) if math.isfinite(x) and x > 0 else 0.0
 
+    period = positive(imu_period_s)
     return PredictionUncertainty(np.array(zs, dtype=float), np.array(fs, dtype=float), period / math.sqrt(12.0),
                                  positive(accel_sigma), period, positive(gyro_sigma))
 
