@@ -86,7 +86,7 @@ def collect(bag: str, runner, drops: dict, ref: Reference, evaluation: Evaluatio
         raise ValueError("the pipeline did not keep its hold log (set pipeline.hold_log = [] before the run)")
     noise = p.zupt.noise if p.rig.imu is not None and len(p.imu) else None
     return ReportData(bag, p.rig, runner.method, list(p.hold_log), runner.stats, dict(drops), ref, evaluation,
-                      p.bar_period_s, noise, p.config.zupt, calibration)
+                      p.bar_period_s, noise, p.zupt.config, calibration)
 
 
 def fit_decay(t: np.ndarray, offset_px: np.ndarray, start: float, period_s: float) -> Decay | None:

@@ -5,7 +5,8 @@ Rigs: two cameras on one straight bar, three cameras of which one fisheye, the f
 and without an IMU, a 10 Hz stream with smooth (minimum-jerk) moves, a stream with abrupt (trapezoidal) moves,
 ringing bars (damping 0.03), +-8 ms camera stamp jitter and 2 % frame drops, JPEG-compressed images, and
 each camera at its own rate (10, 15, 30, 20 Hz, the first of them; phases 7 ms apart) on bars that ring through
-the hold (damping 0.02).
+the hold (damping 0.02), and an IMU inside the second camera (turned in it), whose bar rings through the hold
+(damping 0.02) after trapezoidal moves.
 """
 
 from __future__ import annotations
@@ -13,8 +14,11 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from nrmpc_ros.core import save_rig
-from nrmpc_ros.core.rig import Camera
+from nrmpc_ros.core.rig import Camera, ImuMount
+from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.render.bagmaker import BagOptions, make_bag
 from nrmpc_ros.render.sequence import MotionOptions
 from nrmpc_ros.sim.synthetic import RigSpec, make_rig
@@ -49,7 +53,10 @@ STYLES = {
     "compressed": ({**BASE, "capture": "stream", "rate": 10.0}, {"encoding": "jpeg"}),
     "camrates-ringing": ({**BASE, "hold_seconds": 2.5, "capture": "stream", "rate": 10.0,
                           "camera_rates": (10.0, 15.0, 30.0, 20.0)}, {"damping": 0.02}),
+    "imu-on-bar": ({**BASE, "capture": "stream", "rate": 10.0, "move_profile": "trapezoid"},
+                   {"damping": 0.02, "imu_mount": 1}),
 }
+IMU_IN_CAMERA = np.array([0.4, -1.2, 0.3])  # rotation vector of the IMU in its camera (imu-on-bar)
 
 
 def recording(root: Path, rig_name: str, style: str, seed: int = 0):
@@ -63,6 +70,9 @@ def recording(root: Path, rig_name: str, style: str, seed: int = 0):
                   "camera_phases_ms": tuple(7.0 * i for i in range(M))}
     if not bag.get("imu", True):
         r = replace(r, imu=None)
+    if "imu_mount" in bag:
+        bag = dict(bag)
+        r = replace(r, imu=ImuMount(mount=r.cameras[bag.pop("imu_mount")].name, rotation=exp_so3(IMU_IN_CAMERA)))
     rig_file = root / f"{rig_name}-{style}.yaml"
     path = root / f"{rig_name}-{style}-{seed}"
     summary = None

@@ -1,10 +1,13 @@
 """Zero-velocity detection: still rigs, creep, vibration, holds between moves, rates, noise sources, gaps, online."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
+from nrmpc_ros.core.dynamics import bar_natural_frequencies
+from nrmpc_ros.core.rig import ImuMount
 from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.errors import InputError
 from nrmpc_ros.frontend.imu import ImuReject
@@ -13,6 +16,7 @@ from nrmpc_ros.frontend.zupt import (
     ZuptConfig,
     ZuptDetector,
     estimate_noise,
+    for_rig,
     still_intervals,
     still_mask,
     still_statistic,
@@ -383,3 +387,64 @@ def test_the_streams_first_window_and_one_after_a_gap_are_no_move(rng, imu_rate)
         if 4.0 + 0.05 <= t[k] < 4.0 + 0.5 * win:
             assert det.is_still(t[k] - 0.02, t[k]) is False  # young after the move: it just stopped
     assert det.is_still(t[-1] - 0.5, t[-1]) is True
+
+
+def ringing_trace(rng, rate, frequency_hz, zeta=0.03, creep_deg_s=0.0):
+    """:func:`trace` of holds and moves read by an IMU that rides on a bar ringing at ``frequency_hz``: after
+    every move its gyro and accelerometer carry a decaying oscillation (17 deg/s and 1 m/s^2 at first, each
+    axis at its own phase), far above their noise for the whole hold; ``creep_deg_s`` turns the body slowly
+    through the second hold (a motion)."""
+    plan = [("hold", 3.0), ("move", 1.5), ("hold", 3.0), ("move", 1.0), ("hold", 3.0)]
+    t, a, w, holds = trace(rng, rate, plan)
+    omega = 2.0 * math.pi * frequency_hz
+    for h0, h1 in holds[1:]:
+        m = (t >= h0) & (t < h1)
+        tau = t[m] - h0
+        phase = rng.uniform(0.0, 2.0 * math.pi, size=6)
+        env = np.exp(-zeta * omega * tau)[:, None]
+        w[m] += 0.3 * env * np.sin(omega * tau[:, None] + phase[:3]) * rng.uniform(0.5, 1.0, 3)
+        a[m] += 1.0 * env * np.sin(omega * tau[:, None] + phase[3:]) * rng.uniform(0.5, 1.0, 3)
+    if creep_deg_s:
+        h0, h1 = holds[1]
+        w[(t >= h0) & (t < h1)] += math.radians(creep_deg_s) * AXIS
+    return t, a, w, holds
+
+
+@pytest.mark.parametrize("rate, frequency_hz", [(50.0, 1.5), (200.0, 4.0), (1000.0, 8.0), (100.0, 6.0)])
+def test_an_imu_on_a_ringing_bar_finds_every_hold_whole(rng, rate, frequency_hz):
+    """The ringing of the IMU's own bar is no motion: each hold is one still run from about a window after the
+    stop to its end; without the bar's frequency the same samples lose most of every hold after a move."""
+    t, a, w, holds = ringing_trace(rng, rate, frequency_hz)
+    cfg = ZuptConfig(mount_ringing_hz=frequency_hz)
+    noise = estimate_noise(t, a, w, cfg)
+    assert noise.gyro_sigma == pytest.approx(0.002, rel=0.2)
+    iv = still_intervals(t, a, w, noise, cfg)
+    detector = ZuptDetector(cfg, noise=noise)
+    win = detector.window_s if detector.add(t[0], a[0], w[0]) is None else math.nan
+    assert win >= 1.0 / frequency_hz
+    assert len(iv) == len(holds)
+    for (f0, f1), (h0, h1) in zip(iv, holds):  # (a move's first 30 ms turn slower than the gyro's noise)
+        assert h0 - 1.0 / rate <= f0 <= h0 + win and h1 - win <= f1 <= h1 + 0.03
+    plain = ZuptConfig(mount_ringing_hz=0.0)
+    iv0 = still_intervals(t, a, w, estimate_noise(t, a, w, plain), plain)
+    found = sum(min(f1, h1) - max(f0, h0) for f0, f1 in iv0 for h0, h1 in holds[1:] if f1 > h0 and f0 < h1)
+    assert found < 0.5 * sum(h1 - h0 for h0, h1 in holds[1:])
+
+
+@pytest.mark.parametrize("rate, frequency_hz", [(50.0, 1.5), (1000.0, 8.0)])
+def test_a_creep_under_a_ringing_bar_is_still_motion(rng, rate, frequency_hz):
+    t, a, w, holds = ringing_trace(rng, rate, frequency_hz, creep_deg_s=2.0)
+    cfg = ZuptConfig(mount_ringing_hz=frequency_hz)
+    noise = estimate_noise(t, a, w, cfg)
+    still = still_mask(t, a, w, noise, cfg)
+    h0, h1 = holds[1]
+    assert not still[(t > h0) & (t < h1)].any()
+    assert still[(t > holds[2][0] + 1.0 / frequency_hz) & (t < holds[2][1] - 1.0 / frequency_hz)].all()
+
+
+def test_the_mount_ringing_follows_the_rig_file(cross_rig):
+    on_bar = dataclasses.replace(cross_rig, imu=ImuMount(mount=cross_rig.cameras[1].name))
+    f = bar_natural_frequencies(cross_rig)[1]
+    assert math.isfinite(f) and for_rig(ZuptConfig(), on_bar).mount_ringing_hz == pytest.approx(f)
+    assert for_rig(ZuptConfig(), dataclasses.replace(cross_rig, imu=ImuMount())).mount_ringing_hz == 0.0
+    assert for_rig(ZuptConfig(mount_ringing_hz=0.0), on_bar).mount_ringing_hz == 0.0

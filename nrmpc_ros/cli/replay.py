@@ -176,7 +176,7 @@ def run(args) -> int:
                     for row in batch:
                         bw.write(row)
     elapsed = time.perf_counter() - t_start
-    zupt = runner.pipeline.config.zupt  # the IMU reference uses the stillness test as configured for the holds
+    zupt = runner.pipeline.zupt.config  # the IMU reference uses the stillness test as configured for the holds
     ev = evaluate(rows, ref, rig, zupt=zupt)
     st = runner.stats
     print(format_report(ev, per_estimate=not args.quiet))

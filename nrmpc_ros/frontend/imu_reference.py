@@ -24,6 +24,7 @@ from ..errors import InputError
 from .imu import ImuConfig
 from .reference import Reference
 from .zupt import ImuNoise, ZuptConfig, estimate_noise, still_mask
+from .zupt import for_rig as zupt_for_rig
 
 WINDOW_S = 0.25  # default half-width (s) of the window around a stamp (several stillness windows)
 NOMINAL_GRAVITY = 9.81  # m/s^2, the magnitude given to gravity without a rig
@@ -40,6 +41,8 @@ class ImuReference:
                  imu: ImuConfig | None = None):
         self.rig = rig
         self.min_samples = (imu or ImuConfig()).min_samples
+        if rig is not None:  # the stillness test as the pipeline runs it (an IMU on a ringing bar)
+            zupt = zupt_for_rig(zupt or ZuptConfig(), rig)
         self._t, self._a = ref.imu_t, ref.imu_a
         self.noise: ImuNoise | None = None
         self.still = np.zeros(len(ref.imu_t), bool)

@@ -47,6 +47,7 @@ from .ringing_watch import RingingWatch
 from .snapshot_ringing import correct_pixels, correction_rotations, predict, residual_px, uncertainty
 from .tracking import HoldThinning, KltTracker, TrackingConfig
 from .zupt import ZuptConfig, ZuptDetector
+from .zupt import for_rig as zupt_for_rig
 
 PIPELINE_METHODS = ("auto",) + METHODS
 RECENT_PERIODS = 20  # the frame period is the median of this many recent intervals (robust to drops and gaps)
@@ -190,7 +191,8 @@ class Pipeline:
         self.config = config or PipelineConfig()
         self.method = method
         self.imu = ImuBuffer(rig, self.config.imu)
-        self.zupt = ZuptDetector(self.config.zupt, buffer=self.imu)
+        # an IMU on a flexible bar rings with it after every stop: no motion of the rig (docs/PIPELINE.md, Holds)
+        self.zupt = ZuptDetector(zupt_for_rig(self.config.zupt, rig), buffer=self.imu)
         self.bar_period_s = slowest_bar_period(rig)
         # the bars' state from the IMU: every camera's extrinsics at any frame set (docs/PIPELINE.md)
         # the accelerometer's bias: prior std and floor are the configured tilts at the rig's gravity
@@ -521,11 +523,13 @@ class Pipeline:
             lines.append(f"  {n} frame sets not at rest: {self._last_motion[k]} (the latest)")
         noise = self.zupt.noise if self.rig.imu is not None and len(self.imu) else None
         if noise is not None:
-            z = self.config.zupt
+            z = self.zupt.config
+            ringing = f", the IMU's mount ringing at {z.mount_ringing_hz:.3g} Hz taken out" if z.mount_ringing_hz \
+                else ""
             lines.append(f"  IMU stillness test: noise {max(noise.accel_sigma, z.accel_floor_m_s2):.3g} m/s^2 and "
                          f"{max(noise.gyro_sigma, z.gyro_floor_rad_s):.3g} rad/s "
                          f"per sample (from the {noise.source}), false-alarm probability "
-                         f"{self.config.zupt.significance:g} per {self.config.zupt.window_s:g} s window")
+                         f"{z.significance:g} per {self.zupt.window_s:.3g} s window{ringing}")
         elif self.rig.imu is not None:
             lines.append("  no IMU samples were given: the images alone decided")
         if self.rig.imu is None or not len(self.imu):

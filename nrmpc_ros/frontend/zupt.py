@@ -52,6 +52,20 @@ False alarms: sliding windows overlap, so a still rig sees several times
 Measured with known noise at 100-400 Hz: about 5 per 1000 s of stillness at
 significance 1e-4, about 1 at 1e-5 (the default), none at 1e-6.
 
+An IMU on a flexible bar (the rig file mounts it in a camera) rings with
+that bar after every stop: its gyro and accelerometer carry a decaying
+oscillation at the bar's natural frequency while the body stands still, for
+seconds on a lightly damped bar, far above the sensor noise. Such a ringing is
+not a motion of the rig. With ``mount_ringing_hz`` set (the pipeline sets it
+from the rig file: :func:`for_rig`) each window is at least one period of that
+frequency long and every axis fits, besides its constant, an oscillation at it
+whose amplitude changes linearly across the window (cos, sin, tau cos, tau
+sin: a decay, and a frequency a few percent off, to first order); T sums the
+residuals of that fit and nu loses the 24 fitted parameters. A constant rate or
+a ramp is nearly orthogonal to one period of an oscillation, so a creep or a
+move stays a motion. The fit's windowed sums are differences of cumulative
+sums too (the oscillation's phase is taken from the first sample's stamp).
+
 Noise: :func:`estimate_noise` takes sensor_msgs/Imu covariances when they
 are valid (``[0] == -1`` or all zeros mean unknown), read as per-sample
 variances; otherwise it estimates the noise from the data. The data estimate
@@ -70,6 +84,7 @@ passes as still. Give the covariances (or a known :class:`ImuNoise`) then.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -110,6 +125,10 @@ class ZuptConfig:
                                           "its bias and scale error; the spread used is the data's, never below "
                                           "this (m/s^2: a calibrated MEMS accelerometer's residual bias)", lo=0.0,
                                           hi=10.0, lo_open=True)
+    mount_ringing_hz: float | None = option(None, "the IMU's mount rings at this frequency (Hz): the stillness "
+                                            "test takes an oscillation at it as no motion; None: the natural "
+                                            "frequency of the flexible bar the rig file mounts the IMU on (none on "
+                                            "the body); 0: none", lo=0.0, hi=1000.0, nullable=True)
     max_gyro_bias_rad_s: float = option(0.05, "the gyro bias estimated from the data is at most this (rad/s; MEMS "
                                         "gyros stay within a few deg/s): a steady turn is motion, not bias",
                                         lo=0.0, hi=10.0)
@@ -157,14 +176,44 @@ def _period(t: np.ndarray, noise: ImuNoise | None = None) -> float:
     return float(np.median(dt)) if len(dt) else math.nan
 
 
+RINGING_PARAMETERS = 4  # per axis: cos, sin, tau cos, tau sin of the mount's ringing (see the module docstring)
+
+
+def for_rig(cfg: ZuptConfig, rig) -> ZuptConfig:
+    """``cfg`` with ``mount_ringing_hz`` resolved from the rig file: the natural frequency of the flexible bar
+    the IMU rides on (0 for an IMU on the body or a rigid mount); a value given in ``cfg`` is kept."""
+    if cfg.mount_ringing_hz is not None:
+        return cfg
+    f = 0.0
+    imu = getattr(rig, "imu", None)
+    if imu is not None and imu.mount != "body":
+        from ..core.dynamics import bar_natural_frequencies
+
+        f = float(bar_natural_frequencies(rig)[rig.camera_index(imu.mount)])
+    return dataclasses.replace(cfg, mount_ringing_hz=f if math.isfinite(f) and f > 0 else 0.0)
+
+
+def _ringing_hz(cfg: ZuptConfig) -> float:
+    f = cfg.mount_ringing_hz
+    return float(f) if f is not None and f > 0 else 0.0
+
+
+def _min_samples(cfg: ZuptConfig) -> int:
+    """Samples a window needs: ``min_window_samples``, and with a ringing mount twice the oscillation's
+    parameters per axis more, so that each fit keeps degrees of freedom to test."""
+    return cfg.min_window_samples + (2 * RINGING_PARAMETERS if _ringing_hz(cfg) else 0)
+
+
 def _window_length(cfg: ZuptConfig, period: float) -> float:
     """``window_s``, widened on slow IMUs to an odd number of sample periods that holds ``min_window_samples``:
     a centred window of k + 1/2 periods either side holds 2k + 1 samples with its edges half a period from any
     sample, so stamp jitter and rounding do not drop one (a window of exactly m periods would hold m + 1, m or
-    m - 1 samples depending on rounding)."""
+    m - 1 samples depending on rounding). With a ringing mount, at least one period of its ringing."""
+    f = _ringing_hz(cfg)
+    least = max(cfg.window_s, 1.0 / f) if f else cfg.window_s
     if not math.isfinite(period):
-        return cfg.window_s
-    return max(cfg.window_s, (2 * math.ceil((cfg.min_window_samples - 1) / 2) + 1) * period)
+        return least
+    return max(least, (2 * math.ceil((_min_samples(cfg) - 1) / 2) + 1) * period)
 
 
 def _windows(t: np.ndarray, period: float, cfg: ZuptConfig):
@@ -206,6 +255,69 @@ def _moments(x: np.ndarray, i0: np.ndarray, i1: np.ndarray, shift: np.ndarray):
     ss_shift = c2[i1] - c2[i0]
     ss_mean = np.maximum(ss_shift - n[:, 0] * np.einsum("ij,ij->i", mean_d, mean_d), 0.0)
     return mean_d + shift, ss_mean, ss_shift
+
+
+def _ringing_moments(x: np.ndarray, t: np.ndarray, i0: np.ndarray, i1: np.ndarray, shift: np.ndarray,
+                     frequency_hz: float):
+    """As :func:`_moments`, with an oscillation at ``frequency_hz`` whose amplitude changes linearly across the
+    window fitted on every axis: (the fitted constant, the residual sum of squares with the constant fitted,
+    and without it: about ``shift``). Per window the basis is 1, cos u, sin u, v cos u, v sin u, with u the
+    phase since the first sample and v the phase from the window's centre; its Gram matrix and the data's
+    projections are differences of cumulative sums of products with powers of u, expanded about the centre."""
+    N = len(x)
+    d = x - shift
+    u = 2.0 * math.pi * frequency_hz * (t - t[0]) if N else np.empty(0)
+    c, s = np.cos(u), np.sin(u)
+    one = np.ones(N)
+    base = {"1": one, "c": c, "s": s, "cc": c * c, "ss": s * s, "cs": c * s}
+    cols = [base[k] * u ** p for p in range(3) for k in base]  # sums of u^p g, g a product of two basis factors
+    cols += [d[:, a] * g * u ** p for p in range(2) for g in (one, c, s) for a in range(3)]
+    cols.append(np.einsum("ij,ij->i", d, d))
+    cum = np.zeros((N + 1, len(cols)))
+    np.cumsum(np.column_stack(cols), axis=0, out=cum[1:])
+    S = cum[i1] - cum[i0]
+    n = len(base)
+
+    def g_sum(key, p):  # sum over the window of (u - uc)^p g
+        k = list(base).index(key)
+        s0, s1, s2 = S[:, k], S[:, n + k], S[:, 2 * n + k]
+        return s0 if p == 0 else (s1 - uc * s0 if p == 1 else s2 - 2.0 * uc * s1 + uc * uc * s0)
+
+    def d_sum(g, p, a):  # sum of (u - uc)^p g d_a
+        j = 3 * n + {"1": 0, "c": 1, "s": 2}[g] * 3 + a
+        s0, s1 = S[:, j], S[:, j + 9]
+        return s0 if p == 0 else s1 - uc * s0
+
+    last = np.maximum(i1 - 1, i0)
+    uc = 0.5 * (u[np.minimum(i0, N - 1)] + u[np.minimum(last, N - 1)]) if N else np.empty(0)
+    # the basis 1, c, s, vc, vs (v = u - uc): the Gram matrix's entries as sums of (u - uc)^p g
+    terms = {(0, 0): ("1", 0), (0, 1): ("c", 0), (0, 2): ("s", 0), (0, 3): ("c", 1), (0, 4): ("s", 1),
+             (1, 1): ("cc", 0), (1, 2): ("cs", 0), (1, 3): ("cc", 1), (1, 4): ("cs", 1),
+             (2, 2): ("ss", 0), (2, 3): ("cs", 1), (2, 4): ("ss", 1),
+             (3, 3): ("cc", 2), (3, 4): ("cs", 2), (4, 4): ("ss", 2)}
+    G = np.empty((len(i0), 5, 5))
+    for (a, b), (key, p) in terms.items():
+        G[:, a, b] = G[:, b, a] = g_sum(key, p)
+    P = np.empty((len(i0), 5, 3))
+    for row, (g, p) in enumerate((("1", 0), ("c", 0), ("s", 0), ("c", 1), ("s", 1))):
+        for a in range(3):
+            P[:, row, a] = d_sum(g, p, a)
+    ss_shift = S[:, -1]
+    ridge = 1e-12 * np.maximum(np.trace(G, axis1=1, axis2=2), 1.0)[:, None, None] * np.eye(5)
+    full = np.linalg.solve(G + ridge, P)  # (W, 5, 3): the constant and the oscillation, per axis
+    osc = np.linalg.solve(G[:, 1:, 1:] + ridge[:, 1:, 1:], P[:, 1:])  # the oscillation alone, about shift
+    ss_const = np.maximum(ss_shift - np.einsum("wka,wka->w", full, P), 0.0)
+    ss_free = np.maximum(ss_shift - np.einsum("wka,wka->w", osc, P[:, 1:]), 0.0)
+    return full[:, 0, :] + shift, ss_const, ss_free
+
+
+def _window_moments(x, t, i0, i1, shift, cfg: ZuptConfig):
+    """:func:`_moments`, or :func:`_ringing_moments` on a ringing mount; and the parameters fitted per axis
+    besides the constant."""
+    f = _ringing_hz(cfg)
+    if f:
+        return _ringing_moments(x, t, i0, i1, shift, f), RINGING_PARAMETERS
+    return _moments(x, i0, i1, shift), 0
 
 
 def _per_dof(fn, dof: np.ndarray) -> np.ndarray:
@@ -254,15 +366,15 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     period = _period(t)
     i0, i1, _ = _windows(t, period, cfg)
     n = i1 - i0
-    ok = n >= cfg.min_window_samples
+    ok = n >= _min_samples(cfg)
     if not ok.any():
-        raise InputError(source, f"no {cfg.min_window_samples} samples in a row without a gap (longer than "
+        raise InputError(source, f"no {_min_samples(cfg)} samples in a row without a gap (longer than "
                                  f"{cfg.gap_periods:g} sample periods of {period:.4f} s): cannot estimate the noise")
-    mean_w, ssw, _ = _moments(w, i0, i1, np.median(w, axis=0))
-    mean_a, ssa, _ = _moments(a, i0, i1, np.median(a, axis=0))
+    (mean_w, ssw, _), extra = _window_moments(w, t, i0, i1, np.median(w, axis=0), cfg)
+    (mean_a, ssa, _), _ = _window_moments(a, t, i0, i1, np.median(a, axis=0), cfg)
     q = cfg.noise_quantile
     from scipy.special import gammaincinv  # a chi-square quantile; imported where used (0.3-0.5 s)
-    chi_q = _per_dof(lambda k: 2.0 * gammaincinv(0.5 * k, q), 3 * (n[ok] - 1))  # chi2.ppf(q, k)
+    chi_q = _per_dof(lambda k: 2.0 * gammaincinv(0.5 * k, q), 3 * (n[ok] - 1 - extra))  # chi2.ppf(q, k)
     rw, ra = ssw[ok] / chi_q, ssa[ok] / chi_q  # each an unbiased s^2 at the q quantile of still windows
     var_w, var_a = float(np.quantile(rw, q)), float(np.quantile(ra, q))
     score = rw / max(var_w, cfg.gyro_floor_rad_s ** 2) + ra / max(var_a, cfg.accel_floor_m_s2 ** 2)
@@ -273,20 +385,21 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
         bias = bias * (cfg.max_gyro_bias_rad_s / size)
     norm = float(np.median(np.linalg.norm(mean_a[ok][quiet], axis=1)))
     sa, sw = (s_a, s_w) if from_cov else (math.sqrt(var_a), math.sqrt(var_w))
-    spread = _norm_spread(w - bias, mean_a, ssa, i0, i1, ok, sa, sw, cfg)
+    spread = _norm_spread(t, w - bias, mean_a, ssa, i0, i1, ok, sa, sw, cfg)
     return ImuNoise(sa, sw, bias, "covariance" if from_cov else "data", norm, period, spread)
 
 
-def _norm_spread(w_unbiased, mean_a, ssa, i0, i1, ok, s_a: float, s_w: float, cfg: ZuptConfig) -> float:
+def _norm_spread(t, w_unbiased, mean_a, ssa, i0, i1, ok, s_a: float, s_w: float, cfg: ZuptConfig) -> float:
     """Spread of the still norm across attitudes (m/s^2): the robust standard deviation (1.4826 MAD) of the
     window-mean norms of the windows whose accelerometer spread and angular rates pass the test, less their
     noise, never below ``accel_norm_floor_m_s2``."""
     s_w, s_a = max(s_w, cfg.gyro_floor_rad_s), max(s_a, cfg.accel_floor_m_s2)
-    _, _, ssw = _moments(w_unbiased, i0, i1, np.zeros(3))
+    (_, _, ssw), extra = _window_moments(w_unbiased, t, i0, i1, np.zeros(3), cfg)
     n = i1 - i0
     stat = ssw / s_w ** 2 + ssa / s_a ** 2
     from scipy.special import chdtri  # a chi-square quantile; imported where used (0.3-0.5 s)
-    passed = ok & (stat < _per_dof(lambda k: chdtri(k, cfg.significance), np.maximum(6 * n - 3, 1)))
+    dof = np.maximum(6 * n - 3 - 6 * extra, 1)
+    passed = ok & (stat < _per_dof(lambda k: chdtri(k, cfg.significance), dof))
     if passed.sum() < 2:
         return cfg.accel_norm_floor_m_s2
     norms = np.linalg.norm(mean_a[passed], axis=1)
@@ -303,15 +416,15 @@ def _statistic(t, a, w, noise: ImuNoise, cfg: ZuptConfig):
     s_w = max(float(noise.gyro_sigma), cfg.gyro_floor_rad_s)
     s_a = max(float(noise.accel_sigma), cfg.accel_floor_m_s2)
     bias = np.asarray(noise.gyro_bias, dtype=float).reshape(3)
-    _, _, ssw = _moments(w, i0, i1, bias)
-    mean_a, ssa, _ = _moments(a, i0, i1, np.median(a, axis=0) if len(a) else np.zeros(3))
+    (_, _, ssw), extra = _window_moments(w, t, i0, i1, bias, cfg)
+    (mean_a, ssa, _), _ = _window_moments(a, t, i0, i1, np.median(a, axis=0) if len(a) else np.zeros(3), cfg)
     stat = ssw / s_w ** 2 + ssa / s_a ** 2
-    dof = 6 * n - 3
+    dof = 6 * n - 3 - 6 * extra
     if math.isfinite(noise.accel_norm):
         spread = max(float(noise.accel_norm_sigma), cfg.accel_norm_floor_m_s2)
         stat = stat + (np.linalg.norm(mean_a, axis=1) - noise.accel_norm) ** 2 / (s_a ** 2 / n + spread ** 2)
         dof = dof + 1
-    ok = n >= cfg.min_window_samples
+    ok = n >= _min_samples(cfg)
     out = np.full(len(t), np.nan)
     if ok.any():
         from scipy.special import chdtri  # a chi-square quantile; imported where used (0.3-0.5 s)
@@ -487,6 +600,12 @@ class ZuptDetector:
             young = t[j] - t[b] < min_run and bool(np.all(still[min(i, b): j + 1] | unknown[min(i, b): j + 1]))
         return t, i, j, run, young
 
+    @property
+    def window_s(self) -> float:
+        """The stillness window in use (s): ``window_s`` widened by the IMU's rate and a ringing mount."""
+        noise = self.noise
+        return _window_length(self.config, noise.period_s if noise is not None else math.nan)
+
     def decided(self, t: float) -> bool:
         """Whether the stillness of an instant ``t`` is decided: the newest sample lies half a stillness window
         (and a sample period) after it, so the window centred on it is complete (the IMU's rate sets how long
@@ -533,5 +652,5 @@ class ZuptDetector:
         return None if run is None else run[0]
 
 
-__all__ = ["ImuNoise", "ZuptConfig", "ZuptDetector", "estimate_noise", "still_intervals", "still_mask",
+__all__ = ["ImuNoise", "ZuptConfig", "ZuptDetector", "estimate_noise", "for_rig", "still_intervals", "still_mask",
            "still_statistic"]
