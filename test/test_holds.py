@@ -394,3 +394,28 @@ def test_a_settled_hold_carries_what_its_average_keeps_of_the_ringing():
     assert np.sqrt(np.mean(env[used] ** 2)) > 0.03  # the envelope over the frames used
     kept = max(np.linalg.norm(np.mean(ch.uv - base, axis=0)) for ch in hold.cameras)
     assert hold.ringing_px < 0.01 and kept < hold.ringing_px + 3 * hold.averaged_noise_px
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_large_turn_across_a_wide_image_keeps_the_fitted_rests_uncertainty(seed):
+    """A soft bar swings a wide-angle camera by tens of pixels: a turn moves the tracks across the image by
+    amounts a few percent apart (here +-10 %), so their shifts spread about the frame's median by pixels while
+    each track's noise is 0.02 px. The fitted rest is uncertain by what the fit leaves (stamps 2 ms off their
+    exposure) for all of the camera's tracks alike; that spread of the shifts is no noise their average already
+    carries, and must not cancel the rest's uncertainty."""
+    rng = np.random.default_rng(seed)
+    f_bar, zeta, amp, F, n = 1.5, 0.03, 50.0, 18, 40
+    true_t = np.arange(F) / RATE + rng.uniform(-0.002, 0.002, F)
+    env = amp * np.exp(-zeta * 2 * math.pi * f_bar * true_t)
+    offsets = np.stack([env * np.cos(2 * math.pi * f_bar * true_t + 0.4),
+                        0.6 * env * np.sin(2 * math.pi * f_bar * true_t)], 1)
+    ids, base = np.arange(n), rng.uniform(20, 300, size=(n, 2))
+    scale = 1.0 + rng.uniform(-0.1, 0.1, size=(n, 1))  # each track's share of the turn's shift
+    rec = HoldRecorder(0.0, [(ids, base.copy()) for _ in range(2)], [None] * 2)
+    for f, o in enumerate(offsets):
+        rec.add(f / RATE, [(ids, base + scale * o + rng.normal(scale=0.02, size=base.shape)) for _ in range(2)])
+    hold, why = rec.measure(HoldConfig(), bar_period_s=1.0 / f_bar, imu_still_since=0.0)
+    assert hold is not None and hold.ringing_source is RingingSource.FIT, why
+    assert hold.ringing_px >= 0.9 * hold.fit[0].rest_std[0] > 0.02
+    err = max(np.abs(ch.uv - base).max() for ch in hold.cameras)
+    assert err <= 3.0 * math.hypot(hold.ringing_px, hold.averaged_noise_px)

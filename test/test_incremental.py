@@ -207,7 +207,8 @@ def test_a_view_back_at_an_old_place_continues_the_sequence(noisy):
 def test_a_later_view_linking_both_sequences_merges_them(noisy):
     """A break starts sequence 1 at view 5 (its landmarks renamed: nothing links); view 6 links to view 5 and,
     through some landmarks it shares with view 4, to sequence 0: sequence 1 is merged into sequence 0, its
-    views re-expressed in sequence 0's origin, and later views continue there."""
+    views re-expressed in sequence 0's origin, and later views continue there. View 5, which started
+    sequence 1 and so had no estimate, gets its first one from the merging solve, paired with view 4."""
     p = noisy
     tr = p.tracks
     off = 10**6
@@ -226,7 +227,10 @@ def test_a_later_view_linking_both_sequences_merges_them(noisy):
     assert isinstance(outs[5], NewSequence) and outs[5].reason is StartReason.NO_SHARED_LANDMARKS
     m = outs[6]
     assert isinstance(m, ViewEstimate) and (m.merged, m.merged_views) == (0, 5)
-    for k, v in enumerate(outs[6:], start=6):
+    origin = m.merged_origin
+    assert isinstance(origin, ViewEstimate) and (origin.sequence, origin.view, origin.reference) == (0, 5, 4)
+    assert all(v.merged_origin is None for v in outs[7:] if isinstance(v, ViewEstimate))
+    for k, v in enumerate([origin] + outs[6:], start=5):
         assert v.sequence == 0 and v.view == k
         assert rotation_angle(p.R[k].T @ v.R) < math.radians(0.5) and np.linalg.norm(v.t - p.t[k]) < 0.03
         assert float(angle_between(v.gravity, p.gravity[k])) < 4 * v.gravity_sigma_rad + math.radians(0.05)

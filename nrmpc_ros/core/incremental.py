@@ -166,6 +166,9 @@ class ViewEstimate:
     time_s: float
     merged: int | None = None  # an earlier sequence this view linked to, merged into this one (its origin kept)
     merged_views: int = 0  # views that sequence brought: this sequence's earlier views moved up by as many
+    # the first estimate of this sequence's origin view, now view merged_views (it started the sequence, so it
+    # had none), from the same solve; None without a merge or when the solve's window left it out
+    merged_origin: ViewEstimate | None = None
 
 
 @dataclass
@@ -477,9 +480,12 @@ class IncrementalSequence:
             warm = False
         res, first = self._solve_window(k, warm)
         self._retire(first + 1)
+        origin = None
+        if merged is not None and first <= merged[1] < k:  # the previous view in time is the earlier sequence's last
+            origin = self._estimate(merged[1], merged[1] - 1, pm, res, first, time.perf_counter() - t0)
         out = self._estimate(k, j, pm, res, first, time.perf_counter() - t0)
         if merged is not None:
-            out.merged, out.merged_views = merged
+            out.merged, out.merged_views, out.merged_origin = *merged, origin
         return out
 
     # ----------------------------------------------------------------- merges

@@ -121,6 +121,8 @@ class HoldEstimator:
         self.consumed = 0  # measured holds run so far (the intake counts those it made: the difference waits)
         self._hold_stamps: list = []  # stamp of every hold of the current sequence
         self._broken_stamps: dict = {}  # sequence number -> its holds' stamps, for the sequences a break ended
+        # the hold that started the current sequence after a break, and why: a merge estimates it at last
+        self._origin: tuple | None = None
 
     def run(self, item) -> list:
         """Run one item of the intake (a :class:`MeasuredHold` or a :class:`SequenceReset`); returns the hold
@@ -138,6 +140,7 @@ class HoldEstimator:
         self.linker.reset()
         self._hold_stamps = []
         self._broken_stamps = {}
+        self._origin = None
 
     def _estimate(self, item: MeasuredHold) -> list:
         st, hold, imu, attempt = self.stats, item.hold, item.imu, item.attempt
@@ -166,18 +169,30 @@ class HoldEstimator:
                 st.bridges += 1
             self._hold_stamps = [hold.stamp]
             st.sequences = max(st.sequences, out.sequence + 1)
+            self._origin = None
             if out.reason is not StartReason.FIRST_VIEW:
                 st.dropped[Drop.new_sequence(out.reason)] += 1
+                self._origin = (item, out.reason, scale)
             return []
+        done = []
         if out.merged is not None:  # this sequence's holds now follow those of the earlier one, in its origin
             st.merges += 1
             self._hold_stamps = self._broken_stamps.pop(out.merged, [math.nan] * out.merged_views) + \
                 self._hold_stamps
+            if out.merged_origin is not None and self._origin is not None:
+                # the hold that started this sequence is linked at last: its first estimate, late by a hold
+                first, reason, first_scale = self._origin
+                st.dropped[Drop.new_sequence(reason)] -= 1
+                est = self._hold_estimate(out.merged_origin, first.hold, first.imu, Counter(), 0.0, first_scale)
+                if first.attempt is not None:
+                    first.attempt.estimate = est
+                done.append(est)
+            self._origin = None
         self._hold_stamps.append(hold.stamp)
         est = self._hold_estimate(out, hold, imu, obs.links, time.perf_counter() - t0, scale)
         if attempt is not None:
             attempt.estimate = est
-        return [est]
+        return done + [est]
 
     def _hold_estimate(self, v: ViewEstimate, hold: Hold, imu, links, elapsed_s: float,
                        noise_scale: float = 1.0) -> HoldEstimate:

@@ -421,12 +421,7 @@ class HoldRecorder:
                     left = 0.0 if turned is not None else model[:, k][:, None, :]
                     track_correction[i] = X - Xb + np.where(fitted_tracks[None, :, None], own, left)
                 ringing, source = True, RingingSource.FIT
-                # the fitted rest's uncertainty beyond the tracks' own noise, which their average carries already
-                # (what the fit does not follow, e.g. the stamps' jitter, moves all tracks of a frame alike: their
-                # average does not shrink it)
-                extra = [turn_std.get(i, fits[i].rest_std[0]) ** 2 - noise ** 2 / max(int(settled.sum()), 1)
-                         for i in cams if fits[i] is not None]
-                ringing_px = float(math.sqrt(max(max(extra, default=0.0), 0.0)))
+                rest_std = {i: turn_std.get(i, fits[i].rest_std[0]) for i in cams if fits[i] is not None}
                 dev = dev_model
             elif bars.period_s and np.nanmax(dev[after], initial=0.0) <= _radius_px(cfg, bars, stop_amplitude_px) \
                     and (imu_still_since is not None or _oscillates(tau[after], offsets[after], bars.period_s)):
@@ -464,6 +459,17 @@ class HoldRecorder:
             cam_holds[i] = CameraHold(a_ids[keep], mean, a_uv[keep], frames, noise)
         if all(c is None for c in cam_holds):
             return None, HoldRefusal(Refusal.TRACKS_LOST, f"fewer than {cfg.min_tracks} tracks in every camera")
+        if source is RingingSource.FIT:
+            # the fitted rest's uncertainty beyond what the tracks' own noise gives it, which their average
+            # carries already (what the fit does not follow, e.g. the stamps' jitter, moves all tracks of a frame
+            # alike: their average does not shrink it). That part is a frame's median offset's noise (pi/2 times
+            # the tracks' noise squared over their number) over the frames: from the tracks' own noise, not from
+            # the spread of their shifts about the frame's median, which a large turn of a wide-angle camera
+            # makes pixels wide across the image
+            extra = [s ** 2 - (0.5 * math.pi * np.nan_to_num(c.noise_px) ** 2 / (c.frames * len(c.ids))
+                               if c is not None else 0.0)
+                     for s, c in ((s, cam_holds[i]) for i, s in rest_std.items())]
+            ringing_px = float(math.sqrt(max(max(extra, default=0.0), 0.0)))
         mid = idx[len(idx) // 2]
         return Hold(start=start, end=float(t[-1]), settled_start=float(t[idx[0]]), settled_end=float(t[idx[-1]]),
                     stamp=float(t[mid]), frames=F, settled_frames=len(idx), residual_px=residual,
