@@ -17,7 +17,8 @@ creep at 0.5 deg/s (not still); ``imuclock`` random 1.5-3.5 s holds and an IMU c
 ``swsync`` software-synchronised cameras streaming through the moves (+-8 ms stamp jitter, 2 % of frames
 dropped), bars damped at 0.03 that ring through the holds, IMU at 1000 Hz; ``noimu`` no IMU at all, a 30 Hz
 stream through the moves (+-3 ms stamps), bars damped at 0.03 that ring through the holds (the images alone
-tell the holds: ``6pt-bending`` only).
+tell the holds: ``6pt-bending`` only); ``imubar`` the IMU inside the second camera (a camera module with an
+IMU), riding on its bar, which rings through the holds (damping 0.03).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -123,8 +124,8 @@ def make_bags(out: Path, rigs: dict, styles: dict, seeds: int) -> list:
                 summary = None
                 if not path.exists():
                     t0 = time.perf_counter()
-                    bag_rig = rig if bo.get("imu", True) else replace(rig, imu=None)
-                    summary = make_bag(bag_rig, path, BagOptions(motion=MotionOptions(**mo), seed=seed, **bo),
+                    bag_rig, bag_opts, _ = style_rig(rig, bo)
+                    summary = make_bag(bag_rig, path, BagOptions(motion=MotionOptions(**mo), seed=seed, **bag_opts),
                                        progress=False)
                     print(f"rendered {name} in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
                 bags.append((name, path, rig_file, sname, rname, summary))
@@ -270,13 +271,27 @@ def matrix_styles() -> dict:
                              {"damping": 0.03, "jitter_ms": 8.0, "drop_rate": 0.02}),
         "noimu": lambda M: ({**base, "capture": "stream", "rate": 30.0},
                             {"damping": 0.03, "jitter_ms": 3.0, "imu": False}),
+        "imubar": lambda M: (base, {"damping": 0.03, "imu_camera": 1}),
     }
+
+
+def style_rig(rig: Rig, bag: dict) -> tuple:
+    """(rig, BagOptions kwargs, rig file suffix) of a style: without an IMU, or with the IMU inside camera
+    ``imu_camera`` (axes along the camera's: a camera module with an IMU, riding on that camera's bar)."""
+    bag = dict(bag)
+    if not bag.get("imu", True):
+        return replace(rig, imu=None), bag, ""
+    if "imu_camera" in bag:
+        i = bag.pop("imu_camera")
+        return replace(rig, imu=replace(rig.imu, mount=rig.cameras[i].name, rotation=np.eye(3))), bag, \
+            f"-imu-in-{rig.cameras[i].name}"
+    return rig, bag, ""
 
 
 QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross4-soft"),
          ("snap0.5", "line2-soft"), ("snap0.15", "cross4-soft"), ("camrates", "ring5-stiff"),
          ("exposure", "ring6-soft"), ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft"),
-         ("noimu", "ring3-soft")]
+         ("noimu", "ring3-soft"), ("imubar", "ring5-soft")]
 
 
 def matrix_cells(full: bool) -> list:
@@ -288,21 +303,20 @@ def matrix_cells(full: bool) -> list:
 
 def render_cell(out: Path, style: str, rig_name: str, seed: int = 0) -> tuple:
     """(bag dir, rig file) of one cell, rendered if missing (written beside, then renamed: never half a bag)."""
-    rig = matrix_rigs()[rig_name]
-    rig_file = out / f"{rig_name}.yaml"
+    mo, bo = matrix_styles()[style](matrix_rigs()[rig_name].num_cameras)
+    rig, bo, suffix = style_rig(matrix_rigs()[rig_name], bo)
+    rig_file = out / f"{rig_name}{suffix}.yaml"
     if not rig_file.exists():
         save_rig(rig, rig_file, header="rig of scripts/bench_holds.py (matrix)")
     path = out / f"{style}-{rig_name}-{seed}"
     if not path.exists():
-        mo, bo = matrix_styles()[style](rig.num_cameras)
         tmp = out / (path.name + ".partial")
         if tmp.exists():
             import shutil
 
             shutil.rmtree(tmp)
         t0 = time.perf_counter()
-        bag_rig = rig if bo.get("imu", True) else replace(rig, imu=None)
-        make_bag(bag_rig, tmp, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=SUPERSAMPLE, **bo),
+        make_bag(rig, tmp, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=SUPERSAMPLE, **bo),
                  progress=False)
         tmp.rename(path)
         print(f"rendered {path.name} in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)

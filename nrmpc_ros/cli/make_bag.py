@@ -16,6 +16,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from ..bag.writer import ENCODINGS, STORAGES
 from ..core.rig import load_rig, save_rig
 from ..errors import InputError, OptionError
@@ -47,6 +49,7 @@ DEFAULTS = {
     "exposure_period_s": _B.exposure_period_s, "creep_fraction": _M.creep_fraction,
     "creep_deg_per_s": _M.creep_deg_per_s, "bar_hz": None, "camera_latency_ms": _B.camera_latency_ms,
     "camera_burst_s": _B.camera_burst_s, "camera_burst_stagger_ms": _B.camera_burst_stagger_ms,
+    "imu_in_camera": None,
 }
 _INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
 
@@ -185,6 +188,10 @@ def register(sub):
                     help=f"typical period of the exposure drift, s; each camera's is 0.7-1.3 x this "
                          f"(default {d['exposure_period_s']:g})")
     se.add_argument("--no-imu", action="store_true", help="write no IMU topic (and --save-rig writes no imu block)")
+    se.add_argument("--imu-in-camera", metavar="CAMERA",
+                    help="the IMU sits inside this camera (its name or index), axes along the camera's, as in a "
+                         "camera module with an IMU: it rides on that camera's bar and reads its ringing too "
+                         "(--save-rig writes the mount) (default: at the body centre)")
     se.add_argument("--jitter-ms", type=float,
                     help="each camera's stamp is off the trigger by a uniform random amount within +-J ms (default 0)")
     se.add_argument("--drop-rate", type=float, help="probability that a camera loses a frame, in [0, 1) (default 0)")
@@ -300,7 +307,23 @@ def resolve_options(args) -> dict:
 # -- rig and library options ------------------------------------------------------------------------------------
 
 def rig_from_options(o: dict):
-    """The rig of --rig, or a simulated one from the layout flags (with an IMU at the body centre unless --no-imu)."""
+    """The rig of --rig, or a simulated one from the layout flags (with an IMU at the body centre unless --no-imu);
+    with --imu-in-camera the IMU inside that camera."""
+    rig = _rig_of(o)
+    cam = o["imu_in_camera"]
+    if cam is None:
+        return rig
+    if rig.imu is None:
+        raise InputError("--imu-in-camera", "there is no IMU to mount (--no-imu)")
+    names = [c.name for c in rig.cameras]
+    name = names[int(cam)] if str(cam).isdigit() and int(cam) < len(names) and str(cam) not in names else str(cam)
+    if name not in names:
+        raise InputError("--imu-in-camera", f"no camera {cam!r} (the rig has {', '.join(names)}, or an index "
+                                            f"0-{len(names) - 1})")
+    return replace(rig, imu=replace(rig.imu, mount=name, rotation=np.eye(3)))
+
+
+def _rig_of(o: dict):
     if o["rig"]:
         if o["width"] is not None or o["height"] is not None:
             raise InputError("--resolution/--width/--height", "only for rigs built from flags; the rig file "

@@ -23,6 +23,7 @@ from ..config import check, option
 from ..core.deformation import gravity_from_accelerometer
 from ..core.rig import Rig
 from ..errors import InputError
+from .mount_ringing import mean_under_ringing
 
 INITIAL_ROWS = 1024
 """Rows of the sample array at the start (grown by doubling): a second of a 1 kHz IMU, five of a 200 Hz one."""
@@ -103,9 +104,19 @@ class ImuGravity:
     num_samples: int
     t0: float
     t1: float
-    accel_std: float  # m/s^2, std of the samples (all axes)
+    accel_std: float  # m/s^2, std of the samples (all axes; about the mount's fitted ringing where it rings)
     gyro_max: float  # rad/s
     gaps: list = field(default_factory=list)  # (start, end) of gaps inside the window
+    # m/s^2, std of accel_mean per axis: accel_std over the root of the samples, or, on a ringing mount seen
+    # for less than a period, the ringing the mean keeps (nan: taken as accel_std / sqrt(num_samples))
+    mean_std: float = math.nan
+
+    @property
+    def accel_mean_std(self) -> float:
+        """The std of ``accel_mean`` per axis (m/s^2)."""
+        if math.isfinite(self.mean_std):
+            return float(self.mean_std)
+        return self.accel_std / math.sqrt(max(self.num_samples, 1))
 
 
 _ZERO3 = (0.0, 0.0, 0.0)
@@ -134,9 +145,11 @@ class ImuBuffer:
     by moving ``_i0`` and compacted (or grown) only when the end is reached.
     """
 
-    def __init__(self, rig: Rig | None = None, config: ImuConfig | None = None):
+    def __init__(self, rig: Rig | None = None, config: ImuConfig | None = None, ringing_hz: float = 0.0):
         self.rig = rig  # None: a bare sample store (no gravity, e.g. for the stillness detector)
         self.config = config or ImuConfig()
+        # the IMU's mount rings at this frequency (Hz; 0: it does not): a hold's mean takes the oscillation out
+        self.ringing_hz = float(ringing_hz)
         self.source = rig.imu.topic if rig is not None and rig.imu is not None else "imu"
         self._buf = np.empty((INITIAL_ROWS, 7))
         self._i0 = self._n = 0  # live rows of _buf
@@ -257,11 +270,11 @@ class ImuBuffer:
         if t1 - t[-1] > self.max_age_s:
             return None, ImuGravityRefusal(ImuRefusal.STALE, f"newest IMU sample is {t1 - t[-1]:.3f} s older than "
                                            f"the view (max age {self.max_age_s:.3f} s)")
-        mean = a.mean(axis=0)
+        mean, mean_std, spread = mean_under_ringing(t, a, self.ringing_hz)
         try:
             g = gravity_from_accelerometer(self.rig, mean)
         except InputError as exc:
             return None, ImuGravityRefusal(ImuRefusal.BAD_MEAN, str(exc))
         gaps = [gp for gp in self._gaps if gp[1] > t[0] and gp[0] < t1]
-        return ImuGravity(g, mean, len(t), float(t[0]), float(t1), float(np.sqrt(np.mean(np.var(a, axis=0)))),
-                          float(np.max(np.linalg.norm(w, axis=1))), gaps), None
+        return ImuGravity(g, mean, len(t), float(t[0]), float(t1), spread,
+                          float(np.max(np.linalg.norm(w, axis=1))), gaps, mean_std), None

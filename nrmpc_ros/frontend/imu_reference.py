@@ -22,6 +22,7 @@ from ..core.deformation import gravity_from_accelerometer
 from ..core.rig import Rig
 from ..errors import InputError
 from .imu import ImuConfig
+from .mount_ringing import mean_under_ringing
 from .reference import Reference
 from .zupt import ImuNoise, ZuptConfig, estimate_noise, still_mask
 from .zupt import for_rig as zupt_for_rig
@@ -43,6 +44,7 @@ class ImuReference:
         self.min_samples = (imu or ImuConfig()).min_samples
         if rig is not None:  # the stillness test as the pipeline runs it (an IMU on a ringing bar)
             zupt = zupt_for_rig(zupt or ZuptConfig(), rig)
+        self._ringing_hz = float((zupt or ZuptConfig()).mount_ringing_hz or 0.0)
         self._t, self._a = ref.imu_t, ref.imu_a
         self.noise: ImuNoise | None = None
         self.still = np.zeros(len(ref.imu_t), bool)
@@ -57,10 +59,11 @@ class ImuReference:
         """Gravity (body frame, m/s^2) from the still samples within +-``window_s`` of ``stamp``; None with fewer
         than ``min_samples`` of them."""
         i, j = np.searchsorted(self._t, [stamp - window_s, stamp + window_s])
-        a = self._a[i:j][self.still[i:j]]
+        still = self.still[i:j]
+        a = self._a[i:j][still]
         if len(a) < self.min_samples:
             return None
-        mean = a.mean(axis=0)
+        mean = mean_under_ringing(self._t[i:j][still], a, self._ringing_hz)[0]  # an IMU on a ringing bar
         if self.rig is not None and self.rig.imu is not None:
             try:
                 return gravity_from_accelerometer(self.rig, mean)

@@ -190,9 +190,11 @@ class Pipeline:
         self.rig = rig
         self.config = config or PipelineConfig()
         self.method = method
-        self.imu = ImuBuffer(rig, self.config.imu)
-        # an IMU on a flexible bar rings with it after every stop: no motion of the rig (docs/PIPELINE.md, Holds)
-        self.zupt = ZuptDetector(zupt_for_rig(self.config.zupt, rig), buffer=self.imu)
+        # an IMU on a flexible bar rings with it after every stop: no motion of the rig, and no part of a hold's
+        # accelerometer mean (docs/PIPELINE.md, Holds)
+        zupt = zupt_for_rig(self.config.zupt, rig)
+        self.imu = ImuBuffer(rig, self.config.imu, zupt.mount_ringing_hz or 0.0)
+        self.zupt = ZuptDetector(zupt, buffer=self.imu)
         self.bar_period_s = slowest_bar_period(rig)
         # the bars' state from the IMU: every camera's extrinsics at any frame set (docs/PIPELINE.md)
         # the accelerometer's bias: prior std and floor are the configured tilts at the rig's gravity
@@ -733,10 +735,10 @@ class Pipeline:
         st.settled_frames.append(hold.settled_frames)
         imu = self._imu_gravity(hold)
         if imu is not None and self.extrinsics is not None:  # every still hold tells the accelerometer's bias
-            self.extrinsics.observe_still(hold.stamp, imu.accel_mean, imu.accel_std, imu.num_samples)
+            self.extrinsics.observe_still(hold.stamp, imu.accel_mean, imu.accel_mean_std, 1)
         sigma = None
         if imu is not None:
-            white = imu.accel_std / (self.rig.gravity_magnitude * math.sqrt(max(imu.num_samples, 1)))
+            white = imu.accel_mean_std / self.rig.gravity_magnitude
             sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg))
         refused = imu is None and self.method == "4pt-bending"  # the stage links it, then refuses it
         turn = None if refused or self._last_hold is None else self._gyro_rotation(self._last_hold, hold)
@@ -768,13 +770,16 @@ class Pipeline:
         t0, t1 = hold.settled_start, hold.settled_end
         if hold.snapshot:
             # the still run's samples before the image, at most measure_s; a snapshot taken less than pad_s into
-            # its run takes that run's samples after it too (the rig stood there until it moved again)
+            # its run takes that run's samples after it too (the rig stood there until it moved again). An IMU
+            # on a ringing bar takes the run after it up to measure_s: the longer the span, the better its mean
+            # tells the decaying ringing from the constant (docs/PIPELINE.md, "IMU gravity")
             run = self.zupt.still_run(t1)
             if run is None:
                 t0 = t1 - self.imu.pad_s
             else:
                 t0 = max(run[0], t1 - self.config.holds.measure_s)
-                t1 = max(t1, min(run[1], t0 + self.imu.pad_s))
+                after = self.config.holds.measure_s if self.imu.ringing_hz > 0 else self.imu.pad_s
+                t1 = max(t1, min(run[1], t0 + after))
         imu, why = self.imu.gravity(t0, t1)
         if imu is None:
             self.stats.dropped[Drop.no_imu_gravity(why.rule)] += 1

@@ -94,6 +94,7 @@ from ..config import check, option
 from ..core.loss import MAD_TO_STD
 from ..errors import InputError
 from .imu import ImuBuffer, ImuReject
+from .mount_ringing import RINGING_PARAMETERS, ringing_moments
 
 
 @dataclass
@@ -176,9 +177,6 @@ def _period(t: np.ndarray, noise: ImuNoise | None = None) -> float:
     return float(np.median(dt)) if len(dt) else math.nan
 
 
-RINGING_PARAMETERS = 4  # per axis: cos, sin, tau cos, tau sin of the mount's ringing (see the module docstring)
-
-
 def for_rig(cfg: ZuptConfig, rig) -> ZuptConfig:
     """``cfg`` with ``mount_ringing_hz`` resolved from the rig file: the natural frequency of the flexible bar
     the IMU rides on (0 for an IMU on the body or a rigid mount); a value given in ``cfg`` is kept."""
@@ -257,66 +255,12 @@ def _moments(x: np.ndarray, i0: np.ndarray, i1: np.ndarray, shift: np.ndarray):
     return mean_d + shift, ss_mean, ss_shift
 
 
-def _ringing_moments(x: np.ndarray, t: np.ndarray, i0: np.ndarray, i1: np.ndarray, shift: np.ndarray,
-                     frequency_hz: float):
-    """As :func:`_moments`, with an oscillation at ``frequency_hz`` whose amplitude changes linearly across the
-    window fitted on every axis: (the fitted constant, the residual sum of squares with the constant fitted,
-    and without it: about ``shift``). Per window the basis is 1, cos u, sin u, v cos u, v sin u, with u the
-    phase since the first sample and v the phase from the window's centre; its Gram matrix and the data's
-    projections are differences of cumulative sums of products with powers of u, expanded about the centre."""
-    N = len(x)
-    d = x - shift
-    u = 2.0 * math.pi * frequency_hz * (t - t[0]) if N else np.empty(0)
-    c, s = np.cos(u), np.sin(u)
-    one = np.ones(N)
-    base = {"1": one, "c": c, "s": s, "cc": c * c, "ss": s * s, "cs": c * s}
-    cols = [base[k] * u ** p for p in range(3) for k in base]  # sums of u^p g, g a product of two basis factors
-    cols += [d[:, a] * g * u ** p for p in range(2) for g in (one, c, s) for a in range(3)]
-    cols.append(np.einsum("ij,ij->i", d, d))
-    cum = np.zeros((N + 1, len(cols)))
-    np.cumsum(np.column_stack(cols), axis=0, out=cum[1:])
-    S = cum[i1] - cum[i0]
-    n = len(base)
-
-    def g_sum(key, p):  # sum over the window of (u - uc)^p g
-        k = list(base).index(key)
-        s0, s1, s2 = S[:, k], S[:, n + k], S[:, 2 * n + k]
-        return s0 if p == 0 else (s1 - uc * s0 if p == 1 else s2 - 2.0 * uc * s1 + uc * uc * s0)
-
-    def d_sum(g, p, a):  # sum of (u - uc)^p g d_a
-        j = 3 * n + {"1": 0, "c": 1, "s": 2}[g] * 3 + a
-        s0, s1 = S[:, j], S[:, j + 9]
-        return s0 if p == 0 else s1 - uc * s0
-
-    last = np.maximum(i1 - 1, i0)
-    uc = 0.5 * (u[np.minimum(i0, N - 1)] + u[np.minimum(last, N - 1)]) if N else np.empty(0)
-    # the basis 1, c, s, vc, vs (v = u - uc): the Gram matrix's entries as sums of (u - uc)^p g
-    terms = {(0, 0): ("1", 0), (0, 1): ("c", 0), (0, 2): ("s", 0), (0, 3): ("c", 1), (0, 4): ("s", 1),
-             (1, 1): ("cc", 0), (1, 2): ("cs", 0), (1, 3): ("cc", 1), (1, 4): ("cs", 1),
-             (2, 2): ("ss", 0), (2, 3): ("cs", 1), (2, 4): ("ss", 1),
-             (3, 3): ("cc", 2), (3, 4): ("cs", 2), (4, 4): ("ss", 2)}
-    G = np.empty((len(i0), 5, 5))
-    for (a, b), (key, p) in terms.items():
-        G[:, a, b] = G[:, b, a] = g_sum(key, p)
-    P = np.empty((len(i0), 5, 3))
-    for row, (g, p) in enumerate((("1", 0), ("c", 0), ("s", 0), ("c", 1), ("s", 1))):
-        for a in range(3):
-            P[:, row, a] = d_sum(g, p, a)
-    ss_shift = S[:, -1]
-    ridge = 1e-12 * np.maximum(np.trace(G, axis1=1, axis2=2), 1.0)[:, None, None] * np.eye(5)
-    full = np.linalg.solve(G + ridge, P)  # (W, 5, 3): the constant and the oscillation, per axis
-    osc = np.linalg.solve(G[:, 1:, 1:] + ridge[:, 1:, 1:], P[:, 1:])  # the oscillation alone, about shift
-    ss_const = np.maximum(ss_shift - np.einsum("wka,wka->w", full, P), 0.0)
-    ss_free = np.maximum(ss_shift - np.einsum("wka,wka->w", osc, P[:, 1:]), 0.0)
-    return full[:, 0, :] + shift, ss_const, ss_free
-
-
 def _window_moments(x, t, i0, i1, shift, cfg: ZuptConfig):
     """:func:`_moments`, or :func:`_ringing_moments` on a ringing mount; and the parameters fitted per axis
     besides the constant."""
     f = _ringing_hz(cfg)
     if f:
-        return _ringing_moments(x, t, i0, i1, shift, f), RINGING_PARAMETERS
+        return ringing_moments(x, t, i0, i1, shift, f), RINGING_PARAMETERS
     return _moments(x, i0, i1, shift), 0
 
 
