@@ -448,3 +448,21 @@ def test_the_mount_ringing_follows_the_rig_file(cross_rig):
     assert math.isfinite(f) and for_rig(ZuptConfig(), on_bar).mount_ringing_hz == pytest.approx(f)
     assert for_rig(ZuptConfig(), dataclasses.replace(cross_rig, imu=ImuMount())).mount_ringing_hz == 0.0
     assert for_rig(ZuptConfig(mount_ringing_hz=0.0), on_bar).mount_ringing_hz == 0.0
+
+
+def test_a_ringing_mount_is_tested_alike_after_an_hour(rng):
+    """The fit's sums are cumulative over the recording: an hour of samples (50 Hz) gives the last minute the
+    statistic the last minute alone gives (the oscillation's phase, and its powers, stay small)."""
+    t = np.arange(0.0, 3600.0, 0.02)
+    a = np.array([0.2, -0.1, 9.8]) + rng.normal(scale=0.02, size=(len(t), 3))
+    w = BIAS + rng.normal(scale=0.002, size=(len(t), 3))
+    tail = t > 3540.0
+    tau = t[tail] - 3540.0
+    w[tail] += 0.2 * np.exp(-0.3 * tau)[:, None] * np.sin(2 * math.pi * 1.5 * tau[:, None] + np.array([0, 1, 2]))
+    cfg = ZuptConfig(mount_ringing_hz=1.5)
+    noise = ImuNoise(0.02, 0.002, BIAS, accel_norm=float(np.linalg.norm([0.2, -0.1, 9.8])), period_s=0.02)
+    whole = still_statistic(t, a, w, noise, cfg)[tail]
+    alone = still_statistic(t[tail], a[tail], w[tail], noise, cfg)
+    inner = (t[tail] > 3541.0) & (t[tail] < 3599.0)  # the windows the end of the slice does not move
+    assert np.nanmax(np.abs(whole[inner] - alone[inner])) < 1e-6 * np.nanmax(alone[inner])
+    assert np.nanmax(alone[inner]) < 1.0

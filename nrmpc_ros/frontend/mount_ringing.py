@@ -22,16 +22,32 @@ RINGING_PARAMETERS = 4  # per axis: cos, sin, tau cos, tau sin of the mount's ri
 
 
 def ringing_moments(x: np.ndarray, t: np.ndarray, i0: np.ndarray, i1: np.ndarray, shift: np.ndarray,
-                     frequency_hz: float):
+                    frequency_hz: float):
     """Per window [i0, i1) of samples x (n, 3) at stamps t, an oscillation at ``frequency_hz`` whose amplitude
     changes linearly across the window fitted on every axis with the constant: (the fitted constant (W, 3), the
     residual sum of squares with the constant fitted, and without it: about ``shift``). Per window the basis
-    is 1, cos u, sin u, v cos u, v sin u, with u the phase since the first sample and v the phase from the
-    window's centre; its Gram matrix and the data's projections are differences of cumulative sums of
-    products with powers of u, expanded about the centre."""
-    N = len(x)
-    d = x - shift
-    u = 2.0 * math.pi * frequency_hz * (t - t[0]) if N else np.empty(0)
+    is 1, cos u, sin u, v cos u, v sin u, with u the phase and v the phase from the window's centre; its Gram
+    matrix and the data's projections are differences of cumulative sums of products with powers of u,
+    expanded about the centre. The phase is counted from the start of a chunk of a few windows, so that its
+    powers stay small (their cumulative sums exact) whatever the recording's length."""
+    x, t = np.asarray(x, float), np.asarray(t, float)
+    i0, i1 = np.asarray(i0, np.int64), np.asarray(i1, np.int64)
+    W = len(i0)
+    mean, ss_const, ss_free = np.zeros((W, 3)), np.zeros(W), np.zeros(W)
+    order = np.argsort(i0, kind="stable")
+    step = max(4 * int(np.max(i1 - i0, initial=1)), 256)  # windows per chunk
+    omega = 2.0 * math.pi * frequency_hz
+    for a in range(0, W, step):
+        w = order[a:a + step]
+        s0, s1 = int(i0[w].min()), int(i1[w].max())
+        m, sc, sf = _chunk_moments(x[s0:s1] - shift, omega * (t[s0:s1] - t[s0]), i0[w] - s0, i1[w] - s0)
+        mean[w], ss_const[w], ss_free[w] = m + shift, sc, sf
+    return mean, ss_const, ss_free
+
+
+def _chunk_moments(d: np.ndarray, u: np.ndarray, i0: np.ndarray, i1: np.ndarray):
+    """:func:`ringing_moments` of samples d (n, 3) about zero at phases u (n,) counted from the chunk's start."""
+    N = len(d)
     c, s = np.cos(u), np.sin(u)
     one = np.ones(N)
     base = {"1": one, "c": c, "s": s, "cc": c * c, "ss": s * s, "cs": c * s}
@@ -70,10 +86,10 @@ def ringing_moments(x: np.ndarray, t: np.ndarray, i0: np.ndarray, i1: np.ndarray
     ss_shift = S[:, -1]
     ridge = 1e-12 * np.maximum(np.trace(G, axis1=1, axis2=2), 1.0)[:, None, None] * np.eye(5)
     full = np.linalg.solve(G + ridge, P)  # (W, 5, 3): the constant and the oscillation, per axis
-    osc = np.linalg.solve(G[:, 1:, 1:] + ridge[:, 1:, 1:], P[:, 1:])  # the oscillation alone, about shift
+    osc = np.linalg.solve(G[:, 1:, 1:] + ridge[:, 1:, 1:], P[:, 1:])  # the oscillation alone, about zero
     ss_const = np.maximum(ss_shift - np.einsum("wka,wka->w", full, P), 0.0)
     ss_free = np.maximum(ss_shift - np.einsum("wka,wka->w", osc, P[:, 1:]), 0.0)
-    return full[:, 0, :] + shift, ss_const, ss_free
+    return full[:, 0, :], ss_const, ss_free
 
 
 def mean_under_ringing(t, x, frequency_hz: float) -> tuple:

@@ -396,8 +396,10 @@ def still_mask(t, accel, gyro, noise: ImuNoise, cfg: ZuptConfig | None = None,
 
 
 def _min_run(cfg: ZuptConfig, period: float) -> float:
-    """Shortest still run (s): ``min_still_s``, at least one window (whose length follows the IMU's rate)."""
-    return max(cfg.min_still_s, _window_length(cfg, period))
+    """Shortest still run (s): ``min_still_s``, at least one window (whose length follows the IMU's rate), not
+    the period a ringing mount's windows span: every sample of a run passed a window that long, so a run
+    shorter than it is no turning point of a move (which such a window would hold)."""
+    return max(cfg.min_still_s, _window_length(dataclasses.replace(cfg, mount_ringing_hz=0.0), period))
 
 
 def _runs(t: np.ndarray, still: np.ndarray, brk: np.ndarray, min_still_s: float):
