@@ -282,9 +282,8 @@ def style_rig(rig: Rig, bag: dict) -> tuple:
     if not bag.get("imu", True):
         return replace(rig, imu=None), bag, ""
     if "imu_camera" in bag:
-        i = bag.pop("imu_camera")
-        return replace(rig, imu=replace(rig.imu, mount=rig.cameras[i].name, rotation=np.eye(3))), bag, \
-            f"-imu-in-{rig.cameras[i].name}"
+        name = rig.cameras[bag.pop("imu_camera")].name
+        return rig.with_imu_in(name), bag, f"-imu-in-{name}"
     return rig, bag, ""
 
 
@@ -303,8 +302,9 @@ def matrix_cells(full: bool) -> list:
 
 def render_cell(out: Path, style: str, rig_name: str, seed: int = 0) -> tuple:
     """(bag dir, rig file) of one cell, rendered if missing (written beside, then renamed: never half a bag)."""
-    mo, bo = matrix_styles()[style](matrix_rigs()[rig_name].num_cameras)
-    rig, bo, suffix = style_rig(matrix_rigs()[rig_name], bo)
+    rig = matrix_rigs()[rig_name]
+    mo, bo = matrix_styles()[style](rig.num_cameras)
+    rig, bo, suffix = style_rig(rig, bo)
     rig_file = out / f"{rig_name}{suffix}.yaml"
     if not rig_file.exists():
         save_rig(rig, rig_file, header="rig of scripts/bench_holds.py (matrix)")

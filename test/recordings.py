@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from nrmpc_ros.core import save_rig
-from nrmpc_ros.core.rig import Camera, ImuMount
+from nrmpc_ros.core.rig import Camera
 from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.render.bagmaker import BagOptions, make_bag
 from nrmpc_ros.render.sequence import MotionOptions
@@ -72,7 +72,7 @@ def recording(root: Path, rig_name: str, style: str, seed: int = 0):
         r = replace(r, imu=None)
     if "imu_mount" in bag:
         bag = dict(bag)
-        r = replace(r, imu=ImuMount(mount=r.cameras[bag.pop("imu_mount")].name, rotation=exp_so3(IMU_IN_CAMERA)))
+        r = r.with_imu_in(r.cameras[bag.pop("imu_mount")].name, exp_so3(IMU_IN_CAMERA))
     rig_file = root / f"{rig_name}-{style}.yaml"
     path = root / f"{rig_name}-{style}-{seed}"
     summary = None

@@ -563,6 +563,7 @@ def test_bad_scenario_files(tmp_path, capsys, text, key):
     (["--width", "1"], "--width"), (["--cameras", "0", "--layout", "ring"], "--cameras"), (["--seed", "-1"], "--seed"),
     (["--camera-burst-s", "-1"], "--camera-burst-s"), (["--camera-latency-ms", "nan"], "--camera-latency-ms"),
     (["--camera-burst-stagger-ms", "-1"], "--camera-burst-stagger-ms"),
+    (["--imu-in-camera", "cam9"], "--imu-in-camera"), (["--imu-in-camera", "1", "--no-imu"], "--imu-in-camera"),
 ])
 def test_bad_options_name_the_flag(tmp_path, capsys, args, flag):
     try:

@@ -5,6 +5,7 @@ import pytest
 import yaml
 
 from nrmpc_ros.core import load_rig, rig_from_dict, save_rig
+from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.errors import InputError
 
 GOOD = {
@@ -269,3 +270,15 @@ def test_with_bar_ei_sets_every_bar_with_a_tip_mass():
     assert [c.mass for c in stiffer.cameras] == [c.mass for c in rig.cameras]
     np.testing.assert_allclose(stiffer.compliance[1:], rig.compliance[1:] / 4.0)
     assert not rig.with_bar_ei(math.inf).is_flexible
+
+
+def test_an_imu_inside_a_camera(cross_rig):
+    """with_imu_in mounts the IMU in a camera (its axes by default, or a given rotation), the topic kept."""
+    name = cross_rig.cameras[2].name
+    on_bar = cross_rig.with_imu_in(name)
+    assert on_bar.imu.mount == name and np.array_equal(on_bar.imu.rotation, np.eye(3))
+    assert on_bar.imu.topic == cross_rig.imu.topic and on_bar.cameras == cross_rig.cameras
+    turned = cross_rig.with_imu_in(name, exp_so3(np.array([0.1, 0.2, 0.3])))
+    assert np.allclose(turned.imu.rotation, exp_so3(np.array([0.1, 0.2, 0.3])))
+    with pytest.raises(KeyError):
+        cross_rig.with_imu_in("no such camera")

@@ -16,8 +16,6 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from ..bag.writer import ENCODINGS, STORAGES
 from ..core.rig import load_rig, save_rig
 from ..errors import InputError, OptionError
@@ -320,7 +318,7 @@ def rig_from_options(o: dict):
     if name not in names:
         raise InputError("--imu-in-camera", f"no camera {cam!r} (the rig has {', '.join(names)}, or an index "
                                             f"0-{len(names) - 1})")
-    return replace(rig, imu=replace(rig.imu, mount=name, rotation=np.eye(3)))
+    return rig.with_imu_in(name)
 
 
 def _rig_of(o: dict):

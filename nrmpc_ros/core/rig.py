@@ -147,6 +147,14 @@ class Rig:
                 return i
         raise KeyError(name)
 
+    def with_imu_in(self, camera: str, rotation=None) -> Rig:
+        """The same rig with its IMU inside camera ``camera`` (``rotation``: IMU -> camera, default the camera's
+        axes, as in a camera module with an IMU): it rides on that camera's bar."""
+        self.camera_index(camera)  # KeyError for a camera the rig does not have
+        imu = self.imu if self.imu is not None else ImuMount()
+        return replace(self, imu=replace(imu, mount=camera,
+                                         rotation=np.eye(3) if rotation is None else np.asarray(rotation, float)))
+
     def as_rigid(self) -> Rig:
         """The same rig with every bar rigid (what a rigid-rig user assumes)."""
         return replace(self, cameras=tuple(replace(c, mass=0.0, EI=math.inf) for c in self.cameras))

@@ -105,18 +105,11 @@ class ImuGravity:
     t0: float
     t1: float
     accel_std: float  # m/s^2, std of the samples (all axes; about the mount's fitted ringing where it rings)
+    # m/s^2, std of accel_mean per axis: accel_std over the root of the samples, or, on a ringing mount seen
+    # for less than a period, the ringing the mean keeps
+    accel_mean_std: float
     gyro_max: float  # rad/s
     gaps: list = field(default_factory=list)  # (start, end) of gaps inside the window
-    # m/s^2, std of accel_mean per axis: accel_std over the root of the samples, or, on a ringing mount seen
-    # for less than a period, the ringing the mean keeps (nan: taken as accel_std / sqrt(num_samples))
-    mean_std: float = math.nan
-
-    @property
-    def accel_mean_std(self) -> float:
-        """The std of ``accel_mean`` per axis (m/s^2)."""
-        if math.isfinite(self.mean_std):
-            return float(self.mean_std)
-        return self.accel_std / math.sqrt(max(self.num_samples, 1))
 
 
 _ZERO3 = (0.0, 0.0, 0.0)
@@ -276,5 +269,5 @@ class ImuBuffer:
         except InputError as exc:
             return None, ImuGravityRefusal(ImuRefusal.BAD_MEAN, str(exc))
         gaps = [gp for gp in self._gaps if gp[1] > t[0] and gp[0] < t1]
-        return ImuGravity(g, mean, len(t), float(t[0]), float(t1), spread,
-                          float(np.max(np.linalg.norm(w, axis=1))), gaps, mean_std), None
+        return ImuGravity(g, mean, len(t), float(t[0]), float(t1), spread, mean_std,
+                          float(np.max(np.linalg.norm(w, axis=1))), gaps), None

@@ -42,9 +42,10 @@ class ImuReference:
                  imu: ImuConfig | None = None):
         self.rig = rig
         self.min_samples = (imu or ImuConfig()).min_samples
+        zupt = zupt or ZuptConfig()
         if rig is not None:  # the stillness test as the pipeline runs it (an IMU on a ringing bar)
-            zupt = zupt_for_rig(zupt or ZuptConfig(), rig)
-        self._ringing_hz = float((zupt or ZuptConfig()).mount_ringing_hz or 0.0)
+            zupt = zupt_for_rig(zupt, rig)
+        self._ringing_hz = float(zupt.mount_ringing_hz or 0.0)
         self._t, self._a = ref.imu_t, ref.imu_a
         self.noise: ImuNoise | None = None
         self.still = np.zeros(len(ref.imu_t), bool)

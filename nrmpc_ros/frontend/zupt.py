@@ -256,8 +256,8 @@ def _moments(x: np.ndarray, i0: np.ndarray, i1: np.ndarray, shift: np.ndarray):
 
 
 def _window_moments(x, t, i0, i1, shift, cfg: ZuptConfig):
-    """:func:`_moments`, or :func:`_ringing_moments` on a ringing mount; and the parameters fitted per axis
-    besides the constant."""
+    """:func:`_moments`, or :func:`.mount_ringing.ringing_moments` on a ringing mount; and the parameters fitted
+    per axis besides the constant."""
     f = _ringing_hz(cfg)
     if f:
         return ringing_moments(x, t, i0, i1, shift, f), RINGING_PARAMETERS
