@@ -3,7 +3,8 @@
 Rigs: two cameras on one straight bar, three cameras of which one fisheye, the four-camera cross, all at
 320x240 with bars that ring at about 4.3 Hz (EI 1 N m^2, 0.15 kg, 0.3 m). Styles: one snapshot per hold with
 and without an IMU, a 10 Hz stream with smooth (minimum-jerk) moves, a stream with abrupt (trapezoidal) moves,
-ringing bars (damping 0.03), +-8 ms camera stamp jitter and 2 % frame drops, JPEG-compressed images, and
+ringing bars (damping 0.03), +-8 ms camera stamp jitter and 2 % frame drops, JPEG-compressed images, a raw
+colour sensor's Bayer mosaic (no white balance: a checkerboard of three levels on a grey scene), and
 each camera at its own rate (10, 15, 30, 20 Hz, the first of them; phases 7 ms apart) on bars that ring through
 the hold (damping 0.02), and an IMU inside the second camera (turned in it), whose bar rings through the hold
 (damping 0.02) after trapezoidal moves.
@@ -51,6 +52,7 @@ STYLES = {
     "stream-ringing": ({**BASE, "hold_seconds": 4.0, "capture": "stream", "rate": 10.0, "move_profile": "trapezoid"},
                        {"damping": 0.03, "jitter_ms": 8.0, "drop_rate": 0.02}),
     "compressed": ({**BASE, "capture": "stream", "rate": 10.0}, {"encoding": "jpeg"}),
+    "bayer": ({**BASE, "capture": "stream", "rate": 10.0}, {"encoding": "bayer_grbg8"}),
     "camrates-ringing": ({**BASE, "hold_seconds": 2.5, "capture": "stream", "rate": 10.0,
                           "camera_rates": (10.0, 15.0, 30.0, 20.0)}, {"damping": 0.02}),
     "imu-on-bar": ({**BASE, "capture": "stream", "rate": 10.0, "move_profile": "trapezoid"},

@@ -1,4 +1,4 @@
-"""decode_image: raw encodings (step, endianness, 16 bit), CompressedImage, clear errors."""
+"""decode_image: raw encodings (step, endianness, 16 bit, Bayer, YUV), CompressedImage, clear errors."""
 
 from types import SimpleNamespace
 
@@ -104,9 +104,77 @@ def test_rosbags_message_objects(rng):
     assert stamp_seconds(back) == pytest.approx(12.5)
 
 
+def smooth_colour(h=48, w=64):
+    """A BGR image whose channels differ strongly and vary smoothly (demosaicing is then exact to a few levels):
+    red rises left to right, blue top to bottom, green is their mean."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    r, b = 40 + 180 * xx / w, 30 + 200 * yy / h
+    return np.dstack([b, (r + b) / 2, r])
+
+
+def through_cfa(bgr, pattern):
+    """A colour image seen through the colour filter array ``pattern`` (top-left 2x2 cell, e.g. "rggb")."""
+    out = np.empty(bgr.shape[:2], bgr.dtype)
+    for k, c in enumerate(pattern):
+        out[k // 2::2, k % 2::2] = bgr[k // 2::2, k % 2::2, "bgr".index(c)]
+    return out
+
+
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+@pytest.mark.parametrize("bits", [8, 16])
+def test_bayer_patterns_demosaic_to_the_scenes_grey(pattern, bits):
+    colour = smooth_colour()
+    grey = cv2.cvtColor(np.rint(colour).astype(np.uint8), cv2.COLOR_BGR2GRAY).astype(int)
+    scale = 16 if bits == 16 else 1  # 12 significant bits in 16, as machine-vision cameras send
+    mosaic = np.rint(through_cfa(colour, pattern) * scale).astype(np.uint16 if bits == 16 else np.uint8)
+    out = decode_image(raw(mosaic, f"bayer_{pattern}{bits}", step=64 * bits // 8 + 8), "/c")
+    inner = (slice(2, -2), slice(2, -2))
+    assert out.shape == grey.shape and out.dtype == np.uint8
+    assert np.abs(out[inner].astype(int) - grey[inner]).max() <= 3
+    # read with another pattern, the same bytes give another grey: the pattern is honoured
+    other = {"rggb": "bggr", "bggr": "rggb", "gbrg": "rggb", "grbg": "bggr"}[pattern]
+    wrong = decode_image(raw(mosaic, f"bayer_{other}{bits}"), "/c")
+    assert np.abs(wrong[inner].astype(int) - grey[inner]).max() > 10
+
+
+@pytest.mark.parametrize("enc,y_at", [("uyvy", 1), ("yuv422", 1), ("yuyv", 0), ("yuv422_yuy2", 0)])
+def test_packed_yuv_gives_its_luma(rng, enc, y_at):
+    luma = rng.integers(0, 256, size=(5, 6), dtype=np.uint8)
+    packed = rng.integers(0, 256, size=(5, 12), dtype=np.uint8)  # chroma of a colourful scene
+    packed[:, y_at::2] = luma
+    out = decode_image(_with_width(raw(packed, enc, step=16), 6), "/c")
+    np.testing.assert_array_equal(out, luma)
+
+
+@pytest.mark.parametrize("enc,chroma_rows", [("nv21", 3), ("nv24", 10)])
+def test_semi_planar_yuv_gives_its_luma_plane(rng, enc, chroma_rows):
+    luma = rng.integers(0, 256, size=(5, 6), dtype=np.uint8)
+    planes = np.concatenate([luma, rng.integers(0, 256, size=(chroma_rows, 6), dtype=np.uint8)])
+    msg = raw(planes, enc)
+    msg.height = 5
+    np.testing.assert_array_equal(decode_image(msg, "/c"), luma)
+    msg.data = msg.data[:5 * 6 + 2]  # the luma plane, but not the chroma the encoding says follows
+    with pytest.raises(InputError, match=r"/c: field 'data'.*chroma"):
+        decode_image(msg, "/c")
+
+
+def _with_width(msg, width):
+    msg.width = width
+    return msg
+
+
+@pytest.mark.parametrize("enc,code", [("bgr16", cv2.COLOR_BGR2GRAY), ("rgb16", cv2.COLOR_RGB2GRAY),
+                                      ("8UC3", cv2.COLOR_BGR2GRAY)])
+def test_more_colour_encodings(rng, enc, code):
+    colour = rng.integers(0, 256, size=(4, 5, 3), dtype=np.uint8)
+    arr = colour.astype(np.uint16) * 257 if enc.endswith("16") else colour
+    out = decode_image(raw(arr, enc), "/c").astype(int)
+    assert np.abs(out - cv2.cvtColor(colour, code)).max() <= (1 if enc.endswith("16") else 0)  # 16 bit: rounding
+
+
 def test_unsupported_encoding_names_topic():
-    msg = raw(np.zeros((2, 2), np.uint8), "bayer_rggb8")
-    with pytest.raises(InputError, match=r"/cam3/image_raw.*encoding.*bayer_rggb8"):
+    msg = raw(np.zeros((2, 2), np.float32).view(np.uint8), "32FC1")
+    with pytest.raises(InputError, match=r"/cam3/image_raw.*encoding.*32FC1"):
         decode_image(msg, "/cam3/image_raw")
 
 

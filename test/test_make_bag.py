@@ -10,6 +10,7 @@ import yaml
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
+from nrmpc_ros.bag.writer import ENCODINGS
 from nrmpc_ros.cli.main import main
 from nrmpc_ros.core import ImuMount, gravity_from_accelerometer, load_rig, save_rig
 from nrmpc_ros.core.so3 import angle_between, exp_so3, log_so3, quat_xyzw_to_matrix, rotation_angle
@@ -214,13 +215,15 @@ def test_imu_inside_a_camera_bends_with_it(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("encoding", ["mono8", "bgr8", "rgb8", "mono16", "png", "jpeg"])
+@pytest.mark.parametrize("encoding", ENCODINGS)
 def test_image_encodings(tmp_path, encoding):
     import cv2
 
-    from nrmpc_ros.bag.writer import BagWriter
+    from nrmpc_ros.bag.writer import SENSOR_GAINS_BGR, BagWriter
+    from nrmpc_ros.frontend.images import decode_image
 
-    img = np.random.default_rng(0).integers(0, 256, size=(6, 10), dtype=np.uint8)
+    yy, xx = np.mgrid[0:12, 0:20]
+    img = np.rint(60 + 6 * xx + 4 * yy).astype(np.uint8)  # smooth: a Bayer mosaic's demosaic is exact inside
     with BagWriter(tmp_path / "e") as bag:
         bag.write("/img", bag.image_msg(img, 1_000_000_123, "cam0", encoding), 1_000_000_123)
     msgs, _ = read_bag(tmp_path / "e")
@@ -231,13 +234,21 @@ def test_image_encodings(tmp_path, encoding):
         assert dec.shape == img.shape and m.format.startswith("mono8; " + encoding)
         assert np.abs(dec.astype(int) - img).max() <= (0 if encoding == "png" else 60)
         return
-    assert (m.width, m.height, m.encoding) == (10, 6, encoding)
-    if encoding == "mono16":
-        assert np.array_equal(np.asarray(m.data).view("<u2").reshape(6, 10), img.astype(np.uint16) * 257)
-    elif encoding == "mono8":
-        assert np.array_equal(np.asarray(m.data).reshape(6, 10), img)
+    assert (m.width, m.height, m.encoding) == (20, 12, encoding)
+    grey = decode_image(m, "/img").astype(float)
+    if encoding.startswith("bayer_"):  # a raw sensor without white balance: a checkerboard, demosaiced to grey
+        b, g, r = SENSOR_GAINS_BGR
+        assert np.abs(np.diff(np.asarray(m.data).view("<u2" if encoding.endswith("16") else np.uint8)
+                              .reshape(12, 20)[4].astype(float))).max() > 20
+        np.testing.assert_allclose(grey[2:-2, 2:-2], img[2:-2, 2:-2] * (0.114 * b + 0.587 * g + 0.299 * r), atol=2)
     else:
-        assert np.array_equal(np.asarray(m.data).reshape(6, 10, 3)[:, :, 1], img) and m.step == 30
+        np.testing.assert_array_equal(grey, img)
+    if encoding == "mono16":
+        assert np.array_equal(np.asarray(m.data).view("<u2").reshape(12, 20), img.astype(np.uint16) * 257)
+    elif encoding == "mono8":
+        assert np.array_equal(np.asarray(m.data).reshape(12, 20), img)
+    elif encoding in ("bgr8", "rgb8"):
+        assert np.array_equal(np.asarray(m.data).reshape(12, 20, 3)[:, :, 1], img) and m.step == 60
 
 
 # -- recording styles ------------------------------------------------------------------------------------------

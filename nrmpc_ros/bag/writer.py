@@ -21,11 +21,16 @@ from ..errors import InputError, OptionError
 
 STORAGES = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
 # Raw encodings (sensor_msgs/Image) and compressed formats (sensor_msgs/CompressedImage of a mono8 image).
-RAW_ENCODINGS = ("mono8", "bgr8", "rgb8", "mono16")
+BAYER_ENCODINGS = ("bayer_rggb8", "bayer_bggr8", "bayer_gbrg8", "bayer_grbg8", "bayer_rggb16")
+YUV_ENCODINGS = ("uyvy", "yuyv", "nv21")
+RAW_ENCODINGS = ("mono8", "bgr8", "rgb8", "mono16", *BAYER_ENCODINGS, *YUV_ENCODINGS)
 COMPRESSED_FORMATS = ("png", "jpeg")
 ENCODINGS = RAW_ENCODINGS + COMPRESSED_FORMATS
 BAG_VERSION = 9
 DEFAULT_JPEG_QUALITY = 95
+# A raw colour sensor without white balance: the blue, green and red channels' response to a grey scene. A
+# Bayer image of a grey scene is then a checkerboard of three levels, as a real one is.
+SENSOR_GAINS_BGR = (0.7, 1.0, 0.55)
 
 _TYPES = {
     "image": "sensor_msgs/msg/Image",
@@ -46,6 +51,44 @@ def image_topic_for(image_topic: str, encoding: str) -> str:
 def typestore():
     """The ROS 2 Jazzy type store (explicit, rosbags >= 0.11)."""
     return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _mosaic(img: np.ndarray, pattern: str) -> np.ndarray:
+    """A grey image seen through a colour filter array ``pattern`` (the top-left 2x2 cell, e.g. "rggb") of a
+    sensor with :data:`SENSOR_GAINS_BGR`."""
+    gain = dict(zip("bgr", SENSOR_GAINS_BGR))
+    out = np.empty(img.shape, np.float64)
+    for k, c in enumerate(pattern):
+        out[k // 2::2, k % 2::2] = img[k // 2::2, k % 2::2] * gain[c]
+    return out
+
+
+def raw_payload(img: np.ndarray, encoding: str) -> tuple[np.ndarray, int]:
+    """The data and row step of a sensor_msgs/Image of the 2-D uint8 grey image ``img`` in a raw ``encoding``:
+    grey replicated in colour, 16 bit scaled to full range, a Bayer mosaic (16 bit: 12 significant bits, as
+    machine-vision cameras send), or YUV with neutral chroma (4:2:2 packed, or NV21's luma plane and
+    interleaved V/U plane)."""
+    h, w = img.shape
+    if encoding == "mono8":
+        return img, w
+    if encoding in ("bgr8", "rgb8"):
+        return np.repeat(img[:, :, None], 3, axis=2), 3 * w
+    if encoding == "mono16":
+        return img.astype("<u2") * 257, 2 * w
+    if encoding.startswith("bayer_"):
+        pattern, bits = encoding[6:10], int(encoding[10:])
+        level = _mosaic(img, pattern)
+        if bits == 8:
+            return np.rint(level).astype(np.uint8), w
+        return np.rint(level * 16).astype("<u2"), 2 * w
+    if encoding in ("uyvy", "yuyv"):
+        packed = np.full((h, 2 * w), 128, np.uint8)
+        packed[:, (1 if encoding == "uyvy" else 0)::2] = img
+        return packed, 2 * w
+    if encoding == "nv21":
+        return np.concatenate([img, np.full(((h + 1) // 2, w), 128, np.uint8)]), w
+    raise OptionError("bag writer", "encoding", f"unsupported image encoding {encoding!r} "
+                                                f"(supported: {', '.join(ENCODINGS)})")
 
 
 class BagWriter:
@@ -115,15 +158,7 @@ class BagWriter:
                 raise RuntimeError(f"OpenCV could not encode a {encoding} image")
             return self._t[_TYPES["compressed"]](header=header, format=f"mono8; {encoding} compressed mono8",
                                                  data=np.frombuffer(buf.tobytes(), dtype=np.uint8))
-        if encoding == "mono8":
-            data, step = img, img.shape[1]
-        elif encoding in ("bgr8", "rgb8"):
-            data, step = np.repeat(img[:, :, None], 3, axis=2), 3 * img.shape[1]
-        elif encoding == "mono16":
-            data, step = (img.astype("<u2") * 257), 2 * img.shape[1]
-        else:
-            raise OptionError("bag writer", "encoding", f"unsupported image encoding {encoding!r} "
-                                                        f"(supported: {', '.join(ENCODINGS)})")
+        data, step = raw_payload(img, encoding)
         return self._t[_TYPES["image"]](
             header=header, height=img.shape[0], width=img.shape[1], encoding=encoding, is_bigendian=0,
             step=step, data=np.ascontiguousarray(data).view(np.uint8).reshape(-1),

@@ -6,24 +6,52 @@ of the message, not a copy); each image is decoded once, by the feeder (docs/PIP
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
 from ..errors import InputError
 from .image_cdr import Unreadable
 
-# encoding -> (channels, dtype, cv2 conversion to grey or None)
-_RAW = {
+# Packed encodings: encoding -> (channels, dtype, cv2 conversion to grey or None). 8UC3/8UC4 are read as BGR(A),
+# as cv_bridge does.
+_PACKED = {
     "mono8": (1, np.uint8, None),
     "8uc1": (1, np.uint8, None),
     "bgr8": (3, np.uint8, cv2.COLOR_BGR2GRAY),
+    "8uc3": (3, np.uint8, cv2.COLOR_BGR2GRAY),
     "rgb8": (3, np.uint8, cv2.COLOR_RGB2GRAY),
     "bgra8": (4, np.uint8, cv2.COLOR_BGRA2GRAY),
+    "8uc4": (4, np.uint8, cv2.COLOR_BGRA2GRAY),
     "rgba8": (4, np.uint8, cv2.COLOR_RGBA2GRAY),
     "mono16": (1, np.uint16, None),
     "16uc1": (1, np.uint16, None),
+    "bgr16": (3, np.uint16, cv2.COLOR_BGR2GRAY),
+    "rgb16": (3, np.uint16, cv2.COLOR_RGB2GRAY),
+    "bgra16": (4, np.uint16, cv2.COLOR_BGRA2GRAY),
+    "rgba16": (4, np.uint16, cv2.COLOR_RGBA2GRAY),
 }
-SUPPORTED_ENCODINGS = ("mono8", "8UC1", "bgr8", "rgb8", "bgra8", "rgba8", "mono16", "16UC1")
+# Colour filter arrays as machine-vision drivers publish them (sensor_msgs/image_encodings.h: the pattern of the
+# top-left 2x2 cell), demosaiced straight to grey. OpenCV names a pattern by the second row's second and third
+# pixels, so ROS rggb is OpenCV's BG (cv_bridge's mapping).
+_BAYER = {
+    "rggb": cv2.COLOR_BayerBG2GRAY,
+    "bggr": cv2.COLOR_BayerRG2GRAY,
+    "gbrg": cv2.COLOR_BayerGR2GRAY,
+    "grbg": cv2.COLOR_BayerGB2GRAY,
+}
+for _cfa, _code in _BAYER.items():
+    _PACKED[f"bayer_{_cfa}8"] = (1, np.uint8, _code)
+    _PACKED[f"bayer_{_cfa}16"] = (1, np.uint16, _code)
+# Luma-chroma encodings of USB and embedded cameras: the grey image is the luma plane, read in place (no colour
+# conversion). Packed 4:2:2: encoding -> byte offset of Y in each 2-byte pixel; semi-planar: encoding -> bytes of
+# chroma per byte of luma after the luma plane.
+_YUV_PACKED = {"uyvy": 1, "yuv422": 1, "yuyv": 0, "yuv422_yuy2": 0}
+_YUV_PLANAR = {"nv21": 0.5, "nv24": 2.0}
+SUPPORTED_ENCODINGS = ("mono8", "8UC1", "bgr8", "rgb8", "bgra8", "rgba8", "8UC3", "8UC4", "mono16", "16UC1",
+                       "bgr16", "rgb16", "bgra16", "rgba16", *(f"bayer_{c}{b}" for b in (8, 16) for c in _BAYER),
+                       *_YUV_PACKED, *_YUV_PLANAR)
 
 
 def _bytes(data) -> np.ndarray:
@@ -48,31 +76,46 @@ def to_uint8(img16: np.ndarray, depth_bits: int | None = None) -> np.ndarray:
     return np.minimum(img16 >> shift, 255).astype(np.uint8)
 
 
-def decode_raw(msg, source: str, depth_bits: int | None = None) -> np.ndarray:
-    """A sensor_msgs/Image -> (height, width) uint8, honouring step and is_bigendian."""
-    enc = str(msg.encoding)
-    spec = _RAW.get(enc.lower())
-    if spec is None:
-        raise InputError(source, f"unsupported image encoding {enc!r} (supported: {', '.join(SUPPORTED_ENCODINGS)})",
-                         "encoding")
-    ch, dtype, conv = spec
+def _rows(msg, source: str, row: int, extra_rows: float = 0.0) -> np.ndarray:
+    """The message's ``height`` rows of ``row`` bytes each, ``step`` apart (a view of its buffer); the buffer must
+    also hold ``extra_rows`` more rows of ``step`` bytes (a chroma plane)."""
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    itemsize = np.dtype(dtype).itemsize
-    row = w * ch * itemsize
     if h <= 0 or w <= 0:
         raise InputError(source, f"empty image ({w}x{h})", "width")
     if step < row:
         raise InputError(source, f"step {step} is smaller than width * bytes per pixel = {row}", "step")
     buf = _bytes(msg.data)
-    if buf.size < step * (h - 1) + row:
-        raise InputError(source, f"data holds {buf.size} bytes but {h} rows of step {step} need {step * h}", "data")
-    rows = np.lib.stride_tricks.as_strided(buf, shape=(h, row), strides=(step, 1))
+    need = step * (h - 1) + row + math.ceil(step * extra_rows)
+    if buf.size < need:
+        raise InputError(source, f"data holds {buf.size} bytes but {h} rows of step {step} "
+                                 f"{'and the chroma plane ' if extra_rows else ''}need {need}", "data")
+    return np.lib.stride_tricks.as_strided(buf, shape=(h, row), strides=(step, 1))
+
+
+def decode_raw(msg, source: str, depth_bits: int | None = None) -> np.ndarray:
+    """A sensor_msgs/Image -> (height, width) uint8 grey, honouring step and is_bigendian: packed grey and colour
+    (8 and 16 bit), Bayer patterns (demosaiced), and YUV (its luma plane)."""
+    enc = str(msg.encoding)
+    key = enc.lower()
+    h, w = int(msg.height), int(msg.width)
+    if key in _YUV_PACKED:
+        rows = _rows(msg, source, 2 * w)
+        return np.ascontiguousarray(rows[:, _YUV_PACKED[key]::2])
+    if key in _YUV_PLANAR:
+        return np.ascontiguousarray(_rows(msg, source, w, h * _YUV_PLANAR[key]))
+    spec = _PACKED.get(key)
+    if spec is None:
+        raise InputError(source, f"unsupported image encoding {enc!r} (supported: {', '.join(SUPPORTED_ENCODINGS)})",
+                         "encoding")
+    ch, dtype, conv = spec
+    rows = _rows(msg, source, w * ch * np.dtype(dtype).itemsize)
     if dtype == np.uint8:
         img = np.ascontiguousarray(rows).reshape(h, w, ch) if ch > 1 else np.ascontiguousarray(rows)
         return cv2.cvtColor(img, conv) if conv is not None else img
     order = ">" if bool(msg.is_bigendian) else "<"
-    img = np.ascontiguousarray(rows).view(np.dtype(f"{order}u2")).reshape(h, w).astype(np.uint16)
-    return to_uint8(img, depth_bits)
+    img = np.ascontiguousarray(rows).view(np.dtype(f"{order}u2")).reshape(h, w, ch).astype(np.uint16)
+    img = img[:, :, 0] if ch == 1 else img
+    return to_uint8(cv2.cvtColor(img, conv) if conv is not None else img, depth_bits)
 
 
 JPEG_MAGIC = b"\xff\xd8"
