@@ -18,7 +18,9 @@ creep at 0.5 deg/s (not still); ``imuclock`` random 1.5-3.5 s holds and an IMU c
 dropped), bars damped at 0.03 that ring through the holds, IMU at 1000 Hz; ``noimu`` no IMU at all, a 30 Hz
 stream through the moves (+-3 ms stamps), bars damped at 0.03 that ring through the holds (the images alone
 tell the holds: ``6pt-bending`` only); ``imubar`` the IMU inside the second camera (a camera module with an
-IMU), riding on its bar, which rings through the holds (damping 0.03).
+IMU), riding on its bar, which rings through the holds (damping 0.03); ``imudlpf`` a 1 kHz IMU that low-pass
+filters its output at 40 Hz (a MEMS IMU's digital filter: its noise correlated over a dozen samples); ``imucov``
+an IMU whose messages' covariances claim a fifth of its noise (a driver's datasheet figure).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -272,6 +274,8 @@ def matrix_styles() -> dict:
         "noimu": lambda M: ({**base, "capture": "stream", "rate": 30.0},
                             {"damping": 0.03, "jitter_ms": 3.0, "imu": False}),
         "imubar": lambda M: (base, {"damping": 0.03, "imu_camera": 1}),
+        "imudlpf": lambda M: ({**base, "imu_rate": 1000.0}, {**bag, "imu_lowpass_hz": 40.0}),
+        "imucov": lambda M: (base, {**bag, "imu_covariance_scale": 0.2}),
     }
 
 
@@ -290,7 +294,7 @@ def style_rig(rig: Rig, bag: dict) -> tuple:
 QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross4-soft"),
          ("snap0.5", "line2-soft"), ("snap0.15", "cross4-soft"), ("camrates", "ring5-stiff"),
          ("exposure", "ring6-soft"), ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft"),
-         ("noimu", "ring3-soft"), ("imubar", "ring5-soft")]
+         ("noimu", "ring3-soft"), ("imubar", "ring5-soft"), ("imudlpf", "ring6-stiff"), ("imucov", "cross4-soft")]
 
 
 def matrix_cells(full: bool) -> list:

@@ -4,7 +4,9 @@ Rigs: two cameras on one straight bar, three cameras of which one fisheye, the f
 320x240 with bars that ring at about 4.3 Hz (EI 1 N m^2, 0.15 kg, 0.3 m). Styles: one snapshot per hold with
 and without an IMU, a 10 Hz stream with smooth (minimum-jerk) moves, a stream with abrupt (trapezoidal) moves,
 ringing bars (damping 0.03), +-8 ms camera stamp jitter and 2 % frame drops, JPEG-compressed images, a raw
-colour sensor's Bayer mosaic (no white balance: a checkerboard of three levels on a grey scene), and
+colour sensor's Bayer mosaic (no white balance: a checkerboard of three levels on a grey scene), a 1 kHz IMU
+that low-pass filters its output at 40 Hz (its noise correlated over a dozen samples), an IMU whose messages'
+covariances claim a fifth of its noise, and
 each camera at its own rate (10, 15, 30, 20 Hz, the first of them; phases 7 ms apart) on bars that ring through
 the hold (damping 0.02), and an IMU inside the second camera (turned in it), whose bar rings through the hold
 (damping 0.02) after trapezoidal moves.
@@ -53,6 +55,8 @@ STYLES = {
                        {"damping": 0.03, "jitter_ms": 8.0, "drop_rate": 0.02}),
     "compressed": ({**BASE, "capture": "stream", "rate": 10.0}, {"encoding": "jpeg"}),
     "bayer": ({**BASE, "capture": "stream", "rate": 10.0}, {"encoding": "bayer_grbg8"}),
+    "imu-filtered": ({**BASE, "capture": "stream", "rate": 10.0, "imu_rate": 1000.0}, {"imu_lowpass_hz": 40.0}),
+    "imu-claims-little": ({**BASE, "capture": "stream", "rate": 10.0}, {"imu_covariance_scale": 0.2}),
     "camrates-ringing": ({**BASE, "hold_seconds": 2.5, "capture": "stream", "rate": 10.0,
                           "camera_rates": (10.0, 15.0, 30.0, 20.0)}, {"damping": 0.02}),
     "imu-on-bar": ({**BASE, "capture": "stream", "rate": 10.0, "move_profile": "trapezoid"},

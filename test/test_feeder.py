@@ -138,8 +138,8 @@ def test_without_imu_sets_leave_at_once_and_with_a_stopped_imu_after_the_wait(ri
 
 def test_bad_inputs_are_dropped_counted_and_logged_once(rig):
     f, work, logs = feeder(rig)
-    f.image(0, image(100.0, encoding="yuv422"))
-    f.image(0, image(100.1, encoding="yuv422"))
+    f.image(0, image(100.0, encoding="32FC1"))
+    f.image(0, image(100.1, encoding="32FC1"))
     f.image(1, image(100.0, w=32, h=24))
     f.imu_msg(imu(100.0, accel=(math.nan, 0.0, 9.81)))
     f.imu_msg(imu(100.005, accel=(0.0, 0.0, 0.0)))
@@ -152,7 +152,7 @@ def test_bad_inputs_are_dropped_counted_and_logged_once(rig):
     assert counts[("/imu/data", Drop.IMU_ZERO_ACCEL)] == 1
     assert counts[("/imu/data", Drop.IMU_OUT_OF_ORDER)] == 1
     warned = [line for level, line in logs if level == "warn"]
-    assert len(warned) == 5 and any("yuv422" in w for w in warned) and any("32x24" in w for w in warned)
+    assert len(warned) == 5 and any("32FC1" in w for w in warned) and any("32x24" in w for w in warned)
     f.end()
     assert [k for k, _ in trace(work)] == [WorkKind.IMU, WorkKind.FLUSH]  # the good sample went on
 

@@ -120,3 +120,15 @@ def test_replay_creates_the_output_folder(tmp_path):
     w = CsvWriter(out)
     w.close()
     assert out.read_text().startswith(",".join(CSV_HEADER))
+
+
+@pytest.mark.slow
+def test_covariances_that_claim_too_little_are_said_and_overruled(recordings_dir, tmp_path, capsys):
+    """A driver's covariances claiming a fifth of the IMU's noise: the replay says so with both numbers and
+    finds every hold (with the claim alone, none)."""
+    path, rig_file, _ = recording(recordings_dir, "cross4", "imu-claims-little")
+    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    line = next(ln for ln in text.splitlines() if ln.startswith("IMU stillness test:"))
+    assert "from the white noise" in line and "covariances claim 0.004 m/s^2 and 0.0004 rad/s" in line
+    assert "with an estimate (after the first): 2/2" in text

@@ -11,10 +11,13 @@ from nrmpc_ros.core.rig import ImuMount
 from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.errors import InputError
 from nrmpc_ros.frontend.imu import ImuReject
+from nrmpc_ros.frontend.noise_correlation import mean_variance_factor
 from nrmpc_ros.frontend.zupt import (
     ImuNoise,
+    NoiseSource,
     ZuptConfig,
     ZuptDetector,
+    describe_noise,
     estimate_noise,
     for_rig,
     still_intervals,
@@ -142,8 +145,9 @@ def test_noise_from_covariance_or_data(rng):
     t, a, w, holds = trace(rng, 200.0, [("hold", 3.0), ("move", 1.0), ("hold", 3.0)])
     cov_a, cov_w = (np.eye(3) * 0.02 ** 2).ravel(), (np.eye(3) * 0.002 ** 2).ravel()
     from_cov = estimate_noise(t, a, w, covariance=(cov_a, cov_w))
-    assert from_cov.source == "covariance"
-    assert (from_cov.accel_sigma, from_cov.gyro_sigma) == pytest.approx((0.02, 0.002))
+    assert from_cov.source == "covariance" and from_cov.claimed == (0.02, 0.002)
+    # the claim stands, raised at most to the white noise the samples show (a few percent of scatter)
+    assert 0.02 <= from_cov.accel_sigma < 0.022 and 0.002 <= from_cov.gyro_sigma < 0.0022
     assert np.abs(from_cov.gyro_bias - BIAS).max() < 3e-4  # the bias always comes from the data
     from_data = estimate_noise(t, a, w)
     assert from_data.source == "data"
@@ -466,3 +470,129 @@ def test_a_ringing_mount_is_tested_alike_after_an_hour(rng):
     inner = (t[tail] > 3541.0) & (t[tail] < 3599.0)  # the windows the end of the slice does not move
     assert np.nanmax(np.abs(whole[inner] - alone[inner])) < 1e-6 * np.nanmax(alone[inner])
     assert np.nanmax(alone[inner]) < 1.0
+
+
+# -- an IMU's own low-pass filter, and covariances that claim too little ------------------------------------------
+
+
+def lowpass(noise: np.ndarray, cutoff_hz: float, rate: float) -> np.ndarray:
+    """Unit-std noise through a MEMS IMU's digital low-pass filter (2nd-order Butterworth), std kept at 1."""
+    from scipy.signal import butter, sosfilt
+
+    y = sosfilt(butter(2, cutoff_hz, fs=rate, output="sos"), noise, axis=0)
+    return y / y[200:].std()
+
+
+def filtered_trace(rng, rate, cutoff_hz, plan, accel_sigma=0.02, gyro_sigma=0.002, creep_deg_s=0.0):
+    """:func:`trace` with the noise low-pass filtered (neighbouring samples correlated, the std per sample kept);
+    ``creep_deg_s`` turns the body slowly through the second hold."""
+    t, a, w, holds = trace(rng, rate, plan, accel_sigma=0.0, gyro_sigma=0.0)
+    a = a + accel_sigma * lowpass(rng.normal(size=a.shape), cutoff_hz, rate)
+    w = w + gyro_sigma * lowpass(rng.normal(size=w.shape), cutoff_hz, rate)
+    if creep_deg_s:
+        h0, h1 = holds[1]
+        w[(t >= h0) & (t < h1)] += math.radians(creep_deg_s) * AXIS
+    return t, a, w, holds
+
+
+@pytest.mark.parametrize("rate, cutoff_hz", [(50.0, 10.0), (200.0, 40.0), (200.0, 10.0), (1000.0, 100.0),
+                                             (1000.0, 20.0)])
+def test_a_low_pass_filtered_imu_finds_every_hold_whole(rng, rate, cutoff_hz):
+    """A MEMS IMU filters its output: neighbouring samples share their noise, so a window's spread follows a
+    wider distribution than white noise gives. The test takes it from the noise's measured correlation: the
+    noise per sample is estimated right, and each hold is one still run (tested as white noise, with the
+    narrower distribution's quantile, the noise came out 10-30 % low and 13-97 % of a still minute at 1 kHz
+    with a 10-100 Hz filter read as motion)."""
+    plan = [("hold", 6.0), ("move", 1.0), ("hold", 6.0), ("move", 1.0), ("hold", 6.0)]
+    t, a, w, holds = filtered_trace(rng, rate, cutoff_hz, plan)
+    noise = estimate_noise(t, a, w)
+    assert noise.accel_sigma == pytest.approx(0.02, rel=0.12) and noise.gyro_sigma == pytest.approx(0.002, rel=0.12)
+    assert len(noise.accel_correlation) > 1 and noise.accel_correlation[1] > 0.3
+    iv = still_intervals(t, a, w, noise)
+    assert len(iv) == len(holds)
+    for (f0, f1), (h0, h1) in zip(iv, holds):
+        assert abs(f0 - h0) < 0.2 and abs(f1 - h1) < 0.2
+
+
+@pytest.mark.parametrize("rate", [200.0, 1000.0])
+def test_a_creep_under_filtered_noise_is_still_motion(rng, rate):
+    """The correlated noise's wider null distribution does not let a slow turn through: 1 deg/s through a hold
+    is motion at a 20 Hz filter."""
+    plan = [("hold", 4.0), ("move", 1.0), ("hold", 4.0), ("move", 1.0), ("hold", 4.0)]
+    t, a, w, holds = filtered_trace(rng, rate, 20.0, plan, creep_deg_s=1.0)
+    noise = estimate_noise(t, a, w)
+    h0, h1 = holds[1]
+    assert not still_mask(t, a, w, noise)[(t > h0 + 0.1) & (t < h1 - 0.1)].any()
+
+
+@pytest.mark.parametrize("claim", [0.1, 0.3, 0.7])
+@pytest.mark.parametrize("rate", [50.0, 200.0, 1000.0])
+def test_a_covariance_that_claims_too_little_noise_is_raised_to_the_samples_white_noise(rng, rate, claim):
+    """A driver's covariance is a claim (often a datasheet's noise density taken for a per-sample std): one
+    below the white noise the samples show is raised to it, and said so; with the claim alone every still
+    window reads as motion."""
+    t, a, w, holds = trace(rng, rate, [("hold", 4.0), ("move", 1.0), ("hold", 4.0), ("move", 1.0), ("hold", 4.0)])
+    cov = ((np.eye(3) * (claim * 0.02) ** 2).ravel(), (np.eye(3) * (claim * 0.002) ** 2).ravel())
+    noise = estimate_noise(t, a, w, covariance=cov)
+    assert noise.source == NoiseSource.WHITE_NOISE
+    assert noise.claimed == pytest.approx((claim * 0.02, claim * 0.002))
+    assert noise.accel_sigma == pytest.approx(0.02, rel=0.1) and noise.gyro_sigma == pytest.approx(0.002, rel=0.1)
+    iv = still_intervals(t, a, w, noise)
+    assert len(iv) == len(holds)
+    as_claimed = dataclasses.replace(noise, accel_sigma=claim * 0.02, gyro_sigma=claim * 0.002)
+    h0, h1 = holds[1]
+    assert still_mask(t, a, w, as_claimed)[(t > h0 + 0.2) & (t < h1 - 0.2)].mean() < (0.5 if claim < 0.5 else 0.9)
+
+
+def test_a_generous_covariance_stands_and_the_white_noise_holds_where_the_rig_never_stops(rng):
+    """A covariance claiming more noise than the samples show is kept (it only makes the test less sensitive).
+    The white noise comes from differences of neighbouring samples, so a rig that never stops (where the
+    quietest windows are motion) still shows its sensor's noise."""
+    t, a, w, _ = trace(rng, 100.0, [("move", 2.0)] * 10)
+    generous = ((np.eye(3) * 0.2 ** 2).ravel(), (np.eye(3) * 0.02 ** 2).ravel())
+    noise = estimate_noise(t, a, w, covariance=generous)
+    assert noise.source == NoiseSource.COVARIANCE and (noise.accel_sigma, noise.gyro_sigma) == (0.2, 0.02)
+    assert noise.white == pytest.approx((0.02, 0.002), rel=0.1)
+    assert estimate_noise(t, a, w).gyro_sigma > 1.5 * 0.002  # the quietest windows of a moving rig
+
+
+@pytest.mark.parametrize("rate", [50.0, 200.0, 1000.0])
+def test_white_noise_reads_as_white(rng, rate):
+    """Between moves at 50-1000 Hz the still runs are short: each about its own mean owes every lagged product
+    a little, which is added back, so white noise shows no correlation (uncorrected, 6-7 lags at 50-200 Hz)."""
+    t, a, w, _ = trace(rng, rate, [("hold", 1.0), ("move", 0.5)] * 12)
+    noise = estimate_noise(t, a, w)
+    assert len(noise.accel_correlation) <= 2 and len(noise.gyro_correlation) <= 2
+    assert np.abs(noise.accel_correlation[1:]).max(initial=0.0) < 0.1
+
+
+def test_the_noise_is_described_with_its_source_claim_and_correlation(rng):
+    t, a, w, _ = trace(rng, 200.0, [("hold", 4.0), ("move", 1.0), ("hold", 4.0)])
+    small = ((np.eye(3) * 0.002 ** 2).ravel(), (np.eye(3) * 0.0002 ** 2).ravel())
+    text = describe_noise(estimate_noise(t, a, w, covariance=small), ZuptConfig())
+    assert text.startswith("noise 0.02") and "from the white noise" in text and "claim 0.002 m/s^2" in text
+    ignored = estimate_noise(t, a, w, ZuptConfig(use_covariance=False), covariance=small)
+    assert ignored.source == NoiseSource.DATA and ignored.claimed is None
+    assert ignored.gyro_sigma == pytest.approx(0.002, rel=0.15)
+    t, a, w, _ = filtered_trace(rng, 1000.0, 40.0, [("hold", 4.0), ("move", 1.0), ("hold", 4.0)])
+    right = ((np.eye(3) * 0.02 ** 2).ravel(), (np.eye(3) * 0.002 ** 2).ravel())
+    text = describe_noise(estimate_noise(t, a, w, covariance=right), ZuptConfig())
+    assert "from the covariance)" in text and "correlated over" in text and "low-pass filter" in text
+    # a filtered IMU's claim of a fifth: its white noise cannot refute it (the filter smooths neighbours alike),
+    # the quietest windows can, and the line says what to do
+    fifth = ((np.eye(3) * 0.004 ** 2).ravel(), (np.eye(3) * 0.0004 ** 2).ravel())
+    text = describe_noise(estimate_noise(t, a, w, covariance=fifth), ZuptConfig())
+    assert "the quietest windows show up to" in text and "zupt.use_covariance: false" in text
+
+
+def test_the_mean_of_filtered_noise_varies_as_its_correlation_says(rng):
+    """A low-pass filtered IMU's hold mean varies several times more than s^2 / n: the measured correlation
+    gives that factor (the IMU gravity's std is the mean's), within the scatter of 300 means."""
+    t, a, w, _ = filtered_trace(rng, 1000.0, 40.0, [("hold", 120.0)])
+    noise = estimate_noise(t, a, w)
+    n = 400
+    means = a[: (len(a) // n) * n].reshape(-1, n, 3).mean(axis=1)
+    measured = float(np.var(means - means.mean(axis=0))) / (0.02 ** 2 / n)
+    factor = mean_variance_factor(noise.accel_correlation, n)
+    assert factor > 4.0 and factor == pytest.approx(measured, rel=0.25)
+    assert mean_variance_factor(np.ones(1), n) == 1.0

@@ -39,7 +39,9 @@ DEFAULTS = {
     "accel_fraction": _M.accel_fraction, "min_tilt": _M.min_tilt, "max_tilt": _M.max_tilt,
     "min_step": _M.min_step, "max_step": _M.max_step, "max_translation": _M.max_translation, "damping": None,
     "seed": _B.seed, "image_noise": _B.image_noise, "imu_noise": _B.imu_noise, "gyro_noise": _B.gyro_noise,
-    "imu_bias": _B.imu_bias, "gyro_bias": _B.gyro_bias, "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
+    "imu_covariance_scale": _B.imu_covariance_scale, "imu_lowpass_hz": _B.imu_lowpass_hz, "imu_bias": _B.imu_bias,
+    "gyro_bias": _B.gyro_bias,
+    "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
     "supersample": _B.supersample, "out": None, "no_progress": False,
     "imu_time_offset_ms": _B.imu_time_offset_ms, "camera_rates": None, "camera_phases_ms": None,
@@ -173,6 +175,14 @@ def register(sub):
     se.add_argument("--image-noise", type=float, help=f"pixel noise std, grey levels (default {d['image_noise']:g})")
     se.add_argument("--imu-noise", type=float, help=f"accelerometer noise std m/s^2 (default {d['imu_noise']:g})")
     se.add_argument("--gyro-noise", type=float, help=f"gyro noise std rad/s (default {d['gyro_noise']:g})")
+    se.add_argument("--imu-lowpass-hz", type=float, metavar="HZ",
+                    help="the IMU's digital low-pass filter, as MEMS IMUs have: a 2nd-order Butterworth at HZ on "
+                         "its output, signal and noise (the noise std per sample stays --imu-noise/--gyro-noise; "
+                         "its samples are correlated); below half --imu-rate (default 0: none, white noise)")
+    se.add_argument("--imu-covariance-scale", type=float, metavar="K",
+                    help="the Imu messages' covariances claim K times the true noise std, as drivers fill them: "
+                         "0 all zeros (unknown), 0.1 a noise density taken for a per-sample std, 10 a generous "
+                         f"constant (default {d['imu_covariance_scale']:g}: the truth)")
     se.add_argument("--imu-bias", type=float, help=f"accelerometer bias norm m/s^2 (default {d['imu_bias']:g})")
     se.add_argument("--gyro-bias", type=float, help=f"gyro bias norm rad/s (default {d['gyro_bias']:g})")
     se.add_argument("--imu-time-offset-ms", type=float, metavar="MS",
@@ -374,7 +384,8 @@ def bag_options(o: dict):
     )
     return BagOptions(motion=motion, seed=o["seed"], encoding=o["encoding"], jpeg_quality=o["jpeg_quality"],
                       storage=o["storage"], image_noise=o["image_noise"], imu_noise=o["imu_noise"],
-                      gyro_noise=o["gyro_noise"], imu_bias=o["imu_bias"], gyro_bias=o["gyro_bias"],
+                      gyro_noise=o["gyro_noise"], imu_covariance_scale=o["imu_covariance_scale"],
+                      imu_lowpass_hz=o["imu_lowpass_hz"], imu_bias=o["imu_bias"], gyro_bias=o["gyro_bias"],
                       imu=not o["no_imu"], damping=o["damping"], jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
                       exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],

@@ -20,6 +20,7 @@ from ..frontend.evaluation import evaluate
 from ..frontend.evaluation_report import format_report
 from ..frontend.extrinsics import NO_IMU_NOTE, ExtrinsicsCsv, hold_poses, imu_mount_warning
 from ..frontend.feeder import FeederConfig
+from ..frontend.imu_agreement import describe_check
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
 from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
@@ -27,6 +28,7 @@ from ..frontend.runner import PipelineRunner
 from ..frontend.topics import bag_image_topics
 from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
+from ..frontend.zupt import describe_noise
 from ..safeio import check_outputs
 from .argtypes import nonnegative_seconds, positive_int, seed
 from .common import add_trajectory_arguments
@@ -223,6 +225,12 @@ def run(args) -> int:
             f"add {1e3 * clock.offset_s:+.1f} ms to the IMU stamps (correlation {clock.correlation:.2f} over "
             f"{clock.frames} frames; imu_time_offset_s applied: {1e3 * cfg.imu_time_offset_s:+.1f} ms)"
             if clock else "not measurable (no move both show)"))
+        noise = runner.pipeline.zupt.noise_in_use
+        if noise is not None:
+            print(f"IMU stillness test: {describe_noise(noise, runner.pipeline.zupt.config)}")
+        refuted = describe_check(runner.pipeline.estimator.imu_check)
+        if refuted:
+            print(f"IMU gravity: {refuted}")
     if extrinsics is not None:
         cost = f", {1e3 * runner.poses_s / runner.poses_sets:.3f} ms per frame set" if runner.poses_sets else ""
         print(f"wrote {extrinsics.rows} camera poses to {args.extrinsics} "

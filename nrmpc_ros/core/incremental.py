@@ -633,6 +633,11 @@ class IncrementalSequence:
             why.append(PairAttempt(j, len(ia), len(np.unique(vj.cam[ia])), estimated=True, failure=est.info.reason))
         return _Pairing(reason=StartReason.PAIR_FAILED, tried=tuple(why))
 
+    def two_view(self, matches: Matches, method: str, seed: int):
+        """A two-view estimate with this sequence's rig model and pair options (a test on the side: nothing of
+        the sequence changes)."""
+        return estimate(self.model_rig, matches, method=method, seed=seed, options=self._pair_options)
+
     def _restart_from_last(self) -> None:
         """The newest view cannot be linked: it becomes the origin of a new sequence."""
         s = self.seq

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .drops import Drop, sorted_counts
+from .imu_agreement import describe_check
+from .zupt import NoiseSource, describe_noise
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
 
@@ -111,8 +113,19 @@ class ServiceDiagnostics:
         values = {"topic": topic, "samples": s.received[topic], "rate (Hz)": f"{self._rate(topic, now):.2f}",
                   **dropped}
         new = self._new_drops("imu", total)
+        noise = s.runner.pipeline.zupt.noise_in_use
+        if noise is not None:
+            values["stillness test"] = describe_noise(noise, s.runner.pipeline.zupt.config)
+        refuted = describe_check(s.runner.pipeline.estimator.imu_check)
+        if refuted:
+            values["gravity check"] = refuted
         if new:
             level, message = WARN, f"{new} IMU samples dropped in the last period (see dropped: *)"
+        elif refuted:
+            level, message = WARN, "the images refute the IMU's gravity (see gravity check)"
+        elif noise is not None and noise.source is NoiseSource.WHITE_NOISE:
+            level, message = WARN, ("the Imu covariances claim less noise than the samples show: the stillness "
+                                    "test uses the samples' (see stillness test)")
         elif not s.received[topic] and s.watch.first_any is not None:
             level, message = WARN, f"no IMU sample on {topic} yet while the cameras publish"
         else:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -27,7 +27,8 @@ from ..core.incremental import IncrementalSequence, NewSequence, StartReason, Vi
 from ..core.rig import Rig
 from .drops import Drop
 from .holds import Hold, RingingSource
-from .imu import ImuGravity
+from .imu import ImuGravity, ImuRefusal
+from .imu_agreement import Agreement, ImuGravityCheck
 from .linking import HoldLinker
 
 
@@ -118,6 +119,7 @@ class HoldEstimator:
         self.stats = stats
         self.require_imu = require_imu
         self.on_gravity = on_gravity
+        self.imu_check = ImuGravityCheck(sequence)  # does each hold's IMU gravity agree with the images?
         self.consumed = 0  # measured holds run so far (the intake counts those it made: the difference waits)
         self._hold_stamps: list = []  # stamp of every hold of the current sequence
         self._broken_stamps: dict = {}  # sequence number -> its holds' stamps, for the sequences a break ended
@@ -138,6 +140,7 @@ class HoldEstimator:
     def reset(self) -> None:
         self.sequence.reset()
         self.linker.reset()
+        self.imu_check.reset()
         self._hold_stamps = []
         self._broken_stamps = {}
         self._origin = None
@@ -152,6 +155,14 @@ class HoldEstimator:
                 attempt.why = Drop.HOLD_FORCED_WITHOUT_IMU.message
             return []
         g = None if imu is None else imu.gravity
+        verdict = None
+        if g is not None:
+            g, verdict = self._checked_gravity(obs, g)
+            if g is None and self.require_imu:
+                st.dropped[Drop.HOLD_FORCED_WITHOUT_IMU] += 1
+                if attempt is not None:
+                    attempt.why = Drop.HOLD_FORCED_WITHOUT_IMU.message
+                return []
         scale = self.sequence.noise_scale(ringing_noise_rad(self.rig, hold, obs.cam))
         st.penalized_holds += scale > 1.0
         number = self.sequence.number
@@ -190,9 +201,33 @@ class HoldEstimator:
             self._origin = None
         self._hold_stamps.append(hold.stamp)
         est = self._hold_estimate(out, hold, imu, obs.links, time.perf_counter() - t0, scale)
+        if g is None and est.gravity is not None and math.isfinite(est.gravity_sigma_deg):
+            self.imu_check.remember(obs.cam, obs.landmark, obs.f, est.gravity)  # the images' gravity of the hold
+        if verdict is Agreement.REFUTED and est.gravity is not None:
+            # its sequence still holds the earlier holds' IMU gravities, one of which may be the wrong one of
+            # the pair: no gravity to promise for this hold (the next test decides)
+            est = replace(est, gravity=None, gravity_sigma_deg=math.inf, cov_gravity=None)
         if attempt is not None:
             attempt.estimate = est
         return done + [est]
+
+    def _checked_gravity(self, obs, gravity) -> tuple:
+        """(the hold's IMU gravity, or None where it is not to be used, and the verdict of
+        :mod:`.imu_agreement`); refusals are counted. When the IMU's gravity turns unusable the sequence restarts
+        without the earlier holds' gravities, which are the same IMU's."""
+        usable = self.imu_check.usable
+        verdict = self.imu_check.check(obs.cam, obs.landmark, obs.f, gravity)
+        if verdict is Agreement.REFUTED:
+            self.stats.dropped[Drop.no_imu_gravity(ImuRefusal.REFUTED)] += 1
+            if usable and not self.imu_check.usable and self.sequence.num_views:
+                self.sequence.reset()  # the sequence's earlier gravities are the same IMU's: in doubt
+                self._hold_stamps, self._broken_stamps, self._origin = [], {}, None
+            return None, verdict
+        if verdict in (Agreement.UNUSABLE, Agreement.DOUBTED):
+            rule = ImuRefusal.UNUSABLE if verdict is Agreement.UNUSABLE else ImuRefusal.DOUBTED
+            self.stats.dropped[Drop.no_imu_gravity(rule)] += 1
+            return None, verdict
+        return gravity, verdict
 
     def _hold_estimate(self, v: ViewEstimate, hold: Hold, imu, links, elapsed_s: float,
                        noise_scale: float = 1.0) -> HoldEstimate:

@@ -82,6 +82,9 @@ class ImuRefusal(Enum):
     FEW_SAMPLES = "too few IMU samples in the window"
     STALE = "newest IMU sample older than the view"
     BAD_MEAN = "averaged accelerometer not usable"
+    REFUTED = "the images refute it (pair test)"
+    DOUBTED = "not testable while an earlier one stands refuted"
+    UNUSABLE = "refuted on consecutive holds: the IMU's gravity is not used (its rotation or clock)"
 
 
 @dataclass(frozen=True)

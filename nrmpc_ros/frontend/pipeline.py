@@ -42,11 +42,12 @@ from .imu import ImuBuffer, ImuConfig, ImuGravity, _vec3
 from .imu_clock import ImuClockEstimator
 from .linking import HoldLinker
 from .motion import Motion, MotionKind
+from .noise_correlation import mean_variance_factor
 from .patch_align import PatchAlignConfig
 from .ringing_watch import RingingWatch
 from .snapshot_ringing import correct_pixels, correction_rotations, predict, residual_px, uncertainty
 from .tracking import HoldThinning, KltTracker, TrackingConfig
-from .zupt import ZuptConfig, ZuptDetector
+from .zupt import ZuptConfig, ZuptDetector, describe_noise
 from .zupt import for_rig as zupt_for_rig
 
 PIPELINE_METHODS = ("auto",) + METHODS
@@ -528,9 +529,7 @@ class Pipeline:
             z = self.zupt.config
             ringing = f", the IMU's mount ringing at {z.mount_ringing_hz:.3g} Hz taken out" if z.mount_ringing_hz \
                 else ""
-            lines.append(f"  IMU stillness test: noise {max(noise.accel_sigma, z.accel_floor_m_s2):.3g} m/s^2 and "
-                         f"{max(noise.gyro_sigma, z.gyro_floor_rad_s):.3g} rad/s "
-                         f"per sample (from the {noise.source}), false-alarm probability "
+            lines.append(f"  IMU stillness test: {describe_noise(noise, z)}, false-alarm probability "
                          f"{z.significance:g} per {self.zupt.window_s:.3g} s window{ringing}")
         elif self.rig.imu is not None:
             lines.append("  no IMU samples were given: the images alone decided")
@@ -783,7 +782,11 @@ class Pipeline:
         imu, why = self.imu.gravity(t0, t1)
         if imu is None:
             self.stats.dropped[Drop.no_imu_gravity(why.rule)] += 1
-        return imu
+            return None
+        noise = self.zupt.noise_in_use  # a low-pass filtered IMU's samples share their noise: its mean varies more
+        factor = mean_variance_factor(noise.accel_correlation, imu.num_samples) if noise is not None else 1.0
+        return replace(imu, accel_mean_std=imu.accel_mean_std * math.sqrt(factor)) if factor > 1.0 \
+            else imu
 
     # ------------------------------------------------------------------ batch
     def batch(self) -> list:

@@ -68,7 +68,14 @@ sums too (the oscillation's phase is taken from the first sample's stamp).
 
 Noise: :func:`estimate_noise` takes sensor_msgs/Imu covariances when they
 are valid (``[0] == -1`` or all zeros mean unknown), read as per-sample
-variances; otherwise it estimates the noise from the data. The data estimate
+variances, each raised to the white noise the samples show (from the
+differences of paired neighbouring samples, which a smooth motion hardly
+changes) where a driver claims less; otherwise it estimates the noise from
+the data. A MEMS IMU low-pass filters its output, so neighbouring samples
+share their noise: its autocorrelation, measured from the still samples,
+turns each window's null distribution into the scaled chi-square of the
+same mean and variance (:mod:`.noise_correlation`), white noise giving back
+chi-square(6n - 2). The data estimate
 assumes the rig is still during part of the recording (more than
 ``noise_quantile`` of the time): the windowed variances of still windows
 follow s^2 chi2(k) / k, so the ``noise_quantile`` quantile of the windowed
@@ -87,6 +94,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 
@@ -95,6 +103,11 @@ from ..core.loss import MAD_TO_STD
 from ..errors import InputError
 from .imu import ImuBuffer, ImuReject
 from .mount_ringing import RINGING_PARAMETERS, ringing_moments
+from .noise_correlation import autocorrelation, per_value, spread_null, statistic_null
+
+# A covariance's noise below 1/CLAIM_REFUTED of the white noise the samples show is refuted (that estimate
+# scatters by a few percent): the source is then the white noise (the noise used is the larger either way).
+CLAIM_REFUTED = 1.25
 
 
 @dataclass
@@ -130,12 +143,23 @@ class ZuptConfig:
                                             "test takes an oscillation at it as no motion; None: the natural "
                                             "frequency of the flexible bar the rig file mounts the IMU on (none on "
                                             "the body); 0: none", lo=0.0, hi=1000.0, nullable=True)
+    use_covariance: bool = option(True, "take the noise the sensor_msgs/Imu covariances claim (raised to the "
+                                  "white noise the samples show); false: estimate it from the samples alone "
+                                  "(a driver whose covariances claim too little of a low-pass filtered IMU)")
     max_gyro_bias_rad_s: float = option(0.05, "the gyro bias estimated from the data is at most this (rad/s; MEMS "
                                         "gyros stay within a few deg/s): a steady turn is motion, not bias",
                                         lo=0.0, hi=10.0)
 
     def __post_init__(self):
         check(self, "zupt config")
+
+
+class NoiseSource(str, Enum):
+    """Where the stillness test's noise comes from."""
+
+    DATA = "data"  # the quietest windows of the samples
+    COVARIANCE = "covariance"  # the sensor_msgs/Imu covariances
+    WHITE_NOISE = "white noise"  # the samples' white noise, where it is above what the covariances claim
 
 
 @dataclass
@@ -145,10 +169,41 @@ class ImuNoise:
     accel_sigma: float  # m/s^2
     gyro_sigma: float  # rad/s
     gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) rad/s, estimated from the data
-    source: str = "data"  # "covariance" (sensor_msgs/Imu covariances) or "data" (quietest windows)
+    source: NoiseSource = NoiseSource.DATA
     accel_norm: float = math.nan  # m/s^2, |specific force| at rest; nan: no magnitude term in the test
     period_s: float = math.nan  # median sample period; nan: taken from the samples tested
     accel_norm_sigma: float = 0.0  # m/s^2, spread of the still norm across attitudes (bias, scale error)
+    claimed: tuple | None = None  # (accel, gyro) sigmas the message covariances claim; None: none given
+    white: tuple | None = None  # (accel, gyro) white noise of the samples (successive differences); None: unknown
+    # normalised autocorrelation of the accelerometer's and the gyro's noise at lags 0, 1, ... samples (a MEMS
+    # IMU's low-pass filter makes neighbouring samples alike); [1.0]: white
+    accel_correlation: np.ndarray = field(default_factory=lambda: np.ones(1))
+    gyro_correlation: np.ndarray = field(default_factory=lambda: np.ones(1))
+    quietest: tuple | None = None  # (accel, gyro) noise the quietest windows show (the "data" estimate); None: unknown
+
+
+def describe_noise(noise: ImuNoise, cfg: ZuptConfig) -> str:
+    """One line on the noise the stillness test uses: per sample, where it comes from, what the covariances
+    claimed where the samples refute it, and how far the noise of neighbouring samples correlates."""
+    used = (max(noise.accel_sigma, cfg.accel_floor_m_s2), max(noise.gyro_sigma, cfg.gyro_floor_rad_s))
+    text = f"noise {used[0]:.3g} m/s^2 and {used[1]:.3g} rad/s per sample (from the {noise.source.value}"
+    if noise.source is NoiseSource.WHITE_NOISE and noise.claimed is not None:
+        ratio = max(u / c if c > 0 else math.inf for u, c in zip(used, noise.claimed))
+        text += (f": the Imu messages' covariances claim {noise.claimed[0]:.3g} m/s^2 and {noise.claimed[1]:.3g} "
+                 f"rad/s, up to {ratio:.3g}x less than the samples show; tested with the claim, still windows read "
+                 f"as motion")
+    elif noise.source is NoiseSource.COVARIANCE and noise.quietest is not None:
+        ratio = max(q / u for q, u in zip(noise.quietest, used))
+        if ratio > CLAIM_REFUTED:  # smooth motion or correlated noise: the data cannot tell which
+            text += (f"; the quietest windows show up to {ratio:.3g}x more: if the rig held still at times, the "
+                     f"covariances claim too little (zupt.use_covariance: false takes the samples' noise)")
+    text += ")"
+    lags = max(len(noise.accel_correlation), len(noise.gyro_correlation)) - 1
+    if lags > 0:
+        span = f" ({1e3 * lags * noise.period_s:.3g} ms)" if math.isfinite(noise.period_s) else ""
+        text += (f"; neighbouring samples' noise correlated over {lags} samples{span}, as an IMU's low-pass filter "
+                 f"makes it: taken into the test")
+    return text
 
 
 def _valid_samples(t, accel, gyro, source: str):
@@ -264,12 +319,6 @@ def _window_moments(x, t, i0, i1, shift, cfg: ZuptConfig):
     return _moments(x, i0, i1, shift), 0
 
 
-def _per_dof(fn, dof: np.ndarray) -> np.ndarray:
-    """fn(dof) evaluated once per distinct number of degrees of freedom."""
-    u, inv = np.unique(dof, return_inverse=True)
-    return fn(u)[inv]
-
-
 def _sigma_from_covariance(cov, source: str, name: str) -> float | None:
     """sqrt of the mean diagonal of a row-major 3x3 covariance; None when it says 'unknown'."""
     if cov is None:
@@ -291,9 +340,11 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
 
     ``covariance`` is None or (linear_acceleration_covariance, angular_velocity_covariance)
     as in sensor_msgs/Imu (9 numbers each, m^2/s^4 and rad^2/s^2). When both are
-    valid the sigmas come from them (source "covariance"); otherwise from the
-    quietest windows of the data (source "data"), which needs ``cfg.noise_min_s``
-    of samples. The gyro bias and still norm always come from the data.
+    valid the sigmas come from them (source "covariance"), each raised to the white noise the samples show where
+    that is larger (source "white noise": a driver's covariance is a claim, often a datasheet's noise density
+    taken for a per-sample std, and a test with too little noise sees every still window move); otherwise from
+    the quietest windows of the data (source "data"), which needs ``cfg.noise_min_s`` of samples. The gyro bias
+    and still norm always come from the data.
     Raises :class:`InputError` naming ``source`` when there is too little data.
     """
     cfg = cfg or ZuptConfig()
@@ -301,7 +352,7 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     cov_a, cov_w = covariance if covariance is not None else (None, None)
     s_a = _sigma_from_covariance(cov_a, source, "linear_acceleration")
     s_w = _sigma_from_covariance(cov_w, source, "angular_velocity")
-    from_cov = s_a is not None and s_w is not None
+    from_cov = cfg.use_covariance and s_a is not None and s_w is not None
     span = float(t[-1] - t[0]) if len(t) else 0.0
     if len(t) < cfg.min_window_samples or (not from_cov and span < cfg.noise_min_s):
         need = (f"{cfg.min_window_samples} samples" if from_cov
@@ -316,39 +367,125 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
                                  f"{cfg.gap_periods:g} sample periods of {period:.4f} s): cannot estimate the noise")
     (mean_w, ssw, _), extra = _window_moments(w, t, i0, i1, np.median(w, axis=0), cfg)
     (mean_a, ssa, _), _ = _window_moments(a, t, i0, i1, np.median(a, axis=0), cfg)
-    q = cfg.noise_quantile
-    from scipy.special import gammaincinv  # a chi-square quantile; imported where used (0.3-0.5 s)
-    chi_q = _per_dof(lambda k: 2.0 * gammaincinv(0.5 * k, q), 3 * (n[ok] - 1 - extra))  # chi2.ppf(q, k)
-    rw, ra = ssw[ok] / chi_q, ssa[ok] / chi_q  # each an unbiased s^2 at the q quantile of still windows
-    var_w, var_a = float(np.quantile(rw, q)), float(np.quantile(ra, q))
-    score = rw / max(var_w, cfg.gyro_floor_rad_s ** 2) + ra / max(var_a, cfg.accel_floor_m_s2 ** 2)
-    quiet = score <= np.quantile(score, q)
+    white_null = (np.ones(1), np.ones(1))
+    var_a, var_w, quiet = _quantile_variances(ssa[ok], ssw[ok], n[ok], extra, white_null, cfg)
     bias = np.median(mean_w[ok][quiet], axis=0)
     size = float(np.linalg.norm(bias))
     if size > cfg.max_gyro_bias_rad_s:  # a rig turning steadily the whole time is moving, whatever its rate
         bias = bias * (cfg.max_gyro_bias_rad_s / size)
     norm = float(np.median(np.linalg.norm(mean_a[ok][quiet], axis=1)))
-    sa, sw = (s_a, s_w) if from_cov else (math.sqrt(var_a), math.sqrt(var_w))
-    spread = _norm_spread(t, w - bias, mean_a, ssa, i0, i1, ok, sa, sw, cfg)
-    return ImuNoise(sa, sw, bias, "covariance" if from_cov else "data", norm, period, spread)
+    white = _white_noise(t, a, w, i0, i1, cfg)
+
+    def noise_of(var_a, var_w, correlation):
+        if from_cov:
+            sa, sw = max(s_a, white[0]), max(s_w, white[1])
+            refuted = sa > CLAIM_REFUTED * s_a or sw > CLAIM_REFUTED * s_w
+            src = NoiseSource.WHITE_NOISE if refuted else NoiseSource.COVARIANCE
+        else:
+            sa, sw = (math.sqrt(v) if v > 0 else 0.0 for v in (var_a, var_w))  # nan: a degenerate spread
+            src = NoiseSource.DATA
+        # below its floor a sensor's samples hold no noise to correlate (a simulated one): the floor is white
+        rho_a, rho_w = (rho if sigma >= floor else white_null[0] for rho, sigma, floor in
+                        zip(correlation, (sa, sw), (cfg.accel_floor_m_s2, cfg.gyro_floor_rad_s)))
+        quietest = tuple(math.sqrt(v) if v > 0 else 0.0 for v in (var_a, var_w))
+        noise = ImuNoise(sa, sw, bias, src, norm, period, 0.0, (s_a, s_w) if from_cov else None, white,
+                         rho_a, rho_w, quietest)
+        return dataclasses.replace(noise, accel_norm_sigma=_norm_spread(t, w - bias, mean_a, ssa, i0, i1, ok,
+                                                                        noise, cfg))
+
+    # How the noise of neighbouring samples correlates (a MEMS IMU's low-pass filter) comes first from the
+    # quietest windows' samples, then from every sample the test with it calls still (the quietest windows
+    # alone are biased towards smooth noise); with it the windows' spreads follow another, wider distribution,
+    # so the variances are read again from their quantile. On a ringing mount the samples' correlation is the
+    # ringing's, which the windows fit out: the noise is taken as white there.
+    if extra:
+        return noise_of(var_a, var_w, white_null)
+    cover = np.zeros(len(t) + 1, dtype=np.int64)
+    np.add.at(cover, i0[ok][quiet], 1)
+    np.add.at(cover, i1[ok][quiet], -1)
+    cover = np.cumsum(cover[:-1]) > 0
+    lags = int(np.max(n[ok]))
+    # a sensor whose samples show less than its floor holds no noise to correlate (a simulated one): white
+    noisy = (var_a >= cfg.accel_floor_m_s2 ** 2, var_w >= cfg.gyro_floor_rad_s ** 2)
+
+    def correlation_of(mask):
+        return tuple(autocorrelation(x, mask, lags) if keep else white_null[0] for x, keep in zip((a, w), noisy))
+
+    correlation = correlation_of(cover)
+    if len(correlation[0]) == len(correlation[1]) == 1:
+        return noise_of(var_a, var_w, white_null)
+    var_a, var_w, _ = _quantile_variances(ssa[ok], ssw[ok], n[ok], extra, correlation, cfg)
+    noise = noise_of(var_a, var_w, correlation)
+    still = _statistic(t, a, w, noise, cfg)[0] < 1.0
+    if still.sum() <= cover.sum():
+        return noise
+    correlation = correlation_of(still)
+    var_a, var_w, _ = _quantile_variances(ssa[ok], ssw[ok], n[ok], extra, correlation, cfg)
+    return noise_of(var_a, var_w, correlation)
 
 
-def _norm_spread(t, w_unbiased, mean_a, ssa, i0, i1, ok, s_a: float, s_w: float, cfg: ZuptConfig) -> float:
+def _quantile_variances(ssa, ssw, n, extra: int, correlation, cfg: ZuptConfig):
+    """(accelerometer variance, gyro variance, the quietest windows) from the windows' sums of squares about
+    their fit: each sum over its null distribution's ``noise_quantile`` quantile is an unbiased s^2 at that
+    quantile of still windows (:func:`spread_null`); the quietest are those of both sensors' lowest scores."""
+    from scipy.special import gammaincinv  # a chi-square quantile; imported where used (0.3-0.5 s)
+    q = cfg.noise_quantile
+    out = []
+    for ss, rho in ((ssa, correlation[0]), (ssw, correlation[1])):
+        c, nu = spread_null(n, extra, rho)
+        r = ss / (c * per_value(lambda k: 2.0 * gammaincinv(0.5 * k, q), nu))  # chi2.ppf(q, nu)
+        out.append((r, float(np.quantile(r, q))))
+    (ra, var_a), (rw, var_w) = out
+    score = rw / max(var_w, cfg.gyro_floor_rad_s ** 2) + ra / max(var_a, cfg.accel_floor_m_s2 ** 2)
+    return var_a, var_w, score <= np.quantile(score, q)
+
+
+def _white_noise(t, a, w, i0, i1, cfg: ZuptConfig) -> tuple:
+    """(accel, gyro) per-sample white noise from the differences of neighbouring samples: a smooth motion (a
+    move, a steady turn) barely changes from one sample to the next, so unlike the samples' own spread this
+    holds where the rig is never still. The samples are paired (0 with 1, 2 with 3, ...), so the differences
+    are independent; per window their mean (a steady change of rate or force) is taken out, and on a ringing
+    mount their ringing (an oscillation at the same frequency) with it; the sum of squares about that fit is
+    2 s^2 chi2(m), m its degrees of freedom over the 3 axes, and the ``noise_quantile`` quantile of
+    S / (2 chi2.ppf(q, m)) is s^2, as in :func:`estimate_noise`. 0 where no window holds enough pairs."""
+    n = len(t) // 2
+    if n < 2:
+        return 0.0, 0.0
+    mid = 0.5 * (t[0:2 * n:2] + t[1:2 * n:2])
+    p0, p1 = (i0 + 1) // 2, np.maximum(i1 // 2, (i0 + 1) // 2)  # the pairs inside each window
+    (_, ss_w, _), extra = _window_moments(w[1:2 * n:2] - w[0:2 * n:2], mid, p0, p1, np.zeros(3), cfg)
+    (_, ss_a, _), _ = _window_moments(a[1:2 * n:2] - a[0:2 * n:2], mid, p0, p1, np.zeros(3), cfg)
+    m = 3 * (p1 - p0 - 1 - extra)
+    good = m >= 6
+    if not good.any():
+        return 0.0, 0.0
+    from scipy.special import gammaincinv  # a chi-square quantile; imported where used (0.3-0.5 s)
+    q = cfg.noise_quantile
+    scale = 0.5 / per_value(lambda k: 2.0 * gammaincinv(0.5 * k, q), m[good])
+    return (math.sqrt(float(np.quantile(ss_a[good] * scale, q))),
+            math.sqrt(float(np.quantile(ss_w[good] * scale, q))))
+
+
+def _norm_spread(t, w_unbiased, mean_a, ssa, i0, i1, ok, noise: ImuNoise, cfg: ZuptConfig) -> float:
     """Spread of the still norm across attitudes (m/s^2): the robust standard deviation (1.4826 MAD) of the
     window-mean norms of the windows whose accelerometer spread and angular rates pass the test, less their
     noise, never below ``accel_norm_floor_m_s2``."""
-    s_w, s_a = max(s_w, cfg.gyro_floor_rad_s), max(s_a, cfg.accel_floor_m_s2)
+    s_w, s_a = max(noise.gyro_sigma, cfg.gyro_floor_rad_s), max(noise.accel_sigma, cfg.accel_floor_m_s2)
     (_, _, ssw), extra = _window_moments(w_unbiased, t, i0, i1, np.zeros(3), cfg)
-    n = i1 - i0
+    n = np.maximum(i1 - i0, 2)
     stat = ssw / s_w ** 2 + ssa / s_a ** 2
     from scipy.special import chdtri  # a chi-square quantile; imported where used (0.3-0.5 s)
-    dof = np.maximum(6 * n - 3 - 6 * extra, 1)
-    passed = ok & (stat < _per_dof(lambda k: chdtri(k, cfg.significance), dof))
+    passed = ok.copy()
+    rho = (noise.accel_correlation, noise.gyro_correlation)
+    if ok.any():
+        c, nu, _ = statistic_null(n[ok], extra, *rho, with_norm=False)
+        passed[ok] = stat[ok] < c * per_value(lambda k: chdtri(k, cfg.significance), nu)
     if passed.sum() < 2:
         return cfg.accel_norm_floor_m_s2
     norms = np.linalg.norm(mean_a[passed], axis=1)
     robust = MAD_TO_STD * float(np.median(np.abs(norms - np.median(norms))))
-    excess = robust ** 2 - float(np.median(s_a ** 2 / n[passed]))
+    _, _, mean_factor = statistic_null(n[passed], extra, *rho, with_norm=False)
+    excess = robust ** 2 - float(np.median(s_a ** 2 * mean_factor))
     return max(math.sqrt(max(excess, 0.0)), cfg.accel_norm_floor_m_s2)
 
 
@@ -363,16 +500,18 @@ def _statistic(t, a, w, noise: ImuNoise, cfg: ZuptConfig):
     (_, _, ssw), extra = _window_moments(w, t, i0, i1, bias, cfg)
     (mean_a, ssa, _), _ = _window_moments(a, t, i0, i1, np.median(a, axis=0) if len(a) else np.zeros(3), cfg)
     stat = ssw / s_w ** 2 + ssa / s_a ** 2
-    dof = 6 * n - 3 - 6 * extra
-    if math.isfinite(noise.accel_norm):
-        spread = max(float(noise.accel_norm_sigma), cfg.accel_norm_floor_m_s2)
-        stat = stat + (np.linalg.norm(mean_a, axis=1) - noise.accel_norm) ** 2 / (s_a ** 2 / n + spread ** 2)
-        dof = dof + 1
     ok = n >= _min_samples(cfg)
     out = np.full(len(t), np.nan)
     if ok.any():
+        with_norm = math.isfinite(noise.accel_norm)
+        c, nu, mean_factor = statistic_null(n[ok], extra, noise.accel_correlation, noise.gyro_correlation, with_norm)
+        stat = stat[ok]
+        if with_norm:
+            spread = max(float(noise.accel_norm_sigma), cfg.accel_norm_floor_m_s2)
+            stat = stat + (np.linalg.norm(mean_a[ok], axis=1) - noise.accel_norm) ** 2 / (
+                s_a ** 2 * mean_factor + spread ** 2)
         from scipy.special import chdtri  # a chi-square quantile; imported where used (0.3-0.5 s)
-        out[ok] = stat[ok] / _per_dof(lambda k: chdtri(k, cfg.significance), dof[ok])  # chi2.isf
+        out[ok] = stat / (c * per_value(lambda k: chdtri(k, cfg.significance), nu))  # c chi2.isf(significance, nu)
     return out, brk
 
 
@@ -474,6 +613,11 @@ class ZuptDetector:
                 self._covariance = covariance
                 self._noise = None  # estimated again, now from the covariances
         return self.buffer.add(t, accel, gyro)
+
+    @property
+    def noise_in_use(self) -> ImuNoise | None:
+        """The noise of the latest estimate, as it is (no new estimate: for reports from another thread)."""
+        return self._noise
 
     @property
     def noise(self) -> ImuNoise | None:
@@ -598,5 +742,5 @@ class ZuptDetector:
         return None if run is None else run[0]
 
 
-__all__ = ["ImuNoise", "ZuptConfig", "ZuptDetector", "estimate_noise", "for_rig", "still_intervals", "still_mask",
-           "still_statistic"]
+__all__ = ["ImuNoise", "NoiseSource", "ZuptConfig", "ZuptDetector", "describe_noise", "estimate_noise", "for_rig",
+           "still_intervals", "still_mask", "still_statistic"]

@@ -87,6 +87,10 @@ class BagOptions:
     image_noise: float = 1.0  # grey levels, std of Gaussian pixel noise
     imu_noise: float = 0.02  # m/s^2, accelerometer white noise std per sample
     gyro_noise: float = 0.002  # rad/s
+    imu_lowpass_hz: float = 0.0  # the IMU's digital low-pass filter (a MEMS DLPF): a 2nd-order Butterworth at this
+    # cut-off on its output (signal and noise; the output noise std stays imu_noise/gyro_noise); 0: none, white
+    imu_covariance_scale: float = 1.0  # the Imu messages' covariances say this times the true noise std (a driver's
+    # claim: 1 true, 0 all zeros = unknown, 0.1 a noise density taken for a per-sample std, 10 a generous constant)
     imu_bias: float = 0.05  # m/s^2, norm of the constant accelerometer bias (random direction)
     gyro_bias: float = 0.002  # rad/s, norm of the constant gyro bias
     imu: bool = True  # write the IMU topic
@@ -114,7 +118,8 @@ class BagOptions:
             raise OptionError(_OWNER, "jpeg_quality", f"must be an integer in [0, 100], got {self.jpeg_quality!r}")
         if not (isinstance(self.supersample, numbers.Integral) and 1 <= self.supersample <= 8):
             raise OptionError(_OWNER, "supersample", f"must be an integer in [1, 8], got {self.supersample!r}")
-        for name in ("image_noise", "imu_noise", "gyro_noise", "imu_bias", "gyro_bias", "jitter_ms"):
+        for name in ("image_noise", "imu_noise", "gyro_noise", "imu_bias", "gyro_bias", "jitter_ms",
+                     "imu_covariance_scale", "imu_lowpass_hz"):
             value = getattr(self, name)
             if not (_real(value) and value >= 0):
                 raise OptionError(_OWNER, name, f"must be a finite number >= 0, got {value!r}")
@@ -136,6 +141,9 @@ class BagOptions:
         if self.damping is not None:
             check_damping(self.damping, _OWNER)
         self.motion.validate()
+        if self.imu_lowpass_hz and not self.imu_lowpass_hz < 0.5 * self.motion.imu_rate:
+            raise OptionError(_OWNER, "imu_lowpass_hz", f"must be 0 (none) or below half the IMU rate "
+                              f"({0.5 * self.motion.imu_rate:g} Hz), got {self.imu_lowpass_hz!r}")
         rate = max(self.motion.camera_rates or (self.motion.rate,))
         period_ms = 1e3 / rate
         if 2 * self.jitter_ms >= period_ms:
@@ -191,9 +199,27 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
     gyro = np.einsum("nij,nj->ni", to_imu, w_body)
     accel_bias = opts.imu_bias * normalize(rng.normal(size=3))
     gyro_bias = opts.gyro_bias * normalize(rng.normal(size=3))
-    accel = accel + accel_bias + rng.normal(scale=opts.imu_noise, size=accel.shape)
-    gyro = gyro + gyro_bias + rng.normal(scale=opts.gyro_noise, size=gyro.shape)
-    return accel, gyro
+    accel_noise = rng.normal(scale=opts.imu_noise, size=accel.shape)
+    gyro_noise = rng.normal(scale=opts.gyro_noise, size=gyro.shape)
+    if opts.imu_lowpass_hz:
+        accel, gyro = (_lowpass(x, opts.imu_lowpass_hz, opts.motion.imu_rate) for x in (accel, gyro))
+        accel_noise, gyro_noise = (_lowpass(x, opts.imu_lowpass_hz, opts.motion.imu_rate, unit_noise=True)
+                                   for x in (accel_noise, gyro_noise))
+    return accel + accel_bias + accel_noise, gyro + gyro_bias + gyro_noise
+
+
+def _lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float, unit_noise: bool = False) -> np.ndarray:
+    """x (N, 3) through a MEMS IMU's digital low-pass filter: a causal 2nd-order Butterworth at ``cutoff_hz``
+    sampled at ``rate_hz``, started at rest on the first sample (it delays the signal as the sensor does). With
+    ``unit_noise`` scaled so that white noise keeps its std (the filter's noise gain divided out)."""
+    from scipy.signal import butter, sosfilt, sosfilt_zi  # imported where used
+
+    sos = butter(2, cutoff_hz, fs=rate_hz, output="sos")
+    y = sosfilt(sos, x, axis=0, zi=sosfilt_zi(sos)[:, :, None] * x[0][None, None, :])[0]
+    if unit_noise:
+        impulse = sosfilt(sos, np.eye(1, 4096).ravel())
+        y = y / math.sqrt(float(np.sum(impulse ** 2)))
+    return y
 
 
 def _check_inside(rig: Rig, traj: Trajectory, scene, loads: CameraLoads) -> None:
@@ -300,6 +326,7 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     topics = [(image_topic_for(bag_topic(c.image_topic), opts.encoding), bag_topic(c.info_topic)) for c in rig.cameras]
     quality = {"jpeg_quality": opts.jpeg_quality} if opts.encoding in COMPRESSED_FORMATS else {}
     max_jitter_ns = int(np.max(np.abs(jitter_ns), initial=0))
+    claimed = (opts.imu_covariance_scale * opts.imu_noise, opts.imu_covariance_scale * opts.gyro_noise)
     cache = _StillCache(M)
     j = 0  # next IMU sample
     pending: list = []  # heap of (bag time, order, topic, message): written in bag-time order, ties as pushed
@@ -321,8 +348,7 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                 # IMU samples stamped up to this trigger's latest camera stamp (IMU stamps carry the clock offset)
                 while j < len(imu_t) and imu_t[j] + imu_offset_ns <= t + max_jitter_ns:
                     ts = int(imu_t[j]) + imu_offset_ns
-                    push(ts, imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], opts.imu_noise,
-                                                    opts.gyro_noise))
+                    push(ts, imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
                     j += 1
                 Rs, cs = renderer.camera_poses(R[n], p[n], cam_loads[n])
                 key = view if view < 0 or not creeping[view] else -1  # a creeping body is re-rendered every time
@@ -355,7 +381,7 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                 bar.update(1)
             while j < len(imu_t):
                 ts = int(imu_t[j]) + imu_offset_ns
-                push(ts, imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], opts.imu_noise, opts.gyro_noise))
+                push(ts, imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
                 j += 1
             flush(np.iinfo(np.int64).max)
             bar.close()

@@ -1,0 +1,157 @@
+"""Does a hold's IMU gravity agree with the images? A pair test before the gravity enters the joint estimate.
+
+The IMU's gravity of two holds and the images between them must tell one motion: with both gravities fixed,
+the two-view estimate (``4pt-bending``) explains the correspondences about as well as the images alone do
+(``6pt-bending``, gravity free). A misconfigured IMU breaks that for every hold: a rig file's IMU rotation that
+is wrong (axes of another convention), or an IMU clock seconds off the cameras' (each hold then gets the
+accelerometer of another attitude). The joint estimate cannot see it, since it trusts the gravities to their
+std: with them its poses are tens of degrees off, its gravity the IMU's, its std that of a good IMU
+(docs/PIPELINE.md, "IMU gravity that the images refute").
+
+The test runs on the correspondences (same camera, same landmark) between the hold and the reference: the
+latest hold with a gravity to trust, its accepted IMU gravity or, without one, the gravity the images gave it.
+When the gravity-bound estimate explains at least ``AGREEING_SHARE`` of them, the gravity agrees (the usual
+case: one ``4pt-bending`` solve). Otherwise the images alone are asked; when they explain more than
+``REFUTING_RATIO`` times as many (and at least the pair minimum), the images refute the gravity: the hold goes on
+without it. After a refutation a gravity that cannot be tested (too few shared landmarks) is not used either,
+until one agrees again. ``UNUSABLE_AFTER`` refutations in a row are no accident of one hold: the IMU's gravity is
+not used again (until a reset), and the report says how to fix the configuration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from ..core.incremental import IncrementalSequence
+from ..core.matches import Matches
+
+AGREEING_SHARE = 0.5
+"""A gravity-bound pair estimate explaining at least this share of the correspondences needs no second look: a
+wrong gravity leaves a few percent of them (the rest cannot be placed), a right one most."""
+
+REFUTING_RATIO = 2.0
+"""The images refute a pair of gravities when, without them, they explain more than this many times the
+correspondences the gravity-bound estimate explains."""
+
+UNUSABLE_AFTER = 2
+"""Refutations in a row after which the IMU's gravity is not used again: a configuration error, not a hold."""
+
+MIN_CORRESPONDENCES = 12
+"""Fewer correspondences with the reference hold leave the test undecided (the gravity is used)."""
+
+
+class Agreement(Enum):
+    """The outcome of the pair test of a hold's IMU gravity; the value is the phrase shown."""
+
+    AGREES = "agrees with the images"
+    UNTESTED = "not tested (no earlier hold with a gravity shares enough landmarks)"
+    DOUBTED = "not tested since the images refuted an earlier one"
+    REFUTED = "refuted by the images"
+    UNUSABLE = "not used: the images refuted the IMU's gravity on consecutive holds"
+
+
+@dataclass(frozen=True)
+class PairEvidence:
+    """The correspondences of the latest refuting test and how many each estimate explained."""
+
+    correspondences: int
+    with_gravity: int
+    without_gravity: int
+
+
+class ImuGravityCheck:
+    """The pair test of each hold's IMU gravity (see the module docstring), with what it keeps between holds:
+    the reference hold (its observations and gravity), the refutations in a row, and whether the IMU's gravity
+    is still used. ``tested``, ``refuted`` count holds; ``evidence`` is the latest refutation's."""
+
+    def __init__(self, sequence: IncrementalSequence, seed: int = 0):
+        self.sequence = sequence
+        self.seed = seed
+        self.tested = 0
+        self.refuted = 0
+        self.usable = True
+        self.evidence: PairEvidence | None = None
+        self._reference = None  # (keys, f, cam, gravity) of the latest hold with a gravity to trust
+        self._in_row = 0
+        self._doubt = False  # an earlier gravity was refuted and none has agreed since
+
+    def reset(self) -> None:
+        """Forget the reference hold and trust the IMU again (a reset on request: the user may have fixed it)."""
+        self._reference = None
+        self._in_row = 0
+        self._doubt = False
+        self.usable = True
+
+    def remember(self, cam: np.ndarray, landmark: np.ndarray, f: np.ndarray, gravity: np.ndarray) -> None:
+        """A hold whose gravity came from the images (its IMU gravity absent or not used): the next reference."""
+        self._reference = self._observations(cam, landmark, f, gravity)
+
+    @staticmethod
+    def _observations(cam, landmark, f, gravity) -> tuple:
+        keys = np.asarray(cam, np.int64) * (1 << 40) + np.asarray(landmark, np.int64)
+        return keys, np.asarray(f, float), np.asarray(cam, np.int64), np.asarray(gravity, float)
+
+    def check(self, cam: np.ndarray, landmark: np.ndarray, f: np.ndarray, gravity: np.ndarray) -> Agreement:
+        """The verdict on ``gravity`` (body frame) of the hold observed as (camera, landmark id, bearing)."""
+        if not self.usable:
+            return Agreement.UNUSABLE
+        current = self._observations(cam, landmark, f, gravity)
+        verdict = self._pair_test(current)
+        if verdict is Agreement.REFUTED:
+            self.refuted += 1
+            self._in_row += 1
+            self._doubt = True
+            if self._in_row >= UNUSABLE_AFTER:
+                self.usable = False
+            return verdict
+        if verdict is Agreement.UNTESTED and self._doubt:
+            return Agreement.DOUBTED
+        if verdict is Agreement.AGREES:
+            self._in_row, self._doubt = 0, False
+        self._reference = current
+        return verdict
+
+    def _pair_test(self, current) -> Agreement:
+        if self._reference is None:
+            return Agreement.UNTESTED
+        keys_a, f_a, cam_a, g_a = self._reference
+        keys_b, f_b, _, g_b = current
+        shared, ia, ib = np.intersect1d(keys_a, keys_b, assume_unique=False, return_indices=True)
+        n = len(shared)
+        if n < MIN_CORRESPONDENCES:
+            return Agreement.UNTESTED
+        self.tested += 1
+        seed = self.seed + self.tested
+        bound = self.sequence.two_view(Matches(f_a[ia], f_b[ib], cam_a[ia], g_a, g_b, source="IMU gravity test"),
+                                       "4pt-bending", seed)
+        with_g = bound.num_inliers if bound.success else 0
+        if with_g >= AGREEING_SHARE * n:
+            return Agreement.AGREES
+        free = self.sequence.two_view(Matches(f_a[ia], f_b[ib], cam_a[ia], source="IMU gravity test"),
+                                      "6pt-bending", seed)
+        without = free.num_inliers if free.success else 0
+        if without > REFUTING_RATIO * with_g and without >= MIN_CORRESPONDENCES:
+            self.evidence = PairEvidence(n, with_g, without)
+            return Agreement.REFUTED
+        return Agreement.AGREES
+
+
+def describe_check(check: ImuGravityCheck) -> str | None:
+    """One line on the pair tests where the images refuted an IMU gravity (None where none was): how often, the
+    latest evidence, and what to check."""
+    if not check.refuted:
+        return None
+    e = check.evidence
+    evidence = (f"; the latest pair: of {e.correspondences} correspondences {e.with_gravity} fit the IMU's "
+                f"gravities, {e.without_gravity} the images alone") if e is not None else ""
+    state = "not used since (consecutive refutations)" if not check.usable else "left out of those holds"
+    return (f"the images refuted the IMU's gravity on {check.refuted} of {check.tested} tested holds{evidence}; "
+            f"the IMU's gravity is {state}, and the sequences holding a refuted one publish no gravity: check the "
+            f"rig file's imu rotation and the IMU's clock against the cameras' (imu_time_offset_s)")
+
+
+__all__ = ["AGREEING_SHARE", "Agreement", "ImuGravityCheck", "MIN_CORRESPONDENCES", "PairEvidence",
+           "REFUTING_RATIO", "UNUSABLE_AFTER", "describe_check"]
