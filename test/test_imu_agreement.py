@@ -64,3 +64,35 @@ def test_a_right_imu_is_never_refuted(recordings_dir, rig_name):
     assert check.tested >= 1 and check.refuted == 0 and check.usable
     assert describe_check(check) is None
     assert all(e.gravity is not None for e in ests)
+
+
+def test_an_imu_clock_seconds_off_is_refuted_and_measured(tmp_path, capsys):
+    """Holds recorded with the IMU's stamps 9 s late: each hold averages another moment's accelerometer, and the
+    gyro's turns between holds are other moves. The images refute its gravity, the poses are the images' own
+    (trusted, the IMU's gravities and turns put them tens of degrees off), and the summary measures the clock
+    from the rotations between holds."""
+    from recordings import rig as recordings_rig
+
+    from nrmpc_ros.cli.main import main
+    from nrmpc_ros.core import save_rig
+    from nrmpc_ros.core.so3 import rotation_angle
+    from nrmpc_ros.render.bagmaker import BagOptions, make_bag
+    from nrmpc_ros.render.sequence import MotionOptions
+
+    rig = recordings_rig("cross4")
+    path, rig_file = tmp_path / "late", tmp_path / "rig.yaml"
+    save_rig(rig, rig_file)
+    make_bag(rig, path, BagOptions(motion=MotionOptions(views=7, hold_seconds=2.5, min_move_seconds=1.0), seed=3,
+                                   supersample=1, imu_time_offset_ms=9000.0), progress=False)
+    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "the images refuted the IMU's gravity" in text
+    line = next(ln for ln in text.splitlines() if "rotations between holds" in ln)
+    late, half = (float(x) for x in line.split("stamps are ")[1].split(" s off")[0].split(" s +- "))
+    assert abs(late - 9.0) <= half < 0.5
+    pipe, ests, ref = replay(path, rig_file)
+    assert len(ests) >= 6
+    for e in ests:
+        i, j = nearest_stamp(ref.pose_t, e.ref_stamp), nearest_stamp(ref.pose_t, e.stamp)
+        truth = ref.pose_R[i].T @ ref.pose_R[j]
+        assert math.degrees(rotation_angle(truth.T @ e.R)) < 0.5

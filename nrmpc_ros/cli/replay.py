@@ -21,6 +21,7 @@ from ..frontend.evaluation_report import format_report
 from ..frontend.extrinsics import NO_IMU_NOTE, ExtrinsicsCsv, hold_poses, imu_mount_warning
 from ..frontend.feeder import FeederConfig
 from ..frontend.imu_agreement import describe_check
+from ..frontend.imu_clock_holds import offset_from_turns
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
 from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
@@ -156,7 +157,7 @@ def run(args) -> int:
             runner.pipeline.hold_log = []  # every closed hold, for the report
             runner.pipeline.sequence.keep_history = bool(getattr(args, "calibrate_bars", False))
         replay = BagReplay(bag, rig, runner, imu_topic, input_config(args), warn, image_topics)
-        rows = []
+        rows, spans = [], {}
         with CsvWriter(args.out, "--out") as writer, extrinsics or nullcontext(), causal or nullcontext():
             # --out and the others appear only on success
             for estimates in replay.run(progress=not args.no_progress):
@@ -164,6 +165,7 @@ def run(args) -> int:
                     row = row_from_estimate(est)
                     writer.write(row)
                     rows.append(row)
+                    spans[est.stamp] = (est.hold.settled_start, est.hold.settled_end)
                     if by_hold:
                         extrinsics.write(hold_poses(rig, est.stamp, est.gravity))
             if extrinsics is not None and not by_hold and runner.pipeline.extrinsics is not None:
@@ -228,9 +230,22 @@ def run(args) -> int:
         noise = runner.pipeline.zupt.noise_in_use
         if noise is not None:
             print(f"IMU stillness test: {describe_noise(noise, runner.pipeline.zupt.config)}")
-        refuted = describe_check(runner.pipeline.estimator.imu_check)
+        check = runner.pipeline.estimator.imu_check
+        refuted = describe_check(check)
         if refuted:
             print(f"IMU gravity: {refuted}")
+        if ref.has_imu and rig.imu is not None:
+            # the rotations between holds, gyro against images: an offset of seconds, where no move is on camera
+            # (the images' own rotations only, where the IMU's gravity was refuted: the others lean on it)
+            pairs = [(spans.get(r.ref_stamp, (r.ref_stamp, r.ref_stamp)), spans[r.stamp], r.R) for r in rows
+                     if r.stamp in spans and (not check.refuted or r.method != "4pt-bending")]
+            found = offset_from_turns(ref.imu_t, ref.imu_w, rig.imu, pairs)
+            if found is not None and abs(found.offset_s) > found.half_width_s:
+                print(f"IMU clock against the cameras (rotations between holds): the IMU's stamps are "
+                      f"{-found.offset_s:+.2f} s +- {found.half_width_s:.2f} s off the cameras' ({found.pairs} pairs "
+                      f"of holds: the gyro's rotations {found.as_stamped_deg:.1f} deg off the images' as stamped, "
+                      f"{found.residual_deg:.2f} deg shifted so); each hold's IMU samples are another moment's: fix "
+                      f"the IMU's clock or its stamps")
     if extrinsics is not None:
         cost = f", {1e3 * runner.poses_s / runner.poses_sets:.3f} ms per frame set" if runner.poses_sets else ""
         print(f"wrote {extrinsics.rows} camera poses to {args.extrinsics} "

@@ -108,6 +108,7 @@ class Drop(Enum):
     NO_IMU_GRAVITY_STALE = f"hold without IMU gravity: {ImuRefusal.STALE.value}", Stage.PIPELINE
     NO_IMU_GRAVITY_BAD_MEAN = f"hold without IMU gravity: {ImuRefusal.BAD_MEAN.value}", Stage.PIPELINE
     NO_IMU_GRAVITY_REFUTED = f"hold without IMU gravity: {ImuRefusal.REFUTED.value}", Stage.PIPELINE
+    NO_IMU_GRAVITY_PENDING = f"hold without IMU gravity: {ImuRefusal.PENDING.value}", Stage.PIPELINE
     NO_IMU_GRAVITY_DOUBTED = f"hold without IMU gravity: {ImuRefusal.DOUBTED.value}", Stage.PIPELINE
     NO_IMU_GRAVITY_UNUSABLE = f"hold without IMU gravity: {ImuRefusal.UNUSABLE.value}", Stage.PIPELINE
     NEW_SEQUENCE_NO_SHARED = f"hold starts a new sequence ({StartReason.NO_SHARED_LANDMARKS.value})", Stage.PIPELINE
@@ -154,6 +155,7 @@ _NO_IMU_GRAVITY = {ImuRefusal.NO_IMU_BLOCK: Drop.NO_IMU_GRAVITY_NO_BLOCK,
                    ImuRefusal.FEW_SAMPLES: Drop.NO_IMU_GRAVITY_FEW_SAMPLES,
                    ImuRefusal.STALE: Drop.NO_IMU_GRAVITY_STALE, ImuRefusal.BAD_MEAN: Drop.NO_IMU_GRAVITY_BAD_MEAN,
                    ImuRefusal.REFUTED: Drop.NO_IMU_GRAVITY_REFUTED, ImuRefusal.DOUBTED: Drop.NO_IMU_GRAVITY_DOUBTED,
+                   ImuRefusal.PENDING: Drop.NO_IMU_GRAVITY_PENDING,
                    ImuRefusal.UNUSABLE: Drop.NO_IMU_GRAVITY_UNUSABLE}
 _NEW_SEQUENCE = {StartReason.NO_SHARED_LANDMARKS: Drop.NEW_SEQUENCE_NO_SHARED,
                  StartReason.PAIR_FAILED: Drop.NEW_SEQUENCE_PAIR_FAILED}

@@ -216,15 +216,16 @@ class HoldEstimator:
         :mod:`.imu_agreement`); refusals are counted. When the IMU's gravity turns unusable the sequence restarts
         without the earlier holds' gravities, which are the same IMU's."""
         usable = self.imu_check.usable
-        verdict = self.imu_check.check(obs.cam, obs.landmark, obs.f, gravity)
+        verdict = self.imu_check.check(obs.cam, obs.landmark, obs.f, gravity, self.sequence.num_views > 0)
         if verdict is Agreement.REFUTED:
             self.stats.dropped[Drop.no_imu_gravity(ImuRefusal.REFUTED)] += 1
             if usable and not self.imu_check.usable and self.sequence.num_views:
                 self.sequence.reset()  # the sequence's earlier gravities are the same IMU's: in doubt
                 self._hold_stamps, self._broken_stamps, self._origin = [], {}, None
             return None, verdict
-        if verdict in (Agreement.UNUSABLE, Agreement.DOUBTED):
-            rule = ImuRefusal.UNUSABLE if verdict is Agreement.UNUSABLE else ImuRefusal.DOUBTED
+        if verdict in (Agreement.UNUSABLE, Agreement.DOUBTED, Agreement.PENDING):
+            rule = {Agreement.UNUSABLE: ImuRefusal.UNUSABLE, Agreement.DOUBTED: ImuRefusal.DOUBTED,
+                    Agreement.PENDING: ImuRefusal.PENDING}[verdict]
             self.stats.dropped[Drop.no_imu_gravity(rule)] += 1
             return None, verdict
         return gravity, verdict

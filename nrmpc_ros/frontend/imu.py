@@ -84,6 +84,7 @@ class ImuRefusal(Enum):
     BAD_MEAN = "averaged accelerometer not usable"
     REFUTED = "the images refute it (pair test)"
     DOUBTED = "not testable while an earlier one stands refuted"
+    PENDING = "the first after holds without one: waits for the next hold's test"
     UNUSABLE = "refuted on consecutive holds: the IMU's gravity is not used (its rotation or clock)"
 
 

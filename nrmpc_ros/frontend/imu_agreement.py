@@ -13,9 +13,10 @@ latest hold with a gravity to trust, its accepted IMU gravity or, without one, t
 When the gravity-bound estimate explains at least ``AGREEING_SHARE`` of them, the gravity agrees (the usual
 case: one ``4pt-bending`` solve). Otherwise the images alone are asked; when they explain more than
 ``REFUTING_RATIO`` times as many (and at least the pair minimum), the images refute the gravity: the hold goes on
-without it. After a refutation a gravity that cannot be tested (too few shared landmarks) is not used either,
-until one agrees again. ``UNUSABLE_AFTER`` refutations in a row are no accident of one hold: the IMU's gravity is
-not used again (until a reset), and the report says how to fix the configuration.
+without it. The first gravity after holds without any (an IMU that starts late) waits for the next hold's
+test before it is used. After a refutation a gravity that cannot be tested (too few shared landmarks) is not
+used either, until one agrees again. ``UNUSABLE_AFTER`` refutations in a row are no accident of one hold: the
+IMU's gravity is not used again (until a reset), and the report says how to fix the configuration.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ class Agreement(Enum):
 
     AGREES = "agrees with the images"
     UNTESTED = "not tested (no earlier hold with a gravity shares enough landmarks)"
+    PENDING = "not used until the next hold tests it (the holds before it have no gravity)"
     DOUBTED = "not tested since the images refuted an earlier one"
     REFUTED = "refuted by the images"
     UNUSABLE = "not used: the images refuted the IMU's gravity on consecutive holds"
@@ -94,11 +96,17 @@ class ImuGravityCheck:
         keys = np.asarray(cam, np.int64) * (1 << 40) + np.asarray(landmark, np.int64)
         return keys, np.asarray(f, float), np.asarray(cam, np.int64), np.asarray(gravity, float)
 
-    def check(self, cam: np.ndarray, landmark: np.ndarray, f: np.ndarray, gravity: np.ndarray) -> Agreement:
-        """The verdict on ``gravity`` (body frame) of the hold observed as (camera, landmark id, bearing)."""
+    def check(self, cam: np.ndarray, landmark: np.ndarray, f: np.ndarray, gravity: np.ndarray,
+              follows_holds: bool = False) -> Agreement:
+        """The verdict on ``gravity`` (body frame) of the hold observed as (camera, landmark id, bearing).
+        ``follows_holds``: the hold joins holds already estimated; then a first gravity, with nothing to test it
+        against, would set the gravity of them all on its own word: it waits for the next hold's test."""
         if not self.usable:
             return Agreement.UNUSABLE
         current = self._observations(cam, landmark, f, gravity)
+        if self._reference is None and follows_holds:
+            self._reference = current
+            return Agreement.PENDING
         verdict = self._pair_test(current)
         if verdict is Agreement.REFUTED:
             self.refuted += 1

@@ -1,0 +1,74 @@
+"""The IMU clock offset from the rotations between holds: seconds off, where no move is on camera."""
+
+import numpy as np
+import pytest
+
+from nrmpc_ros.core.rig import ImuMount
+from nrmpc_ros.core.so3 import exp_so3
+from nrmpc_ros.frontend.imu_clock_holds import offset_from_turns, orientations
+
+
+def recording(rng, holds=8, rate=200.0, hold_s=(1.5, 3.0), move_s=1.0):
+    """Gyro samples (IMU frame = body frame) of holds joined by turns about random axes, and per hold its
+    still span (s) and the body's orientation (body -> world)."""
+    t, w, spans, attitude = [], [], [], [np.eye(3)]
+    now, R = 0.0, np.eye(3)
+    for k in range(holds):
+        length = rng.uniform(*hold_s)
+        n = int(length * rate)
+        t.append(now + np.arange(n) / rate)
+        w.append(np.zeros((n, 3)))
+        spans.append((now + 0.3, now + length - 0.1))
+        now += n / rate
+        if k == holds - 1:
+            break
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        angle = np.radians(rng.uniform(5, 30))
+        m = int(move_s * rate)
+        tau = (np.arange(m) + 0.5) / m
+        rate_profile = angle / move_s * 2 * np.sin(np.pi * tau) ** 2  # integrates to the angle
+        t.append(now + np.arange(m) / rate)
+        w.append(rate_profile[:, None] * axis)
+        R = R @ exp_so3(angle * axis)
+        attitude.append(R)
+        now += m / rate
+    return np.concatenate(t), np.concatenate(w), spans, attitude
+
+
+def pairs_of(spans, attitude):
+    """(span_a, span_b, R) of consecutive holds: p_a = R p_b."""
+    return [(spans[k], spans[k + 1], attitude[k].T @ attitude[k + 1]) for k in range(len(spans) - 1)]
+
+
+def test_the_orientation_track_is_the_ordered_product(rng):
+    t = np.arange(50) / 100.0
+    w = rng.normal(scale=0.5, size=(50, 3))
+    C = orientations(t, w)
+    step = np.eye(3)
+    for k in range(1, 50):  # the reference, sample by sample
+        step = step @ exp_so3(w[k - 1] * 0.01)
+        np.testing.assert_allclose(C[k], step, atol=1e-12)
+
+
+@pytest.mark.parametrize("offset_s", [-7.3, -2.0, 0.6, 4.25])
+def test_an_imu_clock_seconds_off_is_found(rng, offset_s):
+    """The IMU stamps its samples offset_s late; the offset to add comes back within its own half width, which
+    is below half the holds' slack."""
+    t, w, spans, attitude = recording(rng)
+    w = w + rng.normal(scale=0.002, size=w.shape) + np.array([0.002, -0.001, 0.0])  # noise and bias
+    found = offset_from_turns(t + offset_s, w, ImuMount(), pairs_of(spans, attitude))
+    assert found is not None and found.pairs == 7
+    assert abs(found.offset_s + offset_s) <= found.half_width_s < 0.5
+    assert found.residual_deg < 1.0 < found.as_stamped_deg
+
+
+def test_stamps_that_agree_give_an_interval_holding_zero_and_too_little_gives_nothing(rng):
+    t, w, spans, attitude = recording(rng)
+    found = offset_from_turns(t, w, ImuMount(), pairs_of(spans, attitude))
+    assert found is not None and abs(found.offset_s) <= found.half_width_s
+    assert offset_from_turns(t, w, ImuMount(), pairs_of(spans, attitude)[:2]) is None  # two pairs
+    inside = ImuMount(mount="cam0")
+    assert offset_from_turns(t, w, inside, pairs_of(spans, attitude)) is None  # an IMU on a bar turns with it
+    wrong = [(a, b, R.T) for a, b, R in pairs_of(spans, attitude)]  # images that tell another motion
+    assert offset_from_turns(t, w, ImuMount(), wrong) is None
