@@ -99,6 +99,11 @@ class SequenceReset:
     """Start a new sequence here: the next measured hold is its origin."""
 
 
+# verdicts of the pair test that leave a hold's IMU gravity out without a refutation, and the rule counted
+_LEFT_OUT = {Agreement.UNUSABLE: ImuRefusal.UNUSABLE, Agreement.DOUBTED: ImuRefusal.DOUBTED,
+             Agreement.PENDING: ImuRefusal.PENDING}
+
+
 class HoldEstimator:
     """Links and estimates the measured holds in order (see the module docstring).
 
@@ -149,20 +154,12 @@ class HoldEstimator:
         st, hold, imu, attempt = self.stats, item.hold, item.imu, item.attempt
         t0 = time.perf_counter()
         obs = self.linker.link(hold)
-        if imu is None and self.require_imu:  # forced: no silent fall back to 6pt-bending
+        g, verdict = (None, None) if imu is None else self._checked_gravity(obs, imu.gravity)
+        if g is None and self.require_imu:  # forced: no silent fall back to 6pt-bending
             st.dropped[Drop.HOLD_FORCED_WITHOUT_IMU] += 1
             if attempt is not None:
                 attempt.why = Drop.HOLD_FORCED_WITHOUT_IMU.message
             return []
-        g = None if imu is None else imu.gravity
-        verdict = None
-        if g is not None:
-            g, verdict = self._checked_gravity(obs, g)
-            if g is None and self.require_imu:
-                st.dropped[Drop.HOLD_FORCED_WITHOUT_IMU] += 1
-                if attempt is not None:
-                    attempt.why = Drop.HOLD_FORCED_WITHOUT_IMU.message
-                return []
         scale = self.sequence.noise_scale(ringing_noise_rad(self.rig, hold, obs.cam))
         st.penalized_holds += scale > 1.0
         number = self.sequence.number
@@ -223,10 +220,8 @@ class HoldEstimator:
                 self.sequence.reset()  # the sequence's earlier gravities are the same IMU's: in doubt
                 self._hold_stamps, self._broken_stamps, self._origin = [], {}, None
             return None, verdict
-        if verdict in (Agreement.UNUSABLE, Agreement.DOUBTED, Agreement.PENDING):
-            rule = {Agreement.UNUSABLE: ImuRefusal.UNUSABLE, Agreement.DOUBTED: ImuRefusal.DOUBTED,
-                    Agreement.PENDING: ImuRefusal.PENDING}[verdict]
-            self.stats.dropped[Drop.no_imu_gravity(rule)] += 1
+        if verdict in _LEFT_OUT:
+            self.stats.dropped[Drop.no_imu_gravity(_LEFT_OUT[verdict])] += 1
             return None, verdict
         return gravity, verdict
 
