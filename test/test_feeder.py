@@ -340,3 +340,20 @@ def test_an_imu_that_delivers_in_bursts_is_waited_for_after_its_first(rig):
     steady, late = imu_before(work), imu_before(bursty)
     assert [t for t in steady if steady[t] != late[t]] and all(steady[t] == late[t] for t in steady if t >= 102.0)
 
+
+
+@pytest.mark.parametrize("blocks", [False, True])
+def test_an_imu_clock_offset_moves_every_imu_stamp_into_the_cameras_clock(rig, rng, blocks):
+    """An IMU stamped 9 s late, read with imu_clock_offset_s = -9: its samples come out as if stamped by the
+    cameras' clock, merged with the frame sets by that stamp (one sample at a time or in blocks alike)."""
+    late = [(arrival, kind, i, t + 9.0 if kind == "imu" else t) for arrival, kind, i, t in messages(seconds=1.0)]
+    runs = []
+    for offset, msgs in ((0.0, messages(seconds=1.0)), (-9.0, late)):
+        f, work, _ = feeder(rig, imu_clock_offset_s=offset)
+        if blocks:
+            feed_in_blocks(f, msgs, rng)
+        else:
+            feed(f, msgs)
+        f.end()
+        runs.append(trace(work))
+    assert runs[0] == runs[1] and any(k is WorkKind.IMU for k, _ in runs[1])

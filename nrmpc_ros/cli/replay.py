@@ -6,6 +6,7 @@ import math
 import sys
 import time
 from contextlib import nullcontext
+from dataclasses import replace
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
 from ..frontend.zupt import describe_noise
 from ..safeio import check_outputs
-from .argtypes import nonnegative_seconds, positive_int, seed
+from .argtypes import nonnegative_seconds, number, positive_int, seed
 from .common import add_trajectory_arguments
 
 
@@ -70,6 +71,10 @@ def register(sub):
                         "of the smallest camera frame period, estimated from the stamps)")
     p.add_argument("--queue-size", type=positive_int, default=None,
                    help=f"synchronizer queue depth per camera (default {FeederConfig().queue_size})")
+    p.add_argument("--imu-clock-offset", type=number(float, lo=-86400.0, hi=86400.0, unit="s"), default=None,
+                   metavar="S", help="add S seconds to every IMU stamp as it is read: an IMU stamped by another "
+                   "clock than the cameras' (replay prints it, measured from the rotations between holds, when the "
+                   "IMU's stamps are seconds off; default 0)")
     p.add_argument("--seed", type=seed, default=0, help="RANSAC seed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", action="store_true", help="print only the statistics, not every estimate")
@@ -100,7 +105,10 @@ def input_config(args) -> FeederConfig:
         d["sync_tolerance_s"] = args.sync_tolerance
     if args.queue_size is not None:
         d["queue_size"] = args.queue_size
-    flags = {"sync_tolerance_s": "--sync-tolerance", "queue_size": "--queue-size"}
+    if getattr(args, "imu_clock_offset", None) is not None:
+        d["imu_clock_offset_s"] = args.imu_clock_offset
+    flags = {"sync_tolerance_s": "--sync-tolerance", "queue_size": "--queue-size",
+             "imu_clock_offset_s": "--imu-clock-offset"}
     try:
         return from_mapping(FeederConfig, d, "flags")
     except InputError as exc:
@@ -172,6 +180,9 @@ def run(args) -> int:
                 for poses in runner.pipeline.extrinsics.smoothed():  # the final bias from the first sample on
                     extrinsics.write(poses)
             ref = read_reference(bag, imu_topic, warn)
+            shift = replay.feeder.config.imu_clock_offset_s
+            if shift:  # the IMU's samples in the cameras' clock, as the pipeline read them
+                ref = replace(ref, imu_t=ref.imu_t + shift)
             batch = []
             if args.batch:
                 method = rows[-1].method if rows else args.method
@@ -241,11 +252,13 @@ def run(args) -> int:
                      if r.stamp in spans and (not check.refuted or r.method != "4pt-bending")]
             found = offset_from_turns(ref.imu_t, ref.imu_w, rig.imu, pairs)
             if found is not None and abs(found.offset_s) > found.half_width_s:
+                total = found.offset_s + shift
                 print(f"IMU clock against the cameras (rotations between holds): the IMU's stamps are "
                       f"{-found.offset_s:+.2f} s +- {found.half_width_s:.2f} s off the cameras' ({found.pairs} pairs "
                       f"of holds: the gyro's rotations {found.as_stamped_deg:.1f} deg off the images' as stamped, "
-                      f"{found.residual_deg:.2f} deg shifted so); each hold's IMU samples are another moment's: fix "
-                      f"the IMU's clock or its stamps")
+                      f"{found.residual_deg:.2f} deg shifted so); each hold's IMU samples are another moment's: "
+                      f"replay with --imu-clock-offset {total:.2f} (the node: input.imu_clock_offset_s), or fix the "
+                      f"IMU's clock")
     if extrinsics is not None:
         cost = f", {1e3 * runner.poses_s / runner.poses_sets:.3f} ms per frame set" if runner.poses_sets else ""
         print(f"wrote {extrinsics.rows} camera poses to {args.extrinsics} "

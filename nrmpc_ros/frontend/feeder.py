@@ -54,7 +54,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, OrderedDict, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -104,6 +104,10 @@ class FeederConfig:
                                "meanwhile (s): the IMU stopped", lo=0.0, hi=60.0)
     imu_max_lag_s: float = option(5.0, "... or once frames this much newer arrived, IMU samples or not (s): the "
                                   "IMU lags too far behind the cameras to wait for", lo=0.0, hi=600.0)
+    imu_clock_offset_s: float = option(0.0, "added to every IMU stamp as it arrives, before anything else reads it: "
+                                       "an IMU stamped by another clock than the cameras' (s; nrmpc replay measures "
+                                       "it from the rotations between holds); a lag of milliseconds is the "
+                                       "pipeline's imu_time_offset_s", lo=-86400.0, hi=86400.0)
 
     def __post_init__(self):
         check(self, "input config")
@@ -200,7 +204,7 @@ class Feeder:
         the message's (linear_acceleration_covariance, angular_velocity_covariance), which set the stillness
         test's noise (:meth:`~nrmpc_ros.frontend.pipeline.Pipeline.add_imu`)."""
         self.events["imu samples"] += 1
-        self._sample(stamp, accel, gyro, now, covariance)
+        self._sample(stamp + self.config.imu_clock_offset_s, accel, gyro, now, covariance)
 
     def imu_block(self, block: ImuBlock, now: float | None = None) -> None:
         """IMU samples in arrival order (:class:`~nrmpc_ros.frontend.imu_block.ImuBlock`, the node's IMU callback
@@ -208,6 +212,8 @@ class Feeder:
         a block of good samples with increasing stamps that the stamp policy accepts as they are."""
         n = len(block)
         self.events["imu samples"] += n
+        if self.config.imu_clock_offset_s:
+            block = replace(block, stamps=block.stamps + self.config.imu_clock_offset_s)
         a, w, t = block.accel, block.gyro, block.stamps
         good = bool(n) and bool(np.isfinite(a).all() and np.isfinite(w).all() and a.any(axis=1).all())
         if good and t[0] > self._imu_newest and self.guard.accept_run(IMU, t, now):
