@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -197,13 +197,16 @@ class HoldEstimator:
                 done.append(est)
             self._origin = None
         self._hold_stamps.append(hold.stamp)
+        if g is None and out.gravity is not None and math.isfinite(out.gravity_sigma_rad):
+            self.imu_check.remember(obs.cam, obs.landmark, obs.f, out.gravity)  # the images' gravity of the hold
+        if verdict is Agreement.REFUTED:
+            # the sequence still holds the earlier holds' IMU gravities, one of which may be the wrong one of the
+            # pair, and its window solve placed this hold with them: nothing to promise (the next test decides)
+            st.dropped[Drop.HOLD_IMU_REFUTED] += 1
+            if attempt is not None:
+                attempt.why = Drop.HOLD_IMU_REFUTED.message
+            return done
         est = self._hold_estimate(out, hold, imu, obs.links, time.perf_counter() - t0, scale)
-        if g is None and est.gravity is not None and math.isfinite(est.gravity_sigma_deg):
-            self.imu_check.remember(obs.cam, obs.landmark, obs.f, est.gravity)  # the images' gravity of the hold
-        if verdict is Agreement.REFUTED and est.gravity is not None:
-            # its sequence still holds the earlier holds' IMU gravities, one of which may be the wrong one of
-            # the pair: no gravity to promise for this hold (the next test decides)
-            est = replace(est, gravity=None, gravity_sigma_deg=math.inf, cov_gravity=None)
         if attempt is not None:
             attempt.estimate = est
         return done + [est]

@@ -12,8 +12,9 @@ The test runs on the correspondences (same camera, same landmark) between the ho
 latest hold with a gravity to trust, its accepted IMU gravity or, without one, the gravity the images gave it.
 When the gravity-bound estimate explains at least ``AGREEING_SHARE`` of them, the gravity agrees (the usual
 case: one ``4pt-bending`` solve). Otherwise the images alone are asked; when they explain more than
-``REFUTING_RATIO`` times as many (and at least the pair minimum), the images refute the gravity: the hold goes on
-without it. The first gravity after holds without any (an IMU that starts late) waits for the next hold's
+``REFUTING_RATIO`` times as many (and at least the pair minimum), the images refute the gravity: the hold is
+linked without it and not published (the window solve placed it with the earlier holds' gravities of the same
+IMU). The first gravity after holds without any (an IMU that starts late) waits for the next hold's
 test before it is used. After a refutation a gravity that cannot be tested (too few shared landmarks) is not
 used either, until one agrees again. ``UNUSABLE_AFTER`` refutations in a row are no accident of one hold: the
 IMU's gravity is not used again (until a reset), and the report says how to fix the configuration.
@@ -157,8 +158,8 @@ def describe_check(check: ImuGravityCheck) -> str | None:
                 f"gravities, {e.without_gravity} the images alone") if e is not None else ""
     state = "not used since (consecutive refutations)" if not check.usable else "left out of those holds"
     return (f"the images refuted the IMU's gravity on {check.refuted} of {check.tested} tested holds{evidence}; "
-            f"the IMU's gravity is {state}, and the sequences holding a refuted one publish no gravity: check the "
-            f"rig file's imu rotation and the IMU's clock against the cameras' (imu_time_offset_s)")
+            f"the IMU's gravity is {state}, and a refuted hold is not published: check the rig file's imu rotation "
+            f"and the IMU's clock against the cameras' (input.imu_clock_offset_s, replay --imu-clock-offset)")
 
 
 __all__ = ["AGREEING_SHARE", "Agreement", "ImuGravityCheck", "MIN_CORRESPONDENCES", "PairEvidence",
