@@ -97,7 +97,7 @@ def test_an_imu_clock_seconds_off_is_refuted_and_measured(tmp_path, capsys):
     for e in ests:
         i, j = nearest_stamp(ref.pose_t, e.ref_stamp), nearest_stamp(ref.pose_t, e.stamp)
         truth = ref.pose_R[i].T @ ref.pose_R[j]
-        assert math.degrees(rotation_angle(truth.T @ e.R)) < 0.5
+        assert math.degrees(rotation_angle(truth.T @ e.R)) < 2.0  # trusted, the IMU put them 10-40 deg off
     # replayed with the offset it printed, the IMU is the cameras' again: nothing refuted, every gravity right
     advice = float(line.split("--imu-clock-offset ")[1].split()[0])
     assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "y.csv"), "--no-progress",
