@@ -174,7 +174,7 @@ class ImuNoise:
     period_s: float = math.nan  # median sample period; nan: taken from the samples tested
     accel_norm_sigma: float = 0.0  # m/s^2, spread of the still norm across attitudes (bias, scale error)
     claimed: tuple | None = None  # (accel, gyro) sigmas the message covariances claim; None: none given
-    white: tuple | None = None  # (accel, gyro) white noise of the samples (successive differences); None: unknown
+    white: tuple | None = None  # (accel, gyro) white noise of the samples (paired differences); None: unknown
     # normalised autocorrelation of the accelerometer's and the gyro's noise at lags 0, 1, ... samples (a MEMS
     # IMU's low-pass filter makes neighbouring samples alike); [1.0]: white
     accel_correlation: np.ndarray = field(default_factory=lambda: np.ones(1))
@@ -384,12 +384,9 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
         else:
             sa, sw = (math.sqrt(v) if v > 0 else 0.0 for v in (var_a, var_w))  # nan: a degenerate spread
             src = NoiseSource.DATA
-        # below its floor a sensor's samples hold no noise to correlate (a simulated one): the floor is white
-        rho_a, rho_w = (rho if sigma >= floor else white_null[0] for rho, sigma, floor in
-                        zip(correlation, (sa, sw), (cfg.accel_floor_m_s2, cfg.gyro_floor_rad_s)))
         quietest = tuple(math.sqrt(v) if v > 0 else 0.0 for v in (var_a, var_w))
         noise = ImuNoise(sa, sw, bias, src, norm, period, 0.0, (s_a, s_w) if from_cov else None, white,
-                         rho_a, rho_w, quietest)
+                         *correlation, quietest)
         return dataclasses.replace(noise, accel_norm_sigma=_norm_spread(t, w - bias, mean_a, ssa, i0, i1, ok,
                                                                         noise, cfg))
 
