@@ -20,7 +20,9 @@ stream through the moves (+-3 ms stamps), bars damped at 0.03 that ring through 
 tell the holds: ``6pt-bending`` only); ``imubar`` the IMU inside the second camera (a camera module with an
 IMU), riding on its bar, which rings through the holds (damping 0.03); ``imudlpf`` a 1 kHz IMU that low-pass
 filters its output at 40 Hz (a MEMS IMU's digital filter: its noise correlated over a dozen samples); ``imucov``
-an IMU whose messages' covariances claim a fifth of its noise (a driver's datasheet figure).
+an IMU whose messages' covariances claim a fifth of its noise (a driver's datasheet figure); ``imuclock2s`` a
+stream through the moves with the IMU stamped 2 s late (another clock: replayed, as ``nrmpc replay`` does, with
+the offset the recording shows).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -72,6 +74,8 @@ from nrmpc_ros.experiments.crlb import observed_sequence_bound
 from nrmpc_ros.frontend.estimates_csv import batch_rows, row_from_estimate
 from nrmpc_ros.frontend.estimation import ringing_noise_rad
 from nrmpc_ros.frontend.evaluation import evaluate, static_holds
+from nrmpc_ros.frontend.feeder import FeederConfig
+from nrmpc_ros.frontend.imu_clock_check import clock_passes, measure_imu_clock, turns_between_holds
 from nrmpc_ros.frontend.imu_reference import ImuReference
 from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig
 from nrmpc_ros.frontend.reference import STAMP_TOLERANCE_S, nearest_stamp, read_reference
@@ -151,15 +155,26 @@ def replay_rows(path: Path, rig, method: str, with_holds: bool = False, keep: li
     t0 = time.perf_counter()
     with BagReader(path) as bag:
         imu_topic = resolve_imu_topic(bag, rig, warn=lambda m: None)
-        pipe = Pipeline(rig, config or PipelineConfig(), method=method)
-        if keep is not None:
-            pipe.sequence.keep_history = True
-            pipe.measured_holds = []
-        ests = [e for es in replay_bag(bag, rig, pipe, imu_topic, warn=lambda m: None) for e in es]
+        ref = read_reference(bag, imu_topic)
+
+        def run_pass(offset_s):  # as nrmpc replay: an IMU clock measured off the cameras' is applied
+            pipe = Pipeline(rig, config or PipelineConfig(), method=method)
+            if keep is not None:
+                pipe.sequence.keep_history = True
+                pipe.measured_holds = []
+            ests = [e for es in replay_bag(bag, rig, pipe, imu_topic, FeederConfig(imu_clock_offset_s=offset_s),
+                                           warn=lambda m: None) for e in es]
+            return pipe, ests, replace(ref, imu_t=ref.imu_t + offset_s)
+
+        def measure(result):
+            pipe, ests, shifted = result
+            turns = turns_between_holds(ests, bool(pipe.estimator.imu_check.refuted))
+            return measure_imu_clock(pipe, shifted, rig, turns) if imu_topic is not None else None
+
+        (pipe, ests, ref), _, _ = clock_passes(run_pass, measure)
         if keep is not None:
             keep.extend(ests)
         rows = [row_from_estimate(e) for e in ests]
-        ref = read_reference(bag, imu_topic)
         holds = still_holds(bag, ref) if with_holds else None
     return rows, ref, pipe, time.perf_counter() - t0, holds
 
@@ -276,6 +291,7 @@ def matrix_styles() -> dict:
         "imubar": lambda M: (base, {"damping": 0.03, "imu_camera": 1}),
         "imudlpf": lambda M: ({**base, "imu_rate": 1000.0}, {**bag, "imu_lowpass_hz": 40.0}),
         "imucov": lambda M: (base, {**bag, "imu_covariance_scale": 0.2}),
+        "imuclock2s": lambda M: ({**base, "capture": "stream"}, {**bag, "imu_time_offset_ms": 2000.0}),
     }
 
 
@@ -294,7 +310,8 @@ def style_rig(rig: Rig, bag: dict) -> tuple:
 QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross4-soft"),
          ("snap0.5", "line2-soft"), ("snap0.15", "cross4-soft"), ("camrates", "ring5-stiff"),
          ("exposure", "ring6-soft"), ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft"),
-         ("noimu", "ring3-soft"), ("imubar", "ring5-soft"), ("imudlpf", "ring6-stiff"), ("imucov", "cross4-soft")]
+         ("noimu", "ring3-soft"), ("imubar", "ring5-soft"), ("imudlpf", "ring6-stiff"), ("imucov", "cross4-soft"),
+         ("imuclock2s", "ring3-soft")]
 
 
 def matrix_cells(full: bool) -> list:

@@ -70,9 +70,10 @@ def test_a_right_imu_is_never_refuted(recordings_dir, rig_name):
 
 def test_an_imu_clock_seconds_off_is_refuted_and_measured(tmp_path, capsys):
     """Holds recorded with the IMU's stamps 9 s late: each hold averages another moment's accelerometer, and the
-    gyro's turns between holds are other moves. The images refute its gravity, the poses are the images' own
-    (trusted, the IMU's gravities and turns put them tens of degrees off), and the summary measures the clock
-    from the rotations between holds; replayed with that offset the IMU serves again."""
+    gyro's turns between holds are other moves. Kept as stamped, the images refute its gravity, the poses are the
+    images' own (trusted, the IMU's gravities and turns put them tens of degrees off), and the summary measures
+    the clock from the rotations between holds; by default replay measures it and replays with it, and the IMU
+    serves again."""
     from recordings import rig as recordings_rig
 
     from nrmpc_ros.cli.main import main
@@ -86,11 +87,13 @@ def test_an_imu_clock_seconds_off_is_refuted_and_measured(tmp_path, capsys):
     save_rig(rig, rig_file)
     make_bag(rig, path, BagOptions(motion=MotionOptions(views=7, hold_seconds=2.5, min_move_seconds=1.0), seed=3,
                                    supersample=1, imu_time_offset_ms=9000.0), progress=False)
-    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"), "--no-progress"]) == 0
+    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"), "--no-progress",
+                 "--imu-clock-offset", "0"]) == 0
     text = capsys.readouterr().out
-    assert "the images refuted the IMU's gravity" in text
-    line = next(ln for ln in text.splitlines() if "rotations between holds" in ln)
-    late, half = (float(x) for x in line.split("stamps are ")[1].split(" s off")[0].split(" s +- "))
+    assert "the images refuted the IMU's gravity" in text and "replaying with" not in text
+    line = next(ln for ln in text.splitlines() if "(the rotations between holds)" in ln)
+    late = float(line.split("stamps are ")[1].split(" s off")[0])
+    half = float(line.split(" +- ")[1].split(" s ")[0])
     assert abs(late - 9.0) <= half < 0.5
     pipe, ests, ref = replay(path, rig_file)
     assert len(ests) >= 6
@@ -98,12 +101,14 @@ def test_an_imu_clock_seconds_off_is_refuted_and_measured(tmp_path, capsys):
         i, j = nearest_stamp(ref.pose_t, e.ref_stamp), nearest_stamp(ref.pose_t, e.stamp)
         truth = ref.pose_R[i].T @ ref.pose_R[j]
         assert math.degrees(rotation_angle(truth.T @ e.R)) < 2.0  # trusted, the IMU put them 10-40 deg off
-    # replayed with the offset it printed, the IMU is the cameras' again: nothing refuted, every gravity right
-    advice = float(line.split("--imu-clock-offset ")[1].split()[0])
-    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "y.csv"), "--no-progress",
-                 "--imu-clock-offset", str(advice)]) == 0
+    # by default the offset measured is applied: the IMU is the cameras' again, nothing refuted, every gravity right
+    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "y.csv"),
+                 "--no-progress"]) == 0
     text = capsys.readouterr().out
-    assert "refuted" not in text and "rotations between holds" not in text
+    applied = [float(ln.split("replaying with --imu-clock-offset ")[1].split()[0]) for ln in text.splitlines()
+               if "replaying with --imu-clock-offset" in ln]
+    assert applied and abs(applied[-1] + 9.0) < 0.5
+    assert "refuted" not in text and "another moment's" not in text
     assert "with an estimate (after the first): 6/6" in text
     medians = [float(ln.split("median")[1].split()[0]) for ln in text.splitlines()
                if ln.strip().startswith("gravity vs ground truth")]

@@ -40,42 +40,92 @@ def test_no_move_no_offset():
     assert est.estimate() is None
 
 
-def test_bent_cameras_lag_the_body_and_the_refinement_reads_the_clock_not_the_bars():
-    """A rendered trajectory (no pixels): each camera's image rotates with the body AND its ringing bar. The
-    gyro's rate alone reads the bars' lag as a clock offset; against the bent cameras the IMU's true lateness
-    comes out to a millisecond."""
-    import dataclasses
-
+def _rendered_rates(rig, late_s, seed=2, views=6, signed=False, noisy=True, estimator_rig=...):
+    """A rendered trajectory's IMU (``noisy``: a MEMS-grade noise), stamped ``late_s`` after the truth, and each
+    bent camera's image rate across its optical axis per frame interval (no pixels), with ``signed`` also the
+    image's signed motion (x, y): an estimator for ``estimator_rig`` (default ``rig``) fed with both."""
     from nrmpc_ros.core.bar_state import bent_extrinsics_at_loads
     from nrmpc_ros.core.so3 import log_so3
     from nrmpc_ros.render.bagmaker import BagOptions, imu_readings
     from nrmpc_ros.render.bars import CameraLoads
     from nrmpc_ros.render.sequence import MotionOptions, make_trajectory
-    from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 
-    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=0.25, mass=0.1, bar_length=0.3))
-    rig = dataclasses.replace(rig, cameras=tuple(dataclasses.replace(c, damping=0.04) for c in rig.cameras))
-    motion = MotionOptions(views=5, hold_seconds=2.0, rate=15, imu_rate=200, move_profile="trapezoid",
+    motion = MotionOptions(views=views, hold_seconds=2.0, rate=15, imu_rate=200, move_profile="trapezoid",
                            min_step=15, max_step=30, speed=40.0)
-    traj = make_trajectory(np.random.default_rng(2), motion)
+    traj = make_trajectory(np.random.default_rng(seed), motion)
     loads = CameraLoads(rig, traj)
     imu_t = np.arange(traj.start_ns, traj.end_ns, 5_000_000, dtype=np.int64)
-    opts = BagOptions(motion=motion, imu_noise=0.0, gyro_noise=0.0, imu_bias=0.0, gyro_bias=0.0)
+    opts = BagOptions(motion=motion, imu_noise=0.02 * noisy, gyro_noise=0.002 * noisy, imu_bias=0.0, gyro_bias=0.0)
     accel, gyro = imu_readings(rig, traj, imu_t, np.random.default_rng(0), opts, loads)
     frames, _ = traj.frame_times("stream")
     R, _, _, _ = traj.state(frames)
     _, W = bent_extrinsics_at_loads(rig, loads.at(frames))
-    cam = R[:, None] @ W  # (F, M, 3, 3) camera -> world
-    turn = log_so3(np.swapaxes(cam[:-1], -1, -2) @ cam[1:])  # in each camera's frame
-    across = np.linalg.norm(turn[..., :2], axis=-1) / (np.diff(frames) * 1e-9)[:, None]  # image motion, rad/s
+    cam = R[:, None] @ W
+    turn = log_so3(np.swapaxes(cam[:-1], -1, -2) @ cam[1:])
+    dt = (np.diff(frames) * 1e-9)[:, None]
+    across = np.linalg.norm(turn[..., :2], axis=-1) / dt
+    shifts = np.stack([-turn[..., 1], turn[..., 0]], axis=-1) / dt[..., None]  # the scene's shift in each image
+    est = ImuClockEstimator(rig if estimator_rig is ... else estimator_rig)
+    for k in range(len(imu_t)):
+        est.add_imu(imu_t[k] * 1e-9 + late_s, gyro[k], accel[k])
+    for k in range(len(frames) - 1):
+        est.add_frame(frames[k] * 1e-9, frames[k + 1] * 1e-9, across[k], shifts[k] if signed else None)
+    return est
+
+
+def _ring3():
+    import dataclasses
+
+    from nrmpc_ros.sim.synthetic import RigSpec, make_rig
+
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=0.25, mass=0.1, bar_length=0.3))
+    return dataclasses.replace(rig, cameras=tuple(dataclasses.replace(c, damping=0.04) for c in rig.cameras))
+
+
+def test_bent_cameras_lag_the_body_and_the_refinement_reads_the_clock_not_the_bars():
+    """A rendered trajectory (no pixels): each camera's image rotates with the body AND its ringing bar. The
+    gyro's rate alone reads the bars' lag as a clock offset; against the bent cameras the IMU's true lateness
+    comes out to a millisecond."""
+    rig = _ring3()
     late = 0.018
-    results = {}
-    for name, r in (("gyro only", None), ("bent cameras", rig)):
-        est = ImuClockEstimator(r)
-        for k in range(len(imu_t)):
-            est.add_imu(imu_t[k] * 1e-9 + late, gyro[k], accel[k])
-        for k in range(len(frames) - 1):
-            est.add_frame(frames[k] * 1e-9, frames[k + 1] * 1e-9, across[k])
-        results[name] = est.estimate()
+    results = {name: _rendered_rates(rig, late, views=5, noisy=False, estimator_rig=r).estimate()
+               for name, r in (("gyro only", None), ("bent cameras", rig))}
     assert results["bent cameras"].offset_s == pytest.approx(-late, abs=1e-3), results
     assert abs(results["gyro only"].offset_s + late) > 3e-3, "the bars' lag biases the gyro-only estimate"
+
+
+@pytest.mark.parametrize("signed", [False, True])
+@pytest.mark.parametrize("late_s", [2.3, -4.1, 0.0])
+def test_an_imu_clock_seconds_off_is_found_by_the_far_search(late_s, signed):
+    """An IMU stamped seconds late or early: the far search finds the offset to a frame's fraction, singled out
+    by the moves' axes (the gyro's rate magnitude alone correlates almost as well one hold-and-move later), from
+    the images' motion across their axes or from their signed motion; the small-lag search cannot reach it."""
+    from nrmpc_ros.frontend.imu_clock import MAX_LAG_S
+
+    est = _rendered_rates(_ring3(), late_s, signed=signed)
+    far = est.far_offset(10.0)
+    assert far is not None and far.unique, far
+    assert far.offset_s == pytest.approx(-late_s, abs=0.03)  # the bars' own lag is left to estimate()
+    assert far.correlation > 0.9 and far.rival_correlation < far.correlation - 0.2
+    near = est.estimate()
+    if abs(late_s) > MAX_LAG_S:
+        assert near is None or abs(near.offset_s + late_s) > 0.5
+
+
+def test_identical_moves_leave_the_far_lag_open():
+    """A rig that makes the same move about the same axis at a fixed period: every period's shift correlates as
+    well, and the far search says the lag is not singled out rather than pick one."""
+    import dataclasses
+
+    est = ImuClockEstimator(dataclasses.replace(_ring3()))
+    rng = np.random.default_rng(1)
+    late = 3.0  # one period
+    for t in np.arange(0.0, 40.0, 0.005):
+        est.add_imu(t + late, (_rate(t) + rng.normal(0, 0.002), rng.normal(0, 0.002), 0.0))
+    frames = np.arange(0.5, 39.5, 1 / 15)
+    fine = np.linspace(0, 1, 50)
+    for a, b in zip(frames[:-1], frames[1:]):
+        mean = _rate(a + (b - a) * fine).mean()
+        est.add_frame(a, b, [mean * (1 + rng.normal(0, 0.05)) + abs(rng.normal(0, 0.003))] * 3)
+    far = est.far_offset(10.0)
+    assert far is not None and not far.unique, far

@@ -6,7 +6,7 @@ import math
 import sys
 import time
 from contextlib import nullcontext
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from ..frontend.evaluation_report import format_report
 from ..frontend.extrinsics import NO_IMU_NOTE, ExtrinsicsCsv, hold_poses, imu_mount_warning
 from ..frontend.feeder import FeederConfig
 from ..frontend.imu_agreement import describe_check
-from ..frontend.imu_clock_holds import offset_from_turns
+from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock, turns_between_holds
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
 from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
@@ -127,6 +127,71 @@ def _calibration(rig, runner) -> str:
         return f"could not run: {exc}"
 
 
+@dataclass
+class _Pass:
+    """One pass of the pipeline over the bag: its runner and input, the rows written, the reference read (in the
+    cameras' clock), the batch rows, the rows of the extrinsics files, and the pairs of holds the clock is measured
+    from (:func:`~nrmpc_ros.frontend.imu_clock_check.measure_imu_clock`)."""
+
+    runner: PipelineRunner
+    replay: BagReplay
+    rows: list
+    ref: object
+    batch: list
+    extrinsics_rows: int | None
+    causal_rows: int | None
+    turns: list
+
+    def measured_clock(self, rig):
+        """The IMU clock offset this pass still shows (:func:`~nrmpc_ros.frontend.imu_clock_check.
+        measure_imu_clock`), or None."""
+        return measure_imu_clock(self.runner.pipeline, self.ref, rig, self.turns)
+
+
+def _replay_pass(args, bag, rig, cfg, inputs: FeederConfig, image_topics, imu_topic, warn) -> _Pass:
+    """The pipeline over the bag with the input settings ``inputs``; writes --out and the other outputs (each
+    appears whole when the pass ends: a second pass replaces them)."""
+    extrinsics = ExtrinsicsCsv(args.extrinsics, rig) if args.extrinsics else None
+    by_hold = extrinsics is not None and imu_topic is None
+    causal = ExtrinsicsCsv(args.extrinsics_causal, rig, "--extrinsics-causal") if args.extrinsics_causal else None
+    runner = PipelineRunner(rig, cfg, method=args.method, drops=DropLog(math.inf),  # counts, first ones warned
+                            on_poses=causal.write if causal is not None else None)
+    if extrinsics is not None and not by_hold and runner.pipeline.extrinsics is not None:
+        runner.pipeline.extrinsics.keep_samples = True  # for the smoothed rows after the run
+    if getattr(args, "report", None):
+        runner.pipeline.hold_log = []  # every closed hold, for the report
+        runner.pipeline.sequence.keep_history = bool(getattr(args, "calibrate_bars", False))
+    replay = BagReplay(bag, rig, runner, imu_topic, inputs, warn, image_topics)
+    rows, ests = [], []
+    with CsvWriter(args.out, "--out") as writer, extrinsics or nullcontext(), causal or nullcontext():
+        # --out and the others appear only on success
+        for estimates in replay.run(progress=not args.no_progress):
+            for est in estimates:
+                row = row_from_estimate(est)
+                writer.write(row)
+                rows.append(row)
+                ests.append(est)
+                if by_hold:
+                    extrinsics.write(hold_poses(rig, est.stamp, est.gravity))
+        if extrinsics is not None and not by_hold and runner.pipeline.extrinsics is not None:
+            for poses in runner.pipeline.extrinsics.smoothed():  # the final bias from the first sample on
+                extrinsics.write(poses)
+        ref = read_reference(bag, imu_topic, warn)
+        shift = inputs.imu_clock_offset_s
+        if shift:  # the IMU's samples in the cameras' clock, as the pipeline read them
+            ref = replace(ref, imu_t=ref.imu_t + shift)
+        batch = []
+        if args.batch:
+            method = rows[-1].method if rows else args.method
+            batch = batch_rows(runner.pipeline.batch(), method)
+            with CsvWriter(args.batch, "--batch") as bw:
+                for row in batch:
+                    bw.write(row)
+    return _Pass(runner, replay, rows, ref, batch, extrinsics.rows if extrinsics is not None else None,
+                 causal.rows if causal is not None else None,
+                 turns_between_holds(ests, bool(runner.pipeline.estimator.imu_check.refuted)))
+
+
 def run(args) -> int:
     check_outputs({"--out": args.out, "--batch": args.batch, "--tum": args.tum, "--tum-gt": args.tum_gt,
                    "--extrinsics": args.extrinsics, "--extrinsics-causal": args.extrinsics_causal,
@@ -147,49 +212,33 @@ def run(args) -> int:
         image_topics = bag_image_topics(bag, rig, note)
         imu_topic = resolve_imu_topic(bag, rig, args.imu_topic, use_imu=not args.no_imu, warn=warn)
         check_camera_info(bag, rig, warn)
-        extrinsics = ExtrinsicsCsv(args.extrinsics, rig) if args.extrinsics else None
-        by_hold = extrinsics is not None and imu_topic is None
+        by_hold = bool(args.extrinsics) and imu_topic is None
         if args.extrinsics_causal and imu_topic is None:
             raise InputError("--extrinsics-causal", f"needs the IMU ({NO_IMU_NOTE})")
-        causal = ExtrinsicsCsv(args.extrinsics_causal, rig, "--extrinsics-causal") if args.extrinsics_causal \
-            else None
         if by_hold:
             print(f"extrinsics: {NO_IMU_NOTE}")
-        elif extrinsics is not None and imu_mount_warning(rig):
+        elif args.extrinsics and imu_mount_warning(rig):
             warn(imu_mount_warning(rig))
-        runner = PipelineRunner(rig, cfg, method=args.method, drops=DropLog(math.inf),  # counts, first ones warned
-                                on_poses=causal.write if causal is not None else None)
-        if extrinsics is not None and not by_hold and runner.pipeline.extrinsics is not None:
-            runner.pipeline.extrinsics.keep_samples = True  # for the smoothed rows after the run
-        if getattr(args, "report", None):
-            runner.pipeline.hold_log = []  # every closed hold, for the report
-            runner.pipeline.sequence.keep_history = bool(getattr(args, "calibrate_bars", False))
-        replay = BagReplay(bag, rig, runner, imu_topic, input_config(args), warn, image_topics)
-        rows, spans = [], {}
-        with CsvWriter(args.out, "--out") as writer, extrinsics or nullcontext(), causal or nullcontext():
-            # --out and the others appear only on success
-            for estimates in replay.run(progress=not args.no_progress):
-                for est in estimates:
-                    row = row_from_estimate(est)
-                    writer.write(row)
-                    rows.append(row)
-                    spans[est.stamp] = (est.hold.settled_start, est.hold.settled_end)
-                    if by_hold:
-                        extrinsics.write(hold_poses(rig, est.stamp, est.gravity))
-            if extrinsics is not None and not by_hold and runner.pipeline.extrinsics is not None:
-                for poses in runner.pipeline.extrinsics.smoothed():  # the final bias from the first sample on
-                    extrinsics.write(poses)
-            ref = read_reference(bag, imu_topic, warn)
-            shift = replay.feeder.config.imu_clock_offset_s
-            if shift:  # the IMU's samples in the cameras' clock, as the pipeline read them
-                ref = replace(ref, imu_t=ref.imu_t + shift)
-            batch = []
-            if args.batch:
-                method = rows[-1].method if rows else args.method
-                batch = batch_rows(runner.pipeline.batch(), method)
-                with CsvWriter(args.batch, "--batch") as bw:
-                    for row in batch:
-                        bw.write(row)
+        inputs = input_config(args)
+
+        def run_pass(offset_s):
+            return _replay_pass(args, bag, rig, cfg, replace(inputs, imu_clock_offset_s=offset_s), image_topics,
+                                imu_topic, warn)
+
+        def said(measured, before, passes):
+            total = before.replay.feeder.config.imu_clock_offset_s + measured.offset_s
+            st = before.runner.stats
+            print(f"IMU clock against the cameras ({measured.source.value}): {describe_clock(measured)}; pass "
+                  f"{passes} gave {st.estimates} estimates of {st.holds} holds; replaying with "
+                  f"--imu-clock-offset {total:.3f} (--imu-clock-offset 0 keeps the stamps as they are)")
+
+        if args.imu_clock_offset is None and imu_topic is not None:  # measured and applied
+            p, measured, _ = clock_passes(run_pass, lambda q: q.measured_clock(rig), inputs.imu_clock_offset_s,
+                                          said)
+        else:
+            p = run_pass(inputs.imu_clock_offset_s)
+            measured = p.measured_clock(rig) if imu_topic is not None else None
+    runner, replay, rows, ref, batch = p.runner, p.replay, p.rows, p.ref, p.batch
     elapsed = time.perf_counter() - t_start
     zupt = runner.pipeline.zupt.config  # the IMU reference uses the stillness test as configured for the holds
     ev = evaluate(rows, ref, rig, zupt=zupt)
@@ -245,31 +294,22 @@ def run(args) -> int:
         refuted = describe_check(check)
         if refuted:
             print(f"IMU gravity: {refuted}")
-        if ref.has_imu and rig.imu is not None:
-            # the rotations between holds, gyro against images: an offset of seconds, where no move is on camera
-            # (the images' own rotations only, where the IMU's gravity was refuted: the others lean on it)
-            pairs = [(spans.get(r.ref_stamp, (r.ref_stamp, r.ref_stamp)), spans[r.stamp], r.R) for r in rows
-                     if r.stamp in spans and (not check.refuted or r.method != "4pt-bending")]
-            found = offset_from_turns(ref.imu_t, ref.imu_w, rig.imu, pairs)
-            if found is not None and abs(found.offset_s) > found.half_width_s:
-                total = found.offset_s + shift
-                print(f"IMU clock against the cameras (rotations between holds): the IMU's stamps are "
-                      f"{-found.offset_s:+.2f} s +- {found.half_width_s:.2f} s off the cameras' ({found.pairs} pairs "
-                      f"of holds: the gyro's rotations {found.as_stamped_deg:.1f} deg off the images' as stamped, "
-                      f"{found.residual_deg:.2f} deg shifted so); each hold's IMU samples are another moment's: "
-                      f"replay with --imu-clock-offset {total:.2f} (the node: input.imu_clock_offset_s), or fix the "
-                      f"IMU's clock")
-    if extrinsics is not None:
+        if measured is not None:
+            print(f"IMU clock against the cameras ({measured.source.value}): {describe_clock(measured)}: each hold's "
+                  f"IMU samples are another moment's: replay with --imu-clock-offset "
+                  f"{replay.feeder.config.imu_clock_offset_s + measured.offset_s:.3f} (the node: "
+                  f"input.imu_clock_offset_s), or fix the IMU's clock")
+    if p.extrinsics_rows is not None:
         cost = f", {1e3 * runner.poses_s / runner.poses_sets:.3f} ms per frame set" if runner.poses_sets else ""
-        print(f"wrote {extrinsics.rows} camera poses to {args.extrinsics} "
+        print(f"wrote {p.extrinsics_rows} camera poses to {args.extrinsics} "
               f"({'holds, static model' if by_hold else 'every image, bars driven by the IMU'}{cost})")
         bias = runner.pipeline.extrinsics.bias_estimate if runner.pipeline.extrinsics is not None else None
         if not by_hold and bias is not None:
             print(f"  with the final accelerometer bias "
                   f"{np.array2string(bias.bias_ms2, precision=4)} +- {np.array2string(bias.std_ms2, precision=4)} "
                   f"m/s^2 (IMU frame, {bias.holds} holds, {bias.with_gravity} with vision gravity) from the start")
-    if causal is not None:
-        print(f"wrote {causal.rows} camera poses to {args.extrinsics_causal} (as the node publishes them: the "
+    if p.causal_rows is not None:
+        print(f"wrote {p.causal_rows} camera poses to {args.extrinsics_causal} (as the node publishes them: the "
               f"accelerometer bias known at each image)")
     if not getattr(args, "scratch_out", False):  # nrmpc report's CSV is a temporary file
         print(f"wrote {len(rows)} estimates to {args.out}")

@@ -18,6 +18,7 @@ import numpy as np
 
 from .drops import Drop, sorted_counts
 from .imu_agreement import describe_check
+from .imu_clock_check import describe_clock
 from .zupt import NoiseSource, describe_noise
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
@@ -119,10 +120,16 @@ class ServiceDiagnostics:
         refuted = describe_check(s.runner.pipeline.estimator.imu_check)
         if refuted:
             values["gravity check"] = refuted
+        clock = s.runner.pipeline.imu_clock_off
+        if clock is not None:
+            values["clock check"] = (f"{describe_clock(clock)}: set input.imu_clock_offset_s to "
+                                     f"{s.feeder.config.imu_clock_offset_s + clock.offset_s:.3f}, or fix the IMU's "
+                                     "clock")
         if new:
             level, message = WARN, f"{new} IMU samples dropped in the last period (see dropped: *)"
         elif refuted:
-            level, message = WARN, "the images refute the IMU's gravity (see gravity check)"
+            level, message = WARN, "the images refute the IMU's gravity (see gravity check" + (
+                "; its clock is seconds off the cameras': see clock check)" if clock is not None else ")")
         elif noise is not None and noise.source is NoiseSource.WHITE_NOISE:
             level, message = WARN, ("the Imu covariances claim less noise than the samples show: the stillness "
                                     "test uses the samples' (see stillness test)")

@@ -66,6 +66,34 @@ the body by tens of ms for bars of a few Hz (see :class:`ImuClockEstimator`), ab
 10-30 Hz, searched with half a period to spare."""
 
 
+FAR_GRID_FRACTION = 0.25
+"""Grid of the far search (:meth:`ImuClockEstimator.far_offset`) as a fraction of the median frame interval: the
+correlation's peak is as wide as a move's ramps, several frames, so four lags per frame sample it; the peak is
+then refined on the :data:`LAG_STEP_S` grid."""
+
+FAR_MIN_MOVING_SHARE = 0.5
+"""A far lag is scored only while the IMU's samples cover at least this share of the moving frames shifted by it:
+a correlation of the few moves left at the span's ends is a chance one."""
+
+RESAMPLES = 1000
+"""Resamples of the recording's moves (each move with the still frames around it) that test the far peak against
+its rivals: the Bayesian bootstrap (Rubin 1981), each resample the moves weighted by a flat Dirichlet draw, so a
+recording of a few moves is not judged on the draws that leave its telling moves out altogether."""
+
+CONFIDENCE = 0.95
+"""The far peak is the clock's when it beats every rival peak at once in this share of the resamples (a one-sided
+5 % test, each rival on the frames both lags cover): a regular motion (moves of one length at one period)
+correlates almost as well one period off, and only the moves' own differences (axes, sizes) tell the lags apart
+(identical moves: 10-50 %). The peak has first beaten every lag in correlation, lag 0 included."""
+
+MIN_MOVES = 3
+"""Moves the far search needs: a move and its return (the same axis back) can line up at a wrong lag by chance,
+a third move about another axis cannot."""
+
+MAX_RIVALS = 8
+"""Local maxima outside the peak's lobe that the resamples test it against: the strongest ones."""
+
+
 @dataclass(frozen=True)
 class ClockOffset:
     """The IMU clock offset found (s, to add to the IMU's stamps), the correlation at its peak, frames used."""
@@ -73,6 +101,25 @@ class ClockOffset:
     offset_s: float
     correlation: float
     frames: int
+
+
+@dataclass(frozen=True)
+class FarClockOffset:
+    """The IMU clock offset of the far search (s, to add to the IMU's stamps): the correlation of each camera's
+    image rate with its predicted rate at the peak, the best rival's outside the peak's lobe (-1: none), the share
+    of resamples of the moves in which the peak beat every rival, and the moves (runs of moving frames) used."""
+
+    offset_s: float
+    correlation: float
+    rival_correlation: float
+    confidence: float
+    moves: int
+
+    @property
+    def unique(self) -> bool:
+        """Whether the moves single the lag out (:data:`CONFIDENCE`) with the shared motion explaining the images
+        (:data:`MIN_CORRELATION`)."""
+        return self.confidence >= CONFIDENCE and self.correlation >= MIN_CORRELATION
 
 
 class ImuClockEstimator:
@@ -89,27 +136,36 @@ class ImuClockEstimator:
     def __init__(self, rig=None):
         self.rig = rig
         self._imu: deque = deque(maxlen=KEEP_IMU_SAMPLES)  # (t, ax, ay, az, wx, wy, wz)
-        self._frames: deque = deque(maxlen=KEEP_FRAMES)  # (t_prev, t, rate of each camera rad/s (NaN: none))
+        self._frames: deque = deque(maxlen=KEEP_FRAMES)  # (t_prev, t, rate of each camera rad/s (NaN: none),
+        # signed (x, y) motion of each camera rad/s (NaN: none))
 
     def add_imu(self, t: float, gyro, accel=(0.0, 0.0, 0.0)) -> None:
         (ax, ay, az), (wx, wy, wz) = accel, gyro
         self._imu.append((float(t), float(ax), float(ay), float(az), float(wx), float(wy), float(wz)))
 
-    def add_frame(self, t_prev: float, t: float, image_rates) -> None:
-        """Frame interval [t_prev, t] over which camera i's image moved by image_rates[i] (rad/s; NaN: unknown)."""
+    def add_frame(self, t_prev: float, t: float, image_rates, image_shifts=None) -> None:
+        """Frame interval [t_prev, t] over which camera i's image moved by image_rates[i] (rad/s; NaN: unknown);
+        optionally the image's signed motion image_shifts[i] = (x, y) (the tracks' median shift over the focal
+        length and the interval, rad/s; NaN: unknown), which tells the turns' axes and senses apart."""
         r = np.asarray(image_rates, dtype=float).reshape(-1)
+        shifts = np.full((len(r), 2), np.nan) if image_shifts is None else \
+            np.asarray(image_shifts, dtype=float).reshape(len(r), 2)
         if t > t_prev and np.isfinite(r).any():
-            self._frames.append((float(t_prev), float(t), r))
+            self._frames.append((float(t_prev), float(t), r, shifts))
+
+    def _collected(self) -> tuple:
+        """(IMU rows sorted by stamp (N, 7), their stamps, frame starts (F,), ends (F,), image rates (F, M), signed
+        motion (F, M, 2))."""
+        imu = np.array(self._imu)
+        imu = imu[np.argsort(imu[:, 0], kind="stable")]
+        frames = list(self._frames)
+        return (imu, imu[:, 0], np.array([f[0] for f in frames]), np.array([f[1] for f in frames]),
+                np.array([f[2] for f in frames]), np.array([f[3] for f in frames]))
 
     def estimate(self) -> ClockOffset | None:
         if len(self._imu) < MIN_IMU_SAMPLES or len(self._frames) < MIN_MOVING_FRAMES:
             return None
-        imu = np.array(self._imu)
-        imu = imu[np.argsort(imu[:, 0], kind="stable")]
-        t = imu[:, 0]
-        a = np.array([f[0] for f in self._frames])
-        b = np.array([f[1] for f in self._frames])
-        y = np.array([f[2] for f in self._frames])  # (F, M)
+        imu, t, a, b, y, _ = self._collected()
         inside = (a - MAX_LAG_S >= t[0]) & (b + MAX_LAG_S <= t[-1])
         a, b, y = a[inside], b[inside], y[inside]
         med = np.nanmedian(y, axis=1) if len(y) else np.zeros(0)
@@ -134,10 +190,133 @@ class ImuClockEstimator:
             res = minimize_scalar(lambda d: -self._camera_correlation(imu, a, b, y, d), method="bounded",
                                   bounds=(lag - FRAME_LAGS * np.median(b - a), lag + FRAME_LAGS * np.median(b - a)),
                                   options={"xatol": LAG_TOLERANCE_S})
-            lag, best = float(res.x), -float(res.fun)
+            if -float(res.fun) > best:  # the bent cameras explain the images better than the body alone
+                lag, best = float(res.x), -float(res.fun)
         if best < MIN_CORRELATION:
             return None
         return ClockOffset(offset_s=-float(lag), correlation=best, frames=int(len(a)))
+
+    def far_offset(self, max_offset_s: float) -> FarClockOffset | None:
+        """The IMU clock offset searched over lags of up to ``max_offset_s`` either way (an IMU stamped by another
+        clock), from each camera's image rate against the rate the IMU predicts across that camera's optical
+        axis: the moves' axes tell moves of the same speed apart, which the rates' magnitudes alone do not. The
+        prediction is the body's turn (the gyro integrated) and, on a rig whose bars bend, also each bar's change
+        of bend (:class:`~nrmpc_ros.core.bar_state.BarPropagator` over the samples once, read at the shifted
+        stamps): whichever correlates better at its peak (a rig file's bars that do not ring as the images do
+        predict worse than the body alone). The correlation's sums are kept move by move, so resampling the moves
+        (:data:`RESAMPLES`, a seeded generator) tests the peak against its rivals without recomputing a lag: the
+        misfit each move adds at a rival lag beyond the peak's, summed over the resampled moves, must be
+        positive.
+        The bars' fine lag (ms) is left to :meth:`estimate`. None without a rig file's IMU mount, or without
+        :data:`MIN_MOVING_FRAMES` moving frames in :data:`MIN_MOVES` moves and :data:`MIN_IMU_SAMPLES`
+        samples."""
+        rig = self.rig
+        if rig is None or rig.imu is None or len(self._imu) < MIN_IMU_SAMPLES or len(self._frames) < MIN_MOVING_FRAMES:
+            return None
+        imu, t, a, b, y, shifts = self._collected()
+        med = np.nanmedian(y, axis=1)
+        ok = np.isfinite(med)
+        a, b, y, shifts, med = a[ok], b[ok], y[ok], shifts[ok], med[ok]
+        moving = med > np.median(med) + MOVE_MADS * _mad(med) if len(med) else np.zeros(0, bool)
+        if moving.sum() < MIN_MOVING_FRAMES:
+            return None
+        segment, moves = _move_segments(moving)
+        if moves < MIN_MOVES:
+            return None
+        signed = np.count_nonzero(np.isfinite(shifts).all(axis=2).any(axis=1) & moving) >= MIN_MOVING_FRAMES
+        if signed:  # each camera's signed motion, two channels per camera
+            y = shifts.reshape(len(shifts), -1)
+        g = imu[:, 4:7] @ rig.imu.rotation.T  # body-frame rate
+        cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
+        series = {"body": cum[:, None, :]}  # (N, 1 or M, 3) each camera's rotation since the first sample
+        phi = self._bends(imu)
+        if phi is not None:
+            series["bent"] = cum[:, None, :] + phi
+        axis, to_camera = rig.rotations[:, :, 2], np.swapaxes(rig.rotations, -1, -2)
+
+        def predicted(turn, dt):
+            """The image motion the cameras' rotations ``turn`` (K, M or 1, 3; body frame) over ``dt`` (K,) give:
+            signed (K, 2M; a camera turned by theta about its own y axis sees the scene shift by -theta in x, about
+            its x axis by +theta in y) or across the optical axes (K, M)."""
+            if not signed:
+                return _across_rates(turn, axis, dt)
+            cam = np.einsum("mij,kmj->kmi", to_camera, np.broadcast_to(turn, (len(turn), len(axis), 3)))
+            return np.stack([-cam[..., 1], cam[..., 0]], axis=2).reshape(len(turn), -1) / dt[:, None]
+
+        def covered(lag: float) -> np.ndarray:
+            return (a + lag >= t[0]) & (b + lag <= t[-1])
+
+        def sums(rotation, lag: float, inside=None) -> np.ndarray | None:
+            """(moves, 6) sums n, x, y, xx, yy, xy of predicted against measured rates at ``lag`` over the frames
+            ``inside`` (default: those the samples cover at that lag), or None where the samples cover too few of
+            the moving frames."""
+            inside = covered(lag) if inside is None else inside
+            if np.count_nonzero(inside & moving) < FAR_MIN_MOVING_SHARE * np.count_nonzero(moving):
+                return None
+            turn = _interp_rows(b[inside] + lag, t, rotation) - _interp_rows(a[inside] + lag, t, rotation)
+            x = predicted(turn, (b - a)[inside])
+            yy = y[inside]
+            use = np.isfinite(yy)
+            x, yy = np.where(use, x, 0.0), np.where(use, yy, 0.0)
+            cols = np.stack([use.sum(1), x.sum(1), yy.sum(1), (x * x).sum(1), (yy * yy).sum(1), (x * yy).sum(1)], 1)
+            out = np.zeros((moves, 6))
+            np.add.at(out, segment[inside], cols)
+            return out
+
+        def scan(rotation, lags):
+            stats = [sums(rotation, float(lag)) for lag in lags]
+            return stats, np.array([_from_sums(s.sum(0)) if s is not None else -np.inf for s in stats])
+
+        step = FAR_GRID_FRACTION * float(np.median(b - a))
+        lags = np.arange(-max_offset_s, max_offset_s + step / 2, step)
+        scans = {name: scan(rotation, lags) for name, rotation in series.items()}
+        name = max(scans, key=lambda n: np.max(scans[n][1]))
+        stats, corr = scans[name]
+        k = int(np.argmax(corr))
+        if not np.isfinite(corr[k]):
+            return None
+        lo, hi = k, k  # the peak's lobe: down to half its correlation either way
+        while lo > 0 and corr[lo - 1] > corr[k] / 2:
+            lo -= 1
+        while hi < len(corr) - 1 and corr[hi + 1] > corr[k] / 2:
+            hi += 1
+        peaks = [i for i in range(len(corr)) if (i < lo or i > hi) and np.isfinite(corr[i])
+                 and corr[i] >= corr[max(i - 1, 0)] and corr[i] >= corr[min(i + 1, len(corr) - 1)]]
+        rivals = sorted(peaks, key=lambda i: -corr[i])[:MAX_RIVALS]
+        confidence = 1.0
+        if rivals:  # each move's misfit at a rival lag less at the peak (the frames both lags cover), resampled
+            weights = np.random.default_rng(0).dirichlet(np.ones(moves), size=RESAMPLES)  # (B, moves)
+            gain = []
+            for i in rivals:
+                both = covered(float(lags[k])) & covered(float(lags[i]))
+                at_peak, at_rival = sums(series[name], float(lags[k]), both), sums(series[name], float(lags[i]), both)
+                if at_peak is not None and at_rival is not None:
+                    gain.append(weights @ (_misfits(at_rival) - _misfits(at_peak)))
+            confidence = float(np.mean(np.min(gain, axis=0) > 0)) if gain else 1.0
+        fine = np.arange(lags[k] - step, lags[k] + step + LAG_STEP_S / 2, LAG_STEP_S)
+        _, fine_corr = scan(series[name], fine)
+        j = int(np.argmax(fine_corr))
+        return FarClockOffset(offset_s=-_parabola(fine, fine_corr, j), correlation=float(fine_corr[j]),
+                              rival_correlation=float(corr[rivals[0]]) if rivals else -1.0,
+                              confidence=confidence, moves=moves)
+
+    def _bends(self, imu) -> np.ndarray | None:
+        """(N, M, 3) each camera's bend rotation vector at each IMU sample (the bars driven by the samples as
+        stamped), or None for rigid bars."""
+        rig = self.rig
+        if not rig.is_flexible:
+            return None
+        from ..core.bar_state import BarPropagator
+        from ..core.deformation import bend_rotation_vectors
+
+        prop = BarPropagator(rig, history_s=math.inf)
+        for row in imu.tolist():
+            prop.add_imu(row[0], row[1:4], row[4:7])
+        x = prop.loads_at(imu[:, 0])
+        if x is None:
+            return None
+        M = rig.num_cameras
+        return bend_rotation_vectors(rig, x.reshape(-1, 3)).reshape(len(imu), M, M, 3)[:, np.arange(M), np.arange(M)]
 
     def _camera_correlation(self, imu, a, b, y, lag: float) -> float:
         """Correlation of the images' rates with each bent camera's predicted rate, the IMU lagging by ``lag``."""
@@ -159,11 +338,53 @@ class ImuClockEstimator:
         cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
         turn = np.stack([np.interp(b, t, cum[:, j]) - np.interp(a, t, cum[:, j]) for j in range(3)], axis=1)
         rot = turn[:, None, :] + phi[len(a):] - phi[:len(a)]  # (F, M, 3) small rotations over the intervals
-        axis = rig.rotations[:, :, 2]  # optical axes in the body
-        across = rot - np.sum(rot * axis[None], axis=2, keepdims=True) * axis[None]
-        pred = np.linalg.norm(across, axis=2) / (b - a)[:, None]
+        pred = _across_rates(rot, rig.rotations[:, :, 2], b - a)
         ok = np.isfinite(y)
         return float(_correlation(pred[ok][None], y[ok])[0])
+
+
+def _across_rates(rot, axis, dt):
+    """(F, M) image rates (rad/s): the small rotations ``rot`` (F, M or 1, 3) of the cameras over intervals ``dt``
+    (F,), across each camera's optical axis ``axis`` (M, 3; the part an image shows as motion)."""
+    across = rot - np.sum(rot * axis[None], axis=2, keepdims=True) * axis[None]
+    return np.linalg.norm(across, axis=2) / dt[:, None]
+
+
+def _interp_rows(q, t, v):
+    """``v`` (N, ..., 3) sampled at ``t`` (N,), linearly interpolated at ``q`` (K,): (K, ..., 3)."""
+    k = np.clip(np.searchsorted(t, q, side="right") - 1, 0, len(t) - 2)
+    w = ((q - t[k]) / np.maximum(t[k + 1] - t[k], 1e-300)).reshape((-1,) + (1,) * (v.ndim - 1))
+    return v[k] * (1.0 - w) + v[k + 1] * w
+
+
+def _move_segments(moving):
+    """Each frame's move (0..n-1) for ``moving`` (F,) bool in time order: a move's run of moving frames with the
+    still frames up to halfway to the next move's; and n."""
+    starts = np.flatnonzero(moving & ~np.r_[False, moving[:-1]])
+    ends = np.flatnonzero(moving & ~np.r_[moving[1:], False])
+    bounds = (ends[:-1] + starts[1:] + 1) // 2  # first frame of each later move's segment
+    return np.searchsorted(bounds, np.arange(len(moving)), side="right"), len(starts)
+
+
+def _misfits(s) -> np.ndarray:
+    """Each move's squared residual (moves,) of the line y = alpha x + beta fitted to all moves at once, from the
+    moves' sums (moves, 6) n, x, y, xx, yy, xy: one gain for the whole recording, so a lag that lines one move
+    up with another move's shape is not refitted move by move."""
+    n, x, y, xx, yy, xy = s.sum(0)
+    vx = xx - x * x / max(n, 1.0)
+    alpha = (xy - x * y / max(n, 1.0)) / vx if vx > 0 else 0.0
+    beta = (y - alpha * x) / max(n, 1.0)
+    n, x, y, xx, yy, xy = s.T
+    return yy - 2 * alpha * xy - 2 * beta * y + alpha * alpha * xx + 2 * alpha * beta * x + beta * beta * n
+
+
+def _from_sums(s):
+    """Pearson correlation from sums (..., 6) n, x, y, xx, yy, xy."""
+    n, x, y, xx, yy, xy = np.moveaxis(np.asarray(s, float), -1, 0)
+    n = np.maximum(n, 1.0)
+    cov = xy - x * y / n
+    var = np.maximum(xx - x * x / n, 0.0) * np.maximum(yy - y * y / n, 0.0)
+    return cov / np.maximum(np.sqrt(var), 1e-300)
 
 
 def _correlation(x, y):
@@ -188,4 +409,4 @@ def _mad(v) -> float:
     return float(np.median(np.abs(v - np.median(v))))
 
 
-__all__ = ["ClockOffset", "ImuClockEstimator", "MAX_LAG_S", "MIN_CORRELATION"]
+__all__ = ["ClockOffset", "FarClockOffset", "ImuClockEstimator", "MAX_LAG_S", "MIN_CORRELATION"]

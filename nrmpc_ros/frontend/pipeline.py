@@ -40,6 +40,7 @@ from .gyro import CameraTurns, rotation_between
 from .holds import BarRinging, Hold, HoldConfig, HoldRecorder, Refusal, RingingSource, slowest_bar_period
 from .imu import ImuBuffer, ImuConfig, ImuGravity, _vec3
 from .imu_clock import ImuClockEstimator
+from .imu_clock_check import MeasuredClockOffset, offset_from_moves
 from .linking import HoldLinker
 from .motion import Motion, MotionKind
 from .noise_correlation import mean_variance_factor
@@ -206,6 +207,8 @@ class Pipeline:
                                           bias_prior_ms2=ms2(self.config.imu_bias_sigma_deg),
                                           floor_ms2=ms2(self.config.imu_gravity_floor_deg)) if rig.imu else None
         self.imu_clock = ImuClockEstimator(rig)  # the IMU's clock against the cameras', from the moves
+        self.imu_clock_off: MeasuredClockOffset | None = None  # seconds off, measured once the images refute
+        self._clock_measured_at = 0  # the refutations counted when it was last measured
         self.bars = BarRinging.of(rig, self.config.holds)  # frequency, damping, image offset per load
         self.measured_holds: list | None = None  # a list keeps every measured hold (the bars' ringing, offline)
         self.stats = PipelineStats()
@@ -358,7 +361,10 @@ class Pipeline:
         if gap <= lone_gap:  # the images' rotation rate over this frame interval, for the IMU clock
             rates = [math.nan if s is None else s.motion_px / cam.focal_px / gap
                      for s, cam in zip(steps, self.rig.cameras)]
-            self.imu_clock.add_frame(self.last_stamp, stamp, rates)
+            shifts = [(math.nan, math.nan) if s is None else (s.shift_px[0] / cam.focal_px / gap,
+                                                                s.shift_px[1] / cam.focal_px / gap)
+                      for s, cam in zip(steps, self.rig.cameras)]
+            self.imu_clock.add_frame(self.last_stamp, stamp, rates, shifts)
         out = []
         lost = any(s is not None and s.lost for s in steps)
         settling = self._settling(stamp)
@@ -613,6 +619,10 @@ class Pipeline:
         return out
 
     def _close(self) -> list:
+        refuted = self.estimator.imu_check.refuted
+        if refuted != self._clock_measured_at:  # the images refuted the IMU's gravity since: is its clock off?
+            self._clock_measured_at = refuted  # (here, with the samples and frames this stage collects)
+            self.imu_clock_off = offset_from_moves(self.imu_clock)
         h = self._hold
         self._discard()
         if h is None or h.measured:
@@ -662,13 +672,15 @@ class Pipeline:
         """The ringing of a hold that may be a snapshot (``rec.prediction_at``), predicted by the bars' state at
         its cameras' stamps (:func:`.snapshot_ringing.predict`) into ``rec.prediction``: once the IMU's stillness
         test has decided its instant (half a stillness window of samples after it, while the propagator still
-        holds it), or when the hold is measured before that. None without an IMU, rigid bars, or an IMU not
+        holds it), or when the hold is measured before that. None without an IMU, rigid bars, an IMU not
         still at the frames (a snapshot taken moments after the stop sits in a still run shorter than a window:
-        its onset is taken as it stands; whether the rig was still is decided when the hold closes)."""
+        its onset is taken as it stands; whether the rig was still is decided when the hold closes), or once the
+        images refuted the IMU's gravity (its rotation or clock is wrong, and so are the loads it drives)."""
         t, cams, stamps = rec.prediction_at
         rec.prediction_at = None
         cfg = self.config.holds
-        if self.extrinsics is None or not cfg.predict_ringing or not self.bars.period_s or not len(self.imu):
+        if self.extrinsics is None or not cfg.predict_ringing or not self.bars.period_s or not len(self.imu) \
+                or self.estimator.imu_check.refuted:
             return
         since = self.zupt.still_since(t, any_length=True)
         if since is None:

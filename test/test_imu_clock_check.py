@@ -1,0 +1,70 @@
+"""An IMU clock seconds off the cameras', measured from a whole recording and applied by ``nrmpc replay``: on a
+stream from the moves (the far search), on holds from the rotations between them; a right clock is left alone."""
+
+import math
+
+import pytest
+from recordings import recording
+
+from nrmpc_ros.cli.main import main
+
+pytestmark = pytest.mark.slow  # renders bags
+
+
+def _replay(path, rig_file, out, capsys, *flags):
+    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(out), "--no-progress", "--quiet",
+                 *flags]) == 0
+    return capsys.readouterr().out
+
+
+def _medians(text):
+    return [float(ln.split("median")[1].split()[0]) for ln in text.splitlines()
+            if ln.strip().startswith("gravity vs ground truth")]
+
+
+@pytest.mark.parametrize("rig_name", ["fish3", "cross4"])
+def test_a_stream_with_the_imu_2_s_late_is_measured_and_replayed_with_it(recordings_dir, tmp_path, capsys,
+                                                                          rig_name):
+    """The IMU stamped 2 s late: as stamped, the holds' IMU windows are another moment's, holds are lost and the
+    gravities wrong. Replay measures the offset from the moves (each camera's image rate against the gyro's
+    prediction), says so, and replays with it: every hold estimated, every gravity within a tenth of a degree."""
+    path, rig_file, _ = recording(recordings_dir, rig_name, "imu-clock-2s")
+    as_stamped = _replay(path, rig_file, tmp_path / "a.csv", capsys, "--imu-clock-offset", "0")
+    assert "replaying with" not in as_stamped
+    line = next(ln for ln in as_stamped.splitlines() if "IMU clock against the cameras (the gyro's rate" in ln)
+    assert "replay with --imu-clock-offset -2.0" in line or "replay with --imu-clock-offset -1.9" in line, line
+    text = _replay(path, rig_file, tmp_path / "b.csv", capsys)
+    line = next(ln for ln in text.splitlines() if "replaying with --imu-clock-offset" in ln)
+    offset = float(line.split("replaying with --imu-clock-offset ")[1].split()[0])
+    assert offset == pytest.approx(-2.0, abs=0.05)
+    assert "with an estimate (after the first): 5/5" in text
+    assert max(_medians(text)) < 0.1
+    assert "refuted" not in text
+
+
+def test_a_right_clock_is_left_alone(recordings_dir, tmp_path, capsys):
+    path, rig_file, _ = recording(recordings_dir, "cross4", "stream-smooth")
+    text = _replay(path, rig_file, tmp_path / "a.csv", capsys)
+    assert "replaying with" not in text and "another moment's" not in text
+    assert all(math.isfinite(m) for m in _medians(text))
+
+
+def test_a_running_pipeline_measures_the_clock_once_the_images_refute_the_imu(recordings_dir):
+    """What the node can do while it runs: once the images refute the IMU's gravity, the frame stage measures
+    the clock from the moves it has seen (the node's IMU diagnostics show it with the setting to change)."""
+    from nrmpc_ros.bag.reader import BagReader
+    from nrmpc_ros.core import load_rig
+    from nrmpc_ros.frontend.imu_clock_check import ClockEvidence
+    from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig
+    from nrmpc_ros.frontend.replay import replay_bag, resolve_imu_topic
+
+    path, rig_file, _ = recording(recordings_dir, "cross4", "imu-clock-2s")
+    rig = load_rig(rig_file)
+    with BagReader(path) as bag:
+        pipe = Pipeline(rig, PipelineConfig())
+        for _ in replay_bag(bag, rig, pipe, resolve_imu_topic(bag, rig, warn=lambda m: None), warn=lambda m: None):
+            pass
+    assert pipe.estimator.imu_check.refuted >= 1
+    clock = pipe.imu_clock_off
+    assert clock is not None and clock.source is ClockEvidence.MOVES
+    assert clock.offset_s == pytest.approx(-2.0, abs=0.05)
