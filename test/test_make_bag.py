@@ -745,6 +745,8 @@ def test_users_recording_options_in_a_bag(tmp_path):
     assert 1.7 * len(c0) < len(c1) < 2.3 * len(c0)
     imu_t = np.array([stamp(m) for _, m in msgs["/imu/data"]])
     assert np.all(np.diff(imu_t) == 10_000_000) and imu_t[0] == 1_700_000_000_000_000_000 + 7_000_000
+    received = np.array([t for t, _ in msgs["/imu/data"]])
+    assert np.all(received == imu_t - 7_000_000), "received when taken: the recorder's clock is the cameras'"
     gt = np.array([stamp(m) for _, m in msgs["/ground_truth/pose"]])
     w = np.linalg.norm(vectors(msgs, "/ground_truth/angular_velocity", "vector"), axis=1)
     assert types["/ground_truth/angular_velocity"] == "geometry_msgs/msg/Vector3Stamped"

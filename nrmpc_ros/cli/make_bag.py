@@ -187,7 +187,8 @@ def register(sub):
     se.add_argument("--gyro-bias", type=float, help=f"gyro bias norm rad/s (default {d['gyro_bias']:g})")
     se.add_argument("--imu-time-offset-ms", type=float, metavar="MS",
                     help="the IMU's stamps are its true sample times + MS (a constant clock offset to the cameras; "
-                         "default 0)")
+                         "the bag receives each sample at its true time, as a recorder on the cameras' clock "
+                         "would; default 0)")
     se.add_argument("--exposure-drift", type=float, metavar="A",
                     help="auto-exposure drift: each camera's grey levels become gain I + offset, the gain drifting "
                          f"slowly within 1 +- A and the offset within +- {EXPOSURE_OFFSET_GREY:g} A grey levels, "

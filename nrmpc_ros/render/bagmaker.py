@@ -17,7 +17,7 @@ with a slow sinusoidal gain (1 +- ``exposure_drift``) and offset
 throughout) reads the specific force (``a = -g`` when still, through the
 rig's ``imu`` mount) plus white noise and a constant bias, and the body
 angular velocity; its stamps may be off the cameras' clock by a constant
-``imu_time_offset_ms``. A camera driver may deliver its images late: each image's bag time (when the
+``imu_time_offset_ms`` (received at the true time all the same: the recorder's clock is the cameras'). A camera driver may deliver its images late: each image's bag time (when the
 recorder received it) may trail its stamp by ``camera_latency_ms`` and, with ``camera_burst_s``, come in
 bursts (a driver or link that buffers, every image of a burst received together at the burst's end; with
 ``camera_burst_stagger_ms`` topic by topic, camera i's images i x that later), while the IMU's samples are
@@ -345,10 +345,11 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
             bar = tqdm(total=len(frame_t), unit="frame", desc="make-bag", disable=not progress, leave=False)
             for n, (t, view) in enumerate(zip(frame_t, frame_view)):
                 t, view = int(t), int(view)
-                # IMU samples stamped up to this trigger's latest camera stamp (IMU stamps carry the clock offset)
-                while j < len(imu_t) and imu_t[j] + imu_offset_ns <= t + max_jitter_ns:
+                # IMU samples taken up to this trigger's latest camera stamp, received when taken (the recorder's
+                # clock); their stamps carry the IMU clock's offset
+                while j < len(imu_t) and imu_t[j] <= t + max_jitter_ns:
                     ts = int(imu_t[j]) + imu_offset_ns
-                    push(ts, imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
+                    push(int(imu_t[j]), imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
                     j += 1
                 Rs, cs = renderer.camera_poses(R[n], p[n], cam_loads[n])
                 key = view if view < 0 or not creeping[view] else -1  # a creeping body is re-rendered every time
@@ -381,7 +382,7 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                 bar.update(1)
             while j < len(imu_t):
                 ts = int(imu_t[j]) + imu_offset_ns
-                push(ts, imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
+                push(int(imu_t[j]), imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
                 j += 1
             flush(np.iinfo(np.int64).max)
             bar.close()
