@@ -69,7 +69,12 @@ the body by tens of ms for bars of a few Hz (see :class:`ImuClockEstimator`), ab
 FAR_GRID_FRACTION = 0.25
 """Grid of the far search (:meth:`ImuClockEstimator.far_offset`) as a fraction of the median frame interval: the
 correlation's peak is as wide as a move's ramps, several frames, so four lags per frame sample it; the peak is
-then refined on the :data:`LAG_STEP_S` grid."""
+then refined to :data:`LAG_TOLERANCE_S` between its grid neighbours."""
+
+FAR_GRID_MOVE_FRACTION = 0.1
+"""... or a tenth of the median move's duration where that is coarser (fast cameras): the correlation's peak is
+wider than a move's ramps, which take a good part of the move, so a tenth samples it; a 60 Hz camera's quarter
+frame over lags of 10 s either way would be 5000 lags, each a pass over every frame."""
 
 FAR_MIN_MOVING_SHARE = 0.5
 """A far lag is scored only while the IMU's samples cover at least this share of the moving frames shifted by it:
@@ -267,7 +272,9 @@ class ImuClockEstimator:
             stats = [sums(rotation, float(lag)) for lag in lags]
             return stats, np.array([_from_sums(s.sum(0)) if s is not None else -np.inf for s in stats])
 
-        step = FAR_GRID_FRACTION * float(np.median(b - a))
+        durations = [b[segment == i][moving[segment == i]].max() - a[segment == i][moving[segment == i]].min()
+                     for i in range(moves)]
+        step = max(FAR_GRID_FRACTION * float(np.median(b - a)), FAR_GRID_MOVE_FRACTION * float(np.median(durations)))
         lags = np.arange(-max_offset_s, max_offset_s + step / 2, step)
         scans = {name: scan(rotation, lags) for name, rotation in series.items()}
         name = max(scans, key=lambda n: np.max(scans[n][1]))
@@ -293,10 +300,16 @@ class ImuClockEstimator:
                 if at_peak is not None and at_rival is not None:
                     gain.append(weights @ (_misfits(at_rival) - _misfits(at_peak)))
             confidence = float(np.mean(np.min(gain, axis=0) > 0)) if gain else 1.0
-        fine = np.arange(lags[k] - step, lags[k] + step + LAG_STEP_S / 2, LAG_STEP_S)
-        _, fine_corr = scan(series[name], fine)
-        j = int(np.argmax(fine_corr))
-        return FarClockOffset(offset_s=-_parabola(fine, fine_corr, j), correlation=float(fine_corr[j]),
+        from scipy.optimize import minimize_scalar
+
+        def neg(lag):
+            st = sums(series[name], float(lag))
+            return -_from_sums(st.sum(0)) if st is not None else 1.0
+
+        res = minimize_scalar(neg, method="bounded", bounds=(lags[k] - step, lags[k] + step),
+                              options={"xatol": LAG_TOLERANCE_S})
+        lag, best = (float(res.x), -float(res.fun)) if -float(res.fun) >= corr[k] else (float(lags[k]), float(corr[k]))
+        return FarClockOffset(offset_s=-lag, correlation=best,
                               rival_correlation=float(corr[rivals[0]]) if rivals else -1.0,
                               confidence=confidence, moves=moves)
 

@@ -17,11 +17,14 @@ with a slow sinusoidal gain (1 +- ``exposure_drift``) and offset
 throughout) reads the specific force (``a = -g`` when still, through the
 rig's ``imu`` mount) plus white noise and a constant bias, and the body
 angular velocity; its stamps may be off the cameras' clock by a constant
-``imu_time_offset_ms`` (received at the true time all the same: the recorder's clock is the cameras'). A camera driver may deliver its images late: each image's bag time (when the
-recorder received it) may trail its stamp by ``camera_latency_ms`` and, with ``camera_burst_s``, come in
-bursts (a driver or link that buffers, every image of a burst received together at the burst's end; with
-``camera_burst_stagger_ms`` topic by topic, camera i's images i x that later), while the IMU's samples are
-received at their stamps. Ground truth ``/ground_truth/pose`` (body in world,
+``imu_time_offset_ms``. A camera driver may deliver its images late: each
+image's bag time (when the recorder received it) may trail its stamp by
+``camera_latency_ms`` and, with ``camera_burst_s``, come in bursts (a driver
+or link that buffers, every image of a burst received together at the
+burst's end; with ``camera_burst_stagger_ms`` topic by topic, camera i's
+images i x that later), while the IMU's samples are received when taken (an
+IMU stamped by another clock too: the recorder's clock is the cameras').
+Ground truth ``/ground_truth/pose`` (body in world,
 world z up), ``/ground_truth/gravity`` (gravity in the body frame) and
 ``/ground_truth/angular_velocity`` (body rate, rad/s, body frame: zero exactly
 while the body is still, non-zero in a creeping hold or a move) is written at
