@@ -395,3 +395,17 @@ def test_a_failing_hold_estimate_is_counted_and_the_estimation_worker_goes_on(ri
     assert s.drops.by_reason()[Drop.ESTIMATION_FAILED] == 1
     assert any(level == "error" and "estimation failed" in line for level, line in logs)
     assert s.diagnostics()[2].level == ERROR
+
+
+def test_an_imu_clock_measured_seconds_off_is_in_the_imu_diagnostics_with_the_setting(rig):
+    """The frame stage's measurement (the moves against the gyro, taken once the images refute the IMU's gravity)
+    reaches the IMU's diagnostics with the value of input.imu_clock_offset_s that fixes it."""
+    from nrmpc_ros.frontend.imu_clock import FarClockOffset
+    from nrmpc_ros.frontend.imu_clock_check import ClockEvidence, MeasuredClockOffset
+
+    s, _, _ = service(rig)
+    assert "clock check" not in s.diagnostics()[1].values
+    far = FarClockOffset(offset_s=-2.02, correlation=0.9, rival_correlation=0.2, confidence=1.0, moves=7)
+    s.runner.pipeline.imu_clock_off = MeasuredClockOffset(-2.02, ClockEvidence.MOVES, far)
+    check = s.diagnostics()[1].values["clock check"]
+    assert "+2.020 s off the cameras'" in check and "input.imu_clock_offset_s to -2.020" in check
