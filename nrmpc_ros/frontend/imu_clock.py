@@ -231,7 +231,7 @@ class ImuClockEstimator:
         signed = np.count_nonzero(np.isfinite(shifts).all(axis=2).any(axis=1) & moving) >= MIN_MOVING_FRAMES
         if signed:  # each camera's signed motion, two channels per camera
             y = shifts.reshape(len(shifts), -1)
-        g = imu[:, 4:7] @ rig.imu.rotation.T  # body-frame rate
+        g = imu[:, 4:7] @ _imu_to_body(rig).T  # body-frame rate (an IMU in a camera: about, not exactly)
         cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
         series = {"body": cum[:, None, :]}  # (N, 1 or M, 3) each camera's rotation since the first sample
         phi = self._bends(imu)
@@ -347,7 +347,7 @@ class ImuClockEstimator:
         M = rig.num_cameras
         phi = bend_rotation_vectors(rig, x.reshape(-1, 3)).reshape(len(q), M, M, 3)[:, np.arange(M), np.arange(M)]
         t = imu[:, 0] - lag
-        g = imu[:, 4:7] @ rig.imu.rotation.T  # body-frame rate (an IMU in a camera: about, not exactly)
+        g = imu[:, 4:7] @ _imu_to_body(rig).T  # body-frame rate (an IMU in a camera: about, not exactly)
         cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
         turn = np.stack([np.interp(b, t, cum[:, j]) - np.interp(a, t, cum[:, j]) for j in range(3)], axis=1)
         rot = turn[:, None, :] + phi[len(a):] - phi[:len(a)]  # (F, M, 3) small rotations over the intervals
@@ -361,6 +361,15 @@ def _across_rates(rot, axis, dt):
     (F,), across each camera's optical axis ``axis`` (M, 3; the part an image shows as motion)."""
     across = rot - np.sum(rot * axis[None], axis=2, keepdims=True) * axis[None]
     return np.linalg.norm(across, axis=2) / dt[:, None]
+
+
+def _imu_to_body(rig) -> np.ndarray:
+    """The IMU's axes in the body: its mount's rotation, through its camera's unbent rotation for an IMU inside a
+    camera (that camera turns with its bar as well: the rates are the body's about, not exactly)."""
+    mount = rig.imu
+    if mount.mount == "body":
+        return mount.rotation
+    return rig.rotations[rig.camera_index(mount.mount)] @ mount.rotation
 
 
 def _interp_rows(q, t, v):
