@@ -7,6 +7,7 @@ import pytest
 from recordings import recording
 
 from nrmpc_ros.cli.main import main
+from nrmpc_ros.frontend.replay import collect_sequences
 
 pytestmark = pytest.mark.slow  # renders bags
 
@@ -68,3 +69,18 @@ def test_a_running_pipeline_measures_the_clock_once_the_images_refute_the_imu(re
     clock = pipe.imu_clock_off
     assert clock is not None and clock.source is ClockEvidence.MOVES
     assert clock.offset_s == pytest.approx(-2.0, abs=0.05)
+
+
+def test_bar_calibration_from_a_stream_with_the_imu_2_s_late(recordings_dir):
+    """nrmpc calibrate-bars reads the holds' IMU gravities: 2 s off, they are another moment's. The moves'
+    offset is applied as replay applies it, and every bar's compliance comes out at the rig file's truth."""
+    from nrmpc_ros.calibration import calibrate_sequences
+    from nrmpc_ros.core import load_rig
+
+    path, rig_file, _ = recording(recordings_dir, "cross4", "imu-clock-2s")
+    rig = load_rig(rig_file)
+    said = []
+    result = calibrate_sequences(rig, collect_sequences(path, rig, warn=said.append))
+    assert any("replaying with that offset" in line for line in said)
+    truth = rig.compliance
+    assert result.compliance == pytest.approx(truth, rel=0.05), (result.compliance, truth)

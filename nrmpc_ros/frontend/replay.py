@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 
 from ..bag.reader import BagReader
 from ..core.rig import Rig
@@ -24,7 +25,9 @@ from .camera_info import camera_info_mismatch
 from .droplog import DropLog
 from .drops import sorted_counts
 from .feeder import Feeder, FeederConfig
+from .imu_clock_check import clock_passes, describe_clock, measure_imu_clock, turns_between_holds
 from .pipeline import Pipeline, PipelineConfig
+from .reference import read_reference
 from .runner import PipelineRunner
 from .topics import CAMERA_INFO_TYPE, IMU_TYPE, bag_image_topics, bag_topic, check_topic_type
 from .work import WorkKind
@@ -159,18 +162,36 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
     ``bag`` is a path or an open :class:`BagReader`. The poses and gravity start the calibration; the rig's bar
     values may be wrong (what the holds and their tracks are does not depend on them). Raises
     :class:`InputError` when the bag or rig has no IMU, or no sequence of two holds has IMU gravity. ``holds``:
-    a list that receives every measured :class:`~nrmpc_ros.frontend.holds.Hold` (their ringing traces).
+    a list that receives every measured :class:`~nrmpc_ros.frontend.holds.Hold` (their ringing traces). An IMU
+    clock measured seconds off the cameras' is applied as ``nrmpc replay`` applies it (said through ``warn``).
     """
     if not isinstance(bag, BagReader):
         with BagReader(bag) as reader:
             return collect_sequences(reader, rig, config, imu_topic, warn, progress, stats, holds)
     topic = resolve_imu_topic(bag, rig, imu_topic, required=True, warn=warn)
-    pipe = Pipeline(rig, config, method="4pt-bending")
-    pipe.sequence.keep_history = True
-    pipe.measured_holds = holds
-    runner = PipelineRunner.around(pipe, drops=DropLog(math.inf))
-    for _ in replay_bag(bag, rig, runner, topic, warn=warn, progress=progress):
-        pass
+    ref = read_reference(bag, topic, warn)
+
+    def run_pass(offset_s):  # an IMU clock measured off the cameras' is applied, as nrmpc replay does
+        pipe = Pipeline(rig, config, method="4pt-bending")
+        pipe.sequence.keep_history = True
+        pipe.measured_holds = [] if holds is not None else None
+        runner = PipelineRunner.around(pipe, drops=DropLog(math.inf))
+        ests = [e for es in replay_bag(bag, rig, runner, topic, FeederConfig(imu_clock_offset_s=offset_s), warn=warn,
+                                       progress=progress) for e in es]
+        return runner, ests, replace(ref, imu_t=ref.imu_t + offset_s)
+
+    def measure(result):
+        runner, ests, shifted = result
+        check = runner.pipeline.estimator.imu_check
+        return measure_imu_clock(runner.pipeline, shifted, rig, turns_between_holds(ests, bool(check.refuted)))
+
+    def said(measured, result, passes):
+        warn(f"IMU clock against the cameras ({measured.source.value}): {describe_clock(measured)}; replaying "
+             "with that offset added to the IMU's stamps")
+
+    (runner, _, _), _, _ = clock_passes(run_pass, measure, said=said)
+    if holds is not None:
+        holds.extend(runner.pipeline.measured_holds)
     st = runner.stats
     if stats is not None:
         stats.update(st.as_dict())
