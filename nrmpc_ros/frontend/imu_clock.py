@@ -189,10 +189,12 @@ class ImuClockEstimator:
         k = int(np.argmax(corr))
         lag = _parabola(lags, corr, k)
         best = float(corr[k])
-        if self.rig is not None and self.rig.is_flexible and self.rig.imu is not None:
+        bent = self._rotations(imu)[1] if self.rig is not None and self.rig.imu is not None else None
+        if bent is not None:
             from scipy.optimize import minimize_scalar
 
-            res = minimize_scalar(lambda d: -self._camera_correlation(imu, a, b, y, d), method="bounded",
+            axis = self.rig.rotations[:, :, 2]
+            res = minimize_scalar(lambda d: -_camera_correlation(bent, t, a, b, y, axis, d), method="bounded",
                                   bounds=(lag - FRAME_LAGS * np.median(b - a), lag + FRAME_LAGS * np.median(b - a)),
                                   options={"xatol": LAG_TOLERANCE_S})
             if -float(res.fun) > best:  # the bent cameras explain the images better than the body alone
@@ -233,12 +235,8 @@ class ImuClockEstimator:
         signed = np.count_nonzero(np.isfinite(shifts).all(axis=2).any(axis=1) & moving) >= MIN_MOVING_FRAMES
         if signed:  # each camera's signed motion, two channels per camera
             y = shifts.reshape(len(shifts), -1)
-        g = imu[:, 4:7] @ _imu_to_body(rig).T  # body-frame rate (an IMU in a camera: about, not exactly)
-        cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
-        series = {"body": cum[:, None, :]}  # (N, 1 or M, 3) each camera's rotation since the first sample
-        phi = self._bends(imu)
-        if phi is not None:
-            series["bent"] = cum[:, None, :] + phi
+        body, bent = self._rotations(imu)
+        series = {"body": body} if bent is None else {"body": body, "bent": bent}
         axis, to_camera = rig.rotations[:, :, 2], np.swapaxes(rig.rotations, -1, -2)
 
         def predicted(turn, dt):
@@ -315,47 +313,39 @@ class ImuClockEstimator:
                               rival_correlation=float(corr[rivals[0]]) if rivals else -1.0,
                               confidence=confidence, moves=moves)
 
-    def _bends(self, imu) -> np.ndarray | None:
-        """(N, M, 3) each camera's bend rotation vector at each IMU sample (the bars driven by the samples as
-        stamped), or None for rigid bars."""
+    def _rotations(self, imu) -> tuple:
+        """Each camera's rotation since the first sample at every IMU sample, body frame: the body's turn (the
+        gyro integrated; (N, 1, 3)) and, on a rig whose bars bend, with each bar's bend added ((N, M, 3); the bars
+        driven by the samples as stamped, :class:`~nrmpc_ros.core.bar_state.BarPropagator`), else None. A lag
+        reads both at shifted stamps: the bars' response to the IMU does not depend on the clock it is read in."""
         rig = self.rig
+        t = imu[:, 0]
+        g = imu[:, 4:7] @ _imu_to_body(rig).T  # body-frame rate (an IMU in a camera: about, not exactly)
+        body = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
         if not rig.is_flexible:
-            return None
+            return body[:, None, :], None
         from ..core.bar_state import BarPropagator
         from ..core.deformation import bend_rotation_vectors
 
         prop = BarPropagator(rig, history_s=math.inf)
         for row in imu.tolist():
             prop.add_imu(row[0], row[1:4], row[4:7])
-        x = prop.loads_at(imu[:, 0])
+        x = prop.loads_at(t)
         if x is None:
-            return None
+            return body[:, None, :], None
         M = rig.num_cameras
-        return bend_rotation_vectors(rig, x.reshape(-1, 3)).reshape(len(imu), M, M, 3)[:, np.arange(M), np.arange(M)]
+        phi = bend_rotation_vectors(rig, x.reshape(-1, 3)).reshape(len(t), M, M, 3)[:, np.arange(M), np.arange(M)]
+        return body[:, None, :], body[:, None, :] + phi
 
-    def _camera_correlation(self, imu, a, b, y, lag: float) -> float:
-        """Correlation of the images' rates with each bent camera's predicted rate, the IMU lagging by ``lag``."""
-        from ..core.bar_state import BarPropagator
-        from ..core.deformation import bend_rotation_vectors
 
-        rig = self.rig
-        prop = BarPropagator(rig, imu_time_offset_s=-lag, history_s=math.inf)
-        for row in imu.tolist():
-            prop.add_imu(row[0], row[1:4], row[4:7])
-        q = np.concatenate([a, b])
-        x = prop.loads_at(q)
-        if x is None:
-            return -1.0
-        M = rig.num_cameras
-        phi = bend_rotation_vectors(rig, x.reshape(-1, 3)).reshape(len(q), M, M, 3)[:, np.arange(M), np.arange(M)]
-        t = imu[:, 0] - lag
-        g = imu[:, 4:7] @ _imu_to_body(rig).T  # body-frame rate (an IMU in a camera: about, not exactly)
-        cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
-        turn = np.stack([np.interp(b, t, cum[:, j]) - np.interp(a, t, cum[:, j]) for j in range(3)], axis=1)
-        rot = turn[:, None, :] + phi[len(a):] - phi[:len(a)]  # (F, M, 3) small rotations over the intervals
-        pred = _across_rates(rot, rig.rotations[:, :, 2], b - a)
-        ok = np.isfinite(y)
-        return float(_correlation(pred[ok][None], y[ok])[0])
+def _camera_correlation(rotation, t, a, b, y, axis, lag: float) -> float:
+    """Correlation of the images' rates ``y`` (F, M) over the frame intervals [a, b] with each camera's rate across
+    its optical axis ``axis`` from its ``rotation`` at the IMU's stamps ``t`` (:meth:`ImuClockEstimator.
+    _rotations`), the IMU lagging by ``lag``."""
+    turn = _interp_rows(b + lag, t, rotation) - _interp_rows(a + lag, t, rotation)
+    pred = _across_rates(turn, axis, b - a)
+    ok = np.isfinite(y)
+    return float(_correlation(pred[ok][None], y[ok])[0])
 
 
 def _across_rates(rot, axis, dt):
