@@ -75,7 +75,7 @@ from nrmpc_ros.frontend.estimates_csv import batch_rows, row_from_estimate
 from nrmpc_ros.frontend.estimation import ringing_noise_rad
 from nrmpc_ros.frontend.evaluation import evaluate, static_holds
 from nrmpc_ros.frontend.feeder import FeederConfig
-from nrmpc_ros.frontend.imu_clock_check import clock_passes, measure_imu_clock, turns_between_holds
+from nrmpc_ros.frontend.imu_clock_check import clock_passes, measure_imu_clock
 from nrmpc_ros.frontend.imu_reference import ImuReference
 from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig
 from nrmpc_ros.frontend.reference import STAMP_TOLERANCE_S, nearest_stamp, read_reference
@@ -168,8 +168,7 @@ def replay_rows(path: Path, rig, method: str, with_holds: bool = False, keep: li
 
         def measure(result):
             pipe, ests, shifted = result
-            turns = turns_between_holds(ests, bool(pipe.estimator.imu_check.refuted))
-            return measure_imu_clock(pipe, shifted, rig, turns) if imu_topic is not None else None
+            return measure_imu_clock(pipe, shifted, rig, ests) if imu_topic is not None else None
 
         (pipe, ests, ref), _, _ = clock_passes(run_pass, measure)
         if keep is not None:

@@ -22,7 +22,7 @@ from ..frontend.evaluation_report import format_report
 from ..frontend.extrinsics import NO_IMU_NOTE, ExtrinsicsCsv, hold_poses, imu_mount_warning
 from ..frontend.feeder import FeederConfig
 from ..frontend.imu_agreement import describe_check
-from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock, turns_between_holds
+from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
 from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
@@ -130,8 +130,8 @@ def _calibration(rig, runner) -> str:
 @dataclass
 class _Pass:
     """One pass of the pipeline over the bag: its runner and input, the rows written, the reference read (in the
-    cameras' clock), the batch rows, the rows of the extrinsics files, and the pairs of holds the clock is measured
-    from (:func:`~nrmpc_ros.frontend.imu_clock_check.measure_imu_clock`)."""
+    cameras' clock), the batch rows, the rows of the extrinsics files, and the hold estimates (the clock is measured
+    from their rotations: :func:`~nrmpc_ros.frontend.imu_clock_check.measure_imu_clock`)."""
 
     runner: PipelineRunner
     replay: BagReplay
@@ -140,12 +140,12 @@ class _Pass:
     batch: list
     extrinsics_rows: int | None
     causal_rows: int | None
-    turns: list
+    estimates: list
 
     def measured_clock(self, rig):
         """The IMU clock offset this pass still shows (:func:`~nrmpc_ros.frontend.imu_clock_check.
         measure_imu_clock`), or None."""
-        return measure_imu_clock(self.runner.pipeline, self.ref, rig, self.turns)
+        return measure_imu_clock(self.runner.pipeline, self.ref, rig, self.estimates)
 
 
 def _replay_pass(args, bag, rig, cfg, inputs: FeederConfig, image_topics, imu_topic, warn) -> _Pass:
@@ -189,7 +189,7 @@ def _replay_pass(args, bag, rig, cfg, inputs: FeederConfig, image_topics, imu_to
                     bw.write(row)
     return _Pass(runner, replay, rows, ref, batch, extrinsics.rows if extrinsics is not None else None,
                  causal.rows if causal is not None else None,
-                 turns_between_holds(ests, bool(runner.pipeline.estimator.imu_check.refuted)))
+                 ests)
 
 
 def run(args) -> int:

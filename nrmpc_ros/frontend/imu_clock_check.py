@@ -47,16 +47,16 @@ class MeasuredClockOffset:
     detail: FarClockOffset | HoldsClockOffset
 
 
-def measure_imu_clock(pipeline, ref, rig, turns: list) -> MeasuredClockOffset | None:
+def measure_imu_clock(pipeline, ref, rig, estimates: list) -> MeasuredClockOffset | None:
     """The IMU clock offset a pass of ``pipeline`` over a recording shows (module docstring), or None where the
     stamps as read agree with the images or nothing measures them. ``ref`` holds the IMU's samples as the pipeline
-    read them (:class:`~nrmpc_ros.frontend.reference.Reference`), ``turns`` the pairs of holds
-    [(span_a, span_b, R)] of :func:`~nrmpc_ros.frontend.imu_clock_holds.offset_from_turns`."""
+    read them (:class:`~nrmpc_ros.frontend.reference.Reference`), ``estimates`` the pass's hold estimates."""
     if rig.imu is None or not ref.has_imu:
         return None
     far = pipeline.imu_clock.far_offset(MAX_OFFSET_S)
     if far is not None and far.unique:
         return _from_moves(far)
+    turns = _turns_between_holds(estimates, bool(pipeline.estimator.imu_check.refuted))
     found = offset_from_turns(ref.imu_t, ref.imu_w, rig.imu, turns)
     if found is not None and abs(found.offset_s) > found.half_width_s:
         return MeasuredClockOffset(found.offset_s, ClockEvidence.HOLDS, found)
@@ -86,8 +86,9 @@ def clock_passes(run_pass, measure, offset_s: float = 0.0, said=None) -> tuple:
     return result, measured, offset_s
 
 
-def turns_between_holds(estimates, refuted: bool) -> list:
-    """The pairs of holds [(span_a, span_b, R)] of :func:`measure_imu_clock` from hold estimates (their settled
+def _turns_between_holds(estimates, refuted: bool) -> list:
+    """The pairs of holds [(span_a, span_b, R)] of :func:`~nrmpc_ros.frontend.imu_clock_holds.offset_from_turns`
+    from hold estimates (their settled
     spans and rotations): the images' own rotations only where the IMU's gravity was refuted (the others lean on
     it)."""
     spans = {e.stamp: (e.hold.settled_start, e.hold.settled_end) for e in estimates}
@@ -118,4 +119,4 @@ def describe_clock(clock: MeasuredClockOffset) -> str:
 
 
 __all__ = ["CLOCK_PASSES", "ClockEvidence", "MeasuredClockOffset", "clock_passes", "describe_clock",
-           "measure_imu_clock", "offset_from_moves", "turns_between_holds"]
+           "measure_imu_clock", "offset_from_moves"]

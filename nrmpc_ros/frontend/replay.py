@@ -25,7 +25,7 @@ from .camera_info import camera_info_mismatch
 from .droplog import DropLog
 from .drops import sorted_counts
 from .feeder import Feeder, FeederConfig
-from .imu_clock_check import clock_passes, describe_clock, measure_imu_clock, turns_between_holds
+from .imu_clock_check import clock_passes, describe_clock, measure_imu_clock
 from .pipeline import Pipeline, PipelineConfig
 from .reference import read_reference
 from .runner import PipelineRunner
@@ -182,8 +182,7 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
 
     def measure(result):
         runner, ests, shifted = result
-        check = runner.pipeline.estimator.imu_check
-        return measure_imu_clock(runner.pipeline, shifted, rig, turns_between_holds(ests, bool(check.refuted)))
+        return measure_imu_clock(runner.pipeline, shifted, rig, ests)
 
     def said(measured, result, passes):
         warn(f"IMU clock against the cameras ({measured.source.value}): {describe_clock(measured)}; replaying "
