@@ -267,7 +267,7 @@ class ImuBuffer:
         if t1 - t[-1] > self.max_age_s:
             return None, ImuGravityRefusal(ImuRefusal.STALE, f"newest IMU sample is {t1 - t[-1]:.3f} s older than "
                                            f"the view (max age {self.max_age_s:.3f} s)")
-        mean, mean_std, spread = mean_under_ringing(t, a, self.ringing_hz)
+        mean, mean_std, spread = mean_under_ringing(t, a, self.ringing_hz, w)
         try:
             g = gravity_from_accelerometer(self.rig, mean)
         except InputError as exc:

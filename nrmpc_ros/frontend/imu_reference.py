@@ -46,7 +46,7 @@ class ImuReference:
         if rig is not None:  # the stillness test as the pipeline runs it (an IMU on a ringing bar)
             zupt = zupt_for_rig(zupt, rig)
         self._ringing_hz = float(zupt.mount_ringing_hz or 0.0)
-        self._t, self._a = ref.imu_t, ref.imu_a
+        self._t, self._a, self._w = ref.imu_t, ref.imu_a, ref.imu_w
         self.noise: ImuNoise | None = None
         self.still = np.zeros(len(ref.imu_t), bool)
         if ref.has_imu:
@@ -57,14 +57,17 @@ class ImuReference:
             self.still = still_mask(ref.imu_t, ref.imu_a, ref.imu_w, self.noise, zupt, "the IMU")
 
     def gravity_at(self, stamp: float, window_s: float = WINDOW_S) -> np.ndarray | None:
-        """Gravity (body frame, m/s^2) from the still samples within +-``window_s`` of ``stamp``; None with fewer
-        than ``min_samples`` of them."""
+        """Gravity (body frame, m/s^2) from the still samples within +-``window_s`` of ``stamp``, on a ringing
+        mount within at least one of its periods either side (what the ringing's fit needs to take it out of
+        the mean; the IMU alone at its best); None with fewer than ``min_samples`` of them."""
+        if self._ringing_hz:
+            window_s = max(window_s, 1.0 / self._ringing_hz)
         i, j = np.searchsorted(self._t, [stamp - window_s, stamp + window_s])
         still = self.still[i:j]
-        a = self._a[i:j][still]
-        if len(a) < self.min_samples:
+        if np.count_nonzero(still) < self.min_samples:
             return None
-        mean = mean_under_ringing(self._t[i:j][still], a, self._ringing_hz)[0]  # an IMU on a ringing bar
+        mean = mean_under_ringing(self._t[i:j], self._a[i:j], self._ringing_hz, self._w[i:j], still)[0]  # an IMU
+        # on a ringing bar: its still samples turned back by the mount's turn, which the gyro saw throughout
         if self.rig is not None and self.rig.imu is not None:
             try:
                 return gravity_from_accelerometer(self.rig, mean)

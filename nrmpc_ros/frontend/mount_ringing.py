@@ -92,14 +92,113 @@ def _chunk_moments(d: np.ndarray, u: np.ndarray, i0: np.ndarray, i1: np.ndarray)
     return full[:, 0, :], ss_const, ss_free
 
 
-def mean_under_ringing(t, x, frequency_hz: float) -> tuple:
+def mount_turn(t: np.ndarray, gyro: np.ndarray, bias) -> np.ndarray:
+    """The mount's rotation vector (n, 3) since the first sample: the gyro's rate less ``bias``, integrated over
+    the stamps t (trapezoid). Over a ringing's span it is the ringing's rotation about its mean to first order
+    (the rotations are tenths of a radian at most; a move's, which is large, is a motion the gyro test sees)."""
+    rate = np.asarray(gyro, float).reshape(-1, 3) - np.asarray(bias, float).reshape(3)
+    turn = np.zeros_like(rate)
+    if len(t) > 1:
+        np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t)[:, None], axis=0, out=turn[1:])
+    return turn
+
+
+def turned_back(x: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Vectors x (n, 3) turned by the rotation vectors phi (n, 3) (Rodrigues, row by row): an accelerometer's
+    samples in the frame the mount had at the turn's reference."""
+    angle = np.linalg.norm(phi, axis=1)
+    k = phi / np.where(angle > 0, angle, 1.0)[:, None]
+    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    return x * c + np.cross(k, x) * s + k * np.einsum("ij,ij->i", k, x)[:, None] * (1.0 - c)
+
+
+class MountTurn:
+    """The windows of the stillness test on a ringing mount, with the mount's rotation the gyro saw.
+
+    A mount that turns by phi reads gravity turned by -phi: to first order an oscillation like the rest (which
+    the fit takes out), but to second order 1/2 phi x (phi x g), a constant and a second harmonic that no fit
+    at the ringing's frequency takes out; at tenths of a radian several times an accelerometer's noise, for a
+    second after a large stop. Its gyro reads the rate J_r(phi) phi' = phi' - 1/2 phi x phi' + ..., whose second
+    term is a second harmonic too where the tip's swing is not in one plane. :meth:`accel_moments` turns the
+    accelerometer's samples back by the turn, :meth:`gyro_moments` turns the rates into phi' (J_r(phi)^-1 w): what
+    remains is an oscillation at the mount's frequency (the tip's own acceleration, its bending rate).
+
+    Each window is turned about one reference, the mount's mean turn over the period around its block
+    (windows grouped by their centre, one period per block): a reference that differs from a window's own
+    mean by a constant only adds terms linear in the ringing, which the fit takes out, and keeps the turns
+    small. The blocks' samples are laid end to end (each window within its block's) so that one pass of
+    cumulative sums serves all windows."""
+
+    def __init__(self, t: np.ndarray, gyro: np.ndarray, gyro_bias, i0: np.ndarray, i1: np.ndarray,
+                 frequency_hz: float):
+        t = np.asarray(t, float)
+        i0, i1 = np.asarray(i0, np.int64), np.asarray(i1, np.int64)
+        self.t, self.frequency_hz, self.bias = t, float(frequency_hz), np.asarray(gyro_bias, float).reshape(3)
+        period = 1.0 / frequency_hz
+        turn = mount_turn(t, gyro, self.bias)
+        n = len(t)
+        centre = 0.5 * (t[np.clip(i0, 0, n - 1)] + t[np.clip(i1 - 1, 0, n - 1)]) if n else np.zeros(len(i0))
+        # blocks on the clock's own grid: a stretch of samples is tested alike whatever came before it
+        blocks, block_of = np.unique(np.floor(centre / period).astype(np.int64), return_inverse=True)
+        lo = np.minimum(np.searchsorted(t, blocks * period, side="left"), max(n - 1, 0))
+        hi = np.minimum(np.maximum(np.searchsorted(t, (blocks + 1) * period, side="left"), lo + 1), n)
+        cum = np.zeros((n + 1, 3))
+        np.cumsum(turn, axis=0, out=cum[1:])
+        reference = (cum[hi] - cum[lo]) / np.maximum(hi - lo, 1)[:, None]
+        start = np.full(len(blocks), np.iinfo(np.int64).max)
+        end = np.zeros(len(blocks), np.int64)
+        np.minimum.at(start, block_of, i0)
+        np.maximum.at(end, block_of, i1)
+        length = np.maximum(end - start, 0)
+        offset = np.concatenate([[0], np.cumsum(length)])
+        self.index = np.arange(offset[-1]) - np.repeat(offset[:-1] - start, length)  # the blocks' samples
+        self.turn = turn[self.index] - reference[np.repeat(np.arange(len(blocks)), length)]
+        moved = offset[:-1][block_of] - start[block_of]
+        self.i0, self.i1 = i0 + moved, i1 + moved
+
+    def accel_moments(self, accel: np.ndarray, shift: np.ndarray):
+        """:func:`ringing_moments` of the accelerometer's samples turned back by the mount's turn."""
+        x = turned_back(np.asarray(accel, float)[self.index], self.turn)
+        return ringing_moments(x, self.t[self.index], self.i0, self.i1, shift, self.frequency_hz)
+
+    def gyro_moments(self, gyro: np.ndarray):
+        """:func:`ringing_moments` of the gyro's rates less their bias turned into the turn's rate
+        (J_r(phi)^-1 w = w + 1/2 phi x w + ...), about the bias."""
+        rate = np.asarray(gyro, float)[self.index] - self.bias
+        phi = self.turn
+        angle = np.linalg.norm(phi, axis=1)
+        small = angle < 1e-4
+        a = np.where(small, 1.0, angle)
+        c = np.where(small, 1.0 / 12.0, 1.0 / a ** 2 - (1.0 + np.cos(a)) / (2.0 * a * np.sin(a)))
+        cross = np.cross(phi, rate)
+        x = rate + 0.5 * cross + c[:, None] * np.cross(phi, cross) + self.bias  # J_r(phi)^-1 w
+        return ringing_moments(x, self.t[self.index], self.i0, self.i1, self.bias, self.frequency_hz)
+
+
+def mean_under_ringing(t, x, frequency_hz: float, gyro=None, keep=None) -> tuple:
     """(constant (3,), its std per axis, the samples' per-axis std about the model) of samples x (n, 3) at
     stamps t (n,) on a mount ringing at ``frequency_hz`` (:func:`ringing_moments` over the whole span). Without
     ringing (``frequency_hz`` 0) the plain mean, std over the root of n. Where the samples span less than one
     period (or are too few to fit it) the oscillation stays in the mean, which may then be off by as much as
-    the oscillation's own size: the samples' spread is the mean's std (graded, not refused)."""
+    the oscillation's own size: the samples' spread is the mean's std (graded, not refused). With the gyro's
+    samples ``gyro`` (n, 3) the accelerometer's are first turned back by the mount's turn about the swing's
+    centre (:class:`MountTurn`; the centre and the gyro's bias are the constants of their own ringing fits): the
+    constant is then the reading at the mount's rest. ``keep`` (n,)
+    selects the samples that enter the fit (the still ones); the turn is integrated over all."""
     t = np.asarray(t, dtype=float).reshape(-1)
     x = np.asarray(x, dtype=float).reshape(-1, 3)
+    w = None if gyro is None else np.asarray(gyro, dtype=float).reshape(-1, 3)
+    used = np.ones(len(t), dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+    if frequency_hz > 0 and w is not None and np.count_nonzero(used) > 2 * (RINGING_PARAMETERS + 1):
+        k = np.count_nonzero(used)
+        bias = ringing_moments(w[used], t[used], np.array([0]), np.array([k]), np.median(w[used], axis=0),
+                               frequency_hz)[0][0]
+        turn = mount_turn(t, w, bias)
+        rest = ringing_moments(turn[used], t[used], np.array([0]), np.array([k]), np.median(turn[used], axis=0),
+                               frequency_hz)[0][0]  # the swing's centre, not its mean over a decaying span
+        x = turned_back(x, turn - rest)
+    if keep is not None:
+        t, x = t[keep], x[keep]
     n = len(t)
     spread = float(np.sqrt(np.mean(np.var(x, axis=0))))
     if not frequency_hz > 0:
@@ -111,4 +210,4 @@ def mean_under_ringing(t, x, frequency_hz: float) -> tuple:
     return mean[0], resid / math.sqrt(n - 1 - RINGING_PARAMETERS), resid
 
 
-__all__ = ["RINGING_PARAMETERS", "mean_under_ringing", "ringing_moments"]
+__all__ = ["MountTurn", "RINGING_PARAMETERS", "mean_under_ringing", "mount_turn", "ringing_moments", "turned_back"]

@@ -102,7 +102,7 @@ from ..config import check, option
 from ..core.loss import MAD_TO_STD
 from ..errors import InputError
 from .imu import ImuBuffer, ImuReject
-from .mount_ringing import RINGING_PARAMETERS, ringing_moments
+from .mount_ringing import RINGING_PARAMETERS, MountTurn, ringing_moments
 from .noise_correlation import autocorrelation, per_value, spread_null, statistic_null
 
 # A covariance's noise below 1/CLAIM_REFUTED of the white noise the samples show is refuted (that estimate
@@ -319,6 +319,18 @@ def _window_moments(x, t, i0, i1, shift, cfg: ZuptConfig):
     return _moments(x, i0, i1, shift), 0
 
 
+def _ringing_moments(a, w, t, i0, i1, shift, gyro_bias, cfg: ZuptConfig):
+    """The accelerometer's and the gyro's :func:`_window_moments` (the gyro's about ``gyro_bias``) and the
+    parameters fitted per axis besides the constant; on a ringing mount with the mount's turn taken out of
+    both (:class:`.mount_ringing.MountTurn`: gravity turned with the tip, and the rate of a swing not in one
+    plane, are not oscillations at the mount's frequency alone)."""
+    f = _ringing_hz(cfg)
+    if f:
+        turn = MountTurn(t, w, gyro_bias, i0, i1, f)
+        return turn.accel_moments(a, shift), turn.gyro_moments(w), RINGING_PARAMETERS
+    return _moments(a, i0, i1, shift), _moments(w, i0, i1, gyro_bias), 0
+
+
 def _sigma_from_covariance(cov, source: str, name: str) -> float | None:
     """sqrt of the mean diagonal of a row-major 3x3 covariance; None when it says 'unknown'."""
     if cov is None:
@@ -373,6 +385,9 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     size = float(np.linalg.norm(bias))
     if size > cfg.max_gyro_bias_rad_s:  # a rig turning steadily the whole time is moving, whatever its rate
         bias = bias * (cfg.max_gyro_bias_rad_s / size)
+    if extra:  # on a ringing mount, the mount's turn (with this bias) taken out
+        (mean_a, ssa, _), (_, ssw, _), _ = _ringing_moments(a, w, t, i0, i1, np.median(a, axis=0), bias, cfg)
+        var_a, var_w, quiet = _quantile_variances(ssa[ok], ssw[ok], n[ok], extra, white_null, cfg)
     norm = float(np.median(np.linalg.norm(mean_a[ok][quiet], axis=1)))
     white = _white_noise(t, a, w, i0, i1, cfg)
 
@@ -494,8 +509,8 @@ def _statistic(t, a, w, noise: ImuNoise, cfg: ZuptConfig):
     s_w = max(float(noise.gyro_sigma), cfg.gyro_floor_rad_s)
     s_a = max(float(noise.accel_sigma), cfg.accel_floor_m_s2)
     bias = np.asarray(noise.gyro_bias, dtype=float).reshape(3)
-    (_, _, ssw), extra = _window_moments(w, t, i0, i1, bias, cfg)
-    (mean_a, ssa, _), _ = _window_moments(a, t, i0, i1, np.median(a, axis=0) if len(a) else np.zeros(3), cfg)
+    (mean_a, ssa, _), (_, _, ssw), extra = _ringing_moments(a, w, t, i0, i1, np.median(a, axis=0) if len(a) else
+                                                            np.zeros(3), bias, cfg)
     stat = ssw / s_w ** 2 + ssa / s_a ** 2
     ok = n >= _min_samples(cfg)
     out = np.full(len(t), np.nan)
