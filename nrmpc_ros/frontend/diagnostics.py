@@ -120,8 +120,13 @@ class ServiceDiagnostics:
         refuted = describe_check(s.runner.pipeline.estimator.imu_check)
         if refuted:
             values["gravity check"] = refuted
+        shift = s.feeder.config.imu_clock_offset_s
+        applied = s.counts["IMU clock offsets applied"]
+        if shift or applied:
+            values["clock offset"] = (f"{shift:+.3f} s added to the IMU's stamps" + (
+                f" ({applied} measured off the cameras' and applied)" if applied else " (input.imu_clock_offset_s)"))
         clock = s.runner.pipeline.imu_clock_off
-        if clock is not None:
+        if clock is not None and s.runner.pipeline is not s.clock_from:
             values["clock check"] = (f"{describe_clock(clock)}: set input.imu_clock_offset_s to "
                                      f"{s.feeder.config.imu_clock_offset_s + clock.offset_s:.3f}, or fix the IMU's "
                                      "clock")

@@ -108,6 +108,10 @@ class FeederConfig:
                                        "an IMU stamped by another clock than the cameras' (s; nrmpc replay measures "
                                        "it from the rotations between holds); a lag of milliseconds is the "
                                        "pipeline's imu_time_offset_s", lo=-86400.0, hi=86400.0)
+    imu_clock_measured: bool = option(True, "the node adds an IMU clock offset the images measure (the moves "
+                                      "against the gyro, once the images refute the IMU's gravity) to this one "
+                                      "from then on, a new sequence starting (as nrmpc replay replays with it); "
+                                      "false: its IMU diagnostics only show it")
 
     def __post_init__(self):
         check(self, "input config")
@@ -131,8 +135,7 @@ class Feeder:
         self.imu_topic = imu_topic
         self.log = log or (lambda level, line: None)
         self.clock = clock
-        c = self.config
-        self.guard = StampGuard(c.max_future_s, c.jump_policy(), max_held=HELD_QUEUES * c.queue_size)
+        self.guard = self._new_guard()
         self.events = Counter()  # "time jumps back", "frame sets", "imu samples", "images"
         self._stamps: OrderedDict = OrderedDict()  # frame stamp (s) -> (sec, nanosec) as received
         self._new_epoch()
@@ -286,6 +289,23 @@ class Feeder:
         self._new_epoch()
         for stream, stamp, payload in jump.held:
             self._accept(stream, stamp, payload)
+
+    def reclock_imu(self, offset_s: float, why: str) -> None:
+        """Add ``offset_s`` to the IMU's stamps from now on (an IMU clock measured off the cameras'): the frame
+        sets and IMU samples taken so far go out first, then the frame grouping, the IMU samples, the stamp
+        checks and the holds start afresh with the new stamps (a new sequence), as after a jump of the clock."""
+        self.config = replace(self.config, imu_clock_offset_s=self.config.imu_clock_offset_s + offset_s)
+        self.events["IMU clock offsets applied"] += 1
+        self._emit_sets(self.sync.flush())
+        self._release(final=True)
+        self.sink(Work(WorkKind.FLUSH))
+        self.sink(Work(WorkKind.RESTART, data=why))
+        self.guard = self._new_guard()
+        self._new_epoch()
+
+    def _new_guard(self) -> StampGuard:
+        c = self.config
+        return StampGuard(c.max_future_s, c.jump_policy(), max_held=HELD_QUEUES * c.queue_size)
 
     def _accept(self, stream, stamp: float, payload, now: float | None = None) -> None:
         if stream == IMU:

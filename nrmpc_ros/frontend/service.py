@@ -47,6 +47,7 @@ from .drops import Drop
 from .extrinsics import NO_IMU_NOTE, imu_mount_warning
 from .feeder import IMU, Feeder
 from .images import stamp_seconds
+from .imu_clock_check import CLOCK_PASSES, describe_clock
 from .liveness import CameraWatch
 from .node_config import NodeConfig
 from .outputs import FrameNames, FramePosesOutput, HoldOutput, hold_output
@@ -261,6 +262,8 @@ class EstimatorService:
         self._estimating = False  # the estimation worker is on a hold
         self.reports = ServiceDiagnostics(self)
         self._small: list = [None] * rig.num_cameras  # the last frame set's images, subsampled (image_change)
+        self.clock_applied = None  # the IMU clock offset last applied (a measurement of the frame stage)
+        self.clock_from = None  # the pipeline that measured it
 
     # ------------------------------------------------------------------ inputs (the node's threads, one at a time)
     def on_image(self, index: int, msg, now: float | None) -> None:
@@ -474,6 +477,7 @@ class EstimatorService:
             arrival = work.data[1] if work.kind is WorkKind.FRAMES else self.clock()
             for item in self.runner.take_stage_work():
                 self.holds.put(item, arrival)
+            self._apply_clock()
         finally:
             self._running = False
         stats = self.runner.stats
@@ -486,6 +490,24 @@ class EstimatorService:
             self._outputs(outputs, work.data[1] if work.kind is WorkKind.FRAMES else None)
         self._status_changed(outputs)
         return outputs
+
+    def _apply_clock(self) -> None:
+        """An IMU clock offset the frame stage measured (seconds off the cameras', from the moves) goes to the
+        input: added to the IMU's stamps from the next sample on, a new sequence starting (``input.
+        imu_clock_measured``; at most ``CLOCK_PASSES - 1`` times a run, as the replay's passes)."""
+        pipeline = self.runner.pipeline
+        measured = pipeline.imu_clock_off
+        if measured is None or pipeline is self.clock_from or not self.config.input.imu_clock_measured:
+            return  # (the pipeline that measured it runs on until the restart queued behind its frames)
+        if self.feeder.events["IMU clock offsets applied"] >= CLOCK_PASSES - 1:
+            return
+        self.clock_applied, self.clock_from = measured, pipeline
+        why = (f"{describe_clock(measured)}: {measured.offset_s:+.3f} s added to the IMU's stamps from now on "
+               f"(input.imu_clock_offset_s {self.feeder.config.imu_clock_offset_s + measured.offset_s:.3f})")
+        with self._input_lock:
+            self.feeder.reclock_imu(measured.offset_s, "the IMU's clock measured off the cameras'")
+        self.counts["IMU clock offsets applied"] += 1
+        self.log("warn", f"{why}: the holds start afresh (a new sequence)")
 
     def estimate_once(self, timeout: float = 0.0) -> list | None:
         """Run one item of the estimation worker (waiting up to ``timeout`` s for one); publish and return its
