@@ -137,7 +137,7 @@ def test_a_running_node_applies_the_clock_it_measures_and_its_later_holds_are_ri
         ref = read_reference(bag, resolve_imu_topic(bag, rig, warn=lambda m: None))
 
     def error_deg(e):
-        k = int(np.searchsorted(ref.grav_t, e.stamp)) - 1
+        k = int(np.searchsorted(ref.grav_t, e.stamp, side="right")) - 1
         return math.degrees(float(angle_between(e.gravity, ref.grav_g[k])))
 
     got, s, logs = _node_on(path, rig, True)

@@ -251,6 +251,19 @@ class ImuBuffer:
         t, _, _ = self.window(stamp - age, stamp + age)
         return len(t) > 0
 
+    def _swing_m_s2(self, t1: float, g: float) -> float:
+        """How far a mean over less than a period of a ringing mount may be off its rest (m/s^2): gravity ``g``
+        turned by the swing's angle, its largest rate over the period before ``t1`` (the gyro, less its median
+        over the span of ten periods before, a bias) over the ringing's angular frequency. The samples' spread
+        over a fraction of a swing does not show it: they may all lie on one side."""
+        period = 1.0 / self.ringing_hz
+        tw, _, ww = self.window(t1 - 10.0 * period, t1)
+        recent = ww[tw >= t1 - period]
+        if not len(recent):
+            return 0.0
+        rate = np.linalg.norm(recent - np.median(ww, axis=0), axis=1)
+        return g * float(rate.max()) / (2.0 * math.pi * self.ringing_hz)
+
     def gravity(self, t0: float, t1: float):
         """(ImuGravity, None) from samples in [t0, t1] (at least pad_s long), or (None, ImuGravityRefusal)."""
         cfg = self.config
@@ -268,6 +281,8 @@ class ImuBuffer:
             return None, ImuGravityRefusal(ImuRefusal.STALE, f"newest IMU sample is {t1 - t[-1]:.3f} s older than "
                                            f"the view (max age {self.max_age_s:.3f} s)")
         mean, mean_std, spread = mean_under_ringing(t, a, self.ringing_hz, w)
+        if self.ringing_hz > 0 and t[-1] - t[0] < 1.0 / self.ringing_hz:
+            mean_std = math.hypot(mean_std, self._swing_m_s2(t[-1], float(np.linalg.norm(mean))))
         try:
             g = gravity_from_accelerometer(self.rig, mean)
         except InputError as exc:

@@ -105,6 +105,9 @@ from .imu import ImuBuffer, ImuReject
 from .mount_ringing import RINGING_PARAMETERS, MountTurn, ringing_moments
 from .noise_correlation import autocorrelation, per_value, spread_null, statistic_null
 
+# A window on a ringing mount spans at least this many periods of its ringing to be tested (a hair less than
+# one: a window of one period holds samples over one period less one sample's spacing, plus stamp jitter).
+RINGING_SPAN_PERIODS = 0.95
 # A covariance's noise below 1/CLAIM_REFUTED of the white noise the samples show is refuted (that estimate
 # scatters by a few percent): the source is then the white noise (the noise used is the larger either way).
 CLAIM_REFUTED = 1.25
@@ -257,6 +260,21 @@ def _min_samples(cfg: ZuptConfig) -> int:
     return cfg.min_window_samples + (2 * RINGING_PARAMETERS if _ringing_hz(cfg) else 0)
 
 
+def _testable(t: np.ndarray, i0: np.ndarray, i1: np.ndarray, period: float, cfg: ZuptConfig) -> np.ndarray:
+    """The windows that can be tested: at least :func:`_min_samples` samples, and on a ringing mount a period of
+    its ringing (a shorter span cannot tell the oscillation from the constant: the fit's constant, and with it
+    the still norm, can be anything). At the start of a stream, or between gaps, the samples span less: those
+    verdicts are "unknown", not "moving"."""
+    n = i1 - i0
+    ok = n >= _min_samples(cfg)
+    f = _ringing_hz(cfg)
+    if f and len(t):
+        step = period if math.isfinite(period) else 0.0
+        span = t[np.clip(i1 - 1, 0, len(t) - 1)] - t[np.clip(i0, 0, len(t) - 1)] + step
+        ok &= span >= RINGING_SPAN_PERIODS / f
+    return ok
+
+
 def _window_length(cfg: ZuptConfig, period: float) -> float:
     """``window_s``, widened on slow IMUs to an odd number of sample periods that holds ``min_window_samples``:
     a centred window of k + 1/2 periods either side holds 2k + 1 samples with its edges half a period from any
@@ -373,9 +391,10 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     period = _period(t)
     i0, i1, _ = _windows(t, period, cfg)
     n = i1 - i0
-    ok = n >= _min_samples(cfg)
+    ok = _testable(t, i0, i1, period, cfg)
     if not ok.any():
-        raise InputError(source, f"no {_min_samples(cfg)} samples in a row without a gap (longer than "
+        ring = f" over a period of the mount's ringing ({1.0 / _ringing_hz(cfg):.3f} s)" if _ringing_hz(cfg) else ""
+        raise InputError(source, f"no {_min_samples(cfg)} samples in a row{ring} without a gap (longer than "
                                  f"{cfg.gap_periods:g} sample periods of {period:.4f} s): cannot estimate the noise")
     (mean_w, ssw, _), extra = _window_moments(w, t, i0, i1, np.median(w, axis=0), cfg)
     (mean_a, ssa, _), _ = _window_moments(a, t, i0, i1, np.median(a, axis=0), cfg)
@@ -512,7 +531,7 @@ def _statistic(t, a, w, noise: ImuNoise, cfg: ZuptConfig):
     (mean_a, ssa, _), (_, _, ssw), extra = _ringing_moments(a, w, t, i0, i1, np.median(a, axis=0) if len(a) else
                                                             np.zeros(3), bias, cfg)
     stat = ssw / s_w ** 2 + ssa / s_a ** 2
-    ok = n >= _min_samples(cfg)
+    ok = _testable(t, i0, i1, period, cfg)
     out = np.full(len(t), np.nan)
     if ok.any():
         with_norm = math.isfinite(noise.accel_norm)
