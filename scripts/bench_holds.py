@@ -22,7 +22,8 @@ IMU), riding on its bar, which rings through the holds (damping 0.03); ``imudlpf
 filters its output at 40 Hz (a MEMS IMU's digital filter: its noise correlated over a dozen samples); ``imucov``
 an IMU whose messages' covariances claim a fifth of its noise (a driver's datasheet figure); ``imuclock2s`` a
 stream through the moves with the IMU stamped 2 s late (another clock: replayed, as ``nrmpc replay`` does, with
-the offset the recording shows).
+the offset the recording shows); ``imuswing`` the IMU inside the second camera on a stream at 15 Hz through
+abrupt (trapezoidal) moves, IMU at 400 Hz, bars damped at 0.02: the tip swings by tenths of a radian after a stop.
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -288,6 +289,8 @@ def matrix_styles() -> dict:
         "noimu": lambda M: ({**base, "capture": "stream", "rate": 30.0},
                             {"damping": 0.03, "jitter_ms": 3.0, "imu": False}),
         "imubar": lambda M: (base, {"damping": 0.03, "imu_camera": 1}),
+        "imuswing": lambda M: ({**base, "capture": "stream", "rate": 15.0, "imu_rate": 400.0,
+                                "move_profile": "trapezoid"}, {"damping": 0.02, "imu_camera": 1}),
         "imudlpf": lambda M: ({**base, "imu_rate": 1000.0}, {**bag, "imu_lowpass_hz": 40.0}),
         "imucov": lambda M: (base, {**bag, "imu_covariance_scale": 0.2}),
         "imuclock2s": lambda M: ({**base, "capture": "stream"}, {**bag, "imu_time_offset_ms": 2000.0}),
@@ -310,7 +313,7 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("snap0.5", "line2-soft"), ("snap0.15", "cross4-soft"), ("camrates", "ring5-stiff"),
          ("exposure", "ring6-soft"), ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft"),
          ("noimu", "ring3-soft"), ("imubar", "ring5-soft"), ("imudlpf", "ring6-stiff"), ("imucov", "cross4-soft"),
-         ("imuclock2s", "ring3-soft")]
+         ("imuclock2s", "ring3-soft"), ("imuswing", "cross4-soft")]
 
 
 def matrix_cells(full: bool) -> list:
