@@ -295,7 +295,6 @@ class Feeder:
         sets and IMU samples taken so far go out first, then the frame grouping, the IMU samples, the stamp
         checks and the holds start afresh with the new stamps (a new sequence), as after a jump of the clock."""
         self.config = replace(self.config, imu_clock_offset_s=self.config.imu_clock_offset_s + offset_s)
-        self.events["IMU clock offsets applied"] += 1
         self._emit_sets(self.sync.flush())
         self._release(final=True)
         self.sink(Work(WorkKind.FLUSH))

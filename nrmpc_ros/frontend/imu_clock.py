@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .mount_ringing import mount_ringing_hz
+
 MAX_LAG_S = 0.25
 """Lags searched (s, either way). A clock offset is a stamping or transport delay of a few frame periods at most
 (a 30 Hz camera's period is 33 ms); stamps further off are a configuration error (another clock), not a lag, and
@@ -326,7 +328,7 @@ class ImuClockEstimator:
         t = imu[:, 0]
         g = imu[:, 4:7] @ _imu_to_body(rig).T  # body-frame rate (an IMU in a camera: about, not exactly)
         body = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
-        if not rig.is_flexible or _imu_on_a_bar(rig):
+        if not rig.is_flexible or mount_ringing_hz(rig) > 0:  # an IMU on a bar reads its tip
             return body[:, None, :], None
         from ..core.bar_state import BarPropagator
         from ..core.deformation import bend_rotation_vectors
@@ -357,14 +359,6 @@ def _across_rates(rot, axis, dt):
     (F,), across each camera's optical axis ``axis`` (M, 3; the part an image shows as motion)."""
     across = rot - np.sum(rot * axis[None], axis=2, keepdims=True) * axis[None]
     return np.linalg.norm(across, axis=2) / dt[:, None]
-
-
-def _imu_on_a_bar(rig) -> bool:
-    """Whether the rig file mounts the IMU in a camera whose bar bends (it reads that bar's tip)."""
-    from ..core.dynamics import bar_natural_frequencies
-
-    mount = rig.imu.mount
-    return mount != "body" and math.isfinite(bar_natural_frequencies(rig)[rig.camera_index(mount)])
 
 
 def _imu_to_body(rig) -> np.ndarray:

@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 
+from ..core.so3 import exp_so3, right_jacobian
+
 RINGING_PARAMETERS = 4  # per axis: cos, sin, tau cos, tau sin of the mount's ringing
 
 
@@ -104,12 +106,21 @@ def mount_turn(t: np.ndarray, gyro: np.ndarray, bias) -> np.ndarray:
 
 
 def turned_back(x: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """Vectors x (n, 3) turned by the rotation vectors phi (n, 3) (Rodrigues, row by row): an accelerometer's
-    samples in the frame the mount had at the turn's reference."""
-    angle = np.linalg.norm(phi, axis=1)
-    k = phi / np.where(angle > 0, angle, 1.0)[:, None]
-    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    return x * c + np.cross(k, x) * s + k * np.einsum("ij,ij->i", k, x)[:, None] * (1.0 - c)
+    """Vectors x (n, 3) turned by the rotation vectors phi (n, 3), row by row: an accelerometer's samples in the
+    frame the mount had at the turn's reference."""
+    return np.einsum("nij,nj->ni", exp_so3(np.asarray(phi, float)), np.asarray(x, float))
+
+
+def mount_ringing_hz(rig) -> float:
+    """The natural frequency (Hz) of the flexible bar the rig file mounts the IMU on (inside that bar's camera),
+    or 0 for an IMU on the body, on a rigid camera, or none."""
+    imu = getattr(rig, "imu", None)
+    if imu is None or imu.mount == "body":
+        return 0.0
+    from ..core.dynamics import bar_natural_frequencies
+
+    f = float(bar_natural_frequencies(rig)[rig.camera_index(imu.mount)])
+    return f if math.isfinite(f) and f > 0 else 0.0
 
 
 class MountTurn:
@@ -163,15 +174,9 @@ class MountTurn:
 
     def gyro_moments(self, gyro: np.ndarray):
         """:func:`ringing_moments` of the gyro's rates less their bias turned into the turn's rate
-        (J_r(phi)^-1 w = w + 1/2 phi x w + ...), about the bias."""
+        (J_r(phi)^-1 w), about the bias."""
         rate = np.asarray(gyro, float)[self.index] - self.bias
-        phi = self.turn
-        angle = np.linalg.norm(phi, axis=1)
-        small = angle < 1e-4
-        a = np.where(small, 1.0, angle)
-        c = np.where(small, 1.0 / 12.0, 1.0 / a ** 2 - (1.0 + np.cos(a)) / (2.0 * a * np.sin(a)))
-        cross = np.cross(phi, rate)
-        x = rate + 0.5 * cross + c[:, None] * np.cross(phi, cross) + self.bias  # J_r(phi)^-1 w
+        x = np.linalg.solve(right_jacobian(self.turn), rate[:, :, None])[:, :, 0] + self.bias
         return ringing_moments(x, self.t[self.index], self.i0, self.i1, self.bias, self.frequency_hz)
 
 
@@ -210,4 +215,5 @@ def mean_under_ringing(t, x, frequency_hz: float, gyro=None, keep=None) -> tuple
     return mean[0], resid / math.sqrt(n - 1 - RINGING_PARAMETERS), resid
 
 
-__all__ = ["MountTurn", "RINGING_PARAMETERS", "mean_under_ringing", "mount_turn", "ringing_moments", "turned_back"]
+__all__ = ["MountTurn", "RINGING_PARAMETERS", "mean_under_ringing", "mount_ringing_hz", "mount_turn", "ringing_moments",
+           "turned_back"]

@@ -262,8 +262,7 @@ class EstimatorService:
         self._estimating = False  # the estimation worker is on a hold
         self.reports = ServiceDiagnostics(self)
         self._small: list = [None] * rig.num_cameras  # the last frame set's images, subsampled (image_change)
-        self.clock_applied = None  # the IMU clock offset last applied (a measurement of the frame stage)
-        self.clock_from = None  # the pipeline that measured it
+        self.clock_from = None  # the pipeline whose IMU clock measurement went to the input
 
     # ------------------------------------------------------------------ inputs (the node's threads, one at a time)
     def on_image(self, index: int, msg, now: float | None) -> None:
@@ -499,9 +498,9 @@ class EstimatorService:
         measured = pipeline.imu_clock_off
         if measured is None or pipeline is self.clock_from or not self.config.input.imu_clock_measured:
             return  # (the pipeline that measured it runs on until the restart queued behind its frames)
-        if self.feeder.events["IMU clock offsets applied"] >= CLOCK_PASSES - 1:
+        if self.counts["IMU clock offsets applied"] >= CLOCK_PASSES - 1:
             return
-        self.clock_applied, self.clock_from = measured, pipeline
+        self.clock_from = pipeline
         why = (f"{describe_clock(measured)}: {measured.offset_s:+.3f} s added to the IMU's stamps from now on "
                f"(input.imu_clock_offset_s {self.feeder.config.imu_clock_offset_s + measured.offset_s:.3f})")
         with self._input_lock:

@@ -102,7 +102,7 @@ from ..config import check, option
 from ..core.loss import MAD_TO_STD
 from ..errors import InputError
 from .imu import ImuBuffer, ImuReject
-from .mount_ringing import RINGING_PARAMETERS, MountTurn, ringing_moments
+from .mount_ringing import RINGING_PARAMETERS, MountTurn, mount_ringing_hz, ringing_moments
 from .noise_correlation import autocorrelation, per_value, spread_null, statistic_null
 
 # A window on a ringing mount spans at least this many periods of its ringing to be tested (a hair less than
@@ -240,13 +240,7 @@ def for_rig(cfg: ZuptConfig, rig) -> ZuptConfig:
     the IMU rides on (0 for an IMU on the body or a rigid mount); a value given in ``cfg`` is kept."""
     if cfg.mount_ringing_hz is not None:
         return cfg
-    f = 0.0
-    imu = getattr(rig, "imu", None)
-    if imu is not None and imu.mount != "body":
-        from ..core.dynamics import bar_natural_frequencies
-
-        f = float(bar_natural_frequencies(rig)[rig.camera_index(imu.mount)])
-    return dataclasses.replace(cfg, mount_ringing_hz=f if math.isfinite(f) and f > 0 else 0.0)
+    return dataclasses.replace(cfg, mount_ringing_hz=mount_ringing_hz(rig))
 
 
 def _ringing_hz(cfg: ZuptConfig) -> float:
