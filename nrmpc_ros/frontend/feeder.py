@@ -282,11 +282,7 @@ class Feeder:
         why = jump.describe(self._name(jump.stream))
         self.events["time jumps back"] += 1
         self.log("warn", f"{why}: the frame grouping, the IMU samples and the holds start afresh (a new sequence)")
-        self._emit_sets(self.sync.flush())
-        self._release(final=True)
-        self.sink(Work(WorkKind.FLUSH))
-        self.sink(Work(WorkKind.RESTART, data=why))
-        self._new_epoch()
+        self._start_afresh(why)
         for stream, stamp, payload in jump.held:
             self._accept(stream, stamp, payload)
 
@@ -295,11 +291,16 @@ class Feeder:
         sets and IMU samples taken so far go out first, then the frame grouping, the IMU samples, the stamp
         checks and the holds start afresh with the new stamps (a new sequence), as after a jump of the clock."""
         self.config = replace(self.config, imu_clock_offset_s=self.config.imu_clock_offset_s + offset_s)
+        self._start_afresh(why)
+        self.guard = self._new_guard()
+
+    def _start_afresh(self, why: str) -> None:
+        """What was taken goes out (the frame sets, the IMU samples, a flush), the pipeline restarts (``why``), and
+        the frame grouping and the IMU samples start a new epoch."""
         self._emit_sets(self.sync.flush())
         self._release(final=True)
         self.sink(Work(WorkKind.FLUSH))
         self.sink(Work(WorkKind.RESTART, data=why))
-        self.guard = self._new_guard()
         self._new_epoch()
 
     def _new_guard(self) -> StampGuard:
