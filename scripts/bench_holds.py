@@ -23,7 +23,9 @@ filters its output at 40 Hz (a MEMS IMU's digital filter: its noise correlated o
 an IMU whose messages' covariances claim a fifth of its noise (a driver's datasheet figure); ``imuclock2s`` a
 stream through the moves with the IMU stamped 2 s late (another clock: replayed, as ``nrmpc replay`` does, with
 the offset the recording shows); ``imuswing`` the IMU inside the second camera on a stream at 15 Hz through
-abrupt (trapezoidal) moves, IMU at 400 Hz, bars damped at 0.02: the tip swings by tenths of a radian after a stop.
+abrupt (trapezoidal) moves, IMU at 400 Hz, bars damped at 0.02: the tip swings by tenths of a radian after a stop;
+``imusnap`` one image per camera 0.3 s after each stop, the IMU (100 Hz) inside the first camera, bars damped at
+0.02: the snapshots catch the bars ringing by tens of pixels and the images tell gravity hardly at all.
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -291,6 +293,8 @@ def matrix_styles() -> dict:
         "imubar": lambda M: (base, {"damping": 0.03, "imu_camera": 1}),
         "imuswing": lambda M: ({**base, "capture": "stream", "rate": 15.0, "imu_rate": 400.0,
                                 "move_profile": "trapezoid"}, {"damping": 0.02, "imu_camera": 1}),
+        "imusnap": lambda M: ({**base, "views": 12, "capture": "snapshot", "snapshot_delay": 0.3, "imu_rate": 100.0},
+                              {"damping": 0.02, "imu_camera": 0}),
         "imudlpf": lambda M: ({**base, "imu_rate": 1000.0}, {**bag, "imu_lowpass_hz": 40.0}),
         "imucov": lambda M: (base, {**bag, "imu_covariance_scale": 0.2}),
         "imuclock2s": lambda M: ({**base, "capture": "stream"}, {**bag, "imu_time_offset_ms": 2000.0}),

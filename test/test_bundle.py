@@ -139,6 +139,29 @@ def test_the_gyros_rotations_separate_the_accelerometers_tilt_from_gravity():
     assert with_turns < without / 3.0, np.degrees(errors)
 
 
+def test_a_measured_gravity_costs_most_where_the_views_gravity_points_the_other_way(rng):
+    """A prior that projects the view's gravity onto the measured direction's tangent plane is zero where the
+    two point opposite ways: a sequence whose images hardly fix gravity could then settle upside down at no
+    cost. The measured directions' residual is the chord between them: largest (2 per view, over the std)
+    upside down, and to first order the tangent-plane error near the measurement."""
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=1.0, focal=500.0))
+    obs, R, t, g0, X = _sequence(rig, 4, rng, points_per_camera=5)
+    sigma = np.radians(0.05)
+    priors = GravityPriors(np.einsum("kji,j->ki", R, normalize(g0)), sigma)
+    prob = SequenceBundleProblem(rig, obs, ParameterLayout(4, [1, 2, 3], True), 1e-3, priors=priors)
+    from nrmpc_ros.core.bundle import BundleState
+
+    def cost(g):
+        r, _ = prob.prior_terms(BundleState(R, t, g, X))
+        return float(r @ r) * sigma ** 2
+
+    assert cost(-g0) == pytest.approx(4 * 4.0, rel=1e-9)
+    assert cost(-g0) == pytest.approx(priors.chi2(BundleState(R, t, -g0, X)) * sigma ** 2)
+    tilted = exp_so3(0.01 * np.cross(normalize(g0), normalize(np.array([1.0, 0.0, 0.0])))
+                     / np.linalg.norm(np.cross(normalize(g0), [1.0, 0.0, 0.0]))) @ g0  # 0.01 rad off
+    assert cost(tilted) == pytest.approx(4 * 0.01 ** 2, rel=0.02)
+
+
 def test_two_view_is_the_two_view_case(rng):
     """refine_two_view is adjust_bundle on the two views of a pair; the noise-free pair is exact."""
     pb = make_problem(Scenario(pixel_noise=0, outlier_fraction=0), seed=1)

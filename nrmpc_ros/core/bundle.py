@@ -149,6 +149,34 @@ class GravityPriors:
     def active(self) -> np.ndarray:
         return np.all(np.isfinite(self.directions), axis=1) & np.isfinite(self.sigma_rad) & (self.sigma_rad > 0)
 
+    def direction_residual(self, k: int, g_k: np.ndarray, bias: np.ndarray) -> np.ndarray:
+        """Residual (3,) of view k's unit gravity direction g_k (its body frame) against the measured one m,
+        over the std: the tangent-plane error of g_k tilted by ``bias`` at m, and 1 - cos of the angle between
+        g_k and m. For no bias the two make the chord between g_k and m, which grows to its largest where they
+        point opposite ways; the projection alone is zero there too, so a sequence whose images hardly fix
+        gravity could settle upside down at no cost. The bias tilts the tangent part only: a component along
+        each view's measured direction (which differs from view to view) is nothing a tilt does."""
+        m = self.directions[k]
+        return np.append(tangent_basis(m).T @ (g_k + bias), 1.0 - float(m @ g_k)) / self.sigma_rad[k]
+
+    def chi2(self, state) -> float:
+        """Sum of the squared prior residuals (measured directions, the bias's prior, the measured rotations)
+        at a :class:`BundleState`, in units of their variances: what these priors say of a gravity candidate
+        beside the images' cost."""
+        total = 0.0
+        b = state.bias if state.bias is not None else np.zeros(3)
+        if state.gravity is not None:
+            g = normalize(np.einsum("kji,kj->ki", state.R, state.origin_gravity()))
+            for k in np.flatnonzero(self.active):
+                r = self.direction_residual(k, g[k], b)
+                total += float(r @ r)
+            if self.bias_sigma_rad:
+                total += float(b @ b) / self.bias_sigma_rad ** 2
+        for turn in self.turns:
+            r = log_so3(turn.rotation.T @ state.R[turn.first].T @ state.R[turn.second]) / turn.sigma_rad
+            total += float(r @ r)
+        return total
+
 
 @dataclass
 class GravityInformation:
@@ -553,20 +581,21 @@ class SequenceBundleProblem:
             origins = normalize(state.origin_gravity())
             seq = self.obs.sequence_of_view
             b = state.bias if state.bias is not None else np.zeros(3)
-            for k in np.flatnonzero(pr.active):
+            for k in np.flatnonzero(pr.active):  # GravityPriors.direction_residual and its Jacobian
                 g0 = origins[k]
                 gk = state.R[k].T @ g0
-                P = tangent_basis(pr.directions[k])
-                s = pr.sigma_rad[k]
-                J = np.zeros((2, nc))
+                m = pr.directions[k]
+                dg = np.zeros((3, nc))  # d g_k
                 sl = lay.pose(k)
                 if sl is not None:  # left perturbation: g_k = R_k^T Exp(-dr) g_0
-                    J[:, sl.start:sl.start + 3] = P.T @ (state.R[k].T @ skew(g0))
-                J[:, lay.gravity_of(int(seq[k]))] = P.T @ (state.R[k].T @ tangent_basis(g0))
+                    dg[:, sl.start:sl.start + 3] = state.R[k].T @ skew(g0)
+                dg[:, lay.gravity_of(int(seq[k]))] = state.R[k].T @ tangent_basis(g0)
+                P = tangent_basis(m)
+                J = np.concatenate([P.T @ dg, -m[None] @ dg])
                 if lay.bias is not None:
-                    J[:, lay.bias] = P.T
-                rows.append(P.T @ (gk + b) / s)
-                jacs.append(J / s)
+                    J[:2, lay.bias] = P.T
+                rows.append(pr.direction_residual(k, gk, b))
+                jacs.append(J / pr.sigma_rad[k])
             if lay.bias is not None:
                 J = np.zeros((3, nc))
                 J[:, lay.bias] = np.eye(3) / pr.bias_sigma_rad

@@ -693,7 +693,8 @@ class IncrementalSequence:
                                    self.threshold,
                                    replace(opts, refined_candidates=max(opts.refined_candidates, len(distinct))),
                                    np.random.default_rng(self.seed + k), free_views=free,
-                                   gravity_information=s.information(), scores=scores)
+                                   gravity_information=s.information(), scores=scores,
+                                   noise_rad=self._noise_rad)
         if isinstance(chosen, np.ndarray):
             s.set_gravity(chosen)
         else:
@@ -705,7 +706,8 @@ class IncrementalSequence:
     def _rivals(self, gravity: np.ndarray, scores: list) -> list:
         """The candidates' origin gravities whose joint cost is within the noise of the best one's and that lie
         apart from the chosen gravity: basins the views so far cannot tell apart (docs/PIPELINE.md, "Gravity
-        of a young sequence"). Costs in chi^2 units: MSAC score over the noise variance (half the inlier threshold)."""
+        of a young sequence"). Costs in chi^2 units: the score (MSAC and the priors', at the noise of the latest
+        solve) over the noise variance."""
         if len(scores) < 2:
             return []
         chi2 = np.array([sc for _, sc in scores]) / self._noise_rad ** 2

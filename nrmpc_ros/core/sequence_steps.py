@@ -37,7 +37,7 @@ from .estimators import RIGID_REASON, EstimatorOptions, estimate, pair_method
 from .loss import msac_score
 from .resection import resect_view
 from .rig import Rig
-from .so3 import angle_between, normalize, tangent_basis
+from .so3 import angle_between, normalize
 from .tracks import Tracks
 
 
@@ -324,8 +324,10 @@ IMU_CONSISTENCY_SIGNIFICANCE = 0.01
 
 def measured_gravity_excess(priors: GravityPriors | None, state: BundleState) -> float:
     """How much the measured (IMU) gravities disagree with the joint solution beyond their own stds: the
-    chi-square of their residuals (2 per active prior, the estimated constant tilt included) over its
-    degrees of freedom when it exceeds the test at ``IMU_CONSISTENCY_SIGNIFICANCE``, else 1.
+    chi-square of their residuals (:meth:`GravityPriors.direction_residual`, the estimated constant tilt
+    included: 2 degrees of freedom per active prior, its third component being second order near the
+    measurement and large only where the two disagree grossly) over its degrees of freedom when it exceeds the
+    test at ``IMU_CONSISTENCY_SIGNIFICANCE``, else 1.
 
     The IMU's std comes from its measured noise; vision's from residuals that cannot show the
     correspondences' remaining bias. When the two disagree by more than their stds allow, the vision term
@@ -342,7 +344,7 @@ def measured_gravity_excess(priors: GravityPriors | None, state: BundleState) ->
     b = state.bias if state.bias is not None else np.zeros(3)
     total = 0.0
     for k in active:  # the views of the window, not observations
-        r = tangent_basis(priors.directions[k]).T @ (state.R[k].T @ origins[k] + b) / priors.sigma_rad[k]
+        r = priors.direction_residual(k, state.R[k].T @ origins[k], b)
         total += float(r @ r)
     dof = 2 * len(active)
     if total <= chdtri(dof, IMU_CONSISTENCY_SIGNIFICANCE):
@@ -362,21 +364,31 @@ def observation_errors(prob: SequenceBundleProblem, state: BundleState) -> np.nd
 
 
 def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: SequenceOptions, rng, *, free_views=None,
-                   gravity_information: GravityInformation | None = None, scores: list | None = None):
-    """The candidate g_0 whose short joint adjustment has the best MSAC score over all observations (plus the
-    prior terms); returns (the candidate itself when there is only one, else the winner's BundleState, count).
+                   gravity_information: GravityInformation | None = None, scores: list | None = None,
+                   noise_rad: float | None = None):
+    """The candidate g_0 whose short joint adjustment has the best score: the MSAC score over all observations
+    plus the priors' chi^2 (measured gravities and rotations, :meth:`GravityPriors.chi2`) times the images'
+    noise variance (``noise_rad``, default half the threshold). Where the images hardly tell gravity (bars
+    still ringing, a stiff rig) the measured gravity decides, and a basin it puts upside down never wins on
+    the images' noise. Returns (the candidate itself when there is only one, else the winner's BundleState,
+    count).
 
     Every candidate is first scored at the chained poses (landmarks triangulated, no adjustment); the best
     ``refined_candidates`` of them get the short adjustment on a subset of the tracks. ``scores``, when given,
-    receives (g_0, MSAC score in rad^2) of every candidate: after its adjustment where it had one, else at the
+    receives (g_0, score in rad^2) of every candidate: after its adjustment where it had one, else at the
     chained poses (an upper bound of what an adjustment would reach); it stays empty for a single candidate.
     """
     if len(candidates) == 1:
         return candidates[0], 1
+    noise2 = (threshold / 2.0 if noise_rad is None else noise_rad) ** 2
+
+    def prior_cost(state) -> float:
+        return 0.0 if priors is None else noise2 * priors.chi2(state)
+
     quick = []
     for g0 in candidates:
         st, prob = triangulated(rig, obs, BundleState(R, t, g0, np.zeros((obs.num_points, 3))))
-        quick.append(msac_score(observation_errors(prob, st), threshold))
+        quick.append(msac_score(observation_errors(prob, st), threshold) + prior_cost(st))
     order = np.argsort(quick)
     keep = [candidates[i] for i in order[: opts.refined_candidates]]
     if scores is not None:
@@ -391,7 +403,7 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
                             free_views=free_views, max_iterations=opts.candidate_iterations,
                             sigma_rad=threshold / 2.0, tol=1e-3)
         st, prob = triangulated(rig, obs, res.state)
-        score = msac_score(observation_errors(prob, st), threshold)
+        score = msac_score(observation_errors(prob, st), threshold) + prior_cost(res.state)
         if scores is not None:
             scores.append((np.asarray(res.state.gravity, float).reshape(-1, 3)[0], score))
         if score < best_score:
