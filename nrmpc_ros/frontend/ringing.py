@@ -8,8 +8,9 @@ image offset of its camera (the median displacement of its tracks from the hold'
 
 tau the time since the stop, r the rest offset (2,), a, b (2,) the oscillation's coefficients, w = 2 pi f the
 bar's natural frequency and zeta its damping ratio. :func:`fit_damped_response` fits it by nonlinear least
-squares (``scipy.optimize.least_squares``) over any number of *segments* (one camera in one hold, or one camera
-in every hold of a recording) that share f and zeta while each has its own r, a, b. The linear parameters are
+squares (the project's Levenberg-Marquardt, :mod:`nrmpc_ros.core.lm`) over any number of *segments* (one
+camera in one hold, or one camera in every hold of a recording) that share f and zeta while each has its own
+r, a, b. The linear parameters are
 eliminated for each trial (f, zeta) (variable projection), so the search runs over two numbers only; a grid
 over the frequency band and a few damping ratios starts it, so an aliased frame rate (a bar faster than half
 the frame rate) finds the right branch within the band. The standard deviations come from the full Jacobian
@@ -29,12 +30,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.lm import LinearSystem, LMOptions, Stop, levenberg_marquardt
+
 ZETA_BOUNDS = (1e-3, 0.7)  # damping ratios searched: lightly damped metal to strongly damped composite bars
 FREQ_BAND = (0.6, 1.6)  # the frequency is searched within this factor of its start (the rig file's)
 FREQ_GRID = 41  # frequencies of the coarse grid over FREQ_BAND (geometric: about 2.5 % apart)
 ZETA_GRID = (0.01, 0.03, 0.1, 0.3)  # damping ratios of the coarse grid when the rig file gives none
 ZETA_START = (1.1e-3, 0.69)  # the refinement starts strictly inside ZETA_BOUNDS
-X_SCALE = (0.05, 0.01)  # the refinement's parameter scales: frequency (share of the start), damping ratio
+# The refinement: the project's LM from the grid's best, to a tenth of a percent of a std's worth of cost
+REFINEMENT = LMOptions(max_iterations=100, relative_tolerance=1e-12, cost_tolerance=1e-6)
+CONVERGED_STOPS = (Stop.CONVERGED, Stop.MINIMUM)
+DIFFERENCE_STEP = 1.5e-8  # forward differences: about the square root of the double precision, times max(1, |x|)
 
 
 @dataclass
@@ -143,6 +149,45 @@ def _projected(theta, segs):
     return np.concatenate(res) if res else np.zeros(0)
 
 
+class _ProjectedProblem:
+    """The two nonlinear parameters (f, zeta) of the damped response as a problem of the project's
+    Levenberg-Marquardt (:mod:`nrmpc_ros.core.lm`): residuals of :func:`_projected` over ``scale`` (the grid's
+    best RMS, so the costs are about chi^2 / 2 and the LM's tolerances mean what they say), the Jacobian by
+    forward differences (each column one more projection), steps kept within the bounds."""
+
+    def __init__(self, segs, lower, upper, scale: float):
+        self.segs = segs
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.scale = scale
+
+    def residuals(self, theta) -> np.ndarray:
+        return _projected(theta, self.segs) / self.scale
+
+    def cost(self, theta) -> float:
+        r = self.residuals(theta)
+        return 0.5 * float(r @ r)
+
+    def linearize(self, theta) -> LinearSystem:
+        r = self.residuals(theta)
+        J = np.empty((len(r), 2))
+        for p, h in enumerate(DIFFERENCE_STEP * np.maximum(np.abs(theta), 1.0)):
+            up = np.array(theta, float)
+            up[p] += h if up[p] + h <= self.upper[p] else -h
+            J[:, p] = (self.residuals(up) - r) / (up[p] - theta[p])
+        H, b = J.T @ J, -(J.T @ r)
+        # a parameter on its bound that the descent would push beyond it stays there (active set): its row and
+        # column leave the step, which the other parameter then takes alone
+        held = ((theta <= self.lower) & (b < 0)) | ((theta >= self.upper) & (b > 0))
+        H[held, :] = 0.0
+        H[:, held] = 0.0
+        H[held, held] = 1.0
+        b[held] = 0.0
+        return LinearSystem(cost=0.5 * float(r @ r), Hcc=H, bc=b)
+
+    def step(self, theta, dc, dp):
+        return np.clip(np.asarray(theta, float) + dc, self.lower, self.upper)
+
+
 def _grid_solve(tau: np.ndarray, y: np.ndarray, f: np.ndarray, z: np.ndarray) -> tuple:
     """The linear parameters (G, 3, D) and residuals (G, K, D) of y (K, D) at every grid point (f[g], z[g])."""
     w = 2.0 * math.pi * f[:, None]
@@ -241,15 +286,13 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
     lowest = min(g[0] for g in grid)
     # an aliased frame rate makes f and its alias fit alike: of the (near) ties, the one nearest the start wins
     best = min((g for g in grid if g[0] <= lowest * (1.0 + 1e-3) + 1e-300), key=lambda g: abs(math.log(g[1] / freq_hz)))
-    from scipy.optimize import least_squares  # imported where a fit runs: 0.5-1 s that every command paid
-
-    try:
-        sol = least_squares(_projected, x0=[best[1], min(max(best[2], ZETA_START[0]), ZETA_START[1])], args=(segs,),
-                            bounds=([lo, ZETA_BOUNDS[0]], [hi, ZETA_BOUNDS[1]]),
-                            x_scale=[X_SCALE[0] * freq_hz, X_SCALE[1]])
-    except ValueError:
+    start = np.array([best[1], min(max(best[2], ZETA_START[0]), ZETA_START[1])])
+    problem = _ProjectedProblem(segs, (lo, ZETA_BOUNDS[0]), (hi, ZETA_BOUNDS[1]),
+                                math.sqrt(max(lowest, 1e-300) / max(n, 1)))
+    theta, _, lm_stats = levenberg_marquardt(problem, start, REFINEMENT)
+    if not np.all(np.isfinite(theta)):
         return None
-    f, z = float(sol.x[0]), float(sol.x[1])
+    f, z = float(theta[0]), float(theta[1])
     # full Jacobian (f, zeta and every segment's linear parameters) at the solution for the standard deviations
     betas, cols_lin = [], 3 * D * len(segs)
     for tau, y in segs:
@@ -303,7 +346,7 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
     return RingingFit(freq_hz=f, zeta=z, freq_std_hz=float(math.sqrt(max(var_nl[0], 0.0))),
                       zeta_std=float(math.sqrt(max(var_nl[1], 0.0))), rest=rest,
                       rest_std=np.sqrt(np.maximum(var_rest, 0.0)), coef=coef,
-                      residual_rms=math.sqrt(s2), num_samples=n, success=bool(sol.success))
+                      residual_rms=math.sqrt(s2), num_samples=n, success=lm_stats.stop in CONVERGED_STOPS)
 
 
 __all__ = ["FREQ_BAND", "RingingFit", "ZETA_BOUNDS", "ZETA_GRID", "best_on_grid", "fit_damped_response"]
