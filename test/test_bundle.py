@@ -11,6 +11,7 @@ from nrmpc_ros.core.bundle import (
     adjust_bundle,
     camera_noise_factors,
     condense_gravity,
+    estimable_covariance,
     jackknife_widening,
     refine_two_view,
     two_view_priors,
@@ -160,6 +161,26 @@ def test_a_measured_gravity_costs_most_where_the_views_gravity_points_the_other_
     tilted = exp_so3(0.01 * np.cross(normalize(g0), normalize(np.array([1.0, 0.0, 0.0])))
                      / np.linalg.norm(np.cross(normalize(g0), [1.0, 0.0, 0.0]))) @ g0  # 0.01 rad off
     assert cost(tilted) == pytest.approx(4 * 0.01 ** 2, rel=0.02)
+
+
+def test_a_holds_gravity_keeps_its_std_where_only_its_imu_ties_the_hold(rng):
+    """A view whose images are all gone (a hold the ringing left useless) is tied to the others by its measured
+    gravity alone: its yaw about gravity and its position are free, the information singular. Its gravity
+    direction is still fixed (by the measurement and the sequence's gravity): its std is finite and near the
+    measurement's, where the covariance of the whole block is inf. A rigid rig's gravity stays inf."""
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=1.0, focal=500.0))
+    obs, R, t, g0, _ = _sequence(rig, 4, rng, points_per_camera=15, noise_rad=1e-3)
+    obs, _ = obs.subset(obs.view < 3)
+    obs = Observations(obs.view, obs.cam, obs.point, obs.f, 4, obs.num_points)
+    sigma = np.radians(0.05)
+    measured = normalize(np.einsum("kji,j->ki", R, normalize(g0)) + 1e-4 * rng.normal(size=(4, 3)))
+    res = adjust_bundle(rig, obs, R, t, g0, priors=GravityPriors(measured, sigma), max_iterations=20)
+    assert not np.all(np.isfinite(res.covariance))
+    assert sigma < res.gravity_sigma_rad(3) < 3.0 * sigma, np.degrees(res.gravity_sigma_rad(3))
+    assert np.degrees(angle_between(res.state.view_gravity[3], np.einsum("ji,j->i", R[3], g0))) < 3 * 0.05
+    info = np.diag([1.0, 2.0, 0.0])
+    assert np.all(np.isinf(estimable_covariance(info, np.array([[0.0, 0.0, 1.0]]))))
+    np.testing.assert_allclose(estimable_covariance(info, np.array([[1.0, 1.0, 0.0]])), [[1.5]])
 
 
 def test_two_view_is_the_two_view_case(rng):

@@ -113,3 +113,22 @@ def test_an_imu_clock_seconds_off_is_refuted_and_measured(tmp_path, capsys):
     medians = [float(ln.split("median")[1].split()[0]) for ln in text.splitlines()
                if ln.strip().startswith("gravity vs ground truth")]
     assert medians and max(medians) < 0.2
+
+
+@pytest.mark.parametrize("sigma_deg, verdict", [(300.0, "PENDING"), (0.5, "UNTESTED")])
+def test_an_images_gravity_as_uncertain_as_the_faults_is_no_reference(sigma_deg, verdict):
+    """A hold whose gravity only the images gave becomes the next test's reference only where that gravity
+    means something: with a std of hundreds of degrees (bars ringing by tens of pixels in every snapshot) it
+    would refute a sound IMU on its own error, so the next IMU gravity waits as if no hold had a gravity
+    before it; with a std of half a degree it is the reference (here too few landmarks shared to decide)."""
+    from nrmpc_ros.core.incremental import IncrementalSequence
+    from nrmpc_ros.frontend.imu_agreement import Agreement, ImuGravityCheck
+    from nrmpc_ros.sim.synthetic import RigSpec, make_rig
+
+    check = ImuGravityCheck(IncrementalSequence(make_rig(RigSpec(num_cameras=3, layout="ring"))))
+    bearings = np.tile([0.0, 0.0, 1.0], (4, 1))
+    check.remember(np.zeros(4, np.int64), np.arange(4), bearings, np.array([0.0, 0.0, -9.81]),
+                   math.radians(sigma_deg))
+    got = check.check(np.zeros(4, np.int64), np.arange(4), bearings, np.array([0.0, 0.0, -9.81]),
+                      follows_holds=True)
+    assert got is Agreement[verdict]

@@ -47,3 +47,10 @@ def test_msac_score_truncates_each_squared_error_at_the_threshold():
     # a better model (smaller errors of the inliers) scores lower; outliers beyond the threshold all cost the same
     assert msac_score([0.1, 0.1, 9.0], 0.5) < msac_score([0.2, 0.1, 0.6], 0.5)
     assert msac_score([0.6], 0.5) == msac_score([60.0], 0.5)
+
+
+def test_an_error_that_is_not_a_number_counts_as_an_outlier():
+    """A landmark no ray intersection places has no error: in MSAC it is an outlier (threshold^2), not a NaN that
+    makes every candidate's score incomparable (a sequence's gravity candidates then had no winner at all)."""
+    assert msac_score([0.1, np.nan, np.inf], 0.5) == pytest.approx(0.01 + 0.25 + 0.25)
+    np.testing.assert_allclose(msac_score(np.array([[np.nan, 0.2]]), 0.5, axis=1), [0.29])

@@ -873,7 +873,11 @@ class BundleResult:
         Jm = np.concatenate(J, axis=1)
         C = self.covariance[np.ix_(idx, idx)]
         if not np.all(np.isfinite(C)):
-            return np.full((2, 2), np.inf)
+            # a singular information (e.g. the yaw and position of holds that only their IMU gravities tie to
+            # the others, the images' weight all but gone to ringing) can still fix this direction
+            Jfull = np.zeros((2, len(self.information)))
+            Jfull[:, idx] = Jm
+            return estimable_covariance(self.information, Jfull)
         return Jm @ C @ Jm.T
 
     def gravity_sigma_rad(self, k: int = 0) -> float:
@@ -915,19 +919,52 @@ def _propagate(J: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return J @ cov @ J.T
 
 
+SINGULAR_EIGENVALUE = 1e-13  # of an information scaled to a unit diagonal, relative to its largest: no information
+ESTIMABLE_LEAK = 1e-6  # a function's share (relative to its largest) along a null direction that is rounding only
+
+
+def _unit_diagonal(info: np.ndarray) -> tuple:
+    """(diagonal scale, the information scaled to a unit diagonal, symmetrised)."""
+    scale = np.sqrt(np.maximum(np.abs(np.diag(info)), 1e-300))
+    A = info / np.outer(scale, scale)
+    return scale, 0.5 * (A + A.T)
+
+
+def _null(ev: np.ndarray) -> np.ndarray:
+    return ev <= SINGULAR_EIGENVALUE * max(float(ev.max()), 1e-300)
+
+
 def covariance_from_information(info: np.ndarray) -> np.ndarray:
     """Inverse of a Fisher information; inf where it is singular (e.g. gravity of a rigid rig)."""
     if info.size == 0:
         return info.copy()
-    scale = np.sqrt(np.maximum(np.abs(np.diag(info)), 1e-300))
-    A = info / np.outer(scale, scale)
+    scale, A = _unit_diagonal(info)
     try:
-        ev = np.linalg.eigvalsh(0.5 * (A + A.T))
-        if ev.min() <= 1e-13 * max(ev.max(), 1e-300):
+        if _null(np.linalg.eigvalsh(A)).any():
             raise np.linalg.LinAlgError
         return np.linalg.inv(A) / np.outer(scale, scale)
     except np.linalg.LinAlgError:
         return np.full_like(info, np.inf)
+
+
+def estimable_covariance(info: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """Covariance (m, m) of the functions of the parameters whose Jacobian is J (m, nc), by the pseudo-inverse
+    of a singular information: finite where J sees nothing of its null space (the functions are estimable,
+    e.g. a hold's gravity direction while the yaw about gravity of holds no image ties is free), inf where it
+    does (the gravity of a rigid rig)."""
+    m = len(J)
+    scale, A = _unit_diagonal(info)
+    try:
+        ev, V = np.linalg.eigh(A)
+    except np.linalg.LinAlgError:
+        return np.full((m, m), np.inf)
+    null = _null(ev)
+    Js = J / scale
+    size = max(float(np.abs(Js).max()), 1e-300)
+    if null.all() or float(np.abs(Js @ V[:, null]).max(initial=0.0)) > ESTIMABLE_LEAK * size:
+        return np.full((m, m), np.inf)
+    P = Js @ V[:, ~null]
+    return (P / ev[~null]) @ P.T
 
 
 # ---------------------------------------------------------------------------
@@ -1193,7 +1230,7 @@ def two_view_priors(g1, g2, sigma_rad: float) -> GravityPriors:
 
 __all__ = ["BundleResult", "BundleState", "BundleWorkspace", "GravityInformation", "GravityPriors", "InverseDepthChart",
            "Observations", "ParameterLayout", "RotationPrior", "SequenceBundleProblem", "TwoViewResult",
-           "adjust_bundle",
-           "condense_gravity", "covariance_from_information", "gravity_covariance", "inv3", "refine_two_view",
+           "adjust_bundle", "condense_gravity", "covariance_from_information", "estimable_covariance",
+           "gravity_covariance", "inv3", "refine_two_view",
            "robust_sigma", "two_view_priors", "camera_noise_factors", "cluster_robust_covariance",
            "jackknife_widening"]

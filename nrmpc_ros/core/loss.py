@@ -42,9 +42,10 @@ class HuberLoss:
 
 
 def msac_score(errors: np.ndarray, threshold: float, axis=None) -> np.ndarray | float:
-    """Sum of min(e^2, threshold^2) of angular errors ``errors`` (rad) along ``axis`` (all by default)."""
+    """Sum of min(e^2, threshold^2) of angular errors ``errors`` (rad) along ``axis`` (all by default); an error
+    that is not a number (a landmark no ray intersection places) counts as an outlier, threshold^2."""
     e = np.asarray(errors, dtype=float)
-    s = np.minimum(e * e, threshold * threshold).sum(axis=axis)
+    s = np.minimum(np.nan_to_num(e * e, nan=np.inf), threshold * threshold).sum(axis=axis)
     return float(s) if axis is None else s
 
 

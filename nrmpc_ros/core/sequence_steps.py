@@ -406,7 +406,7 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
         score = msac_score(observation_errors(prob, st), threshold) + prior_cost(res.state)
         if scores is not None:
             scores.append((np.asarray(res.state.gravity, float).reshape(-1, 3)[0], score))
-        if score < best_score:
+        if best is None or score < best_score:
             best, best_score = res.state, score
     return best, len(candidates)
 

@@ -197,8 +197,8 @@ class HoldEstimator:
                 done.append(est)
             self._origin = None
         self._hold_stamps.append(hold.stamp)
-        if g is None and out.gravity is not None and math.isfinite(out.gravity_sigma_rad):
-            self.imu_check.remember(obs.cam, obs.landmark, obs.f, out.gravity)  # the images' gravity of the hold
+        if g is None and out.gravity is not None:  # the images' gravity of the hold
+            self.imu_check.remember(obs.cam, obs.landmark, obs.f, out.gravity, out.gravity_sigma_rad)
         if verdict is Agreement.REFUTED:
             # the sequence still holds the earlier holds' IMU gravities, one of which may be the wrong one of the
             # pair, and its window solve placed this hold with them: nothing to promise (the next test decides)

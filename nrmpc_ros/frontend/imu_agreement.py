@@ -22,6 +22,7 @@ IMU's gravity is not used again (until a reset), and the report says how to fix 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 
@@ -43,6 +44,12 @@ UNUSABLE_AFTER = 2
 
 MIN_CORRESPONDENCES = 12
 """Fewer correspondences with the reference hold leave the test undecided (the gravity is used)."""
+
+REFERENCE_MAX_SIGMA_RAD = math.radians(30.0)
+"""An images' gravity serves as the reference of the next test only with a std below this: the IMU faults the
+test must catch put gravity tens of degrees off (axes of another convention, the attitude of another hold), and a
+reference as uncertain as that (bars ringing by tens of pixels in every snapshot: stds of hundreds of degrees)
+would refute a sound IMU on its own error."""
 
 
 class Agreement(Enum):
@@ -88,9 +95,12 @@ class ImuGravityCheck:
         self._doubt = False
         self.usable = True
 
-    def remember(self, cam: np.ndarray, landmark: np.ndarray, f: np.ndarray, gravity: np.ndarray) -> None:
-        """A hold whose gravity came from the images (its IMU gravity absent or not used): the next reference."""
-        self._reference = self._observations(cam, landmark, f, gravity)
+    def remember(self, cam: np.ndarray, landmark: np.ndarray, f: np.ndarray, gravity: np.ndarray,
+                 sigma_rad: float) -> None:
+        """A hold whose gravity came from the images (its IMU gravity absent or not used), of std ``sigma_rad``:
+        the next reference where that std is below :data:`REFERENCE_MAX_SIGMA_RAD`."""
+        if sigma_rad < REFERENCE_MAX_SIGMA_RAD:
+            self._reference = self._observations(cam, landmark, f, gravity)
 
     @staticmethod
     def _observations(cam, landmark, f, gravity) -> tuple:
