@@ -10,10 +10,9 @@ tau the time since the stop, r the rest offset (2,), a, b (2,) the oscillation's
 bar's natural frequency and zeta its damping ratio. :func:`fit_damped_response` fits it by nonlinear least
 squares (the project's Levenberg-Marquardt, :mod:`nrmpc_ros.core.lm`) over any number of *segments* (one
 camera in one hold, or one camera in every hold of a recording) that share f and zeta while each has its own
-r, a, b. The linear parameters are
-eliminated for each trial (f, zeta) (variable projection), so the search runs over two numbers only; a grid
-over the frequency band and a few damping ratios starts it, so an aliased frame rate (a bar faster than half
-the frame rate) finds the right branch within the band. The standard deviations come from the full Jacobian
+r, a, b. The linear parameters are eliminated for each trial (f, zeta) (variable projection), so the search
+runs over two numbers only; a grid over the frequency band and a few damping ratios starts it, so an aliased
+frame rate (a bar faster than half the frame rate) finds the right branch within the band. The standard deviations come from the full Jacobian
 (the two nonlinear and all linear parameters) at the solution, scaled by the residual's RMS; those of the
 frequency and damping are raised to a sandwich (Newey-West) one when the residuals are correlated from frame to
 frame within a stop (the tracks' errors move together; the white-noise std is then several times too small),
@@ -37,7 +36,8 @@ FREQ_BAND = (0.6, 1.6)  # the frequency is searched within this factor of its st
 FREQ_GRID = 41  # frequencies of the coarse grid over FREQ_BAND (geometric: about 2.5 % apart)
 ZETA_GRID = (0.01, 0.03, 0.1, 0.3)  # damping ratios of the coarse grid when the rig file gives none
 ZETA_START = (1.1e-3, 0.69)  # the refinement starts strictly inside ZETA_BOUNDS
-# The refinement: the project's LM from the grid's best, to a tenth of a percent of a std's worth of cost
+# The refinement: the project's LM from the grid's best, until a step gains less than 1e-6 of chi^2 / 2 (the
+# parameters then within about a thousandth of their std of the minimum)
 REFINEMENT = LMOptions(max_iterations=100, relative_tolerance=1e-12, cost_tolerance=1e-6)
 CONVERGED_STOPS = (Stop.CONVERGED, Stop.MINIMUM)
 DIFFERENCE_STEP = 1.5e-8  # forward differences: about the square root of the double precision, times max(1, |x|)
