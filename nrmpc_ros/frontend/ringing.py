@@ -6,17 +6,17 @@ image offset of its camera (the median displacement of its tracks from the hold'
 
     o(tau) = r + exp(-zeta w tau) (a cos(w_d tau) + b sin(w_d tau)),   w_d = w sqrt(1 - zeta^2),
 
-tau the time since the stop, r the rest offset (2,), a, b (2,) the oscillation's coefficients, w = 2 pi f the
-bar's natural frequency and zeta its damping ratio. :func:`fit_damped_response` fits it by nonlinear least
-squares (the project's Levenberg-Marquardt, :mod:`nrmpc_ros.core.lm`) over any number of *segments* (one
-camera in one hold, or one camera in every hold of a recording) that share f and zeta while each has its own
-r, a, b. The linear parameters are eliminated for each trial (f, zeta) (variable projection), so the search
-runs over two numbers only; a grid over the frequency band and a few damping ratios starts it, so an aliased
-frame rate (a bar faster than half the frame rate) finds the right branch within the band. The standard deviations come from the full Jacobian
-(the two nonlinear and all linear parameters) at the solution, scaled by the residual's RMS; those of the
-frequency and damping are raised to a sandwich (Newey-West) one when the residuals are correlated from frame to
-frame within a stop (the tracks' errors move together; the white-noise std is then several times too small),
-and the damping's to a floor for the smooth misfit every stop shares (docs/PIPELINE.md, "Measuring a hold").
+tau the time since the stop, r the rest offset (2,), a, b (2,) the oscillation's coefficients, w = 2 pi f the bar's
+natural frequency and zeta its damping ratio. :func:`fit_damped_response` fits it by nonlinear least squares (the
+project's Levenberg-Marquardt, :mod:`nrmpc_ros.core.lm`) over any number of *segments* (one camera in one hold, or
+one camera in every hold of a recording) that share f and zeta while each has its own r, a, b. The linear
+parameters are eliminated for each trial (f, zeta) (variable projection), so the search runs over two numbers only;
+a grid over the frequency band and a few damping ratios starts it, so an aliased frame rate (a bar faster than half
+the frame rate) finds the right branch within the band. The standard deviations come from the full Jacobian (the
+two nonlinear and all linear parameters) at the solution, scaled by the residual's RMS; those of the frequency and
+damping are raised to a sandwich (Newey-West) one when the residuals are correlated from frame to frame within a
+stop (the tracks' errors move together; the white-noise std is then several times too small), and the damping's to
+a floor for the smooth misfit every stop shares (docs/PIPELINE.md, "Measuring a hold").
 
 The rest offset r is where the ringing converges, not the mean over whole periods of a decaying oscillation
 (which is off by the decay within the window): a hold whose bars ring throughout is measured at r.
