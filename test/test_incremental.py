@@ -260,3 +260,28 @@ def test_a_bridged_break_carries_gravity_into_the_new_sequence():
         for k, v in zip((8, 9), outs):
             err = float(angle_between(v.gravity, p.gravity[k]))
             assert v.gravity_sigma_rad >= sigma * 0.5 and err < 3 * v.gravity_sigma_rad, (k, err)
+
+
+def test_a_view_the_joint_solve_keeps_too_few_landmarks_of_starts_a_new_sequence():
+    """A view whose link holds by chance (nine in ten of its bearings belong to other landmarks: the pair
+    estimate still places it) keeps a handful of its observations in the joint solve: a pose the images do not
+    support, published before (4-5 inliers). It starts a new sequence instead, and the earlier views keep their
+    poses and gravity."""
+    p = make_sequence(SequenceScenario(rig=RING3, num_views=4, pixel_noise=0.3, outlier_fraction=0.05), seed=4)
+    items = list(views(p))
+    seq = IncrementalSequence(p.rig, "6pt-bending", keep_history=True)
+    for c, t, f, g in items[:3]:
+        last = seq.add_view(c, t, f, g)
+    assert isinstance(last, ViewEstimate)
+    before = seq.sequences()[0].R.copy()
+    c, t, f, g = items[3]
+    rng = np.random.default_rng(0)
+    bad = rng.random(len(f)) < 0.9
+    f = f.copy()
+    f[bad] = f[bad][rng.permutation(int(bad.sum()))]
+    out = seq.add_view(c, t, f, g)
+    assert isinstance(out, NewSequence) and out.reason is StartReason.FEW_INLIERS
+    assert seq.num_views == 1
+    earlier = seq.sequences()[0]
+    assert earlier.tracks.num_views == 3
+    np.testing.assert_allclose(earlier.R, before)

@@ -112,6 +112,8 @@ class StartReason(Enum):
     FIRST_VIEW = "first view"  # the first view after construction or a reset
     NO_SHARED_LANDMARKS = "too few landmarks shared"  # no earlier view shares enough landmarks from two cameras
     PAIR_FAILED = "no pair estimate"  # views share enough landmarks but every two-view estimate failed
+    # placed, but the joint solve kept fewer of its observations than a pair needs: its pose is not the images'
+    FEW_INLIERS = "too few of its landmarks kept by the joint solve"
 
 
 @dataclass(frozen=True)
@@ -460,6 +462,7 @@ class IncrementalSequence:
         if k == 0:
             new.R, new.t = np.eye(3), np.zeros(3)
             return NewSequence(s.number, StartReason.FIRST_VIEW)
+        before = ([(v.R, v.t, v.inlier) for v in s.views[:k]], s.gravity, s.rivals)  # what the solves replace
         placed = self._resect(k)
         warm = placed is not None
         if warm:
@@ -479,6 +482,15 @@ class IncrementalSequence:
             k, j = k + merged[1], j + merged[1]
             warm = False
         res, first = self._solve_window(k, warm)
+        if merged is None and np.count_nonzero(s.views[k].inlier) < self.options.min_pair_matches:
+            # the window solve kept too few of the new view's observations: a pose the images do not support
+            # (a link that was wrong) would be published; the earlier views get back what they had
+            for v, (R, t, inlier) in zip(s.views, before[0]):
+                v.R, v.t, v.inlier = R, t, inlier
+            s.set_gravity(before[1])
+            s.rivals = before[2]
+            self._restart_from_last()
+            return NewSequence(self.seq.number, StartReason.FEW_INLIERS)
         self._retire(first + 1)
         origin = None
         if merged is not None and first <= merged[1] < k:  # the previous view in time is the earlier sequence's last

@@ -115,6 +115,7 @@ class Drop(Enum):
     NO_IMU_GRAVITY_UNUSABLE = f"hold without IMU gravity: {ImuRefusal.UNUSABLE.value}", Stage.PIPELINE
     NEW_SEQUENCE_NO_SHARED = f"hold starts a new sequence ({StartReason.NO_SHARED_LANDMARKS.value})", Stage.PIPELINE
     NEW_SEQUENCE_PAIR_FAILED = f"hold starts a new sequence ({StartReason.PAIR_FAILED.value})", Stage.PIPELINE
+    NEW_SEQUENCE_FEW_INLIERS = f"hold starts a new sequence ({StartReason.FEW_INLIERS.value})", Stage.PIPELINE
 
     # ------------------------------------------------------------------ the families, by their own outcome types
     @classmethod
@@ -160,7 +161,8 @@ _NO_IMU_GRAVITY = {ImuRefusal.NO_IMU_BLOCK: Drop.NO_IMU_GRAVITY_NO_BLOCK,
                    ImuRefusal.PENDING: Drop.NO_IMU_GRAVITY_PENDING,
                    ImuRefusal.UNUSABLE: Drop.NO_IMU_GRAVITY_UNUSABLE}
 _NEW_SEQUENCE = {StartReason.NO_SHARED_LANDMARKS: Drop.NEW_SEQUENCE_NO_SHARED,
-                 StartReason.PAIR_FAILED: Drop.NEW_SEQUENCE_PAIR_FAILED}
+                 StartReason.PAIR_FAILED: Drop.NEW_SEQUENCE_PAIR_FAILED,
+                 StartReason.FEW_INLIERS: Drop.NEW_SEQUENCE_FEW_INLIERS}
 
 
 def sorted_counts(counts: dict) -> list:
