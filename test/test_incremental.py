@@ -264,9 +264,9 @@ def test_a_bridged_break_carries_gravity_into_the_new_sequence():
 
 def test_a_view_the_joint_solve_keeps_too_few_landmarks_of_starts_a_new_sequence():
     """A view whose link holds by chance (nine in ten of its bearings belong to other landmarks: the pair
-    estimate still places it) keeps a handful of its observations in the joint solve: a pose the images do not
-    support, published before (4-5 inliers). It starts a new sequence instead, and the earlier views keep their
-    poses and gravity."""
+    estimate still places it) keeps fewer of its observations in the joint solve than the 6-point solver needs: a
+    pose the images do not determine, published before (4-5 inliers). It starts a new sequence instead, and the
+    earlier views keep their poses and gravity."""
     p = make_sequence(SequenceScenario(rig=RING3, num_views=4, pixel_noise=0.3, outlier_fraction=0.05), seed=4)
     items = list(views(p))
     seq = IncrementalSequence(p.rig, "6pt-bending", keep_history=True)

@@ -36,6 +36,9 @@ from .so3 import angle_between, fibonacci_sphere, normalize
 METHODS = ("6pt-nonbending", "6pt-bending", "4pt-bending")
 
 
+MINIMAL_SAMPLE = {"6pt-nonbending": 6, "6pt-bending": 6, "4pt-bending": 4}  # correspondences each solver needs
+
+
 def pair_method(method: str, has_gravity: bool) -> str:
     """The estimator for one pair of a sequence estimated with ``method``: 4pt-bending needs gravity measured in
     both views, and a pair without it falls back to 6pt-bending (vision only); other methods are kept."""

@@ -56,7 +56,7 @@ from .bundle import (
     condense_gravity,
     covariance_from_information,
 )
-from .estimators import Estimate, estimate, pair_method
+from .estimators import MINIMAL_SAMPLE, Estimate, estimate, pair_method
 from .matches import Matches
 from .rig import Rig
 from .sequence_steps import (
@@ -112,7 +112,7 @@ class StartReason(Enum):
     FIRST_VIEW = "first view"  # the first view after construction or a reset
     NO_SHARED_LANDMARKS = "too few landmarks shared"  # no earlier view shares enough landmarks from two cameras
     PAIR_FAILED = "no pair estimate"  # views share enough landmarks but every two-view estimate failed
-    # placed, but the joint solve kept fewer of its observations than a pair needs: its pose is not the images'
+    # placed, but the joint solve kept fewer of its observations than its pair's solver needs: no pose of the images'
     FEW_INLIERS = "too few of its landmarks kept by the joint solve"
 
 
@@ -482,9 +482,10 @@ class IncrementalSequence:
             k, j = k + merged[1], j + merged[1]
             warm = False
         res, first = self._solve_window(k, warm)
-        if merged is None and np.count_nonzero(s.views[k].inlier) < self.options.min_pair_matches:
-            # the window solve kept too few of the new view's observations: a pose the images do not support
-            # (a link that was wrong) would be published; the earlier views get back what they had
+        if merged is None and np.count_nonzero(s.views[k].inlier) < MINIMAL_SAMPLE[pm]:
+            # the window solve kept fewer of the new view's observations than its pair's solver needs: the
+            # images do not determine its pose (a link that held by chance); the earlier views get back what
+            # they had. A view kept on a few more is published with the std its few observations give.
             for v, (R, t, inlier) in zip(s.views, before[0]):
                 v.R, v.t, v.inlier = R, t, inlier
             s.set_gravity(before[1])
