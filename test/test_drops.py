@@ -20,7 +20,8 @@ def test_every_outcome_of_a_family_has_its_drop():
         assert len(set(members)) == len(members) and all(m.stage is Stage.PIPELINE for m in members)
         assert all(o.value in m.message for o, m in zip(outcomes, members)), "the message names the outcome"
     breaks = [r for r in StartReason if r is not StartReason.FIRST_VIEW]
-    assert {Drop.new_sequence(r) for r in breaks} == {Drop.NEW_SEQUENCE_NO_SHARED, Drop.NEW_SEQUENCE_PAIR_FAILED}
+    assert {Drop.new_sequence(r) for r in breaks} == {Drop.NEW_SEQUENCE_NO_SHARED, Drop.NEW_SEQUENCE_PAIR_FAILED,
+                                                      Drop.NEW_SEQUENCE_FEW_INLIERS}
     with pytest.raises(KeyError):  # a sequence's first view is no drop
         Drop.new_sequence(StartReason.FIRST_VIEW)
     assert len({Drop.busy(kind) for kind in WorkKind}) == len(WorkKind)
