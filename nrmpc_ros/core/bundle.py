@@ -159,19 +159,23 @@ class GravityPriors:
         m = self.directions[k]
         return np.append(tangent_basis(m).T @ (g_k + bias), 1.0 - float(m @ g_k)) / self.sigma_rad[k]
 
+    def directions_chi2(self, state) -> float:
+        """Sum of the squared :meth:`direction_residual` of every active view at a :class:`BundleState` (its
+        bias included); 0 without gravity."""
+        if state.gravity is None:
+            return 0.0
+        b = state.bias if state.bias is not None else np.zeros(3)
+        g = normalize(np.einsum("kji,kj->ki", state.R, state.origin_gravity()))
+        return float(sum(np.sum(self.direction_residual(k, g[k], b) ** 2) for k in np.flatnonzero(self.active)))
+
     def chi2(self, state) -> float:
         """Sum of the squared prior residuals (measured directions, the bias's prior, the measured rotations)
         at a :class:`BundleState`, in units of their variances: what these priors say of a gravity candidate
         beside the images' cost."""
-        total = 0.0
+        total = self.directions_chi2(state)
         b = state.bias if state.bias is not None else np.zeros(3)
-        if state.gravity is not None:
-            g = normalize(np.einsum("kji,kj->ki", state.R, state.origin_gravity()))
-            for k in np.flatnonzero(self.active):
-                r = self.direction_residual(k, g[k], b)
-                total += float(r @ r)
-            if self.bias_sigma_rad:
-                total += float(b @ b) / self.bias_sigma_rad ** 2
+        if state.gravity is not None and self.bias_sigma_rad:
+            total += float(b @ b) / self.bias_sigma_rad ** 2
         for turn in self.turns:
             r = log_so3(turn.rotation.T @ state.R[turn.first].T @ state.R[turn.second]) / turn.sigma_rad
             total += float(r @ r)

@@ -37,7 +37,7 @@ from .estimators import RIGID_REASON, EstimatorOptions, estimate, pair_method
 from .loss import msac_score
 from .resection import resect_view
 from .rig import Rig
-from .so3 import angle_between, normalize
+from .so3 import angle_between
 from .tracks import Tracks
 
 
@@ -340,12 +340,7 @@ def measured_gravity_excess(priors: GravityPriors | None, state: BundleState) ->
     active = np.flatnonzero(priors.active)
     if len(active) == 0:
         return 1.0
-    origins = normalize(state.origin_gravity())
-    b = state.bias if state.bias is not None else np.zeros(3)
-    total = 0.0
-    for k in active:  # the views of the window, not observations
-        r = priors.direction_residual(k, state.R[k].T @ origins[k], b)
-        total += float(r @ r)
+    total = priors.directions_chi2(state)
     dof = 2 * len(active)
     if total <= chdtri(dof, IMU_CONSISTENCY_SIGNIFICANCE):
         return 1.0
