@@ -142,11 +142,13 @@ class ImuBuffer:
     by moving ``_i0`` and compacted (or grown) only when the end is reached.
     """
 
-    def __init__(self, rig: Rig | None = None, config: ImuConfig | None = None, ringing_hz: float = 0.0):
+    def __init__(self, rig: Rig | None = None, config: ImuConfig | None = None, ringing_hz: float = 0.0,
+                 ringing_damping: float = 0.0):
         self.rig = rig  # None: a bare sample store (no gravity, e.g. for the stillness detector)
         self.config = config or ImuConfig()
-        # the IMU's mount rings at this frequency (Hz; 0: it does not): a hold's mean takes the oscillation out
-        self.ringing_hz = float(ringing_hz)
+        # the IMU's mount rings at this frequency (Hz; 0: it does not), decaying at this damping ratio: a hold's
+        # mean takes the oscillation out
+        self.ringing_hz, self.ringing_damping = float(ringing_hz), float(ringing_damping)
         self.source = rig.imu.topic if rig is not None and rig.imu is not None else "imu"
         self._buf = np.empty((INITIAL_ROWS, 7))
         self._i0 = self._n = 0  # live rows of _buf
@@ -280,7 +282,7 @@ class ImuBuffer:
         if t1 - t[-1] > self.max_age_s:
             return None, ImuGravityRefusal(ImuRefusal.STALE, f"newest IMU sample is {t1 - t[-1]:.3f} s older than "
                                            f"the view (max age {self.max_age_s:.3f} s)")
-        mean, mean_std, spread = mean_under_ringing(t, a, self.ringing_hz, w)
+        mean, mean_std, spread = mean_under_ringing(t, a, self.ringing_hz, w, damping=self.ringing_damping)
         if self.ringing_hz > 0 and t[-1] - t[0] < 1.0 / self.ringing_hz:
             mean_std = math.hypot(mean_std, self._swing_m_s2(t[-1], float(np.linalg.norm(mean))))
         try:

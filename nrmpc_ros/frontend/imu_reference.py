@@ -24,7 +24,7 @@ from ..errors import InputError
 from .imu import ImuConfig
 from .mount_ringing import mean_under_ringing
 from .reference import Reference
-from .zupt import ImuNoise, ZuptConfig, estimate_noise, still_mask
+from .zupt import ImuNoise, ZuptConfig, estimate_noise, ringing_damping, still_mask
 from .zupt import for_rig as zupt_for_rig
 
 WINDOW_S = 0.25  # default half-width (s) of the window around a stamp (several stillness windows)
@@ -45,7 +45,7 @@ class ImuReference:
         zupt = zupt or ZuptConfig()
         if rig is not None:  # the stillness test as the pipeline runs it (an IMU on a ringing bar)
             zupt = zupt_for_rig(zupt, rig)
-        self._ringing_hz = float(zupt.mount_ringing_hz or 0.0)
+        self._ringing_hz, self._damping = float(zupt.mount_ringing_hz or 0.0), ringing_damping(zupt)
         self._t, self._a, self._w = ref.imu_t, ref.imu_a, ref.imu_w
         self.noise: ImuNoise | None = None
         self.still = np.zeros(len(ref.imu_t), bool)
@@ -66,7 +66,8 @@ class ImuReference:
         still = self.still[i:j]
         if np.count_nonzero(still) < self.min_samples:
             return None
-        mean = mean_under_ringing(self._t[i:j], self._a[i:j], self._ringing_hz, self._w[i:j], still)[0]  # an IMU
+        mean = mean_under_ringing(self._t[i:j], self._a[i:j], self._ringing_hz, self._w[i:j], still,
+                                  self._damping)[0]  # an IMU
         # on a ringing bar: its still samples turned back by the mount's turn, which the gyro saw throughout
         if self.rig is not None and self.rig.imu is not None:
             try:

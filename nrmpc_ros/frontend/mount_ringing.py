@@ -15,42 +15,62 @@ hold's accelerometer mean, its gravity).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..core.so3 import exp_so3, right_jacobian
 
 RINGING_PARAMETERS = 4  # per axis: cos, sin, tau cos, tau sin of the mount's ringing
+# fixed-point steps of the static bend psi = K exp(psi) f: the bend changes the frame the accelerometer measures the
+# load in by tenths of a radian on a soft bar, which moves psi by a few percent; each step divides that error by
+# |K f| again
+STATIC_BEND_STEPS = 4
+# the decay (damping x phase) a chunk of sliding windows of :func:`ringing_moments` spans at most: its basis
+# ranges over [exp(-CHUNK_DECAY), 1], its squares over e^-8, well inside what differences of cumulative sums keep
+# exact
+CHUNK_DECAY = 4.0
 
 
 def ringing_moments(x: np.ndarray, t: np.ndarray, i0: np.ndarray, i1: np.ndarray, shift: np.ndarray,
-                    frequency_hz: float):
-    """Per window [i0, i1) of samples x (n, 3) at stamps t, an oscillation at ``frequency_hz`` whose amplitude
-    changes linearly across the window fitted on every axis with the constant: (the fitted constant (W, 3), the
-    residual sum of squares with the constant fitted, and without it: about ``shift``). Per window the basis
-    is 1, cos u, sin u, v cos u, v sin u, with u the phase and v the phase from the window's centre; its Gram
-    matrix and the data's projections are differences of cumulative sums of products with powers of u,
-    expanded about the centre. The phase is counted from the start of a chunk of a few windows, so that its
-    powers stay small (their cumulative sums exact) whatever the recording's length."""
+                    frequency_hz: float, damping: float = 0.0):
+    """Per window [i0, i1) of samples x (n, 3) at stamps t, an oscillation at ``frequency_hz`` decaying at the
+    damping ratio ``damping`` (its amplitude falls as exp(-damping u) with the phase u), whose amplitude
+    changes besides linearly across the window, fitted on every axis with the constant: (the fitted constant
+    (W, 3), the residual sum of squares with the constant fitted, and without it: about ``shift``). Per window
+    the basis is 1, e cos u, e sin u, v e cos u, v e sin u, with e = exp(-damping u), u the phase and v the
+    phase from the window's centre: the linear change takes a damping off the bar's and a frequency a few
+    percent off to first order, the decay itself exactly (over one period of a bar damped at 0.03 a linear
+    amplitude alone leaves 0.3 % of the swing, a DC that the gyro's test without a constant reads as a turn,
+    several times a gyro's noise on a swing of tens of degrees per second). The Gram matrix and the data's
+    projections are differences of cumulative sums of products with powers of u, expanded about the centre.
+    The phase is counted from the start of a chunk of a few windows, so that its powers stay small (their
+    cumulative sums exact) whatever the recording's length, and the decay within a chunk bounded
+    (:data:`CHUNK_DECAY`)."""
     x, t = np.asarray(x, float), np.asarray(t, float)
     i0, i1 = np.asarray(i0, np.int64), np.asarray(i1, np.int64)
     W = len(i0)
     mean, ss_const, ss_free = np.zeros((W, 3)), np.zeros(W), np.zeros(W)
     order = np.argsort(i0, kind="stable")
-    step = max(4 * int(np.max(i1 - i0, initial=1)), 256)  # windows per chunk
+    longest = int(np.max(i1 - i0, initial=1))
+    step = max(4 * longest, 256)  # windows per chunk
     omega = 2.0 * math.pi * frequency_hz
+    if damping > 0 and len(t) > 1 and t[-1] > t[0]:  # a chunk spans at most CHUNK_DECAY of decay (and one window)
+        per_sample = omega * (t[-1] - t[0]) / (len(t) - 1)
+        step = max(min(step, int(CHUNK_DECAY / (damping * per_sample)) - longest), 1)
     for a in range(0, W, step):
         w = order[a:a + step]
         s0, s1 = int(i0[w].min()), int(i1[w].max())
-        m, sc, sf = _chunk_moments(x[s0:s1] - shift, omega * (t[s0:s1] - t[s0]), i0[w] - s0, i1[w] - s0)
+        m, sc, sf = _chunk_moments(x[s0:s1] - shift, omega * (t[s0:s1] - t[s0]), i0[w] - s0, i1[w] - s0, damping)
         mean[w], ss_const[w], ss_free[w] = m + shift, sc, sf
     return mean, ss_const, ss_free
 
 
-def _chunk_moments(d: np.ndarray, u: np.ndarray, i0: np.ndarray, i1: np.ndarray):
+def _chunk_moments(d: np.ndarray, u: np.ndarray, i0: np.ndarray, i1: np.ndarray, damping: float):
     """:func:`ringing_moments` of samples d (n, 3) about zero at phases u (n,) counted from the chunk's start."""
     N = len(d)
-    c, s = np.cos(u), np.sin(u)
+    decay = np.exp(-damping * u) if damping > 0 else 1.0  # at most 1: no overflow over a long single window
+    c, s = decay * np.cos(u), decay * np.sin(u)
     one = np.ones(N)
     base = {"1": one, "c": c, "s": s, "cc": c * c, "ss": s * s, "cs": c * s}
     cols = [base[k] * u ** p for p in range(3) for k in base]  # sums of u^p g, g a product of two basis factors
@@ -111,6 +131,41 @@ def turned_back(x: np.ndarray, phi: np.ndarray) -> np.ndarray:
     return np.einsum("nij,nj->ni", exp_so3(np.asarray(phi, float)), np.asarray(x, float))
 
 
+@dataclass(frozen=True)
+class MountBar:
+    """The bar the IMU rides on, beyond its frequency: how its ringing decays and how it bends at rest."""
+
+    damping: float  # damping ratio of its first bending mode: the rig file's, else UNKNOWN_DAMPING_RATIO
+    # K (3, 3), rad per m/s^2: the static bend's rotation vector per unit specific force, both in the IMU's frame
+    # (psi = K f to first order); None: not known
+    compliance: np.ndarray | None = None
+
+
+def mount_bar(rig) -> MountBar | None:
+    """The :class:`MountBar` of the flexible bar the rig file mounts the IMU on (docs/CONVENTIONS.md (Bending): the
+    bar bends with the load u = -f, phi = C_r,i (u_i x u) in the body frame); None for an IMU on the body, on a
+    rigid camera, or none."""
+    imu = getattr(rig, "imu", None)
+    if imu is None or imu.mount == "body" or not mount_ringing_hz(rig):
+        return None
+    from ..core.dynamics import bar_damping_ratios
+
+    i = rig.camera_index(imu.mount)
+    to_body = rig.rotations[i] @ np.asarray(imu.rotation, float)  # IMU -> body, unbent
+    K = -to_body.T @ np.asarray(rig.bar_derivatives[1][i], float) @ to_body
+    return MountBar(float(bar_damping_ratios(rig)[i]), K if np.isfinite(K).all() and np.any(K) else None)
+
+
+def static_bend(compliance: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    """The mount's rotation vectors (n, 3) at rest under the mean specific forces ``accel`` (n, 3) its IMU reads
+    (IMU frame): psi = K exp(psi) f, the load measured in the bent frame (:data:`STATIC_BEND_STEPS` steps)."""
+    f = np.asarray(accel, float).reshape(-1, 3)
+    psi = np.zeros_like(f)
+    for _ in range(STATIC_BEND_STEPS):
+        psi = np.einsum("ij,nj->ni", compliance, np.einsum("nij,nj->ni", exp_so3(psi), f))
+    return psi
+
+
 def mount_ringing_hz(rig) -> float:
     """The natural frequency (Hz) of the flexible bar the rig file mounts the IMU on (inside that bar's camera),
     or 0 for an IMU on the body, on a rigid camera, or none."""
@@ -134,6 +189,14 @@ class MountTurn:
     accelerometer's samples back by the turn, :meth:`gyro_moments` turns the rates into phi' (J_r(phi)^-1 w): what
     remains is an oscillation at the mount's frequency (the tip's own acceleration, its bending rate).
 
+    The gyro's turn is relative: it starts from wherever the mount was. A soft bar's mount rests bent by tenths
+    of a radian under the load (its static bend psi_s), and the rate of a swing r about that bend reads
+    J_r(psi_s + r) r': the products of psi_s with r are a second harmonic too, several times a gyro's noise on a
+    swing of tens of degrees per second. With the bar's compliance (:func:`mount_bar`) and the
+    accelerometer's samples, each block's static bend comes from its mean specific force (:func:`static_bend`)
+    and the swing is taken about it: psi = psi_s + J_r(psi_s)^-1 phi (phi the turn from the block's reference;
+    to first order the swing the turn integrates).
+
     Each window is turned about one reference, the mount's mean turn over the period around its block
     (windows grouped by their centre, one period per block): a reference that differs from a window's own
     mean by a constant only adds terms linear in the ringing, which the fit takes out, and keeps the turns
@@ -141,10 +204,12 @@ class MountTurn:
     cumulative sums serves all windows."""
 
     def __init__(self, t: np.ndarray, gyro: np.ndarray, gyro_bias, i0: np.ndarray, i1: np.ndarray,
-                 frequency_hz: float):
+                 frequency_hz: float, accel: np.ndarray | None = None, bar: MountBar | None = None):
         t = np.asarray(t, float)
         i0, i1 = np.asarray(i0, np.int64), np.asarray(i1, np.int64)
         self.t, self.frequency_hz, self.bias = t, float(frequency_hz), np.asarray(gyro_bias, float).reshape(3)
+        self.damping = bar.damping if bar is not None else 0.0
+        compliance = bar.compliance if bar is not None else None
         period = 1.0 / frequency_hz
         turn = mount_turn(t, gyro, self.bias)
         n = len(t)
@@ -156,6 +221,12 @@ class MountTurn:
         cum = np.zeros((n + 1, 3))
         np.cumsum(turn, axis=0, out=cum[1:])
         reference = (cum[hi] - cum[lo]) / np.maximum(hi - lo, 1)[:, None]
+        # per block J_r(psi_s)^-1 and psi_s: the swing phi about the block's reference is psi_s + J_r(psi_s)^-1 phi
+        to_swing, rest = np.broadcast_to(np.eye(3), (len(blocks), 3, 3)), np.zeros((len(blocks), 3))
+        if compliance is not None and accel is not None and n:
+            np.cumsum(np.asarray(accel, float), axis=0, out=cum[1:])
+            rest = static_bend(compliance, (cum[hi] - cum[lo]) / np.maximum(hi - lo, 1)[:, None])
+            to_swing = np.linalg.inv(right_jacobian(rest))
         start = np.full(len(blocks), np.iinfo(np.int64).max)
         end = np.zeros(len(blocks), np.int64)
         np.minimum.at(start, block_of, i0)
@@ -163,24 +234,26 @@ class MountTurn:
         length = np.maximum(end - start, 0)
         offset = np.concatenate([[0], np.cumsum(length)])
         self.index = np.arange(offset[-1]) - np.repeat(offset[:-1] - start, length)  # the blocks' samples
-        self.turn = turn[self.index] - reference[np.repeat(np.arange(len(blocks)), length)]
+        of_sample = np.repeat(np.arange(len(blocks)), length)
+        self.turn = turn[self.index] - reference[of_sample]
+        self.swing = rest[of_sample] + np.einsum("nij,nj->ni", to_swing[of_sample], self.turn)
         moved = offset[:-1][block_of] - start[block_of]
         self.i0, self.i1 = i0 + moved, i1 + moved
 
     def accel_moments(self, accel: np.ndarray, shift: np.ndarray):
         """:func:`ringing_moments` of the accelerometer's samples turned back by the mount's turn."""
         x = turned_back(np.asarray(accel, float)[self.index], self.turn)
-        return ringing_moments(x, self.t[self.index], self.i0, self.i1, shift, self.frequency_hz)
+        return ringing_moments(x, self.t[self.index], self.i0, self.i1, shift, self.frequency_hz, self.damping)
 
     def gyro_moments(self, gyro: np.ndarray):
-        """:func:`ringing_moments` of the gyro's rates less their bias turned into the turn's rate
-        (J_r(phi)^-1 w), about the bias."""
+        """:func:`ringing_moments` of the gyro's rates less their bias turned into the swing's rate
+        (J_r(psi)^-1 w), about the bias."""
         rate = np.asarray(gyro, float)[self.index] - self.bias
-        x = np.linalg.solve(right_jacobian(self.turn), rate[:, :, None])[:, :, 0] + self.bias
-        return ringing_moments(x, self.t[self.index], self.i0, self.i1, self.bias, self.frequency_hz)
+        x = np.linalg.solve(right_jacobian(self.swing), rate[:, :, None])[:, :, 0] + self.bias
+        return ringing_moments(x, self.t[self.index], self.i0, self.i1, self.bias, self.frequency_hz, self.damping)
 
 
-def mean_under_ringing(t, x, frequency_hz: float, gyro=None, keep=None) -> tuple:
+def mean_under_ringing(t, x, frequency_hz: float, gyro=None, keep=None, damping: float = 0.0) -> tuple:
     """(constant (3,), its std per axis, the samples' per-axis std about the model) of samples x (n, 3) at
     stamps t (n,) on a mount ringing at ``frequency_hz`` (:func:`ringing_moments` over the whole span). Without
     ringing (``frequency_hz`` 0) the plain mean, std over the root of n. Where the samples span less than one
@@ -189,7 +262,8 @@ def mean_under_ringing(t, x, frequency_hz: float, gyro=None, keep=None) -> tuple
     samples ``gyro`` (n, 3) the accelerometer's are first turned back by the mount's turn about the swing's
     centre (:class:`MountTurn`; the centre and the gyro's bias are the constants of their own ringing fits): the
     constant is then the reading at the mount's rest. ``keep`` (n,)
-    selects the samples that enter the fit (the still ones); the turn is integrated over all."""
+    selects the samples that enter the fit (the still ones); the turn is integrated over all. ``damping``: the
+    bar's damping ratio, at which every fit's oscillation decays (:func:`ringing_moments`)."""
     t = np.asarray(t, dtype=float).reshape(-1)
     x = np.asarray(x, dtype=float).reshape(-1, 3)
     w = None if gyro is None else np.asarray(gyro, dtype=float).reshape(-1, 3)
@@ -197,10 +271,10 @@ def mean_under_ringing(t, x, frequency_hz: float, gyro=None, keep=None) -> tuple
     if frequency_hz > 0 and w is not None and np.count_nonzero(used) > 2 * (RINGING_PARAMETERS + 1):
         k = np.count_nonzero(used)
         bias = ringing_moments(w[used], t[used], np.array([0]), np.array([k]), np.median(w[used], axis=0),
-                               frequency_hz)[0][0]
+                               frequency_hz, damping)[0][0]
         turn = mount_turn(t, w, bias)
         rest = ringing_moments(turn[used], t[used], np.array([0]), np.array([k]), np.median(turn[used], axis=0),
-                               frequency_hz)[0][0]  # the swing's centre, not its mean over a decaying span
+                               frequency_hz, damping)[0][0]  # the swing's centre, not its mean over a decaying span
         x = turned_back(x, turn - rest)
     if keep is not None:
         t, x = t[keep], x[keep]
@@ -210,10 +284,10 @@ def mean_under_ringing(t, x, frequency_hz: float, gyro=None, keep=None) -> tuple
         return x.mean(axis=0), spread / math.sqrt(max(n, 1)), spread
     if n <= 2 * (RINGING_PARAMETERS + 1) or t[-1] - t[0] < 1.0 / frequency_hz:
         return x.mean(axis=0), math.hypot(spread, spread / math.sqrt(max(n, 1))), spread
-    mean, ss, _ = ringing_moments(x, t, np.array([0]), np.array([n]), np.median(x, axis=0), frequency_hz)
+    mean, ss, _ = ringing_moments(x, t, np.array([0]), np.array([n]), np.median(x, axis=0), frequency_hz, damping)
     resid = float(math.sqrt(ss[0] / (3 * (n - 1 - RINGING_PARAMETERS))))
     return mean[0], resid / math.sqrt(n - 1 - RINGING_PARAMETERS), resid
 
 
-__all__ = ["MountTurn", "RINGING_PARAMETERS", "mean_under_ringing", "mount_ringing_hz", "mount_turn", "ringing_moments",
-           "turned_back"]
+__all__ = ["MountBar", "MountTurn", "RINGING_PARAMETERS", "mean_under_ringing", "mount_bar", "mount_ringing_hz",
+           "mount_turn", "ringing_moments", "static_bend", "turned_back"]

@@ -48,7 +48,7 @@ from .patch_align import PatchAlignConfig
 from .ringing_watch import RingingWatch
 from .snapshot_ringing import correct_pixels, correction_rotations, predict, residual_px, uncertainty
 from .tracking import HoldThinning, KltTracker, TrackingConfig
-from .zupt import ZuptConfig, ZuptDetector, describe_noise
+from .zupt import ZuptConfig, ZuptDetector, describe_noise, ringing_damping
 from .zupt import for_rig as zupt_for_rig
 
 PIPELINE_METHODS = ("auto",) + METHODS
@@ -195,7 +195,7 @@ class Pipeline:
         # an IMU on a flexible bar rings with it after every stop: no motion of the rig, and no part of a hold's
         # accelerometer mean (docs/PIPELINE.md, Holds)
         zupt = zupt_for_rig(self.config.zupt, rig)
-        self.imu = ImuBuffer(rig, self.config.imu, zupt.mount_ringing_hz or 0.0)
+        self.imu = ImuBuffer(rig, self.config.imu, zupt.mount_ringing_hz or 0.0, ringing_damping(zupt))
         self.zupt = ZuptDetector(zupt, buffer=self.imu)
         self.bar_period_s = slowest_bar_period(rig)
         # the bars' state from the IMU: every camera's extrinsics at any frame set (docs/PIPELINE.md)

@@ -59,9 +59,11 @@ seconds on a lightly damped bar, far above the sensor noise. Such a ringing is
 not a motion of the rig. With ``mount_ringing_hz`` set (the pipeline sets it
 from the rig file: :func:`for_rig`) each window is at least one period of that
 frequency long and every axis fits, besides its constant, an oscillation at it
-whose amplitude changes linearly across the window (cos, sin, tau cos, tau
-sin: a decay, and a frequency a few percent off, to first order); T sums the
-residuals of that fit and nu loses the 24 fitted parameters. A constant rate or
+decaying at the bar's damping ratio, whose amplitude changes besides linearly
+across the window (e cos, e sin, tau e cos, tau e sin: a damping and a
+frequency a few percent off, to first order); T sums the residuals of that fit
+and nu loses the 24 fitted parameters. The mount's turn, and its static bend
+under the load, are taken out first (:class:`.mount_ringing.MountTurn`). A constant rate or
 a ramp is nearly orthogonal to one period of an oscillation, so a creep or a
 move stays a motion. The fit's windowed sums are differences of cumulative
 sums too (the oscillation's phase is taken from the first sample's stamp).
@@ -102,7 +104,7 @@ from ..config import check, option
 from ..core.loss import MAD_TO_STD
 from ..errors import InputError
 from .imu import ImuBuffer, ImuReject
-from .mount_ringing import RINGING_PARAMETERS, MountTurn, mount_ringing_hz, ringing_moments
+from .mount_ringing import RINGING_PARAMETERS, MountBar, MountTurn, mount_bar, mount_ringing_hz, ringing_moments
 from .noise_correlation import autocorrelation, per_value, spread_null, statistic_null
 
 # A window on a ringing mount spans at least this many periods of its ringing to be tested (a hair less than
@@ -153,8 +155,14 @@ class ZuptConfig:
                                         "gyros stay within a few deg/s): a steady turn is motion, not bias",
                                         lo=0.0, hi=10.0)
 
+    # the bar the IMU rides on: its damping and static bend (:func:`.mount_ringing.mount_bar`); set from the rig
+    # file by :func:`for_rig`, not an option
+    mount_bar: MountBar | None = field(default=None, repr=False, compare=False)
+
     def __post_init__(self):
         check(self, "zupt config")
+        if self.mount_bar is not None and not isinstance(self.mount_bar, MountBar):
+            raise InputError("zupt config", "is set from the rig file, not in a config", "mount_bar")
 
 
 class NoiseSource(str, Enum):
@@ -237,15 +245,20 @@ def _period(t: np.ndarray, noise: ImuNoise | None = None) -> float:
 
 def for_rig(cfg: ZuptConfig, rig) -> ZuptConfig:
     """``cfg`` with ``mount_ringing_hz`` resolved from the rig file: the natural frequency of the flexible bar
-    the IMU rides on (0 for an IMU on the body or a rigid mount); a value given in ``cfg`` is kept."""
-    if cfg.mount_ringing_hz is not None:
-        return cfg
-    return dataclasses.replace(cfg, mount_ringing_hz=mount_ringing_hz(rig))
+    the IMU rides on (0 for an IMU on the body or a rigid mount); a value given in ``cfg`` is kept. The bar's
+    damping and static bend (``mount_bar``) come from the rig file too."""
+    hz = mount_ringing_hz(rig) if cfg.mount_ringing_hz is None else cfg.mount_ringing_hz
+    return dataclasses.replace(cfg, mount_ringing_hz=hz, mount_bar=cfg.mount_bar or mount_bar(rig))
 
 
 def _ringing_hz(cfg: ZuptConfig) -> float:
     f = cfg.mount_ringing_hz
     return float(f) if f is not None and f > 0 else 0.0
+
+
+def ringing_damping(cfg: ZuptConfig) -> float:
+    """The damping ratio at which the IMU's mount's ringing decays (0: not known, or no ringing mount)."""
+    return cfg.mount_bar.damping if cfg.mount_bar is not None else 0.0
 
 
 def _min_samples(cfg: ZuptConfig) -> int:
@@ -327,7 +340,7 @@ def _window_moments(x, t, i0, i1, shift, cfg: ZuptConfig):
     per axis besides the constant."""
     f = _ringing_hz(cfg)
     if f:
-        return ringing_moments(x, t, i0, i1, shift, f), RINGING_PARAMETERS
+        return ringing_moments(x, t, i0, i1, shift, f, ringing_damping(cfg)), RINGING_PARAMETERS
     return _moments(x, i0, i1, shift), 0
 
 
@@ -338,7 +351,7 @@ def _ringing_moments(a, w, t, i0, i1, shift, gyro_bias, cfg: ZuptConfig):
     plane, are not oscillations at the mount's frequency alone)."""
     f = _ringing_hz(cfg)
     if f:
-        turn = MountTurn(t, w, gyro_bias, i0, i1, f)
+        turn = MountTurn(t, w, gyro_bias, i0, i1, f, a, cfg.mount_bar)
         return turn.accel_moments(a, shift), turn.gyro_moments(w), RINGING_PARAMETERS
     return _moments(a, i0, i1, shift), _moments(w, i0, i1, gyro_bias), 0
 
