@@ -56,7 +56,7 @@ from .bundle import (
     condense_gravity,
     covariance_from_information,
 )
-from .estimators import MINIMAL_SAMPLE, Estimate, estimate, pair_method
+from .estimators import MINIMAL_SAMPLE, Estimate, EstimatorOptions, estimate, pair_method
 from .matches import Matches
 from .rig import Rig
 from .sequence_steps import (
@@ -75,6 +75,10 @@ from .tracks import Tracks
 
 RECONSIDER_SIGMAS = 3.0  # a pair's gravity contradicts the joint one beyond this many of its own stds only
 PARALLEL_COS = 0.99  # bars whose axes are this close to (anti)parallel observe gravity as one bar (paper, 3.3)
+# a pair's inlier thresholds take in this many times the two views' coherent offsets together (their residual
+# ringings' envelopes): an envelope bounds how far a camera's bearings may be moved alike, and where the pair's
+# model cannot follow such a turn the error it leaves reaches it
+OFFSET_INLIER_FACTOR = 1.5
 
 
 def parallel_bars(rig: Rig) -> bool:
@@ -204,6 +208,7 @@ class _View:
     measured: np.ndarray  # (3,), NaN without measured gravity
     measured_sigma: float
     noise_scale: float = 1.0
+    offset_rad: float = 0.0  # how far all of a camera's bearings may be moved alike (a residual ringing's envelope)
     inlier: np.ndarray | None = None  # (n,) bool; None: all
     R: np.ndarray | None = None
     t: np.ndarray | None = None
@@ -338,6 +343,7 @@ class IncrementalSequence:
         self.with_gravity = method != "6pt-nonbending" and rig.is_flexible
         self.parallel_bars = parallel_bars(rig)  # vision only: a young sequence publishes no gravity yet
         focal = float(np.mean([c.focal_px for c in rig.cameras]))
+        self._focal_px = focal
         self.threshold = self.options.estimator.threshold_px / focal
         self._pair_options = self.options.pair_estimator()
         self._noise_rad = self.threshold / 2.0  # angular noise of the latest solve (condenses retired landmarks)
@@ -440,7 +446,8 @@ class IncrementalSequence:
 
     # ----------------------------------------------------------------- views
     def add_view(self, cam, track, f, measured_gravity=None, measured_sigma_rad: float | None = None,
-                 noise_scale: float = 1.0, key=None, turn: tuple | None = None) -> ViewEstimate | NewSequence:
+                 noise_scale: float = 1.0, key=None, turn: tuple | None = None,
+                 offset_rad: float = 0.0) -> ViewEstimate | NewSequence:
         """Add the next view's observations; returns its :class:`ViewEstimate`, or :class:`NewSequence` for a
         view that is the origin of a sequence (the first one, or one no earlier view links to).
         ``noise_scale`` (>= 1): the view's bearing noise std over the nominal one (a hold measured while
@@ -457,7 +464,7 @@ class IncrementalSequence:
         s = self.seq
         k = s.num_views
         new = _View(cam, track, f, g, sg, max(float(noise_scale), 1.0) if math.isfinite(noise_scale) else 1.0,
-                    key=key, turn=turn)
+                    float(offset_rad) if offset_rad > 0 and math.isfinite(offset_rad) else 0.0, key=key, turn=turn)
         s.views.append(new)
         if k == 0:
             new.R, new.t = np.eye(3), np.zeros(3)
@@ -528,7 +535,8 @@ class IncrementalSequence:
                 pm = pair_method(self.method, has_g)
                 m = Matches(vj.f[ia], vk.f[ib], vj.cam[ia], vj.measured if has_g else None,
                             vk.measured if has_g else None, source=f"sequence {p.number} view {j}, view {k}")
-                est = estimate(self.model_rig, m, method=pm, seed=self.seed + k, options=self._pair_options)
+                est = estimate(self.model_rig, m, method=pm, seed=self.seed + k,
+                               options=self.pair_options(vj.offset_rad, vk.offset_rad))
                 if est.success:
                     n = p.num_views
                     self._join(p, int(j), k, est)
@@ -640,16 +648,30 @@ class IncrementalSequence:
             has_g = vj.has_gravity and vk.has_gravity
             m = Matches(vj.f[ia], vk.f[ib], vj.cam[ia], vj.measured if has_g else None,
                         vk.measured if has_g else None, source=f"views {j}, {k}")
-            est = estimate(self.model_rig, m, method=pm, seed=self.seed + k, options=self._pair_options)
+            est = estimate(self.model_rig, m, method=pm, seed=self.seed + k,
+                           options=self.pair_options(vj.offset_rad, vk.offset_rad))
             if est.success:
                 return _Pairing(j, pm, est)
             why.append(PairAttempt(j, len(ia), len(np.unique(vj.cam[ia])), estimated=True, failure=est.info.reason))
         return _Pairing(reason=StartReason.PAIR_FAILED, tried=tuple(why))
 
-    def two_view(self, matches: Matches, method: str, seed: int):
+    def pair_options(self, *offsets_rad: float) -> EstimatorOptions:
+        """The pair estimates' options for two views whose cameras' bearings may be moved alike by up to
+        ``offsets_rad`` (a residual ringing: docs/PIPELINE.md, "Graded trust"): the inlier thresholds widened to
+        take such an offset in, sqrt(threshold^2 + (OFFSET_INLIER_FACTOR x the views' offsets together)^2). A
+        coherent offset is no outlier: a threshold below it keeps only the cameras it moved least and poses
+        the view on them (its scale free with one camera)."""
+        extra = OFFSET_INLIER_FACTOR * self._focal_px * math.hypot(*offsets_rad, 0.0)
+        if not extra > 0:
+            return self._pair_options
+        o = self._pair_options
+        return replace(o, threshold_px=math.hypot(o.threshold_px, extra),
+                       loose_threshold_px=math.hypot(o.loose_threshold_px, extra))
+
+    def two_view(self, matches: Matches, method: str, seed: int, offsets_rad: tuple = ()):
         """A two-view estimate with this sequence's rig model and pair options (a test on the side: nothing of
-        the sequence changes)."""
-        return estimate(self.model_rig, matches, method=method, seed=seed, options=self._pair_options)
+        the sequence changes); ``offsets_rad``: the two views' :meth:`pair_options`."""
+        return estimate(self.model_rig, matches, method=method, seed=seed, options=self.pair_options(*offsets_rad))
 
     def _restart_from_last(self) -> None:
         """The newest view cannot be linked: it becomes the origin of a new sequence."""

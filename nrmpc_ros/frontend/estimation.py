@@ -51,6 +51,13 @@ def ringing_noise_rad(rig: Rig, hold: Hold, cam) -> float:
     return hold.ringing_px / focal * math.sqrt(per_camera)
 
 
+def ringing_offset_rad(rig: Rig, hold: Hold) -> float:
+    """How far (rad) a hold's residual ringing may move all of a camera's bearings alike: its envelope over the
+    focal length (the pair estimates' inlier thresholds take it in: :meth:`.IncrementalSequence.pair_options`)."""
+    focal = float(np.median([c.focal_px for c in rig.cameras]))
+    return hold.ringing_px / focal if math.isfinite(hold.ringing_px) and hold.ringing_px > 0 else 0.0
+
+
 @dataclass
 class HoldEstimate:
     """The estimate of one hold: its pose relative to the reference hold (p_ref = R p + t) and in the
@@ -154,7 +161,8 @@ class HoldEstimator:
         st, hold, imu, attempt = self.stats, item.hold, item.imu, item.attempt
         t0 = time.perf_counter()
         obs = self.linker.link(hold)
-        g, verdict = (None, None) if imu is None else self._checked_gravity(obs, imu.gravity)
+        offset = ringing_offset_rad(self.rig, hold)
+        g, verdict = (None, None) if imu is None else self._checked_gravity(obs, imu.gravity, offset)
         if g is None and self.require_imu:  # forced: no silent fall back to 6pt-bending
             st.dropped[Drop.HOLD_FORCED_WITHOUT_IMU] += 1
             if attempt is not None:
@@ -164,7 +172,7 @@ class HoldEstimator:
         st.penalized_holds += scale > 1.0
         number = self.sequence.number
         out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale,
-                                     key=hold.stamp, turn=item.turn)
+                                     key=hold.stamp, turn=item.turn, offset_rad=offset)
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):
@@ -198,7 +206,7 @@ class HoldEstimator:
             self._origin = None
         self._hold_stamps.append(hold.stamp)
         if g is None and out.gravity is not None:  # the images' gravity of the hold
-            self.imu_check.remember(obs.cam, obs.landmark, obs.f, out.gravity, out.gravity_sigma_rad)
+            self.imu_check.remember(obs.cam, obs.landmark, obs.f, out.gravity, out.gravity_sigma_rad, offset)
         if verdict is Agreement.REFUTED:
             # the sequence still holds the earlier holds' IMU gravities, one of which may be the wrong one of the
             # pair, and its window solve placed this hold with them: nothing to promise (the next test decides)
@@ -211,12 +219,13 @@ class HoldEstimator:
             attempt.estimate = est
         return done + [est]
 
-    def _checked_gravity(self, obs, gravity) -> tuple:
+    def _checked_gravity(self, obs, gravity, offset_rad: float = 0.0) -> tuple:
         """(the hold's IMU gravity, or None where it is not to be used, and the verdict of
         :mod:`.imu_agreement`); refusals are counted. When the IMU's gravity turns unusable the sequence restarts
         without the earlier holds' gravities, which are the same IMU's."""
         usable = self.imu_check.usable
-        verdict = self.imu_check.check(obs.cam, obs.landmark, obs.f, gravity, self.sequence.num_views > 0)
+        verdict = self.imu_check.check(obs.cam, obs.landmark, obs.f, gravity, self.sequence.num_views > 0,
+                                       offset_rad)
         if verdict is Agreement.REFUTED:
             self.stats.dropped[Drop.no_imu_gravity(ImuRefusal.REFUTED)] += 1
             if usable and not self.imu_check.usable and self.sequence.num_views:

@@ -96,25 +96,27 @@ class ImuGravityCheck:
         self.usable = True
 
     def remember(self, cam: np.ndarray, landmark: np.ndarray, f: np.ndarray, gravity: np.ndarray,
-                 sigma_rad: float) -> None:
+                 sigma_rad: float, offset_rad: float = 0.0) -> None:
         """A hold whose gravity came from the images (its IMU gravity absent or not used), of std ``sigma_rad``:
         the next reference where that std is below :data:`REFERENCE_MAX_SIGMA_RAD`."""
         if sigma_rad < REFERENCE_MAX_SIGMA_RAD:
-            self._reference = self._observations(cam, landmark, f, gravity)
+            self._reference = self._observations(cam, landmark, f, gravity, offset_rad)
 
     @staticmethod
-    def _observations(cam, landmark, f, gravity) -> tuple:
+    def _observations(cam, landmark, f, gravity, offset_rad) -> tuple:
         keys = np.asarray(cam, np.int64) * (1 << 40) + np.asarray(landmark, np.int64)
-        return keys, np.asarray(f, float), np.asarray(cam, np.int64), np.asarray(gravity, float)
+        return keys, np.asarray(f, float), np.asarray(cam, np.int64), np.asarray(gravity, float), float(offset_rad)
 
     def check(self, cam: np.ndarray, landmark: np.ndarray, f: np.ndarray, gravity: np.ndarray,
-              follows_holds: bool = False) -> Agreement:
+              follows_holds: bool = False, offset_rad: float = 0.0) -> Agreement:
         """The verdict on ``gravity`` (body frame) of the hold observed as (camera, landmark id, bearing).
         ``follows_holds``: the hold joins holds already estimated; then a first gravity, with nothing to test it
-        against, would set the gravity of them all on its own word: it waits for the next hold's test."""
+        against, would set the gravity of them all on its own word: it waits for the next hold's test.
+        ``offset_rad``: how far the hold's residual ringing may move all of a camera's bearings alike (both
+        estimates of the test take it in, with the reference's)."""
         if not self.usable:
             return Agreement.UNUSABLE
-        current = self._observations(cam, landmark, f, gravity)
+        current = self._observations(cam, landmark, f, gravity, offset_rad)
         if self._reference is None and follows_holds:
             self._reference = current
             return Agreement.PENDING
@@ -136,21 +138,22 @@ class ImuGravityCheck:
     def _pair_test(self, current) -> Agreement:
         if self._reference is None:
             return Agreement.UNTESTED
-        keys_a, f_a, cam_a, g_a = self._reference
-        keys_b, f_b, _, g_b = current
+        keys_a, f_a, cam_a, g_a, offset_a = self._reference
+        keys_b, f_b, _, g_b, offset_b = current
         shared, ia, ib = np.intersect1d(keys_a, keys_b, assume_unique=False, return_indices=True)
         n = len(shared)
         if n < MIN_CORRESPONDENCES:
             return Agreement.UNTESTED
         self.tested += 1
         seed = self.seed + self.tested
+        offsets = (offset_a, offset_b)
         bound = self.sequence.two_view(Matches(f_a[ia], f_b[ib], cam_a[ia], g_a, g_b, source="IMU gravity test"),
-                                       "4pt-bending", seed)
+                                       "4pt-bending", seed, offsets)
         with_g = bound.num_inliers if bound.success else 0
         if with_g >= AGREEING_SHARE * n:
             return Agreement.AGREES
         free = self.sequence.two_view(Matches(f_a[ia], f_b[ib], cam_a[ia], source="IMU gravity test"),
-                                      "6pt-bending", seed)
+                                      "6pt-bending", seed, offsets)
         without = free.num_inliers if free.success else 0
         if without > REFUTING_RATIO * with_g and without >= MIN_CORRESPONDENCES:
             self.evidence = PairEvidence(n, with_g, without)
