@@ -576,9 +576,12 @@ class Pipeline:
         return len(h) < 2 or h.stamps[-1] - h.stamps[0] < self.bar_period_s
 
     def _reanchor(self, stamp: float, images: list, taken: list) -> None:
-        """The open hold starts again from this frame (new anchor) but keeps the time the rig stopped."""
+        """The open hold starts again from this frame (new anchor) but keeps the time the rig stopped. Its tracks
+        are topped up with new corners, as between holds: the ringing that made the hold anchor again lost part of
+        them (a camera kept 9 of 150 after a 1.5 Hz bar's first swings), and the hold's landmarks are what links it
+        to the holds before it."""
         start, snapshot, rests, jumped = self._hold.start, self._hold.snapshot, self._hold_rest, self._hold.jumped
-        self._open(stamp, images, taken, snapshot=snapshot)
+        self._open(stamp, images, taken, snapshot=snapshot, top_up=True)
         self._hold.start, self._hold.jumped = start, jumped
         self._hold_rest = rests  # the rests the camera's paths ring about stay (a lost path's is None already)
 
