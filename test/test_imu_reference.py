@@ -56,3 +56,21 @@ def test_a_recording_too_short_for_the_noise_has_no_imu_gravity(rng):
     imu = ImuReference(Reference(imu_t=t, imu_a=a, imu_w=w))
     assert imu.noise is None and imu.gravity_at(0.25) is None
     assert ImuReference(Reference()).gravity_at(0.0) is None
+
+
+def test_a_stamp_at_a_runs_end_on_a_ringing_mount_takes_periods_of_its_run(rng):
+    """An IMU on a bar ringing at 1.5 Hz, a stamp just after its hold's still run ends: the still samples within
+    a period of it span less than a period, over which the fit cannot take the swing out of the mean. The IMU
+    alone there is the mean over the run's samples within two periods of the stamp: within 0.05 deg of the
+    same hold's mid-hold gravity (over the last period's samples alone it was degrees off)."""
+    from test_zupt import ringing_trace
+
+    from nrmpc_ros.frontend.zupt import ZuptConfig
+
+    t, a, w, holds = ringing_trace(rng, 200.0, 1.5)
+    imu = ImuReference(Reference(imu_t=t, imu_a=a, imu_w=w), zupt=ZuptConfig(mount_ringing_hz=1.5))
+    h0, h1 = holds[1]
+    truth = imu.gravity_at(0.5 * (h0 + h1), window_s=0.5 * (h1 - h0) - 0.2)
+    near_end = imu.gravity_at(h1 + 0.1)
+    assert truth is not None and near_end is not None
+    assert _deg(near_end, truth) < 0.05, _deg(near_end, truth)

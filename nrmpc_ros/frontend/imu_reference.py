@@ -49,12 +49,17 @@ class ImuReference:
         self._t, self._a, self._w = ref.imu_t, ref.imu_a, ref.imu_w
         self.noise: ImuNoise | None = None
         self.still = np.zeros(len(ref.imu_t), bool)
+        self._run_id = np.zeros(len(ref.imu_t), np.int64)
         if ref.has_imu:
             try:
                 self.noise = estimate_noise(ref.imu_t, ref.imu_a, ref.imu_w, zupt, ref.imu_covariance, "the IMU")
             except InputError:
                 return
             self.still = still_mask(ref.imu_t, ref.imu_a, ref.imu_w, self.noise, zupt, "the IMU")
+            # constant over each still run (and the moving sample before it); a gap in the samples starts a run
+            dt = np.diff(self._t)
+            gap = np.r_[False, dt > zupt.gap_periods * (np.median(dt) if len(dt) else 0.0)]
+            self._run_id = np.cumsum(~self.still | gap)
 
     def gravity_at(self, stamp: float, window_s: float = WINDOW_S) -> np.ndarray | None:
         """Gravity (body frame, m/s^2) from the still samples within +-``window_s`` of ``stamp``, on a ringing
@@ -63,6 +68,8 @@ class ImuReference:
         if self._ringing_hz:
             window_s = max(window_s, 1.0 / self._ringing_hz)
         i, j = np.searchsorted(self._t, [stamp - window_s, stamp + window_s])
+        if self._ringing_hz and np.any(self.still[i:j]):
+            i, j = self._run_around(stamp, i, j, 2.0 / self._ringing_hz)
         still = self.still[i:j]
         if np.count_nonzero(still) < self.min_samples:
             return None
@@ -76,6 +83,17 @@ class ImuReference:
                 return None
         gm = self.rig.gravity_magnitude if self.rig is not None else NOMINAL_GRAVITY
         return -gm * mean / np.linalg.norm(mean)
+
+    def _run_around(self, stamp: float, i: int, j: int, reach_s: float) -> tuple:
+        """Sample range [i, j) of the still run nearest ``stamp`` among the still samples of [i, j), within
+        +-``reach_s`` of the stamp: one attitude throughout, and on a ringing mount the periods its fit needs (a
+        stamp near a run's end saw less than a period of it in +-window, and the mean kept part of the swing)."""
+        k = i + int(np.argmin(np.where(self.still[i:j], np.abs(self._t[i:j] - stamp), np.inf)))
+        run = self._run_id[k]
+        a, b = np.searchsorted(self._run_id, [run, run + 1])  # the run's samples, and the moving ones after it
+        a += int(not self.still[a])  # a moving sample (or none) opens each label; the run's still ones follow
+        lo, hi = np.searchsorted(self._t, [stamp - reach_s, stamp + reach_s])
+        return max(a, int(lo)), min(b, int(hi))
 
 
 __all__ = ["ImuReference", "WINDOW_S"]
