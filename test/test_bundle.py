@@ -268,6 +268,9 @@ def test_inv3(rng):
     ill = np.diag([1e8, 1e7, 1e-2])[None] + 0.0  # a landmark whose depth is barely fixed
     ill[0, 0, 2] = ill[0, 2, 0] = 1.0
     assert np.allclose(inv3(ill) @ ill[0], np.eye(3), atol=1e-6)
+    with np.errstate(all="raise"):  # blocks of any scale (a landmark next to a camera's centre: 1e120), no overflow
+        for s in (1e-120, 1e120):
+            assert np.allclose(inv3(A * s) * s, np.linalg.inv(A), rtol=1e-9, atol=0.0)
 
 
 def test_observation_scale_weighs_a_noisy_view_down(rng):

@@ -43,18 +43,24 @@ def inv3(A: np.ndarray, diag: np.ndarray | float = 0.0) -> np.ndarray:
     """
     diag = np.broadcast_to(diag, (len(A), 3))
     a, d, f = A[:, 0, 0] + diag[:, 0], A[:, 1, 1] + diag[:, 1], A[:, 2, 2] + diag[:, 2]
-    b, c, e = A[:, 0, 1], A[:, 0, 2], A[:, 1, 2]
+    # each block scaled by its largest diagonal entry (semi-definite: no entry exceeds it), so that the cofactors
+    # and the determinant neither overflow nor underflow whatever the block's scale (a landmark next to a
+    # camera's centre has entries beyond 1e100); the inverse is the scaled block's over that scale
+    scale = np.maximum(np.maximum(a, d), f)
+    scale = np.where(scale > 0, scale, 1.0)
+    a, d, f = a / scale, d / scale, f / scale
+    b, c, e = A[:, 0, 1] / scale, A[:, 0, 2] / scale, A[:, 1, 2] / scale
     c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
     c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
     det = a * c00 + b * c01 + c * c02
-    floor = 1e-14 * np.maximum(np.maximum(a, d), f) ** 3 + 1e-300  # semi-definite: no entry exceeds these
-    inv_det = 1.0 / np.where(np.abs(det) > floor, det, floor)
+    floor = 1e-14  # of the scaled block, whose largest entry is 1
+    inv_det = 1.0 / (np.where(np.abs(det) > floor, det, floor) * scale)
     out = np.empty(A.shape)
     out[:, 0, 0], out[:, 1, 1], out[:, 2, 2] = c00 * inv_det, c11 * inv_det, c22 * inv_det
     out[:, 0, 1] = out[:, 1, 0] = c01 * inv_det
     out[:, 0, 2] = out[:, 2, 0] = c02 * inv_det
     out[:, 1, 2] = out[:, 2, 1] = c12 * inv_det
-    ill = np.abs(det) < ILL_CONDITIONED * np.maximum(np.maximum(a, d), f) ** 3 + 1e-300
+    ill = ~(np.abs(det) >= ILL_CONDITIONED)  # NaN (a block of infinities) too
     if ill.any():
         B = np.array(A[ill])
         idx = np.arange(3)
