@@ -32,6 +32,12 @@ from .imu_agreement import Agreement, ImuGravityCheck
 from .linking import HoldLinker
 
 
+def _focal_px(rig: Rig) -> float:
+    """The rig's typical focal length (px): its cameras' median, what a hold's ringing in pixels is turned into
+    bearing angles with."""
+    return float(np.median([c.focal_px for c in rig.cameras]))
+
+
 def ringing_noise_rad(rig: Rig, hold: Hold, cam) -> float:
     """The angular noise (rad) a hold's residual ringing adds to each of its bearings (``cam``: the camera of
     each of them), on top of the averaged track noise.
@@ -44,7 +50,7 @@ def ringing_noise_rad(rig: Rig, hold: Hold, cam) -> float:
     fit does not follow, e.g. the stamps' jitter times the ringing's speed, moves all of a camera's tracks alike).
     What remains of a settled hold's ringing after averaging many frames, or a short hold's spread, enters per
     point, as measured (docs/PIPELINE.md, "Graded trust")."""
-    focal = float(np.median([c.focal_px for c in rig.cameras]))
+    focal = _focal_px(rig)
     coherent = hold.ringing_source in (RingingSource.IMU, RingingSource.DEFAULT, RingingSource.PREDICTED,
                                        RingingSource.FIT) and len(cam)
     per_camera = float(np.median(np.unique(np.asarray(cam), return_counts=True)[1])) if coherent else 1.0
@@ -54,8 +60,7 @@ def ringing_noise_rad(rig: Rig, hold: Hold, cam) -> float:
 def ringing_offset_rad(rig: Rig, hold: Hold) -> float:
     """How far (rad) a hold's residual ringing may move all of a camera's bearings alike: its envelope over the
     focal length (the pair estimates' inlier thresholds take it in: :meth:`.IncrementalSequence.pair_options`)."""
-    focal = float(np.median([c.focal_px for c in rig.cameras]))
-    return hold.ringing_px / focal if math.isfinite(hold.ringing_px) and hold.ringing_px > 0 else 0.0
+    return hold.ringing_px / _focal_px(rig) if math.isfinite(hold.ringing_px) and hold.ringing_px > 0 else 0.0
 
 
 @dataclass
@@ -219,7 +224,7 @@ class HoldEstimator:
             attempt.estimate = est
         return done + [est]
 
-    def _checked_gravity(self, obs, gravity, offset_rad: float = 0.0) -> tuple:
+    def _checked_gravity(self, obs, gravity, offset_rad: float) -> tuple:
         """(the hold's IMU gravity, or None where it is not to be used, and the verdict of
         :mod:`.imu_agreement`); refusals are counted. When the IMU's gravity turns unusable the sequence restarts
         without the earlier holds' gravities, which are the same IMU's."""

@@ -24,7 +24,7 @@ from ..errors import InputError
 from .imu import ImuConfig
 from .mount_ringing import mean_under_ringing
 from .reference import Reference
-from .zupt import ImuNoise, ZuptConfig, estimate_noise, ringing_damping, still_mask
+from .zupt import ImuNoise, ZuptConfig, estimate_noise, ringing_damping, still_mask, still_runs
 from .zupt import for_rig as zupt_for_rig
 
 WINDOW_S = 0.25  # default half-width (s) of the window around a stamp (several stillness windows)
@@ -49,17 +49,14 @@ class ImuReference:
         self._t, self._a, self._w = ref.imu_t, ref.imu_a, ref.imu_w
         self.noise: ImuNoise | None = None
         self.still = np.zeros(len(ref.imu_t), bool)
-        self._run_id = np.zeros(len(ref.imu_t), np.int64)
+        self._runs = (np.zeros(0, np.int64), np.zeros(0, np.int64))  # (first, last) index of each still run
         if ref.has_imu:
             try:
                 self.noise = estimate_noise(ref.imu_t, ref.imu_a, ref.imu_w, zupt, ref.imu_covariance, "the IMU")
             except InputError:
                 return
             self.still = still_mask(ref.imu_t, ref.imu_a, ref.imu_w, self.noise, zupt, "the IMU")
-            # constant over each still run (and the moving sample before it); a gap in the samples starts a run
-            dt = np.diff(self._t)
-            gap = np.r_[False, dt > zupt.gap_periods * (np.median(dt) if len(dt) else 0.0)]
-            self._run_id = np.cumsum(~self.still | gap)
+            self._runs = still_runs(ref.imu_t, self.still, zupt)
 
     def gravity_at(self, stamp: float, window_s: float = WINDOW_S) -> np.ndarray | None:
         """Gravity (body frame, m/s^2) from the still samples within +-``window_s`` of ``stamp``, on a ringing
@@ -89,11 +86,10 @@ class ImuReference:
         +-``reach_s`` of the stamp: one attitude throughout, and on a ringing mount the periods its fit needs (a
         stamp near a run's end saw less than a period of it in +-window, and the mean kept part of the swing)."""
         k = i + int(np.argmin(np.where(self.still[i:j], np.abs(self._t[i:j] - stamp), np.inf)))
-        run = self._run_id[k]
-        a, b = np.searchsorted(self._run_id, [run, run + 1])  # the run's samples, and the moving ones after it
-        a += int(not self.still[a])  # a moving sample (or none) opens each label; the run's still ones follow
+        first, last = self._runs
+        r = int(np.searchsorted(last, k))  # the run that holds still sample k
         lo, hi = np.searchsorted(self._t, [stamp - reach_s, stamp + reach_s])
-        return max(a, int(lo)), min(b, int(hi))
+        return max(int(first[r]), int(lo)), min(int(last[r]) + 1, int(hi))
 
 
 __all__ = ["ImuReference", "WINDOW_S"]

@@ -782,28 +782,22 @@ class Pipeline:
         if self.rig.imu is None or not len(self.imu):
             return None
         t0, t1 = hold.settled_start, hold.settled_end
-        if hold.snapshot:
+        ringing = self.imu.ringing_hz > 0
+        if hold.snapshot or (ringing and t1 - t0 < 1.0 / self.imu.ringing_hz):
             # the still run's samples before the image, at most measure_s; a snapshot taken less than pad_s into
             # its run takes that run's samples after it too (the rig stood there until it moved again). An IMU
             # on a ringing bar takes the run after it up to measure_s: the longer the span, the better its mean
-            # tells the decaying ringing from the constant (docs/PIPELINE.md, "IMU gravity")
-            run = self.zupt.still_run(t1)
-            if run is None:
-                t0 = t1 - self.imu.pad_s
-            else:
-                t0 = max(run[0], t1 - self.config.holds.measure_s)
-                after = self.config.holds.measure_s if self.imu.ringing_hz > 0 else self.imu.pad_s
-                t1 = max(t1, min(run[1], t0 + after))
-        elif self.imu.ringing_hz > 0 and t1 - t0 < 1.0 / self.imu.ringing_hz:
-            # a stream hold's frames span less than a period of the ringing of the IMU's mount (images ringing by
-            # tens of pixels split a hold the IMU holds still): over that the mean keeps part of the swing (5.7
-            # deg off on a 1.5 Hz bar). The rig stood still over the IMU's whole still run: its samples around the
-            # frames, up to measure_s, as a snapshot's (the run found from either end of the frames: the test's
-            # window ends a run up to half a window before the move)
+            # tells the decaying ringing from the constant (docs/PIPELINE.md, "IMU gravity"). So does a stream
+            # hold whose frames span less than a period of that ringing (images ringing by tens of pixels split a
+            # hold the IMU holds still; over 0.33 s of a 1.5 Hz bar the mean was 5.7 deg off); its run is found
+            # from either end of its frames (the test's window ends a run up to half a window before the move)
             run = self.zupt.still_run(t1) or self.zupt.still_run(t0)
             if run is not None:
                 t0 = min(t0, max(run[0], t1 - self.config.holds.measure_s))
-                t1 = max(t1, min(run[1], t0 + self.config.holds.measure_s))
+                after = self.config.holds.measure_s if ringing else self.imu.pad_s
+                t1 = max(t1, min(run[1], t0 + after))
+            elif hold.snapshot:
+                t0 = t1 - self.imu.pad_s
         imu, why = self.imu.gravity(t0, t1)
         if imu is None:
             self.stats.dropped[Drop.no_imu_gravity(why.rule)] += 1

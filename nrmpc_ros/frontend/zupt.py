@@ -294,15 +294,22 @@ def _window_length(cfg: ZuptConfig, period: float) -> float:
     return max(least, (2 * math.ceil((_min_samples(cfg) - 1) / 2) + 1) * period)
 
 
+def _gap_starts(t: np.ndarray, period: float, cfg: ZuptConfig) -> np.ndarray:
+    """Per sample: True where it starts a gap-free segment (the first sample, and each after a step longer than
+    ``gap_periods`` sample periods)."""
+    brk = np.ones(len(t), dtype=bool)
+    if len(t) > 1:
+        brk[1:] = np.diff(t) > cfg.gap_periods * period
+    return brk
+
+
 def _windows(t: np.ndarray, period: float, cfg: ZuptConfig):
     """Index ranges [i0, i1) of each sample's centred window, clipped at gaps, and the gap flags.
 
     ``brk[j]`` is True when sample j starts a new gap-free segment (always for j = 0).
     """
     half = 0.5 * _window_length(cfg, period)
-    brk = np.ones(len(t), dtype=bool)
-    if len(t) > 1:
-        brk[1:] = np.diff(t) > cfg.gap_periods * period
+    brk = _gap_starts(t, period, cfg)
     seg = np.cumsum(brk) - 1
     starts = np.flatnonzero(brk)
     ends = np.append(starts[1:], len(t))
@@ -591,6 +598,14 @@ def _runs(t: np.ndarray, still: np.ndarray, brk: np.ndarray, min_still_s: float)
     return starts[keep], ends[keep]
 
 
+def still_runs(t, still, cfg: ZuptConfig | None = None) -> tuple:
+    """(first, last) sample indices of the runs of ``still`` samples at stamps ``t``, broken at gaps, as the
+    stillness test's own runs (of any length)."""
+    cfg = cfg or ZuptConfig()
+    t = np.asarray(t, dtype=float).reshape(-1)
+    return _runs(t, np.asarray(still, dtype=bool), _gap_starts(t, _period(t), cfg), 0.0)
+
+
 def still_intervals(t, accel, gyro, noise: ImuNoise, cfg: ZuptConfig | None = None,
                     source: str = "IMU samples") -> list:
     """[(t0, t1), ...]: stamps of the first and last sample of each still run at least one window (and
@@ -781,4 +796,4 @@ class ZuptDetector:
 
 
 __all__ = ["ImuNoise", "NoiseSource", "ZuptConfig", "ZuptDetector", "describe_noise", "estimate_noise", "for_rig",
-           "still_intervals", "still_mask", "still_statistic"]
+           "still_intervals", "still_mask", "still_runs", "still_statistic"]
