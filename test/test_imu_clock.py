@@ -28,6 +28,7 @@ def test_the_lag_between_gyro_and_images_is_found_to_a_millisecond(late_s):
     out = est.estimate()
     assert out is not None and out.correlation > 0.9
     assert out.offset_s == pytest.approx(-late_s, abs=1e-3)
+    assert out.significant == (late_s != 0.0), out  # advised only where the clocks differ
 
 
 def test_no_move_no_offset():
@@ -37,6 +38,21 @@ def test_no_move_no_offset():
         est.add_imu(t, rng.normal(0, 0.002, 3))
     for a in np.arange(0.5, 9.5, 0.1):
         est.add_frame(a, a + 0.1, [abs(rng.normal(0, 0.001))])
+    assert est.estimate() is None
+
+
+def test_images_ringing_after_moves_they_skipped_give_no_offset():
+    """Cameras that record only the holds (the moves themselves skipped), the bars ringing after each stop: the
+    images move while the gyro holds still, and the ends of the gyro's moves shifted into the first frames correlate
+    with that ringing. No move lies inside the frames, so no offset is read (not one of -0.2 s)."""
+    rng = np.random.default_rng(5)
+    est = ImuClockEstimator()
+    for t in np.arange(0.0, 30.0, 0.005):
+        est.add_imu(t, (_rate(t) + rng.normal(0, 0.002), rng.normal(0, 0.002), 0.0))
+    for a in np.arange(1.0, 29.0, 0.25):
+        if np.mod(a, 3.0) >= 1.0:  # a hold's frames, the bars ringing down from each stop at 1 s of 3
+            since_stop = np.mod(a, 3.0) - 1.0
+            est.add_frame(a, a + 0.25, [0.2 * np.exp(-since_stop / 0.4) + abs(rng.normal(0, 0.001))])
     assert est.estimate() is None
 
 
@@ -91,7 +107,21 @@ def test_bent_cameras_lag_the_body_and_the_refinement_reads_the_clock_not_the_ba
     results = {name: _rendered_rates(rig, late, views=5, noisy=False, estimator_rig=r).estimate()
                for name, r in (("gyro only", None), ("bent cameras", rig))}
     assert results["bent cameras"].offset_s == pytest.approx(-late, abs=1e-3), results
+    assert results["bent cameras"].significant, results  # 18 ms beyond two stds of a 15 Hz camera's timing
     assert abs(results["gyro only"].offset_s + late) > 3e-3, "the bars' lag biases the gyro-only estimate"
+
+
+def test_bars_the_estimate_cannot_model_widen_the_offset_by_their_response_time():
+    """The same rig known without its IMU's mount: the bars' response cannot be predicted, the images lead or lag
+    the body by up to the slowest bar's response time, and an 18 ms lateness is no evidence within it."""
+    import dataclasses
+
+    from nrmpc_ros.core.dynamics import bar_natural_frequencies
+
+    rig = _ring3()
+    out = _rendered_rates(rig, 0.018, views=5, noisy=False, estimator_rig=dataclasses.replace(rig, imu=None)).estimate()
+    response_s = 1.0 / (2 * np.pi * bar_natural_frequencies(rig).min())
+    assert out is not None and out.std_s >= response_s and not out.significant
 
 
 @pytest.mark.parametrize("signed", [False, True])

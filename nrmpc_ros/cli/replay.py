@@ -22,6 +22,7 @@ from ..frontend.evaluation_report import format_report
 from ..frontend.extrinsics import NO_IMU_NOTE, ExtrinsicsCsv, hold_poses, imu_mount_warning
 from ..frontend.feeder import FeederConfig
 from ..frontend.imu_agreement import describe_check
+from ..frontend.imu_clock import SIGNIFICANT_STDS
 from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
@@ -283,10 +284,14 @@ def run(args) -> int:
         print(f"hold time (linking + estimation): median {np.median(times):.0f} ms; wall time {elapsed:.1f} s")
     if imu_topic is not None:
         clock = runner.pipeline.imu_clock.estimate()
-        print("IMU clock against the cameras (gyro rate vs image motion): " + (
-            f"add {1e3 * clock.offset_s:+.1f} ms to the IMU stamps (correlation {clock.correlation:.2f} over "
-            f"{clock.frames} frames; imu_time_offset_s applied: {1e3 * cfg.imu_time_offset_s:+.1f} ms)"
-            if clock else "not measurable (no move both show)"))
+        found = "not measurable (no move both show)"
+        if clock is not None:
+            found = (f"{1e3 * clock.offset_s:+.1f} +- {1e3 * clock.std_s:.1f} ms (correlation {clock.correlation:.2f}"
+                     f" over {clock.frames} frames in {clock.moves} moves; on top of the offset applied, "
+                     f"{1e3 * (replay.feeder.config.imu_clock_offset_s + cfg.imu_time_offset_s):+.1f} ms): ")
+            found = "add " + found + "add it to the IMU stamps" if clock.significant else \
+                "no offset shown, " + found + f"within {SIGNIFICANT_STDS:g} std of zero"
+        print("IMU clock against the cameras (gyro rate vs image motion): " + found)
         noise = runner.pipeline.zupt.noise_in_use
         if noise is not None:
             print(f"IMU stillness test: {describe_noise(noise, runner.pipeline.zupt.config)}")

@@ -10,8 +10,9 @@ integrated once, then read at the shifted bounds: exact for any lag, so the
 lag is found to well below a frame period). A gyro stamped late by d peaks at
 delta = d; the clock offset to add to the IMU's stamps (``imu_time_offset_s``)
 is -d. Holds add nothing (neither moves) and moves give the edges the lag is
-read from; without moves, or with a correlation below ``MIN_CORRELATION``, no
-offset is reported.
+read from; without :data:`MIN_MOVES` moves of the gyro inside the frames (at the
+lag found), or with a correlation below ``MIN_CORRELATION``, no offset is
+reported.
 """
 
 from __future__ import annotations
@@ -93,9 +94,34 @@ CONFIDENCE = 0.95
 correlates almost as well one period off, and only the moves' own differences (axes, sizes) tell the lags apart
 (identical moves: 10-50 %). The peak has first beaten every lag in correlation, lag 0 included."""
 
+LAG_RESAMPLES = 200
+"""Resamples of the recording's moves (the Bayesian bootstrap, as :data:`RESAMPLES`) whose peak lags give the
+offset's standard deviation: the frames of one move share its shape and its ringing, so the spread over frames
+would be far too small; 200 resamples know the std to 5 %."""
+
+IMAGE_TIME_FRAMES = 0.1
+"""What a frame interval's image motion does not tell of its own time, as a share of the frame period, in every
+offset's std: exposure, a rolling shutter's readout and stamp jitter spread an image over part of its period
+that no stamp says, and the motion per interval is a mean over it. Rendered recordings (exact bars, the offset
+0) read offsets of 0.01-0.09 of a period at 5-30 Hz beyond their spread over the moves."""
+
+BENT_SPREAD_LAGS = 100
+"""Lags either side of the bent cameras' peak on which the spread of the peak is read: a hundredth of the
+searched span (:data:`FRAME_LAGS` frame periods) resolves a std of a few percent of it."""
+
+SIGNIFICANT_STDS = 2.0
+"""An offset is reported as one (:attr:`ClockOffset.significant`) beyond this many of its standard deviations
+from zero: slow, smooth moves correlate almost alike over tens of ms of lag, and the peak's place among them says
+nothing about the clocks."""
+
+GYRO_MOVE_SIGMAS = 5.0
+"""A frame interval holds a move of the gyro when its mean rate stands this many standard deviations (from the
+median absolute deviation over the frames) above the median: moves are counted, so a still frame must not pass
+by chance (5 sigma: 3e-7 of normal noise, none in a recording), while a move stands hundreds of sigmas out."""
+
 MIN_MOVES = 3
-"""Moves the far search needs: a move and its return (the same axis back) can line up at a wrong lag by chance,
-a third move about another axis cannot."""
+"""Moves the far search needs, and the near one inside the frames: a move and its return (the same axis back)
+can line up at a wrong lag by chance, a third move about another axis cannot."""
 
 MAX_RIVALS = 8
 """Local maxima outside the peak's lobe that the resamples test it against: the strongest ones."""
@@ -103,11 +129,27 @@ MAX_RIVALS = 8
 
 @dataclass(frozen=True)
 class ClockOffset:
-    """The IMU clock offset found (s, to add to the IMU's stamps), the correlation at its peak, frames used."""
+    """The IMU clock offset found (s, to add to the IMU's stamps), the correlation at its peak, frames used, the
+    offset's standard deviation (s) and the moves.
+
+    The std is the spread of the peak over resampled moves (:data:`LAG_RESAMPLES`), the images' own timing
+    (:data:`IMAGE_TIME_FRAMES`) and, on a rig whose bars bend
+    where their modelled response did not explain the images better than the body's turn alone (no rig IMU, an
+    IMU on a bar, bars the rig file describes otherwise than they ring), the slowest bar's response time
+    1 / (2 pi f): the images turn with the bars, which lead the body while they follow its acceleration and lag it
+    while they ring, by up to that time, and a peak within it tells the clocks apart no better."""
 
     offset_s: float
     correlation: float
     frames: int
+    std_s: float
+    moves: int
+
+    @property
+    def significant(self) -> bool:
+        """Whether the offset stands out of its spread (:data:`SIGNIFICANT_STDS`): a smaller one is no evidence
+        that the clocks differ, and no advice to shift them."""
+        return abs(self.offset_s) > SIGNIFICANT_STDS * self.std_s
 
 
 @dataclass(frozen=True)
@@ -177,8 +219,8 @@ class ImuClockEstimator:
         a, b, y = a[inside], b[inside], y[inside]
         med = np.nanmedian(y, axis=1) if len(y) else np.zeros(0)
         ok = np.isfinite(med)
-        moving = np.count_nonzero(med[ok] > np.median(med[ok]) + MOVE_MADS * _mad(med[ok])) if ok.any() else 0
-        if ok.sum() < MIN_MOVING_FRAMES or moving < MIN_MOVING_FRAMES:
+        moving = med[ok] > np.median(med[ok]) + MOVE_MADS * _mad(med[ok]) if ok.any() else np.zeros(0, bool)
+        if ok.sum() < MIN_MOVING_FRAMES or np.count_nonzero(moving) < MIN_MOVING_FRAMES:
             return None  # no move the images and the gyro could both show
         # The gyro's rate integrated once: its mean over any shifted interval, for every lag at once.
         w = np.linalg.norm(imu[:, 4:7], axis=1)
@@ -192,18 +234,32 @@ class ImuClockEstimator:
         lag = _parabola(lags, corr, k)
         best = float(corr[k])
         bent = self._rotations(imu)[1] if self.rig is not None and self.rig.imu is not None else None
+        pred, meas = x[:, :, None], m_[:, None]  # the rates lined up at each lag, for the lag's spread
+        bars_unexplained = self.rig is not None and self.rig.is_flexible
         if bent is not None:
             from scipy.optimize import minimize_scalar
 
-            axis = self.rig.rotations[:, :, 2]
+            axis, span = self.rig.rotations[:, :, 2], FRAME_LAGS * np.median(b - a)
             res = minimize_scalar(lambda d: -_camera_correlation(bent, t, a, b, y, axis, d), method="bounded",
-                                  bounds=(lag - FRAME_LAGS * np.median(b - a), lag + FRAME_LAGS * np.median(b - a)),
-                                  options={"xatol": LAG_TOLERANCE_S})
+                                  bounds=(lag - span, lag + span), options={"xatol": LAG_TOLERANCE_S})
             if -float(res.fun) > best:  # the bent cameras explain the images better than the body alone
-                lag, best = float(res.x), -float(res.fun)
+                lag, best, bars_unexplained = float(res.x), -float(res.fun), False
+                lags = np.arange(lag - span, lag + span, max(LAG_STEP_S, span / BENT_SPREAD_LAGS))
+                pred = np.stack([_across_rates(_interp_rows(b_ + d, t, bent) - _interp_rows(a_ + d, t, bent), axis,
+                                               b_ - a_) for d in lags])
+                meas = y[ok]
         if best < MIN_CORRELATION:
             return None
-        return ClockOffset(offset_s=-float(lag), correlation=best, frames=int(len(a)))
+        segment, moves = _move_segments(_gyro_moving(t, integral, a_, b_, lag))
+        if min(moves, _move_segments(_gyro_moving(t, integral, a_, b_, 0.0))[1]) < MIN_MOVES:
+            return None
+        spread = math.hypot(_lag_spread(lags, pred, meas, segment, moves),
+                            IMAGE_TIME_FRAMES * float(np.median(b_ - a_)))
+        if bars_unexplained:  # the bars' response, not modelled, moves the peak by up to their response time
+            from ..core.dynamics import bar_natural_frequencies
+
+            spread = math.hypot(spread, 1.0 / (2.0 * math.pi * float(np.min(bar_natural_frequencies(self.rig)))))
+        return ClockOffset(offset_s=-float(lag), correlation=best, frames=int(len(a)), std_s=spread, moves=moves)
 
     def far_offset(self, max_offset_s: float) -> FarClockOffset | None:
         """The IMU clock offset searched over lags of up to ``max_offset_s`` either way (an IMU stamped by another
@@ -352,6 +408,35 @@ def _camera_correlation(rotation, t, a, b, y, axis, lag: float) -> float:
     pred = _across_rates(turn, axis, b - a)
     ok = np.isfinite(y)
     return float(_correlation(pred[ok][None], y[ok])[0])
+
+
+def _lag_spread(lags, pred, meas, segment, moves: int) -> float:
+    """Standard deviation (s) of the peak lag of the correlation of the predicted rates ``pred`` (L lags, F frames,
+    K channels) with the measured ``meas`` (F, K; NaN: none) over resamples of the moves (each frame's move
+    ``segment``), from the moves' sums."""
+    use = np.isfinite(meas)
+    meas = np.where(use, meas, 0.0)
+    pred = np.where(use[None], pred, 0.0)
+    onehot = np.eye(moves)[segment]  # (F, moves)
+    L = len(lags)
+    per_move = np.stack([np.broadcast_to(use.sum(1) @ onehot, (L, moves)), pred.sum(2) @ onehot,
+                         np.broadcast_to(meas.sum(1) @ onehot, (L, moves)), (pred * pred).sum(2) @ onehot,
+                         np.broadcast_to((meas * meas).sum(1) @ onehot, (L, moves)),
+                         (pred * meas[None]).sum(2) @ onehot], axis=-1)
+    weights = np.random.default_rng(0).dirichlet(np.ones(moves), size=LAG_RESAMPLES) * moves
+    peaks = lags[np.argmax(_from_sums(np.einsum("bm,lmk->blk", weights, per_move)), axis=1)]
+    return float(np.std(peaks))
+
+
+def _gyro_moving(t, integral, a, b, lag: float) -> np.ndarray:
+    """Whether the gyro moves inside each frame interval [a, b] read at ``lag``: its mean rate over the interval
+    (from the rate's ``integral`` at the IMU's stamps ``t``) stands :data:`GYRO_MOVE_SIGMAS` above the median.
+    Images that move while the gyro holds still (bars ringing after a stop, in recordings whose cameras skip the
+    moves) correlate with the ends of the gyro's moves shifted into them: a lag is read only from moves the frames
+    show both as stamped and at the lag (a true lag of a fraction of a move leaves the moves inside the frames
+    either way)."""
+    x = (np.interp(b + lag, t, integral) - np.interp(a + lag, t, integral)) / (b - a)
+    return x > np.median(x) + GYRO_MOVE_SIGMAS * 1.4826 * _mad(x) if len(x) else np.zeros(0, bool)
 
 
 def _across_rates(rot, axis, dt):
