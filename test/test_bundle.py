@@ -271,6 +271,11 @@ def test_inv3(rng):
     with np.errstate(all="raise"):  # blocks of any scale (a landmark next to a camera's centre: 1e120), no overflow
         for s in (1e-120, 1e120):
             assert np.allclose(inv3(A * s) * s, np.linalg.inv(A), rtol=1e-9, atol=0.0)
+    broken = np.array(A[:3])  # a ray from a failed pose: NaN or infinite entries, an inverse of NaN, no exception
+    broken[0, 1, 1], broken[1, 0, 2], broken[1, 2, 0] = np.nan, np.inf, np.inf
+    with np.errstate(all="raise"):
+        out = inv3(broken)
+    assert np.isnan(out[:2]).all() and np.allclose(out[2], np.linalg.inv(A[2]))
 
 
 def test_observation_scale_weighs_a_noisy_view_down(rng):

@@ -39,9 +39,14 @@ def inv3(A: np.ndarray, diag: np.ndarray | float = 0.0) -> np.ndarray:
 
     Well-conditioned blocks go through the adjugate (much faster than np.linalg.inv); the few
     ill-conditioned ones (a landmark whose depth the data hardly fix) through a symmetric pseudo-inverse,
-    where the adjugate's cancellation would corrupt the Schur complement. Only the upper triangle is read.
+    where the adjugate's cancellation would corrupt the Schur complement. A block with a NaN or an infinite
+    entry has a NaN inverse (its callers drop such landmarks). Only the upper triangle is read.
     """
-    diag = np.broadcast_to(diag, (len(A), 3))
+    with np.errstate(invalid="ignore"):  # a block with NaN or infinite entries gives NaN, then set so
+        return _inv3(A, np.broadcast_to(diag, (len(A), 3)))
+
+
+def _inv3(A: np.ndarray, diag: np.ndarray) -> np.ndarray:
     a, d, f = A[:, 0, 0] + diag[:, 0], A[:, 1, 1] + diag[:, 1], A[:, 2, 2] + diag[:, 2]
     # each block scaled by its largest diagonal entry (semi-definite: no entry exceeds it), so that the cofactors
     # and the determinant neither overflow nor underflow whatever the block's scale (a landmark next to a
@@ -60,7 +65,9 @@ def inv3(A: np.ndarray, diag: np.ndarray | float = 0.0) -> np.ndarray:
     out[:, 0, 1] = out[:, 1, 0] = c01 * inv_det
     out[:, 0, 2] = out[:, 2, 0] = c02 * inv_det
     out[:, 1, 2] = out[:, 2, 1] = c12 * inv_det
-    ill = ~(np.abs(det) >= ILL_CONDITIONED)  # NaN (a block of infinities) too
+    finite = np.isfinite(det)  # not a block with NaN or infinite entries (a ray from a failed pose): NaN out
+    out[~finite] = np.nan
+    ill = finite & (np.abs(det) < ILL_CONDITIONED)
     if ill.any():
         B = np.array(A[ill])
         idx = np.arange(3)
