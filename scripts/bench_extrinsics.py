@@ -3,7 +3,7 @@
 
     python scripts/bench_extrinsics.py [--out /tmp/nrmpc_bench_extrinsics] [--cameras 4] [--rate 15]
                                        [--views 4] [--hold 5] [--width 160] [--profile trapezoid] [--seed 0]
-                                       [--json results.json]
+                                       [--imu-in-camera CAM] [--json results.json]
 
 Renders (once into --out; delete it to re-render) a stream bag of a rig whose bars differ (natural frequency
 2.5-5 Hz, damping 0.06-0.02: the softest bar rings longest), moving by abrupt trapezoid moves between holds,
@@ -44,6 +44,7 @@ from nrmpc_ros.core import load_rig, save_rig
 from nrmpc_ros.core.bar_state import BarPropagator
 from nrmpc_ros.core.deformation import deformed_extrinsics
 from nrmpc_ros.core.dynamics import bar_natural_frequencies
+from nrmpc_ros.core.rig import ImuMount
 from nrmpc_ros.core.so3 import matrix_to_quat_xyzw, quat_xyzw_to_matrix, rotation_angle
 from nrmpc_ros.render.bagmaker import BagOptions, make_bag
 from nrmpc_ros.render.sequence import MotionOptions, make_trajectory
@@ -204,11 +205,18 @@ def main() -> int:
     ap.add_argument("--width", type=int, default=160)
     ap.add_argument("--profile", default="trapezoid", help="move profile: trapezoid (abrupt), cosine, min-jerk")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--imu-in-camera", metavar="CAM", help="the IMU inside this camera (riding on its bar) "
+                    "instead of at the body centre")
     ap.add_argument("--json")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rig = bench_rig(args.cameras, args.width)
+    if args.imu_in_camera:
+        if args.imu_in_camera not in [c.name for c in rig.cameras]:
+            ap.error(f"--imu-in-camera: no camera {args.imu_in_camera!r} (cameras: "
+                     f"{', '.join(c.name for c in rig.cameras)})")
+        rig = replace(rig, imu=ImuMount(mount=args.imu_in_camera))
     rig_path = out / "rig.yaml"
     save_rig(rig, rig_path, header="bench_extrinsics rig")
     rig = load_rig(rig_path)
@@ -247,8 +255,12 @@ def main() -> int:
     text_s, res_s = table(score(smooth, truth, gravity, rig), phase_of(traj, [float(r["stamp"]) for r in smooth],
                                                                           ring_s), M)
     print(f"\nreplay --extrinsics, smoothed rows (the final bias from the start):\n{text_s}")
-    # Bias from the holds, and the same propagator with the IMU corrected by it.
     imu = read_imu(bag)
+    if args.imu_in_camera:  # the bias from the holds below is the body-centre IMU's
+        if args.json:
+            Path(args.json).write_text(json.dumps({"replay": res, "smoothed": res_s}, indent=1))
+        return 0
+    # Bias from the holds, and the same propagator with the IMU corrected by it.
     bias, n_holds = bias_from_holds(imu, e_csv, rig, traj, ring_s)
     stamps = sorted({round(float(r["stamp"]), 6) for r in rows})
     w, W, _ = propagate(rig, imu, stamps, bias)

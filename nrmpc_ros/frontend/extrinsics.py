@@ -330,16 +330,20 @@ class FrameExtrinsics:
 
 def imu_mount_warning(rig: Rig) -> str | None:
     """A warning when the IMU rides on a flexible bar: its readings then carry that bar's own ringing, which the
-    propagation cannot tell from the body's motion (docs/CONVENTIONS.md, "The rig in motion"), else None."""
+    propagation removes through that bar's model (docs/CONVENTIONS.md, "The rig in motion"), so the extrinsics
+    between holds are as good as the rig file's frequency and damping of that bar; else None."""
     if rig.imu is None or rig.imu.mount == "body":
         return None
     j = rig.camera_index(rig.imu.mount)
     f = bar_natural_frequencies(rig)[j]
     if not np.isfinite(f):
         return None
-    return (f"the IMU rides on camera {rig.imu.mount}'s flexible bar ({f:.1f} Hz): its readings carry the bar's "
-            f"own ringing, so the cameras' extrinsics between holds are approximate (good only for a bar much "
-            f"stiffer than the others)")
+    damping = rig.cameras[j].damping
+    return (f"the IMU rides on camera {rig.imu.mount}'s flexible bar ({f:.1f} Hz, damping "
+            + (f"{damping:g}" if damping is not None else "not given: taken as the documented default")
+            + "): its readings carry the bar's own ringing, removed through that bar's model, so the cameras' "
+            "extrinsics between holds are as good as the rig file's frequency and damping of it (nrmpc "
+            "calibrate-bars measures both)")
 
 
 def hold_poses(rig: Rig, stamp: float, gravity) -> CameraPoses:
