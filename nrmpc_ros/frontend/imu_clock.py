@@ -23,8 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mount_ringing import mount_ringing_hz
-
 MAX_LAG_S = 0.25
 """Lags searched (s, either way). A clock offset is a stamping or transport delay of a few frame periods at most
 (a 30 Hz camera's period is 33 ms); stamps further off are a configuration error (another clock), not a lag, and
@@ -376,15 +374,16 @@ class ImuClockEstimator:
         gyro integrated; (N, 1, 3)) and, on a rig whose bars bend, with each bar's bend added ((N, M, 3); the bars
         driven by the samples as stamped, :class:`~nrmpc_ros.core.bar_state.BarPropagator`), else None. A lag
         reads both at shifted stamps: the bars' response to the IMU does not depend on the clock it is read in.
-        An IMU inside a camera on a flexible bar reads its own tip's motion, not the body's specific force: bars
-        driven by it ring as nothing does, and their prediction, scanned over seconds of lags, finds chance peaks
-        in that ringing (a false offset of 4.7 s at 0.56 against 0.43 at the right lag for the body's turn): the
-        body's turn alone then."""
+        An IMU inside a camera on a flexible bar reads its own tip's motion: the propagator turns its readings
+        into the body's through that bar's model (:mod:`~nrmpc_ros.core.tip_imu`); driven by the raw readings
+        the bars rang as nothing does, and their prediction, scanned over seconds of lags, found chance peaks in
+        that ringing (a false offset of 4.7 s). The body's turn here is the tip gyro's, bending rate included
+        (the rates are the body's about, not exactly)."""
         rig = self.rig
         t = imu[:, 0]
         g = imu[:, 4:7] @ _imu_to_body(rig).T  # body-frame rate (an IMU in a camera: about, not exactly)
         body = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
-        if not rig.is_flexible or mount_ringing_hz(rig) > 0:  # an IMU on a bar reads its tip
+        if not rig.is_flexible:
             return body[:, None, :], None
         from ..core.bar_state import BarPropagator
         from ..core.deformation import bend_rotation_vectors
