@@ -50,17 +50,21 @@ they are (exact for readings linear between samples) and a higher cutoff changes
 
 def first_order(y: np.ndarray, h: np.ndarray, tau: float, start: np.ndarray, y_start: np.ndarray,
                 fresh: np.ndarray) -> np.ndarray:
-    """tau s' + s = y(t) for y (K, 3) linear between samples h (K,) apart (h[k] the step that ends at sample
-    k), from ``start`` (3,) at the sample before the first, whose reading was ``y_start`` (3,); at samples
-    ``fresh`` (K,) bool the state starts at rest at its reading. Exact, vectorised (:func:`~.bar_state.
-    _recursion`)."""
+    """tau s' + s = y(t) for y (K, ..., 3) linear between samples h (K,) apart (h[k] the step that ends at
+    sample k), from ``start`` (..., 3) at the sample before the first, whose reading was ``y_start`` (..., 3); at
+    samples ``fresh`` (K,) bool the state starts at rest at its reading. Exact, vectorised over the samples and
+    the signals (:func:`~.bar_state._recursion`)."""
     from .bar_state import _recursion
 
+    shape = y.shape
+    y = y.reshape(len(y), -1, 3)
     a = np.exp(-h / tau)
-    prev = np.concatenate([y_start[None], y[:-1]])
-    slope = (y - prev) / np.maximum(h, 1e-300)[:, None]
-    drive = a[:, None] * (tau * slope - prev) + y - tau * slope
-    return _recursion(a[:, None], drive[:, None], y[:, None], fresh, start[None], h / tau)[:, 0]
+    prev = np.concatenate([np.reshape(y_start, (1, -1, 3)), y[:-1]])
+    slope = (y - prev) / np.maximum(h, 1e-300)[:, None, None]
+    drive = a[:, None, None] * (tau * slope - prev) + y - tau * slope
+    P = np.broadcast_to(a[:, None], y.shape[:2])
+    out = _recursion(P, drive, y, fresh, np.reshape(start, (-1, 3)), h / tau)
+    return out.reshape(shape)
 
 
 class TipImu:
@@ -120,10 +124,10 @@ class TipImu:
         y = -np.einsum("kab,kb->ka", W, f_cam)
         omega = np.einsum("kab,kb->ka", W, g_cam)
         T = 1.0 / self.cutoff_rad_s
-        u1 = first_order(y, h, T, u10, y0, fresh)  # every signal through the same two stages: one delay
-        u2 = first_order(u1, h, T, u20, u10, fresh)
-        o1 = first_order(omega, h, T, o10, w0, fresh)
-        o2 = first_order(o1, h, T, o20, o10, fresh)
+        # every signal through the same two stages: one delay (the reading and the rate side by side)
+        v1 = first_order(np.stack([y, omega], axis=1), h, T, np.stack([u10, o10]), np.stack([y0, w0]), fresh)
+        v2 = first_order(v1, h, T, np.stack([u20, o20]), np.stack([u10, o10]), fresh)
+        (u1, o1), (u2, o2) = np.moveaxis(v1, 1, 0), np.moveaxis(v2, 1, 0)
         sf = first_order(self._perp(u2), h, self.tau, sf0, self._perp(u20), fresh)
         sdot = (self._perp(u2) - sf) / self.tau
         sddot = (self._perp(u1 - u2) / T - sdot) / self.tau
