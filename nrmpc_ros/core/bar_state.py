@@ -40,7 +40,7 @@ acceleration step between two samples is smeared over one IMU period.
   relative to the body (bar j's ringing): :class:`~.tip_imu.TipImu` turns them
   into the body's specific force and rate through bar j's model, each sample
   with the tip's bend at it, delayed by its filters (the samples are stamped
-  that much earlier); the lever arm is w_j at the newest sample. Rendered 3 Hz
+  that much earlier); the lever arm is w_j at each sample. Rendered 3 Hz
   bars all alike (the others resonate with the tip's ringing), noise-free IMU
   at 2 kHz in one camera: 2.8 deg median extrinsics error before, 0.08 deg
   with it; on a 9 Hz mounting bar 0.04 -> 0.0004 deg.
@@ -89,12 +89,14 @@ def bent_extrinsics_at_loads(rig: Rig, loads, cams=None):
 
 def tip_loads(specific_force, omega, alpha, lever) -> np.ndarray:
     """Each bar's load (K, M, 3) at K samples: the body's specific force (K, 3) at the IMU, angular rate and
-    angular acceleration (K, 3), tips at ``lever`` (M, 3) from the IMU, all in the body frame (docs/CONVENTIONS.md,
+    angular acceleration (K, 3), tips at ``lever`` (M, 3), or (K, M, 3) per sample, from the IMU, all in the
+    body frame (docs/CONVENTIONS.md,
     "The rig in motion"): l = -f - alpha x r - omega x (omega x r), written ([alpha]_x + omega omega^T -
     |omega|^2 I) r."""
     w = np.asarray(omega, dtype=float)
     A = skew(alpha) + w[:, :, None] * w[:, None, :] - np.sum(w * w, axis=1)[:, None, None] * np.eye(3)
-    return -np.asarray(specific_force, dtype=float)[:, None, :] - np.einsum("kij,mj->kmi", A, lever)
+    lever = np.broadcast_to(np.asarray(lever, dtype=float), (len(A),) + np.shape(lever)[-2:])
+    return -np.asarray(specific_force, dtype=float)[:, None, :] - np.einsum("kij,kmj->kmi", A, lever)
 
 
 def _recursion(P, D, rest, fresh, C_prev, decay):
@@ -195,6 +197,7 @@ class BarPropagator:
         self.stats = BarStateStats()
         self._pending: list = []  # (t, f (3,), omega (3,)) in the body's clock, IMU frame
         self._last = None  # the newest propagated sample: (t, f_body (3,), omega_body (3,))
+        self._last_at = np.zeros(3)  # ... and the IMU's position then (body frame)
         self._newest_flushed = -math.inf  # the newest propagated sample's own stamp
         self._steps: list = []  # recent step lengths (s)
         M = rig.num_cameras
@@ -239,6 +242,8 @@ class BarPropagator:
             return
         d_body = self._to_body(d, np.zeros((1, 3)))[0][0]  # (the IMU's frame: at the newest state)
         self._hist.buf["a"][self._hist.i0:self._hist.n] -= d_body  # the load is minus the specific force
+        if self._tip is not None:
+            self._tip.shift(d_body)
         t, f, g = self._last
         self._last = (t, f + d_body, g)
 
@@ -260,11 +265,11 @@ class BarPropagator:
 
     def _tip_body(self, t, f, g):
         """An IMU on a flexible bar's tip (:class:`~.tip_imu.TipImu`): the stamps the outputs hold at (the
-        samples' less the filters' delay), body-frame rigid specific force at the tip and body rate (K, 3), and
-        the tip's position at the newest sample."""
+        samples' less the filters' delay), body-frame rigid specific force at the tip, body rate and the tip's
+        position (K, 3) each."""
         f_body, omega, s = self._tip.body(t, f @ self.mount.rotation.T, g @ self.mount.rotation.T, self.long_gap_s)
-        w, _ = bent_extrinsics_at_loads(self.rig, s[-1:], cams=[self.mount_camera])
-        return t - self._tip.delay_s, f_body, omega, w[0]
+        w, _ = bent_extrinsics_at_loads(self.rig, s, cams=np.full(len(s), self.mount_camera))
+        return t - self._tip.delay_s, f_body, omega, w
 
     def flush(self) -> None:
         """Propagate the pending samples (queries do this themselves)."""
@@ -279,11 +284,14 @@ class BarPropagator:
         self._newest_flushed = float(rows[-1, 0])
         self._pending = []
         self.stats.samples += len(t)
+        at = np.broadcast_to(at, f.shape)  # the IMU's position at each sample
         if self._last is not None:
             t = np.concatenate([[self._last[0]], t])
             f = np.concatenate([self._last[1][None], f])
             g = np.concatenate([self._last[2][None], g])
+            at = np.concatenate([self._last_at[None], at])
         self._last = (float(t[-1]), f[-1].copy(), g[-1].copy())
+        self._last_at = at[-1].copy()
         if len(t) < 2:
             return
         h = np.diff(t)
@@ -294,10 +302,10 @@ class BarPropagator:
         self.stats.gaps_held += int(gap.sum())
         self.stats.reinitialised += int(restart.sum())
         alpha = np.where(gap[:, None], 0.0, np.diff(g, axis=0) / h[:, None])  # (K, 3) over each step
-        lever = self.rig.positions - at  # (M, 3): each tip from the IMU
+        lever = self.rig.positions[None] - at[:, None]  # (K + 1, M, 3): each tip from the IMU at each sample
 
         def load(k, a_k):  # (K, M, 3) load of every bar at samples k with the angular acceleration a_k
-            return tip_loads(f[k], g[k], a_k, lever)
+            return tip_loads(f[k], g[k], a_k, lever[k])
 
         K = len(h)
         a = load(np.arange(K), alpha)
@@ -316,7 +324,7 @@ class BarPropagator:
         P = np.exp(self.lam[None, :] * h_prev[:, None])
         # A step that starts at rest starts at its load without the angular acceleration (module docstring,
         # "Start"): at rest at a - d with d = -alpha x lever (x' = 0 there): C = kappa s - mu d.
-        d = -np.cross(alpha[:, None, :], lever[None, :, :])  # (K, M, 3)
+        d = -np.cross(alpha[:, None, :], lever[:-1])  # (K, M, 3)
         rest = self.kappa[None, :, None] * s - self.mu[None, :, None] * d
         decay = np.max(-self.lam.real) * h_prev
         C = _recursion(P, D, rest, fresh, C_prev, decay)
