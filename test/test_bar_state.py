@@ -219,7 +219,7 @@ def test_an_imu_on_a_bar_as_soft_as_the_others_predicts_the_rendered_extrinsics(
                                                                                  p90_deg):
     """The IMU inside camera 1, whose 2.9 Hz bar is as soft as the others (all alike: the tip's ringing, read as
     the body's load, would drive them at resonance). Its readings are turned into the body's motion through
-    the bar's model (core.tip_imu): median 2.8 deg off without that (noise-free, 2 kHz), 0.08 with it."""
+    the bar's model (core.tip_imu): median 2.8 deg off without that (noise-free, 2 kHz), 0.075 with it."""
     from nrmpc_ros.core.rig import ImuMount
     from nrmpc_ros.core.so3 import exp_so3, rotation_angle
     from nrmpc_ros.render.bagmaker import BagOptions, imu_readings

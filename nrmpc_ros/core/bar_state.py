@@ -42,7 +42,7 @@ acceleration step between two samples is smeared over one IMU period.
   with the tip's bend at it, delayed by its filters (the samples are stamped
   that much earlier); the lever arm is w_j at each sample. Rendered 3 Hz
   bars all alike (the others resonate with the tip's ringing), noise-free IMU
-  at 2 kHz in one camera: 2.8 deg median extrinsics error before, 0.08 deg
+  at 2 kHz in one camera: 2.8 deg median extrinsics error before, 0.075 deg
   with it; on a 9 Hz mounting bar 0.04 -> 0.0004 deg.
 - ``imu_time_offset_s`` is added to every IMU stamp (the IMU's clock against
   the cameras').
