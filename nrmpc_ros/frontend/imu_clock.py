@@ -131,9 +131,9 @@ class ClockOffset:
     offset's standard deviation (s) and the moves.
 
     The std is the spread of the peak over resampled moves (:data:`LAG_RESAMPLES`), the images' own timing
-    (:data:`IMAGE_TIME_FRAMES`) and, on a rig whose bars bend
-    where their modelled response did not explain the images better than the body's turn alone (no rig IMU, an
-    IMU on a bar, bars the rig file describes otherwise than they ring), the slowest bar's response time
+    (:data:`IMAGE_TIME_FRAMES`) and, on a rig whose bars bend where their modelled response did not explain the
+    images better than the body's turn alone (no IMU in the rig file, bars it describes otherwise than they
+    ring), the slowest bar's response time
     1 / (2 pi f): the images turn with the bars, which lead the body while they follow its acceleration and lag it
     while they ring, by up to that time, and a peak within it tells the clocks apart no better."""
 
