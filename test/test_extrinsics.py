@@ -147,6 +147,10 @@ def test_replay_extrinsics_match_the_rendered_truth_with_a_noise_free_imu(tmp_pa
         rot.append(rotation_angle(R.T @ quat_xyzw_to_matrix(q)))
         pos.append(np.linalg.norm(p - [float(r[k]) for k in ("px", "py", "pz")]))
     assert max(rot) < 1e-6 and max(pos) < 1e-6
+    alone = tmp_path / "alone.csv"  # --extrinsics without --extrinsics-causal: the same rows
+    assert main(["replay", str(bag), "--rig", str(rig_path), "--out", str(tmp_path / "e2.csv"), "--extrinsics",
+                 str(alone), "--config", str(config), "--no-progress", "--quiet"]) == 0
+    assert list(csv.DictReader(alone.open())) == smoothed_rows
     capsys.readouterr()
     assert main(["replay", str(bag), "--rig", str(rig_path), "--no-imu", "--out", str(tmp_path / "f.csv"),
                  "--extrinsics", str(tmp_path / "y.csv"), "--no-progress", "--quiet"]) == 0

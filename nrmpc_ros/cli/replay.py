@@ -149,14 +149,21 @@ class _Pass:
         return measure_imu_clock(self.runner.pipeline, self.ref, rig, self.estimates)
 
 
+def _answered(poses) -> None:
+    """The causal poses of a frame set where only the smoothed rows are written (nothing to do with them)."""
+
+
 def _replay_pass(args, bag, rig, cfg, inputs: FeederConfig, image_topics, imu_topic, warn) -> _Pass:
     """The pipeline over the bag with the input settings ``inputs``; writes --out and the other outputs (each
     appears whole when the pass ends: a second pass replaces them)."""
     extrinsics = ExtrinsicsCsv(args.extrinsics, rig) if args.extrinsics else None
     by_hold = extrinsics is not None and imu_topic is None
     causal = ExtrinsicsCsv(args.extrinsics_causal, rig, "--extrinsics-causal") if args.extrinsics_causal else None
+    # the frame sets' poses are asked for whenever rows per image are wanted: the smoothed rows answer again the
+    # frame sets the pipeline answered while it ran
+    on_poses = causal.write if causal is not None else _answered if extrinsics is not None and not by_hold else None
     runner = PipelineRunner(rig, cfg, method=args.method, drops=DropLog(math.inf),  # counts, first ones warned
-                            on_poses=causal.write if causal is not None else None)
+                            on_poses=on_poses)
     if extrinsics is not None and not by_hold and runner.pipeline.extrinsics is not None:
         runner.pipeline.extrinsics.keep_samples = True  # for the smoothed rows after the run
     if getattr(args, "report", None):
