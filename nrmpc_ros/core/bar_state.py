@@ -56,6 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .dynamics import bar_damping_ratios, bar_natural_frequencies, check_damping
+from .recursion import linear_recursion
 from .rig import ImuMount, Rig
 from .so3 import exp_so3, skew
 from .tip_imu import TipImu
@@ -63,7 +64,6 @@ from .tip_imu import TipImu
 GAP_PERIODS = 5.0  # a step longer than this many IMU periods is a gap (the load is held over it)
 PERIOD_WINDOW = 64  # steps the IMU period (their median) is taken from
 FLUSH_SAMPLES = 256  # pending samples propagated in one block even when nobody asks
-RECURSION_DECAY = 10.0  # log of the largest decay of the ringing within one vectorised block of samples
 DEFAULT_HISTORY_S = 2.0  # how far back queries can go (s): the delay of a frame set behind the IMU
 
 
@@ -95,32 +95,9 @@ def tip_loads(specific_force, omega, alpha, lever) -> np.ndarray:
     |omega|^2 I) r."""
     w = np.asarray(omega, dtype=float)
     A = skew(alpha) + w[:, :, None] * w[:, None, :] - np.sum(w * w, axis=1)[:, None, None] * np.eye(3)
-    lever = np.broadcast_to(np.asarray(lever, dtype=float), (len(A),) + np.shape(lever)[-2:])
-    return -np.asarray(specific_force, dtype=float)[:, None, :] - np.einsum("kij,kmj->kmi", A, lever)
-
-
-def _recursion(P, D, rest, fresh, C_prev, decay):
-    """C_k = P_k C_{k-1} + D_k (C_k = rest_k where ``fresh``), k = 0 .. K-1, vectorised over k.
-
-    Within a block C_k = G_k (C_{a-1} + sum_{j=a..k} D_j / G_j) with G_k = P_a ... P_k; a block ends before its
-    ringing decays by more than exp(RECURSION_DECAY) (``decay`` the log-decay per step), so dividing by G_j
-    loses at most that factor of the precision (1e-12 of the amplitude).
-    """
-    C = np.empty_like(D)
-    K, a = len(D), 0
-    while a < K:
-        if fresh[a]:
-            C_prev = C[a] = rest[a]
-            a += 1
-            continue
-        b = a + max(1, int(np.searchsorted(np.cumsum(decay[a:]), RECURSION_DECAY, side="right")))
-        starts = np.flatnonzero(fresh[a:b])
-        b = a + starts[0] if starts.size else b
-        G = np.cumprod(P[a:b], axis=0)[:, :, None]
-        C[a:b] = G * (C_prev[None] + np.cumsum(D[a:b] / G, axis=0))
-        C_prev = C[b - 1]
-        a = b
-    return C
+    r = np.asarray(lever, dtype=float)
+    return -np.asarray(specific_force, dtype=float)[:, None, :] - np.einsum(
+        "kij,mj->kmi" if r.ndim == 2 else "kij,kmj->kmi", A, r)
 
 
 class _Steps:
@@ -267,9 +244,8 @@ class BarPropagator:
         """An IMU on a flexible bar's tip (:class:`~.tip_imu.TipImu`): the stamps the outputs hold at (the
         samples' less the filters' delay), body-frame rigid specific force at the tip, body rate and the tip's
         position (K, 3) each."""
-        f_body, omega, s = self._tip.body(t, f @ self.mount.rotation.T, g @ self.mount.rotation.T, self.long_gap_s)
-        w, _ = bent_extrinsics_at_loads(self.rig, s, cams=np.full(len(s), self.mount_camera))
-        return t - self._tip.delay_s, f_body, omega, w
+        f_body, omega, at = self._tip.body(t, f @ self.mount.rotation.T, g @ self.mount.rotation.T, self.long_gap_s)
+        return t - self._tip.delay_s, f_body, omega, at
 
     def flush(self) -> None:
         """Propagate the pending samples (queries do this themselves)."""
@@ -284,14 +260,14 @@ class BarPropagator:
         self._newest_flushed = float(rows[-1, 0])
         self._pending = []
         self.stats.samples += len(t)
-        at = np.broadcast_to(at, f.shape)  # the IMU's position at each sample
         if self._last is not None:
             t = np.concatenate([[self._last[0]], t])
             f = np.concatenate([self._last[1][None], f])
             g = np.concatenate([self._last[2][None], g])
-            at = np.concatenate([self._last_at[None], at])
+            if self._tip is not None:  # the tip's position at each sample (else the IMU's: one for all)
+                at = np.concatenate([self._last_at[None], at])
         self._last = (float(t[-1]), f[-1].copy(), g[-1].copy())
-        self._last_at = at[-1].copy()
+        self._last_at = at[-1].copy() if at.ndim == 2 else at
         if len(t) < 2:
             return
         h = np.diff(t)
@@ -302,10 +278,11 @@ class BarPropagator:
         self.stats.gaps_held += int(gap.sum())
         self.stats.reinitialised += int(restart.sum())
         alpha = np.where(gap[:, None], 0.0, np.diff(g, axis=0) / h[:, None])  # (K, 3) over each step
-        lever = self.rig.positions[None] - at[:, None]  # (K + 1, M, 3): each tip from the IMU at each sample
+        # each tip from the IMU: (M, 3), or (K + 1, M, 3) at each sample for an IMU on a bar's tip
+        lever = self.rig.positions - at if at.ndim == 1 else self.rig.positions[None] - at[:, None]
 
         def load(k, a_k):  # (K, M, 3) load of every bar at samples k with the angular acceleration a_k
-            return tip_loads(f[k], g[k], a_k, lever[k])
+            return tip_loads(f[k], g[k], a_k, lever if lever.ndim == 2 else lever[k])
 
         K = len(h)
         a = load(np.arange(K), alpha)
@@ -324,10 +301,10 @@ class BarPropagator:
         P = np.exp(self.lam[None, :] * h_prev[:, None])
         # A step that starts at rest starts at its load without the angular acceleration (module docstring,
         # "Start"): at rest at a - d with d = -alpha x lever (x' = 0 there): C = kappa s - mu d.
-        d = -np.cross(alpha[:, None, :], lever[:-1])  # (K, M, 3)
+        d = -np.cross(alpha[:, None, :], lever if lever.ndim == 2 else lever[:-1])  # (K, M, 3)
         rest = self.kappa[None, :, None] * s - self.mu[None, :, None] * d
         decay = np.max(-self.lam.real) * h_prev
-        C = _recursion(P, D, rest, fresh, C_prev, decay)
+        C = linear_recursion(P, D, rest, fresh, C_prev, decay)
         self._hist.append(t[-1] - self.history_s, t0=t[:-1], h=h, a=a, s=s, C=C)
 
     _t0 = property(lambda self: self._hist.view("t0"))

@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from .deformation import bend_rotation_vectors
+from .recursion import linear_recursion
 from .so3 import cross, exp_and_left_jacobian, exp_so3
 
 CUTOFF_BAR_FACTOR = 10.0
@@ -60,9 +61,7 @@ def first_order(y: np.ndarray, h: np.ndarray, tau: float, start: np.ndarray, y_s
     """tau s' + s = y(t) for y (K, ..., 3) linear between samples h (K,) apart (h[k] the step that ends at
     sample k), from ``start`` (..., 3) at the sample before the first, whose reading was ``y_start`` (..., 3); at
     samples ``fresh`` (K,) bool the state starts at rest at its reading. Exact, vectorised over the samples and
-    the signals (:func:`~.bar_state._recursion`)."""
-    from .bar_state import _recursion
-
+    the signals (:func:`~.recursion.linear_recursion`)."""
     shape = y.shape
     y = y.reshape(len(y), -1, 3)
     a = np.exp(-h / tau)
@@ -70,7 +69,7 @@ def first_order(y: np.ndarray, h: np.ndarray, tau: float, start: np.ndarray, y_s
     slope = (y - prev) / np.maximum(h, 1e-300)[:, None, None]
     drive = a[:, None, None] * (tau * slope - prev) + y - tau * slope
     P = np.broadcast_to(a[:, None], y.shape[:2])
-    out = _recursion(P, drive, y, fresh, np.reshape(start, (-1, 3)), h / tau)
+    out = linear_recursion(P, drive, y, fresh, np.reshape(start, (-1, 3)), h / tau)
     return out.reshape(shape)
 
 
@@ -115,7 +114,7 @@ class TipImu:
         self._state = (y0 - d, w0, s0 - p, u10 - d, u20 - d, o10, o20, sf0 - p)
 
     def body(self, t: np.ndarray, f_cam: np.ndarray, g_cam: np.ndarray, restart_s: float):
-        """The body-frame rigid specific force at the tip, the body's rate and the tip's bend (K, 3) each, as
+        """The body-frame rigid specific force at the tip, the body's rate and the tip's position (K, 3) each, as
         they were :attr:`delay_s` before the samples' stamps ``t`` (K,), from readings in camera j's frame
         (K, 3). After a gap longer than ``restart_s`` the filters start again at rest."""
         t = np.asarray(t, float)
@@ -138,9 +137,8 @@ class TipImu:
         s = np.broadcast_to(s0, (K, 3))
         for _ in range(BEND_ITERATIONS):
             s = self._perp(-np.einsum("kab,kb->ka", self._rotations(s), f_cam))
-        for _ in range(2):
-            y = -np.einsum("kab,kb->ka", self._rotations(s), f_cam)
-            s = first_order(self._perp(y), h, self.tau, s0, self._perp(y0), fresh)
+        y = -np.einsum("kab,kb->ka", self._rotations(s), f_cam)
+        s = first_order(self._perp(y), h, self.tau, s0, self._perp(y0), fresh)
         W = self._rotations(s)
         y = -np.einsum("kab,kb->ka", W, f_cam)
         omega = np.einsum("kab,kb->ka", W, g_cam)
@@ -157,7 +155,7 @@ class TipImu:
         _, J = exp_and_left_jacobian(bend_rotation_vectors(self.rig, sf, cams=[self.j])[:, 0])
         rate = o2 - np.einsum("kab,kb->ka", J, bend_rotation_vectors(self.rig, sdot, cams=[self.j])[:, 0])
         f = -u2 - sddot / self.w**2 - 2.0 * cross(rate, self.cd * sdot)
-        return f, rate, sf
+        return f, rate, self.rig.positions[self.j] + self.cd * sf
 
 
 __all__ = ["CUTOFF_BAR_FACTOR", "CUTOFF_NYQUIST_SHARE", "TipImu", "first_order"]
