@@ -197,6 +197,20 @@ def test_without_an_imu_a_hold_whose_ringing_creeps_is_refused(seed):
     assert told is not None and told.ringing_source is RingingSource.FIT, why
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_without_an_imu_a_creep_is_not_taken_for_a_stiff_bars_aliased_ringing(seed):
+    """8 Hz bars seen at 10 Hz: a ringing near the frame rate shows as a slow swing, which a creeping rest
+    (2.2 px/s, 0.5 deg/s) would fit as well. Without an IMU such a hold is a move (refused), a still one is used."""
+    F = 20
+    creep = np.stack([0.22 * np.arange(F), 0.1 * np.arange(F)], axis=1)
+    bars = BarRinging(8.0, 0.02, np.full(2, 5.0))
+    cfg = HoldConfig()
+    moving, why = record(creep, noise=0.01, seed=seed)[0].measure(cfg, bar_period_s=1.0 / 8.0, bars=bars)
+    assert moving is None and why.rule is Refusal.NOT_STILL, moving and moving.ringing_source
+    still, why = record(np.zeros((F, 2)), noise=0.01, seed=seed)[0].measure(cfg, bar_period_s=1.0 / 8.0, bars=bars)
+    assert still is not None and still.settled_frames == F, why
+
+
 def test_a_short_hold_ringing_as_far_as_its_measured_stop_allows_is_used():
     """A hold shorter than a bar period after an abrupt stop (too few frames to fit the ringing): its frames are
     used with their spread as the penalty when they ring no further than the stop the IMU measured sets off,

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from nrmpc_ros.frontend.ringing import fit_damped_response
+from nrmpc_ros.frontend.ringing import fit_damped_response, resolvable_bands
 
 
 def stops(rng, f, zeta, rate, n_stops=6, seconds=2.0, noise=0.05, amp=(1.0, 6.0), jitter=0.0):
@@ -90,3 +90,18 @@ def test_stds_cover_errors_correlated_within_a_stop():
     for z in (np.abs(zf), np.abs(zz)):
         assert np.mean(z < 2.0) >= 0.75
         assert np.sqrt(np.mean(z ** 2)) < 1.75
+
+
+def test_a_band_near_a_multiple_of_the_frame_rate_is_left_out():
+    """At 10 Hz over 2 s, frequencies within 0.5 Hz of 10 Hz alias to less than a cycle: left out of the band; a
+    ramp (a creeping rest) is then not fitted by an 8 Hz bar's ringing."""
+    tau = np.arange(20) / 10.0
+    parts = resolvable_bands([(tau, None)], 4.8, 12.8)
+    assert len(parts) == 2 and parts[0][0] == 4.8 and parts[1][1] == 12.8
+    assert parts[0][1] == pytest.approx(10.0 - 1 / 1.9) and parts[1][0] == pytest.approx(10.0 + 1 / 1.9)
+    assert resolvable_bands([(tau, None)], 9.8, 10.2) == []
+    assert resolvable_bands([(np.arange(60) / 30.0, None)], 4.8, 12.8) == [(4.8, 12.8)]
+    rng = np.random.default_rng(3)
+    ramp = np.stack([0.22 * np.arange(20), 0.1 * np.arange(20)], axis=1) + rng.normal(scale=0.01, size=(20, 2))
+    fit = fit_damped_response([(tau, ramp)], 8.0)
+    assert fit is None or fit.residual_rms > 0.1 * float(np.std(ramp[:, 0]))

@@ -263,6 +263,31 @@ def _correlated_scores(J: np.ndarray, resid: np.ndarray, sizes: list, D: int) ->
     return meat
 
 
+def resolvable_bands(segments, lo: float, hi: float) -> list:
+    """The parts [(a, b), ...] of the frequency band [lo, hi] (Hz) whose ringing the frames of ``segments``
+    [(tau, y), ...] tell from a slow drift of the rest. Sampled at the frame rate fs, a ringing at f shows at its
+    alias, the distance from f to the nearest multiple of fs; an alias of less than one cycle over the longest
+    segment is a partial swing that a slowly moving rest (a creep) fits as well. So a band of 1 / span either side
+    of every multiple of fs is left out (fs from the median frame interval; nothing is left out with fewer than
+    two frames in every segment)."""
+    steps = [np.median(np.diff(tau)) for tau, _ in segments if len(tau) >= 2]
+    spans = [float(np.ptp(tau)) for tau, _ in segments if len(tau) >= 2]
+    if not steps or not (float(np.median(steps)) > 0) or not (max(spans) > 0):
+        return [(lo, hi)] if hi > lo else []
+    fs, half = 1.0 / float(np.median(steps)), 1.0 / max(spans)
+    out, a = [], lo
+    for k in range(max(1, math.floor((lo - half) / fs)), math.ceil((hi + half) / fs) + 1):
+        z0, z1 = k * fs - half, k * fs + half
+        if z1 <= a or z0 >= hi:
+            continue
+        if z0 > a:
+            out.append((a, z0))
+        a = max(a, z1)
+    if a < hi:
+        out.append((a, hi))
+    return out
+
+
 def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
                         band: tuple = FREQ_BAND) -> RingingFit | None:
     """The damped response o(tau) (module docstring) fitted to ``segments`` [(tau (K,), y (K, D)), ...] that
@@ -278,7 +303,12 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
     if not used or n < 3 * D * len(used) + 4:
         return None
     lo, hi = band[0] * freq_hz, band[1] * freq_hz
+    parts = resolvable_bands(used, lo, hi)
+    if not parts:
+        return None  # every frequency of the band looks like a slow drift at this frame rate
     fgrid = np.geomspace(lo, hi, FREQ_GRID)
+    fgrid = np.concatenate([fgrid[(fgrid >= a) & (fgrid <= b)] for a, b in parts] +
+                           [[math.sqrt(a * b) for a, b in parts]])
     zgrid = [zeta] if zeta is not None else list(ZETA_GRID)
     zgrid = np.asarray(zgrid, dtype=float)
     costs = _grid_costs(segs, fgrid, zgrid)
@@ -287,6 +317,7 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
     # an aliased frame rate makes f and its alias fit alike: of the (near) ties, the one nearest the start wins
     best = min((g for g in grid if g[0] <= lowest * (1.0 + 1e-3) + 1e-300), key=lambda g: abs(math.log(g[1] / freq_hz)))
     start = np.array([best[1], min(max(best[2], ZETA_START[0]), ZETA_START[1])])
+    lo, hi = next((a, b) for a, b in parts if a <= best[1] <= b)  # the refinement stays in the grid's best part
     problem = _ProjectedProblem(segs, (lo, ZETA_BOUNDS[0]), (hi, ZETA_BOUNDS[1]),
                                 math.sqrt(max(lowest, 1e-300) / max(n, 1)))
     theta, _, lm_stats = levenberg_marquardt(problem, start, REFINEMENT)
@@ -349,4 +380,5 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
                       residual_rms=math.sqrt(s2), num_samples=n, success=lm_stats.stop in CONVERGED_STOPS)
 
 
-__all__ = ["FREQ_BAND", "RingingFit", "ZETA_BOUNDS", "ZETA_GRID", "best_on_grid", "fit_damped_response"]
+__all__ = ["FREQ_BAND", "RingingFit", "ZETA_BOUNDS", "ZETA_GRID", "best_on_grid", "fit_damped_response",
+           "resolvable_bands"]
