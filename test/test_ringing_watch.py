@@ -70,13 +70,20 @@ def test_a_move_is_no_ringing_even_with_ringing_on_top(f, rate, kind):
         assert v.share > KEPT_SHARE and v.kept() is False
 
 
-@pytest.mark.parametrize("f,rate", [(8.0, 15.0), (8.0, 5.0), (4.3, 10.0)])
-def test_no_verdict_where_the_camera_is_too_slow_for_the_bar(f, rate):
-    """Sampled below twice the grid's top frequency, a ringing aliases to one near zero: a steady move would fit."""
+@pytest.mark.parametrize("f,rate", [(8.0, 15.0), (8.0, 5.0), (4.3, 10.0), (3.0, 5.0)])
+def test_a_camera_too_slow_for_the_bar_judges_by_the_aliases_that_swing(f, rate):
+    """Sampled below twice the bar's frequency, a ringing shows at its alias: the frequencies whose alias makes a
+    cycle over the window tell it from a steady move, which is never taken for ringing; a ringing is."""
+    rng = np.random.default_rng(int(10 * f + rate))
     t = np.arange(0.0, 3.0, 1.0 / rate)
     watch = RingingWatch([f], 0.03)
     _feed(watch, t, np.stack([10.0 * t, 3.0 * t], axis=1))
-    assert watch.judge(0).rings is None
+    assert watch.judge(0).rings is not True
+    watch = RingingWatch([f], 0.03)
+    xy = _ringing(t, f, 0.03, 8.0, np.array([3.0, -2.0]), rng)
+    _feed(watch, t, xy)
+    v = watch.judge(0)
+    assert v.rings is True and np.linalg.norm(v.rest - ([3.0, -2.0] - xy[0])) < 0.1, v  # the path starts at 0
 
 
 def test_no_verdict_before_a_window_on_rigid_bars_or_after_lost_tracks():

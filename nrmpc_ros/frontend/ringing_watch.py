@@ -13,8 +13,10 @@ decides: ringing leaves a few percent of it (the stamps' jitter times the ringin
 for an 8 Hz bar seen at 15 Hz with +-8 ms stamps), while a steady move, an acceleration or the end of a move
 within the window leaves at least 40 % (the first harmonic of a sawtooth carries 61 % of its variance, so a
 period's fit leaves about 60 % of a ramp). ``RINGING_SHARE`` lies between. A bar that rings faster than half
-the camera's rate (times the grid's top, ``FREQ_SPAN[1]``) is not judged: sampled that slowly, a frequency of
-the grid aliases to one near zero, which fits a slow move as well as any ringing. Right after a stop the window
+the camera's rate is seen at its alias (its distance to the nearest multiple of the rate): the grid keeps only
+the frequencies whose alias makes at least a cycle over the window (:func:`.ringing.resolvable_bands`), as the
+lowest one does unaliased; an alias near zero fits a slow move as well as any ringing, and a camera whose grid
+has none left is not judged. Right after a stop the window
 still holds the end of the move, and the share falls through the bound as the move leaves the window: a hold
 that began there is kept while the share stays within ``KEPT_SHARE`` (hysteresis; a move that starts from rest
 passes it within a few frames).
@@ -28,7 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .ringing import ZETA_GRID, best_on_grid
+from .ringing import ZETA_GRID, best_on_grid, resolvable_bands
 
 WINDOW_PERIODS = 1.25  # at least one period at the lowest frequency of the grid (FREQ_SPAN[0])
 MIN_WINDOW_FRAMES = 8  # three parameters per image axis, and as many frames again to judge the fit by
@@ -97,13 +99,15 @@ class RingingWatch:
         if not window or len(path) < MIN_WINDOW_FRAMES or path[-1][0] - path[0][0] < window - 1e-9:
             return PathVerdict(None, None)
         a = np.array(path)
-        if 2.0 * FREQ_SPAN[1] * self.freqs_hz[i] * float(np.median(np.diff(a[:, 0]))) >= 1.0:
-            return PathVerdict(None, None)  # aliased (module docstring)
         tau, xy = a[:, 0] - a[0, 0], a[:, 1:]
+        freqs = self.freqs_hz[i] * np.geomspace(FREQ_SPAN[0], FREQ_SPAN[1], FREQ_STEPS)
+        parts = resolvable_bands([(tau, xy)], float(freqs[0]), float(freqs[-1]))
+        freqs = freqs[np.any([(freqs >= lo) & (freqs <= hi) for lo, hi in parts], axis=0)] if parts else freqs[:0]
+        if not len(freqs):
+            return PathVerdict(None, None)  # every frequency aliases to a slow swing (module docstring)
         spread = math.sqrt(float(np.mean((xy - xy.mean(axis=0)) ** 2)))
         if spread <= 0.0:
             return PathVerdict(None, None)
-        freqs = self.freqs_hz[i] * np.geomspace(FREQ_SPAN[0], FREQ_SPAN[1], FREQ_STEPS)
         rms, rest = best_on_grid(tau, xy, freqs, self.zetas)
         return PathVerdict(bool(rms <= RINGING_SHARE * spread), rest, rms / spread, float(a[0, 0]))
 
