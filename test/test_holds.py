@@ -211,6 +211,22 @@ def test_without_an_imu_a_creep_is_not_taken_for_a_stiff_bars_aliased_ringing(se
     assert still is not None and still.settled_frames == F, why
 
 
+@pytest.mark.parametrize("period", [0.0, 1.0 / 7.0])
+def test_without_an_imu_settled_frames_that_drift_are_a_creep(period):
+    """A rig creeping at 0.15 px per frame: the few frames within the settle bound of the rest are the ones the
+    drift passes through. Without an IMU that is a move (refused), with one that says still it is not judged
+    so; a still hold is used (rigid bars, and stiff ones that do not ring)."""
+    F = 30
+    creep = np.stack([0.15 * np.arange(F), 0.05 * np.arange(F)], axis=1)
+    cfg = HoldConfig()
+    moving, why = record(creep, noise=0.01, seed=4)[0].measure(cfg, bar_period_s=period)
+    assert moving is None and why.rule is Refusal.NOT_STILL and "drifts" in why.detail, why
+    told, why = record(creep, noise=0.01, seed=4)[0].measure(cfg, bar_period_s=period, imu_still_since=0.0)
+    assert told is not None, why
+    still, why = record(np.zeros((F, 2)), noise=0.01, seed=4)[0].measure(cfg, bar_period_s=period)
+    assert still is not None and still.settled_frames == F, why
+
+
 def test_a_short_hold_ringing_as_far_as_its_measured_stop_allows_is_used():
     """A hold shorter than a bar period after an abrupt stop (too few frames to fit the ringing): its frames are
     used with their spread as the penalty when they ring no further than the stop the IMU measured sets off,

@@ -41,7 +41,7 @@ from ..config import check, option
 from ..core.dynamics import bar_natural_frequencies
 from ..core.loss import MAD_TO_STD
 from ..core.rig import Rig
-from .ringing import RingingFit, fit_damped_response
+from .ringing import RingingFit, fit_damped_response, rest_drift
 from .ringing_turns import turn_back
 
 EXPLAINED_NOISE_SIGMAS = 3.0  # a fit explains a camera's offsets: residual within this many of their noise ...
@@ -375,6 +375,14 @@ class HoldRecorder:
             at_rest = after & (env <= thr) & (dev <= thr)
             need = min(cfg.min_settled_frames, int(after.sum()))
             settled = _longest_run(at_rest) if at_rest.any() else at_rest
+            creep = _creep_px([None] * M, cams, own_tau, offsets, settled) \
+                if imu_still_since is None and settled.sum() >= max(need, 1) else None
+            if creep is not None and creep[1] > max(thr, CREEP_SIGMAS * creep[2]):
+                # the images alone judge stillness: settled frames whose image drifts are a creep (the frames
+                # within the bound of the rest are then the few the drift passes through)
+                return None, HoldRefusal(Refusal.NOT_STILL, (
+                    f"camera {creep[0]}'s image drifts by {creep[1]:.2f} px over the settled frames "
+                    f"(std {creep[2]:.2f} px, threshold {thr:.3f} px)"))
             if settled.sum() >= max(need, 1):
                 source = RingingSource.SETTLED if bars.period_s else RingingSource.RIGID
                 # what the average of the settled frames keeps of the fitted ringing: its mean over each camera's
@@ -552,20 +560,20 @@ def _camera_fit(tau: np.ndarray, offsets: np.ndarray, after: np.ndarray, freq_hz
 
 
 def _creep_px(fits: list, cams: list, tau: np.ndarray, offsets: np.ndarray, settled: np.ndarray) -> tuple | None:
-    """(camera, drift px, its std px) of the fitted camera whose rest moves furthest over the ``settled`` frames
-    (tau (F, M): each camera's images' times after the stop)
-    (:meth:`.ringing.RingingFit.drift`: ringing about a rest that moves linearly), or None without a fitted
-    camera. A hold that creeps slowly while its bars ring keeps its frames near their first one and its
-    ringing explained; only its rest moves."""
+    """(camera, drift px, its std px) of the camera whose rest moves furthest over the ``settled`` frames
+    (tau (F, M): each camera's images' times after the stop), or None without a camera to judge. A fitted camera
+    (``fits[i]``) is judged with its ringing about a rest that moves linearly (:meth:`.ringing.RingingFit.drift`;
+    a hold that creeps slowly while its bars ring keeps its frames near their first one and its ringing
+    explained; only its rest moves) over at least MIN_FIT_FRAMES frames; the others with a rest alone that moves
+    (:func:`.ringing.rest_drift`) over at least three."""
     worst = None
     for k, i in enumerate(cams):
-        if fits[i] is None:
-            continue
         tau_i = tau[:, i]
         use = settled & np.isfinite(offsets[:, k]).all(axis=1)
-        if use.sum() < MIN_FIT_FRAMES:
+        if use.sum() < (MIN_FIT_FRAMES if fits[i] is not None else 3):
             continue
-        v, sd = fits[i].drift(tau_i[use], offsets[use, k])
+        v, sd = fits[i].drift(tau_i[use], offsets[use, k]) if fits[i] is not None else \
+            rest_drift(tau_i[use], offsets[use, k], np.ones((int(use.sum()), 1)))
         span = float(np.ptp(tau_i[use]))
         drift, std = float(np.linalg.norm(v)) * span, float(np.linalg.norm(sd)) * span
         if worst is None or drift - CREEP_SIGMAS * std > worst[1] - CREEP_SIGMAS * worst[2]:

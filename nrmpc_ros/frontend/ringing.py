@@ -76,19 +76,7 @@ class RingingFit:
         from frame to frame (what the model does not follow is smooth): the white-noise variance times
         (1 + rho) / (1 - rho), rho their lag-one autocorrelation (an AR(1) process's effective sample size)."""
         tau = np.asarray(tau, dtype=float)
-        y = np.asarray(y, dtype=float).reshape(len(tau), -1)
-        A = np.concatenate([_design(tau, self.freq_hz, self.zeta), (tau - tau.mean())[:, None]], axis=1)
-        if len(tau) <= A.shape[1]:
-            return np.zeros(y.shape[1]), np.full(y.shape[1], np.inf)
-        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-        r = y - A @ coef
-        s2 = np.sum(r * r, axis=0) / (len(tau) - A.shape[1])
-        rho = min(max(float(np.sum(r[1:] * r[:-1]) / max(float(np.sum(r * r)), 1e-300)), 0.0), 0.95)
-        try:
-            var = np.linalg.inv(A.T @ A)[-1, -1] * s2 * (1.0 + rho) / (1.0 - rho)
-        except np.linalg.LinAlgError:
-            return np.zeros(y.shape[1]), np.full(y.shape[1], np.inf)
-        return coef[-1], np.sqrt(var)
+        return rest_drift(tau, y, _design(tau, self.freq_hz, self.zeta))
 
     def track_oscillations(self, tau, X: np.ndarray, used: np.ndarray, min_frames: int) -> tuple:
         """Each track's own ringing at this fit's frequency and damping: X (F, n, D) the tracks' positions at
@@ -106,6 +94,26 @@ class RingingFit:
         out = np.zeros(X.shape)
         out[:, fitted] = np.einsum("fa,nad->fnd", A[:, 1:], coef[:, 1:])
         return out, fitted
+
+
+def rest_drift(tau, y: np.ndarray, design: np.ndarray) -> tuple:
+    """(velocity (D,), its std (D,)) of a rest that drifts linearly under y (K, D) at times tau (K,), the other
+    columns of the model in ``design`` (K, P) (a constant rest: a column of ones; a ringing about it: the damped
+    response's three); the std as in :meth:`RingingFit.drift`, infinite with no residual degree of freedom."""
+    tau = np.asarray(tau, dtype=float)
+    y = np.asarray(y, dtype=float).reshape(len(tau), -1)
+    A = np.concatenate([np.asarray(design, float).reshape(len(tau), -1), (tau - tau.mean())[:, None]], axis=1)
+    if len(tau) <= A.shape[1]:
+        return np.zeros(y.shape[1]), np.full(y.shape[1], np.inf)
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    r = y - A @ coef
+    s2 = np.sum(r * r, axis=0) / (len(tau) - A.shape[1])
+    rho = min(max(float(np.sum(r[1:] * r[:-1]) / max(float(np.sum(r * r)), 1e-300)), 0.0), 0.95)
+    try:
+        var = np.linalg.inv(A.T @ A)[-1, -1] * s2 * (1.0 + rho) / (1.0 - rho)
+    except np.linalg.LinAlgError:
+        return np.zeros(y.shape[1]), np.full(y.shape[1], np.inf)
+    return coef[-1], np.sqrt(var)
 
 
 def _design(tau: np.ndarray, f: float, zeta: float) -> np.ndarray:
@@ -381,4 +389,4 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
 
 
 __all__ = ["FREQ_BAND", "RingingFit", "ZETA_BOUNDS", "ZETA_GRID", "best_on_grid", "fit_damped_response",
-           "resolvable_bands"]
+           "resolvable_bands", "rest_drift"]
