@@ -9,7 +9,7 @@ import pytest
 from nrmpc_ros.core import gravity_from_accelerometer
 from nrmpc_ros.core.rig import ImuMount
 from nrmpc_ros.core.so3 import angle_between, exp_so3
-from nrmpc_ros.frontend.imu import ImuBuffer, ImuConfig, ImuGravityRefusal, ImuRefusal, ImuReject
+from nrmpc_ros.frontend.imu import ImuBuffer, ImuConfig, ImuGravityRefusal, ImuRefusal, ImuReject, describe_gaps
 
 
 def fill(buf, rng, g_imu, t0=0.0, t1=1.0, rate=200.0, noise=0.05, gyro=None):
@@ -73,6 +73,18 @@ def test_gaps_are_counted_and_reported(cross_rig, rng):
     assert res.gaps[0][0] == pytest.approx(0.395) and res.gaps[0][1] == pytest.approx(0.7)
     res, _ = buf.gravity(0.75, 1.0)
     assert res.gaps == []
+
+
+def test_the_longest_gap_is_told(cross_rig, rng):
+    """The replay's summary and /diagnostics say how many gaps the stream had and the longest, however old."""
+    buf = ImuBuffer(cross_rig, ImuConfig(capacity_s=1.0))
+    g = np.array([0, 0, -9.81])
+    assert describe_gaps(buf) == ""
+    fill(buf, rng, g, 0.0, 0.4)
+    fill(buf, rng, g, 0.9, 1.2)  # 0.5 s missing
+    fill(buf, rng, g, 1.3, 3.0)  # 0.1 s missing; both gaps leave the history kept
+    text = describe_gaps(buf)
+    assert buf.gaps == [] and text.startswith("2 gaps") and "the longest 0.505 s from 0.395 s" in text
 
 
 @pytest.mark.parametrize("rate", [50.0, 100.0, 1000.0])

@@ -21,6 +21,7 @@ from ..frontend.evaluation import evaluate
 from ..frontend.evaluation_report import format_report
 from ..frontend.extrinsics import NO_IMU_NOTE, ExtrinsicsCsv, hold_poses, imu_mount_warning
 from ..frontend.feeder import FeederConfig
+from ..frontend.imu import describe_gaps
 from ..frontend.imu_agreement import describe_check
 from ..frontend.imu_clock import SIGNIFICANT_STDS
 from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock
@@ -302,6 +303,9 @@ def run(args) -> int:
         noise = runner.pipeline.zupt.noise_in_use
         if noise is not None:
             print(f"IMU stillness test: {describe_noise(noise, runner.pipeline.zupt.config)}")
+        gaps = describe_gaps(runner.pipeline.imu)
+        if gaps:
+            print(f"IMU gaps: {gaps}")
         check = runner.pipeline.estimator.imu_check
         refuted = describe_check(check)
         if refuted:

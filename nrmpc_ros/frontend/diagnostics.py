@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .drops import Drop, sorted_counts
+from .imu import describe_gaps
 from .imu_agreement import describe_check
 from .imu_clock_check import describe_clock
 from .zupt import NoiseSource, describe_noise
@@ -120,6 +121,9 @@ class ServiceDiagnostics:
         refuted = describe_check(s.runner.pipeline.estimator.imu_check)
         if refuted:
             values["gravity check"] = refuted
+        gaps = describe_gaps(s.runner.pipeline.imu)
+        if gaps:
+            values["gaps"] = gaps
         shift = s.feeder.config.imu_clock_offset_s
         applied = s.counts["IMU clock offsets applied"]
         if shift or applied:

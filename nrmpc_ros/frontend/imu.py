@@ -133,6 +133,19 @@ def _vec3(v) -> tuple | None:
         return tuple(a.tolist()) if a.shape == (3,) else None
 
 
+def describe_gaps(buffer: ImuBuffer) -> str:
+    """One line on the stream's gaps (steps beyond ``gap_periods`` sample periods), empty without one: how many,
+    and the longest. No stillness window, still run, hold gravity or gyro turn spans a gap, so the frames of
+    a gap are judged by the images alone (a user sees why holds there lack the IMU's gravity)."""
+    n = buffer.stats["gaps"]
+    if not n:
+        return ""
+    a, b = buffer.longest_gap
+    return (f"{n} gap{'s' if n > 1 else ''} of more than {buffer.config.gap_periods:g} sample periods "
+            f"({1e3 * buffer.period_s:.3g} ms), the longest {b - a:.3g} s from {a:.3f} s: nothing of the IMU "
+            f"spans a gap (the images alone judge its frames)")
+
+
 class ImuBuffer:
     """Time-ordered accelerometer + gyro samples of one IMU.
 
@@ -154,6 +167,7 @@ class ImuBuffer:
         self._i0 = self._n = 0  # live rows of _buf
         self._pending: list = []  # (t, ax, ay, az, wx, wy, wz) appended since the last consolidation
         self._gaps: list = []
+        self.longest_gap = (math.nan, math.nan)  # (last sample before, first after) of the longest gap so far
         self.stats = Counter()  # "samples", "gaps" and an ImuReject per rejected sample
         self.last_stamp = -math.inf
         self.period_s = math.nan  # median sample period of the stream (s), measured at each consolidation
@@ -176,6 +190,8 @@ class ImuBuffer:
         if self.last_stamp > -math.inf and stamp - self.last_stamp > self.config.gap_periods * self.period_s:
             self.stats["gaps"] += 1
             self._gaps.append((self.last_stamp, stamp))
+            if not stamp - self.last_stamp <= self.longest_gap[1] - self.longest_gap[0]:  # (NaN: the first)
+                self.longest_gap = (self.last_stamp, stamp)
         self.last_stamp = stamp
         self.stats["samples"] += 1
         self._pending.append((stamp, *a, *w))
