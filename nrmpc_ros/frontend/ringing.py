@@ -296,6 +296,12 @@ def resolvable_bands(segments, lo: float, hi: float) -> list:
     return out
 
 
+def in_bands(freqs_hz: np.ndarray, parts: list) -> np.ndarray:
+    """Which of ``freqs_hz`` lie in one of the bands ``parts`` [(a, b), ...] (:func:`resolvable_bands`)."""
+    f = np.asarray(freqs_hz, float)
+    return np.any([(f >= a) & (f <= b) for a, b in parts], axis=0) if parts else np.zeros(f.shape, bool)
+
+
 def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
                         band: tuple = FREQ_BAND) -> RingingFit | None:
     """The damped response o(tau) (module docstring) fitted to ``segments`` [(tau (K,), y (K, D)), ...] that
@@ -315,8 +321,7 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
     if not parts:
         return None  # every frequency of the band looks like a slow drift at this frame rate
     fgrid = np.geomspace(lo, hi, FREQ_GRID)
-    fgrid = np.concatenate([fgrid[(fgrid >= a) & (fgrid <= b)] for a, b in parts] +
-                           [[math.sqrt(a * b) for a, b in parts]])
+    fgrid = np.concatenate([fgrid[in_bands(fgrid, parts)], [math.sqrt(a * b) for a, b in parts]])
     zgrid = [zeta] if zeta is not None else list(ZETA_GRID)
     zgrid = np.asarray(zgrid, dtype=float)
     costs = _grid_costs(segs, fgrid, zgrid)
@@ -389,4 +394,4 @@ def fit_damped_response(segments, freq_hz: float, zeta: float | None = None,
 
 
 __all__ = ["FREQ_BAND", "RingingFit", "ZETA_BOUNDS", "ZETA_GRID", "best_on_grid", "fit_damped_response",
-           "resolvable_bands", "rest_drift"]
+           "in_bands", "resolvable_bands", "rest_drift"]

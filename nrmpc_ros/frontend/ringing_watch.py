@@ -30,7 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .ringing import ZETA_GRID, best_on_grid, resolvable_bands
+from .ringing import ZETA_GRID, best_on_grid, in_bands, resolvable_bands
 
 WINDOW_PERIODS = 1.25  # at least one period at the lowest frequency of the grid (FREQ_SPAN[0])
 MIN_WINDOW_FRAMES = 8  # three parameters per image axis, and as many frames again to judge the fit by
@@ -101,8 +101,7 @@ class RingingWatch:
         a = np.array(path)
         tau, xy = a[:, 0] - a[0, 0], a[:, 1:]
         freqs = self.freqs_hz[i] * np.geomspace(FREQ_SPAN[0], FREQ_SPAN[1], FREQ_STEPS)
-        parts = resolvable_bands([(tau, xy)], float(freqs[0]), float(freqs[-1]))
-        freqs = freqs[np.any([(freqs >= lo) & (freqs <= hi) for lo, hi in parts], axis=0)] if parts else freqs[:0]
+        freqs = freqs[in_bands(freqs, resolvable_bands([(tau, xy)], float(freqs[0]), float(freqs[-1])))]
         if not len(freqs):
             return PathVerdict(None, None)  # every frequency aliases to a slow swing (module docstring)
         spread = math.sqrt(float(np.mean((xy - xy.mean(axis=0)) ** 2)))
