@@ -105,6 +105,8 @@ def test_info_fields_are_typed_and_covariances_symmetric_psd(method):
         assert type(info.gravity_starts) is int and type(info.cameras_with_rotation) is int
         assert type(info.msac_score_rad2) is float and isinstance(info.gravity_candidates, tuple)
         assert len(info.gravity_candidates) >= 1 and all(c.shape == (3,) for c in info.gravity_candidates)
+        assert len(info.candidate_poses) == len(info.gravity_candidates)
+        assert all(P.shape == (3, 4) for P in info.candidate_poses)
     if method == "4pt-bending":
         assert info.measured_gravity.shape == (2, 3) and type(info.stage1_inliers) is int
 
@@ -119,7 +121,7 @@ def test_info_as_dict_is_json_ready_and_round_trips():
         assert back.as_dict() == d and "reason" not in d and "cov_rotation" in d
         for f in fields(EstimateInfo):
             a, b = getattr(info, f.name), getattr(back, f.name)
-            if f.name == "gravity_candidates":
+            if f.name in ("gravity_candidates", "candidate_poses"):
                 assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
             elif isinstance(a, np.ndarray):
                 assert isinstance(b, np.ndarray) and np.array_equal(a, b), f.name

@@ -276,6 +276,25 @@ def test_a_hold_that_never_settles_says_why():
     assert hold is None and why.rule is Refusal.NOT_STILL and "never settled" in why and "px" in why
 
 
+def test_a_snapshot_nothing_saw_stop_carries_the_least_ringing_as_an_unknown_turn():
+    """Without an IMU nothing tells when a snapshot's rig stopped: its measurement is unchanged (no ringing
+    removed or weighed), and the least ringing a stop of the default load right after the frame before leaves
+    is an unknown turn of each camera (half the envelope per axis: a random phase, two bending directions). The
+    first snapshot (nothing before it) and a rigid rig carry none, a snapshot the IMU saw stop no unknown turn."""
+    cfg = HoldConfig()
+    bars = BarRinging(2.5, 0.03, np.array([2.0, 1.0]))
+    rec, _ = record(np.zeros((1, 2)), snapshot=True)
+    rec.since_previous_s = 2.9
+    hold, _ = rec.measure(cfg, 0.4, bars=bars)
+    decay = math.exp(-0.03 * 2 * math.pi * 2.5 * 2.9)
+    np.testing.assert_allclose(hold.unknown_ringing_px, 0.5 * cfg.stop_load_m_s2 * decay * np.array([2.0, 1.0]))
+    assert hold.ringing_source is RingingSource.UNKNOWN and hold.ringing_px == 0.0
+    first, _ = record(np.zeros((1, 2)), snapshot=True)
+    np.testing.assert_array_equal(first.measure(cfg, 0.4, bars=bars)[0].unknown_ringing_px, [0.0, 0.0])
+    assert rec.measure(cfg, 0.0, bars=BarRinging(math.inf, 0.03, np.zeros(2)))[0].unknown_ringing_px is None
+    assert rec.measure(cfg, 0.4, imu_still_since=-0.4, bars=bars)[0].unknown_ringing_px is None
+
+
 def test_snapshots():
     """A snapshot is never refused for its time after the stop: it carries the ringing the stop's load may have
     left (from the IMU's deceleration, or the default load), decayed at the bars' damping. A stream's hold cut

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from nrmpc_ros.core.incremental import IncrementalSequence, NewSequence, StartReason, ViewEstimate
-from nrmpc_ros.core.so3 import angle_between, rotation_angle
+from nrmpc_ros.core.so3 import angle_between, exp_so3, rotation_angle
 from nrmpc_ros.sim.sequence import SequenceScenario, make_sequence
 from nrmpc_ros.sim.synthetic import RigSpec
 
@@ -262,11 +262,12 @@ def test_a_bridged_break_carries_gravity_into_the_new_sequence():
             assert v.gravity_sigma_rad >= sigma * 0.5 and err < 3 * v.gravity_sigma_rad, (k, err)
 
 
-def test_a_view_the_joint_solve_keeps_too_few_landmarks_of_starts_a_new_sequence():
-    """A view whose link holds by chance (nine in ten of its bearings belong to other landmarks: the pair
-    estimate still places it) keeps fewer of its observations in the joint solve than the 6-point solver needs: a
-    pose the images do not determine, published before (4-5 inliers). It starts a new sequence instead, and the
-    earlier views keep their poses and gravity."""
+@pytest.mark.parametrize("scrambled", [0.85, 0.9])
+def test_a_view_the_joint_solve_keeps_too_few_landmarks_of_starts_a_new_sequence(scrambled):
+    """A view whose link holds by chance (85 or 90 % of its bearings belong to other landmarks: the pair
+    estimate still places it) keeps 19 or 6 of its 232 observations in the joint solve, a pose fitted to them
+    (1.5 and 8 deg off with stds of 0.05-1.4 deg where it was published), while the other views keep nine in
+    ten of theirs. It starts a new sequence instead, and the earlier views keep their poses and gravity."""
     p = make_sequence(SequenceScenario(rig=RING3, num_views=4, pixel_noise=0.3, outlier_fraction=0.05), seed=4)
     items = list(views(p))
     seq = IncrementalSequence(p.rig, "6pt-bending", keep_history=True)
@@ -276,7 +277,7 @@ def test_a_view_the_joint_solve_keeps_too_few_landmarks_of_starts_a_new_sequence
     before = seq.sequences()[0].R.copy()
     c, t, f, g = items[3]
     rng = np.random.default_rng(0)
-    bad = rng.random(len(f)) < 0.9
+    bad = rng.random(len(f)) < scrambled
     f = f.copy()
     f[bad] = f[bad][rng.permutation(int(bad.sum()))]
     out = seq.add_view(c, t, f, g)
@@ -294,7 +295,6 @@ def test_a_pair_takes_in_the_offset_a_ringing_moves_each_cameras_bearings_by():
     offsets the thresholds take the offset in and the pair keeps them all. (A pair absorbs offsets of a few
     pixels on its own: at 8 px it kept every observation either way.)"""
     from nrmpc_ros.core.matches import Matches
-    from nrmpc_ros.core.so3 import exp_so3
 
     p = make_sequence(SequenceScenario(rig=RING3, num_views=2, pixel_noise=0.1, outlier_fraction=0.0), seed=7)
     seq = IncrementalSequence(p.rig, "4pt-bending")
@@ -313,3 +313,67 @@ def test_a_pair_takes_in_the_offset_a_ringing_moves_each_cameras_bearings_by():
     wide = seq.two_view(m, "4pt-bending", 1, (0.0, offset))
     assert wide.success and wide.num_inliers >= 0.95 * len(shared)
     assert not tight.success or tight.num_inliers < 0.8 * len(shared)
+
+
+FOUR8_G0 = np.array([5.953081755570092, -1.7471884820128762, -7.598963746447279])  # the recording's truth
+
+
+def test_the_first_pair_refines_every_gravity_start_and_the_joint_cost_chooses():
+    """The first two holds of a rendered vision-only recording (four cameras on 6 Hz bars streamed at 8 Hz,
+    hold averages 0.016 px apart): the pair's first gravity start, 106 deg off, explains every correspondence
+    within the 2 px threshold, and a search that stopped there published it with a std of 12 deg. Every start
+    refined, the truth's basin is a candidate and the joint cost takes it."""
+    from pathlib import Path
+
+    from nrmpc_ros.sim.synthetic import make_rig
+
+    ei = 0.1 * 0.4 ** 3 * (2.0 * math.pi * 6.0) ** 2 / 3.0  # 6 Hz bars of 0.1 kg, 0.4 m
+    rig = make_rig(RigSpec(num_cameras=4, layout="cross", focal=235.0, resolution=(320, 240), EI=ei, mass=0.1,
+                           bar_length=0.4))
+    d = np.load(Path(__file__).parent / "data" / "four8_pair.npz")
+    seq = IncrementalSequence(rig, "6pt-bending")
+    out = [seq.add_view(d[f"cam{k}"], d[f"track{k}"], d[f"f{k}"], noise_scale=float(d[f"noise_scale{k}"]),
+                        offset_rad=float(d[f"offset_rad{k}"])) for k in range(2)]
+    v = out[1]
+    err = float(angle_between(v.R @ v.gravity, FOUR8_G0))
+    assert err < min(3.0 * v.gravity_sigma_rad, math.radians(2.0)), (math.degrees(err), v.gravity_sigma_rad)
+
+
+def test_a_first_pairs_rivals_are_judged_at_the_images_noise():
+    """Before any solve has measured the noise, a first pair's basins are compared at the best one's own noise
+    (0.02 px here), not at half the 2 px threshold: at that guess a basin 100 deg off passed for a rival and the
+    published std took it in (127 deg)."""
+    rig = RigSpec(num_cameras=4, layout="cross", focal=300.0, resolution=(320, 240), EI=3.0)
+    p = make_sequence(SequenceScenario(rig=rig, num_views=2, pixel_noise=0.02, outlier_fraction=0.0,
+                                       min_step_deg=15.0, max_step_deg=30.0, gravity_measured=False), seed=2)
+    seq = IncrementalSequence(p.rig, "6pt-bending")
+    v = feed(seq, p)[1]
+    err = float(angle_between(v.gravity, p.gravity[1]))
+    assert seq.ambiguity_rad() == 0.0
+    assert err < 3.0 * v.gravity_sigma_rad < math.radians(2.0), (math.degrees(err), v.gravity_sigma_rad)
+
+
+def test_unknown_turns_of_the_cameras_widen_the_std_to_what_they_move_the_estimate_by():
+    """Every camera of every view turned by an unknown 0.3 deg (a snapshot's ringing nothing measured): the
+    estimate is the same with or without the turns' std, and the std carries them: without it 60 % of the
+    gravities lay within 2 of their std (up to 11), with it at least 90 %, none beyond 3.5."""
+    rig = RigSpec(num_cameras=4, layout="cross", focal=235.0, resolution=(320, 240), EI=1.0)
+    sigma = math.radians(0.3)
+    z = []
+    for seed in range(5):
+        p = make_sequence(SequenceScenario(rig=rig, num_views=5, pixel_noise=0.05, outlier_fraction=0.0,
+                                           gravity_measured=False), seed=seed)
+        tr, M = p.tracks, p.rig.num_cameras
+        turns = exp_so3(np.random.default_rng(100 + seed).normal(scale=sigma, size=(5 * M, 3)))
+        f = np.einsum("nij,nj->ni", turns[tr.view * M + tr.cam], tr.f)
+        plain, turned = IncrementalSequence(p.rig, "6pt-bending"), IncrementalSequence(p.rig, "6pt-bending")
+        for k in range(5):
+            m = tr.view == k
+            a = plain.add_view(tr.cam[m], tr.track[m], f[m])
+            b = turned.add_view(tr.cam[m], tr.track[m], f[m], unknown_turn_rad=sigma)
+            if k == 0:
+                continue
+            np.testing.assert_allclose(b.gravity, a.gravity, atol=1e-9)
+            assert b.gravity_sigma_rad >= a.gravity_sigma_rad * (1 - 1e-9)
+            z.append(float(angle_between(b.gravity, p.gravity[k])) / b.gravity_sigma_rad)
+    assert np.mean(np.array(z) <= 2.0) >= 0.9 and max(z) < 3.5

@@ -1063,6 +1063,87 @@ def _minimize_reestimating_sigma(prob: SequenceBundleProblem, state: BundleState
                                   stop=stop, damping=damping), prob
 
 
+class _Reduced(NamedTuple):
+    """An adjustment's observations at its solution, whitened and robustly weighted as its last step saw them:
+    residuals e (N, 2), their Jacobians on the camera block with each landmark eliminated Jr (N, 2, nc), and
+    the derivative of each residual by a small turn of its camera about its centre D (N, 2, 3)."""
+
+    e: np.ndarray
+    Jr: np.ndarray
+    D: np.ndarray
+
+
+def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: float,
+                       priors: GravityPriors | None, gravity_information: GravityInformation | None) -> _Reduced:
+    lay, state = res.layout, res.state
+    nc = res.covariance.shape[0]
+    prob = SequenceBundleProblem(rig, obs, lay, res.sigma_rad, huber_k, priors if lay.gravity is not None else None,
+                                 gravity_information if lay.gravity is not None else None)
+    mrig = prob.model_rig(state)
+    e, Jc, dX = prob._evaluate(state, mrig)
+    Jp = dX @ prob.chart(state, mrig).M[obs.point]
+    # a turn of the camera about its centre c moves the landmark's ray d = X - c in the camera like the
+    # opposite turn of d: de/d(turn) = de/dX [d]_x, rows a^T [d]_x
+    D = cross(dX, (state.points[obs.point] - prob._views(state, mrig).c[prob._vc])[:, None, :])
+    e = e / prob._noise()
+    _, wts = prob._robust(e)
+    sw = np.sqrt(wts)[:, None] / prob._noise()
+    Jc, Jp, e, D = Jc * sw[:, :, None], Jp * sw[:, :, None], e * np.sqrt(wts)[:, None], D * sw[:, :, None]
+    N = len(Jc)
+    cols = prob.structure.cols
+    # every observation's Jacobian on the whole camera block (N, 2, nc), the spare column collecting none
+    Jfull = np.zeros((N, 2, nc + 1))
+    # an observation's existing columns are distinct (only the spare one repeats, and it is dropped)
+    Jfull[np.arange(N)[:, None, None], np.arange(2)[None, :, None], cols[:, None, :]] = Jc
+    Jfull = Jfull[:, :, :nc]
+    JpT = np.swapaxes(Jp, 1, 2)
+    P = obs.num_points
+    Hpp = group_sum(obs.point, JpT @ Jp, P)
+    Hpp += 1e-12 * np.eye(3) * np.maximum(np.trace(Hpp, axis1=1, axis2=2), 1e-300)[:, None, None]
+    Hpc = group_sum(obs.point, JpT @ Jfull, P)
+    # with the landmark eliminated, an observation also moves the camera block through its landmark
+    return _Reduced(e, Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point], D)
+
+
+def offset_covariance(rig: Rig, obs: Observations, res: BundleResult, cluster: np.ndarray,
+                      sigma_rad: np.ndarray, huber_k: float = 3.0, priors: GravityPriors | None = None,
+                      gravity_information: GravityInformation | None = None) -> np.ndarray:
+    """The camera block's covariance that unknown turns of the cameras add: each cluster of observations
+    (``cluster`` (N,), one camera of one hold) turned as one about its camera's centre by a random rotation of
+    std ``sigma_rad`` per axis (``sigma_rad`` (G,) by cluster id, 0 for none), as a residual ringing the
+    images cannot tell (docs/PIPELINE.md, "The joint estimate over the sequence", step 6).
+
+    A turn delta_c moves the residuals by D delta_c, and the solution by -H^-1 A_c delta_c with
+    A_c = sum over the cluster of Jr^T D (landmarks eliminated, as the solve's last step weighed them): the
+    covariance is H^-1 (sum_c sigma_c^2 A_c A_c^T) H^-1. Where the views see a landmark only twice a camera's
+    turn is absorbed by its landmarks and leaves no residual: no residual-based covariance can see it, this
+    one does."""
+    C = covariance_from_information(res.information)
+    nc = C.shape[0]
+    cluster = np.asarray(cluster, np.int64)
+    sig = np.asarray(sigma_rad, float)[cluster] if len(cluster) else np.zeros(0)
+    if nc == 0 or not np.all(np.isfinite(C)) or not np.any(sig > 0):
+        return np.zeros_like(C)
+    red = _reduced_jacobians(rig, obs, res, huber_k, priors, gravity_information)
+    ids, cl = np.unique(cluster, return_inverse=True)
+    A = group_sum(cl, np.einsum("nrc,nrk->nck", red.Jr, red.D), len(ids))  # (G, nc, 3)
+    s2 = np.asarray(sigma_rad, float)[ids] ** 2
+    M = np.einsum("g,gck,gdk->cd", s2, A, A)
+    return C @ M @ C
+
+
+def larger_in_every_direction(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """The covariance that is, in every direction, the larger of A and B (B positive definite): B's whitened
+    eigenvalues of A raised to 1 where below."""
+    try:
+        Lb = np.linalg.cholesky(0.5 * (B + B.T))
+    except np.linalg.LinAlgError:
+        return A
+    Li = np.linalg.inv(Lb)
+    w, V = np.linalg.eigh(Li @ (0.5 * (A + A.T)) @ Li.T)
+    return Lb @ ((V * np.maximum(w, 1.0)) @ V.T) @ Lb.T
+
+
 def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cluster: np.ndarray,
                               huber_k: float = 3.0, priors: GravityPriors | None = None,
                               gravity_information: GravityInformation | None = None) -> np.ndarray:
@@ -1089,31 +1170,8 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     G = int(cl.max()) + 1 if len(cl) else 0
     if G < 3:
         return C
-    lay, state = res.layout, res.state
-    prob = SequenceBundleProblem(rig, obs, lay, res.sigma_rad, huber_k, priors if lay.gravity is not None else None,
-                                 gravity_information if lay.gravity is not None else None)
-    mrig = prob.model_rig(state)
-    e, Jc, dX = prob._evaluate(state, mrig)
-    Jp = dX @ prob.chart(state, mrig).M[obs.point]
-    e = e / prob._noise()
-    _, wts = prob._robust(e)
-    sw = np.sqrt(wts)[:, None] / prob._noise()
-    Jc, Jp, e = Jc * sw[:, :, None], Jp * sw[:, :, None], e * np.sqrt(wts)[:, None]
-    N, _, L = Jc.shape
-    n1 = nc + 1
-    cols = prob.structure.cols
-    # every observation's Jacobian on the whole camera block (N, 2, nc), the spare column collecting none
-    Jfull = np.zeros((N, 2, n1))
-    # an observation's existing columns are distinct (only the spare one repeats, and it is dropped)
-    Jfull[np.arange(N)[:, None, None], np.arange(2)[None, :, None], cols[:, None, :]] = Jc
-    Jfull = Jfull[:, :, :nc]
-    JpT = np.swapaxes(Jp, 1, 2)
-    P = obs.num_points
-    Hpp = group_sum(obs.point, JpT @ Jp, P)
-    Hpp += 1e-12 * np.eye(3) * np.maximum(np.trace(Hpp, axis1=1, axis2=2), 1e-300)[:, None, None]
-    Hpc = group_sum(obs.point, JpT @ Jfull, P)
-    # with the landmark eliminated, an observation also moves the camera block through its landmark
-    Jr = Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point]
+    red = _reduced_jacobians(rig, obs, res, huber_k, priors, gravity_information)
+    Jr, e = red.Jr, red.e
     s_obs = np.einsum("nrc,nr->nc", Jr, e)
     S = group_sum(cl, s_obs, G)
     Hc = group_sum(cl, np.swapaxes(Jr, 1, 2) @ Jr, G)

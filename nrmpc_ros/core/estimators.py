@@ -92,6 +92,9 @@ class EstimatorOptions:
     subset_size: int = option(150, "correspondences used while comparing gravity starts", lo=8, hi=10000000)
     final_refinement: bool = option(True, "6pt-bending: robust refinement on all correspondences after the best "
                                     "start (off where a joint adjustment over a sequence follows)")
+    stop_at_explaining_start: bool = option(True, "6pt-bending: stop at the first gravity start that explains the "
+                                            "correspondences within threshold_px (off: every start refined, its "
+                                            "basin a candidate: where a joint cost chooses among them)")
 
     def __post_init__(self) -> None:
         check(self, "estimator options")
@@ -126,6 +129,7 @@ class EstimateInfo:
     gravity_starts: int | None = None  # 6pt-bending: gravity starts refined
     mirrored_start: bool | None = None  # parallel bars: whether a mirrored or reversed start won (None: not tried)
     gravity_candidates: tuple[np.ndarray, ...] = ()  # refined gravity of every start, best MSAC score first
+    candidate_poses: tuple[np.ndarray, ...] = ()  # ... and its pose [R | t] (3, 4): a basin is gravity and pose
     msac_score_rad2: float | None = None  # 6pt-bending: MSAC score of all correspondences at the threshold
     measured_gravity: np.ndarray | None = None  # 4pt-bending: (2, 3) measured gravity, each view's body frame
     gravity_unobservable: str | None = None  # why there is no gravity although the method estimates one
@@ -164,7 +168,7 @@ class EstimateInfo:
             raise KeyError(f"not estimate diagnostics: {', '.join(unknown)}")
         values = dict(d)
         for name, value in d.items():
-            if name == "gravity_candidates":
+            if name in ("gravity_candidates", "candidate_poses"):
                 values[name] = tuple(np.asarray(v, dtype=float) for v in value)
             elif name in _ARRAY_FIELDS and value is not None:
                 values[name] = np.asarray(value, dtype=float)
@@ -502,17 +506,17 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         info.camera_inliers = None  # of fewer than two cameras: no yardstick for the starts
     best = best_score = None
     info.gravity_starts = 0
-    candidates = []  # (MSAC score, refined gravity of a start): the basins this pair leaves open
+    candidates = []  # (MSAC score, refined start): the basins this pair leaves open
     accepted = camera_inl if info.cameras_with_rotation >= 2 else None
     min_starts = 1 if axis is None else WEAK_MIN_STARTS
     for R0, t0, g0, idx in starts:
         res, score, inliers = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
         info.gravity_starts += 1
-        candidates.append((score, res.g))
+        candidates.append((score, res))
         if best is None or score < best_score:
             best, best_score, best_idx, best_inliers = res, score, idx, inliers
-        if accepted is not None and info.gravity_starts >= min_starts and _explains(rig, opts, best_inliers,
-                                                                                      accepted):
+        if opts.stop_at_explaining_start and accepted is not None and info.gravity_starts >= min_starts \
+                and _explains(rig, opts, best_inliers, accepted):
             break  # explains the correspondences the cameras' own epipolar geometry accepts: the right basin
     if best is None:
         return None
@@ -525,10 +529,12 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         info.mirrored_start = False
         for g_m in (best.g - 2.0 * ga, 2.0 * ga - best.g):
             mirrored, score, inliers = _start_refinement(rig, m, best_idx, best.R, best.t, g_m, tight, opts)
-            candidates.append((score, mirrored.g))
+            candidates.append((score, mirrored))
             if score < best_score:
                 best, best_score, best_inliers, info.mirrored_start = mirrored, score, inliers, True
-    info.gravity_candidates = tuple(gc for _, gc in sorted(candidates, key=lambda c: c[0]) if gc is not None)
+    ranked = [c for _, c in sorted(candidates, key=lambda c: c[0]) if c.g is not None]
+    info.gravity_candidates = tuple(c.g for c in ranked)
+    info.candidate_poses = tuple(np.column_stack([c.R, c.t]) for c in ranked)
     if not opts.final_refinement:
         info.msac_score_rad2 = float(best_score)
         return best.R, best.t, best.g, best_inliers, _record_pose(info, best, True)

@@ -74,6 +74,11 @@ from .so3 import angle_between, normalize, tangent_basis
 from .tracks import Tracks
 
 RECONSIDER_SIGMAS = 3.0  # a pair's gravity contradicts the joint one beyond this many of its own stds only
+# a view keeps so few of its linked observations that a view keeping CHANCE_LINK_SHARE of the window's other
+# views' share (its own outliers may be many more than theirs) would keep as few with at most this chance: its
+# link held by chance (one in a million of the views that do belong)
+CHANCE_LINK_PROBABILITY = 1e-6
+CHANCE_LINK_SHARE = 0.5
 PARALLEL_COS = 0.99  # bars whose axes are this close to (anti)parallel observe gravity as one bar (paper, 3.3)
 # a pair's inlier thresholds take in this many times the two views' coherent offsets together (their residual
 # ringings' envelopes): an envelope bounds how far a camera's bearings may be moved alike, and where the pair's
@@ -209,6 +214,7 @@ class _View:
     measured_sigma: float
     noise_scale: float = 1.0
     offset_rad: float = 0.0  # how far all of a camera's bearings may be moved alike (a residual ringing's envelope)
+    unknown_turn_rad: np.ndarray | None = None  # (M,) std of each camera's turn nothing measured (None: none)
     inlier: np.ndarray | None = None  # (n,) bool; None: all
     R: np.ndarray | None = None
     t: np.ndarray | None = None
@@ -309,6 +315,14 @@ class _Sequence:
         return (self.view_index(), self.column("cam"), self.column("track"), self.column("f"),
                 self.column("inlier"))
 
+    def unknown_turns(self, upto: int | None = None) -> np.ndarray | None:
+        """(K, M) the std (rad) of each view's cameras' unknown turns, or None where there are none."""
+        views = self.views[:upto]
+        if all(v.unknown_turn_rad is None or not np.any(v.unknown_turn_rad > 0) for v in views):
+            return None
+        M = next(len(v.unknown_turn_rad) for v in views if v.unknown_turn_rad is not None)
+        return np.array([np.zeros(M) if v.unknown_turn_rad is None else v.unknown_turn_rad for v in views])
+
     def set_inliers(self, flat: np.ndarray) -> None:
         """Every view's inlier mask from one array in the order of :meth:`arrays`."""
         sizes = np.cumsum([len(v.cam) for v in self.views])[:-1]
@@ -347,6 +361,7 @@ class IncrementalSequence:
         self.threshold = self.options.estimator.threshold_px / focal
         self._pair_options = self.options.pair_estimator()
         self._noise_rad = self.threshold / 2.0  # angular noise of the latest solve (condenses retired landmarks)
+        self._noise_solved = False  # whether a solve has measured it (else it is the threshold's guess)
         # the latest solve's gravity variance, cluster-robust over model (>= 1): what retired landmarks condense
         # to is a model information and is deflated by it (docs/PIPELINE.md, "The joint estimate over the
         # sequence", step 6)
@@ -447,7 +462,7 @@ class IncrementalSequence:
     # ----------------------------------------------------------------- views
     def add_view(self, cam, track, f, measured_gravity=None, measured_sigma_rad: float | None = None,
                  noise_scale: float = 1.0, key=None, turn: tuple | None = None,
-                 offset_rad: float = 0.0) -> ViewEstimate | NewSequence:
+                 offset_rad: float = 0.0, unknown_turn_rad=None) -> ViewEstimate | NewSequence:
         """Add the next view's observations; returns its :class:`ViewEstimate`, or :class:`NewSequence` for a
         view that is the origin of a sequence (the first one, or one no earlier view links to).
         ``noise_scale`` (>= 1): the view's bearing noise std over the nominal one (a hold measured while
@@ -463,8 +478,13 @@ class IncrementalSequence:
         sg = self.options.estimator.gravity_prior_sigma if measured_sigma_rad is None else float(measured_sigma_rad)
         s = self.seq
         k = s.num_views
+        turned = None
+        if unknown_turn_rad is not None:
+            turned = np.broadcast_to(np.nan_to_num(np.asarray(unknown_turn_rad, float), nan=0.0, posinf=0.0),
+                                     (self.rig.num_cameras,)).copy()
         new = _View(cam, track, f, g, sg, max(float(noise_scale), 1.0) if math.isfinite(noise_scale) else 1.0,
-                    float(offset_rad) if offset_rad > 0 and math.isfinite(offset_rad) else 0.0, key=key, turn=turn)
+                    float(offset_rad) if offset_rad > 0 and math.isfinite(offset_rad) else 0.0,
+                    unknown_turn_rad=turned, key=key, turn=turn)
         s.views.append(new)
         if k == 0:
             new.R, new.t = np.eye(3), np.zeros(3)
@@ -489,10 +509,11 @@ class IncrementalSequence:
             k, j = k + merged[1], j + merged[1]
             warm = False
         res, first = self._solve_window(k, warm)
-        if merged is None and np.count_nonzero(s.views[k].inlier) < MINIMAL_SAMPLE[pm]:
-            # the window solve kept fewer of the new view's observations than its pair's solver needs: the
-            # images do not determine its pose (a link that held by chance); the earlier views get back what
-            # they had. A view kept on a few more is published with the std its few observations give.
+        if merged is None and (np.count_nonzero(s.views[k].inlier) < MINIMAL_SAMPLE[pm]
+                               or self._kept_by_chance(k, first)):
+            # the window solve kept fewer of the new view's observations than its pair's solver needs, or a
+            # share of them the other views' would keep by chance only: the images do not determine its pose
+            # (a link that held by chance, its pose fitted to a few); the earlier views get back what they had.
             for v, (R, t, inlier) in zip(s.views, before[0]):
                 v.R, v.t, v.inlier = R, t, inlier
             s.set_gravity(before[1])
@@ -701,9 +722,13 @@ class IncrementalSequence:
         s = self.seq
         if est.gravity is None:
             return
-        Rj = s.views[j].R
+        Rj, tj = s.views[j].R, s.views[j].t
         cands = [(Rj @ np.asarray(g, float), float(est.num_inliers))
                  for g in [est.gravity] + list(est.info.gravity_candidates)]
+        # each basin's pose of view k in the origin (the pair's own first, then its starts')
+        poses = [(Rj @ est.R, Rj @ est.t + tj)] + [(Rj @ P[:, :3], Rj @ P[:, 3] + tj)
+                                                   for P in est.info.candidate_poses]
+        basins = [(g, pose) for (g, _), pose in zip(cands, poses)]
         if self.method == "4pt-bending":
             cands += [(s.views[i].R @ s.views[i].measured, 0.0) for i in (j, k) if s.views[i].has_gravity]
         if s.gravity is not None:
@@ -714,14 +739,19 @@ class IncrementalSequence:
                                                                          RECONSIDER_SIGMAS * sigma):
                 return
             cands = [(s.gravity, math.inf)] + [(g, math.inf) for g in s.rivals] + cands
-        self._choose_gravity(s, cands, k)
+        self._choose_gravity(s, cands, k, basins)
 
-    def _choose_gravity(self, s: _Sequence, cands: list, k: int) -> None:
+    def _choose_gravity(self, s: _Sequence, cands: list, k: int, basins: list | None = None) -> None:
         """The joint gravity of sequence ``s`` (its window ending at view k) chosen among the candidates by the
         joint cost, the window's free views taking the winner's poses; candidates within the noise of it stay as
-        rivals. Every candidate is adjusted: a basin left unadjusted could not be judged a rival."""
+        rivals. Every candidate is adjusted: a basin left unadjusted could not be judged a rival. ``basins``:
+        the new pair's (origin gravity, (R, t) of view k): each candidate starts view k at the pose of the
+        basin nearest it."""
         opts = self.options
         distinct = distinct_candidates(cands, math.radians(opts.candidate_separation_deg), opts.max_candidates)
+        view_poses = None
+        if basins:
+            view_poses = [(k, *min(basins, key=lambda b: angle_between(b[0], g))[1]) for g in distinct]
         obs, _, free = self._window_problem(k, max(0, k + 1 - self.window))
         scores = []
         chosen, _ = choose_gravity(self.model_rig, obs, *s.poses(), distinct, self._priors(k + 1),
@@ -729,7 +759,7 @@ class IncrementalSequence:
                                    replace(opts, refined_candidates=max(opts.refined_candidates, len(distinct))),
                                    np.random.default_rng(self.seed + k), free_views=free,
                                    gravity_information=s.information(), scores=scores,
-                                   noise_rad=self._noise_rad)
+                                   noise_rad=self._noise_rad, view_poses=view_poses)
         if isinstance(chosen, np.ndarray):
             s.set_gravity(chosen)
         else:
@@ -741,15 +771,21 @@ class IncrementalSequence:
     def _rivals(self, gravity: np.ndarray, scores: list) -> list:
         """The candidates' origin gravities whose joint cost is within the noise of the best one's and that lie
         apart from the chosen gravity: basins the views so far cannot tell apart (docs/PIPELINE.md, "Gravity
-        of a young sequence"). Costs in chi^2 units: the score (MSAC and the priors', at the noise of the latest
-        solve) over the noise variance."""
+        of a young sequence"). Costs in chi^2 units: the score (MSAC and the priors') over the noise variance,
+        the noise of the latest solve, or before any solve the best candidate's own (the threshold's guess of
+        it is ten to a hundred times the noise of averaged holds: every basin would be a rival)."""
         if len(scores) < 2:
             return []
-        chi2 = np.array([sc for _, sc in scores]) / self._noise_rad ** 2
+        noise = self._noise_rad
+        best = min(scores, key=lambda c: c.chi2(noise))
+        if not self._noise_solved and math.isfinite(best.noise_rad):
+            # (a thousandth of the threshold: a guard for noise-free data, far below any image's noise)
+            noise = max(best.noise_rad, 1e-3 * self.threshold)
+        chi2 = np.array([c.chi2(noise) for c in scores])
         sep = math.radians(self.options.candidate_separation_deg)
         within = chi2 <= chi2.min() + self._ambiguity_chi2
-        return [np.asarray(g, float) for (g, _), w in zip(scores, within)
-                if w and angle_between(g, gravity) > sep]
+        return [np.asarray(c.gravity, float) for c, w in zip(scores, within)
+                if w and angle_between(c.gravity, gravity) > sep]
 
     # ---------------------------------------------------------------- solves
     def _window_problem(self, k: int, first: int):
@@ -787,7 +823,7 @@ class IncrementalSequence:
                                    huber_k=self.options.estimator.huber_k, inliers=start,
                                    min_rounds=1 if warm else 2, tol=self.options.relative_tolerance,
                                    camera_noise=self.options.camera_noise,
-                                   inlier_sigmas=self.options.inlier_sigmas)
+                                   inlier_sigmas=self.options.inlier_sigmas, offset_sigma=s.unknown_turns(k + 1))
         st = res.state
         for i in free:
             s.views[i].R, s.views[i].t = st.R[i], st.t[i]
@@ -797,6 +833,27 @@ class IncrementalSequence:
         flat[idx] = inl
         s.set_inliers(flat)
         return res, first
+
+    def _kept_by_chance(self, k: int, first: int) -> bool:
+        """Whether the window solve kept so few of view k's linked observations (of landmarks another window
+        view sees) that a view keeping them at half the share q the window's other views keep theirs at would
+        keep as few with a chance below CHANCE_LINK_PROBABILITY (the binomial tail): a pose fitted to the few
+        bearings its link got right by chance, or to none (docs/PIPELINE.md, "The joint estimate over the
+        sequence", step 1)."""
+        from scipy.special import bdtr  # the binomial tail without importing scipy.stats (seconds)
+
+        view, _, track, _, inl = self.seq.arrays()
+        w = view >= first
+        pairs = np.unique(np.stack([track[w], view[w]]), axis=1)  # each landmark once per view
+        seen, times = np.unique(pairs[0], return_counts=True)
+        linked = np.zeros(len(view), bool)
+        linked[w] = np.isin(track[w], seen[times >= 2])
+        mine, others = linked & (view == k), linked & (view < k)
+        n, kept = int(mine.sum()), int(np.count_nonzero(inl[mine]))
+        if n == 0 or not others.any():
+            return False
+        q = CHANCE_LINK_SHARE * float(np.mean(inl[others]))
+        return float(bdtr(kept, n, q)) < CHANCE_LINK_PROBABILITY
 
     def _retire(self, first_next: int) -> None:
         """Fold landmarks no later window can see into the origin's gravity information (poses fixed)."""
@@ -840,6 +897,7 @@ class IncrementalSequence:
     def _estimate(self, k, j, pm, res, first, elapsed) -> ViewEstimate:
         s = self.seq
         self._noise_rad = res.sigma_rad
+        self._noise_solved = True
         self._gravity_inflation = gravity_inflation(res)
         g = cov = None
         sigma = math.inf

@@ -31,6 +31,9 @@ from .bundle import (
     adjust_bundle,
     camera_noise_factors,
     cluster_robust_covariance,
+    covariance_from_information,
+    larger_in_every_direction,
+    offset_covariance,
     robust_sigma,
 )
 from .estimators import RIGID_REASON, EstimatorOptions, estimate, pair_method
@@ -115,10 +118,13 @@ class SequenceOptions:
         return from_mapping(cls, d, source)
 
     def pair_estimator(self) -> EstimatorOptions:
-        """Options of the pairwise estimates that start the joint adjustment."""
+        """Options of the pairwise estimates that start the joint adjustment. Every gravity start is refined
+        and returned: the joint cost chooses among their basins, and the first start that explains the
+        correspondences within the pixel threshold may be a wrong basin on holds averaged far below it
+        (docs/PIPELINE.md, "The joint estimate over the sequence", step 2)."""
         return replace(self.estimator, subset_size=self.pair_subset_size,
                        gravity_refine_starts=self.pair_refine_starts, max_ba_iterations=self.pair_ba_iterations,
-                       final_refinement=False)
+                       final_refinement=False, stop_at_explaining_start=False)
 
 
 @dataclass
@@ -358,9 +364,38 @@ def observation_errors(prob: SequenceBundleProblem, state: BundleState) -> np.nd
     return np.linalg.norm(prob.residuals(state), axis=1)
 
 
+@dataclass(frozen=True)
+class CandidateScore:
+    """One gravity candidate of :func:`choose_gravity`: its origin gravity after its short adjustment (or as
+    given, scored at the chained poses), the MSAC score of its observations (rad^2), its priors' chi^2, and the
+    angular noise of its observations of landmarks seen twice or more (rad per axis, :func:`.bundle.robust_sigma`
+    with the landmarks and the free poses taken out of the degrees of freedom, as a solve measures it): the
+    scale its differences are judged at before a solve has measured one."""
+
+    gravity: np.ndarray
+    msac_rad2: float
+    prior_chi2: float
+    noise_rad: float
+
+    def chi2(self, noise_rad: float) -> float:
+        """Its cost in chi^2 units at the images' noise ``noise_rad``."""
+        return self.msac_rad2 / noise_rad ** 2 + self.prior_chi2
+
+
+def _scored(gravity, prob: SequenceBundleProblem, state: BundleState, threshold: float, prior_chi2: float,
+            num_params: int) -> CandidateScore:
+    e = prob.residuals(state)
+    seen = np.bincount(prob.obs.point, minlength=prob.obs.num_points)
+    tied = seen[prob.obs.point] >= 2  # a landmark seen once fits its ray exactly: no error to measure
+    noise = robust_sigma(prob.unwhitened(e)[tied], int(np.count_nonzero(seen >= 2)), num_params) \
+        if tied.any() else math.nan
+    return CandidateScore(np.asarray(gravity, float).reshape(-1, 3)[0],
+                          msac_score(np.linalg.norm(e, axis=1), threshold), prior_chi2, noise)
+
+
 def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: SequenceOptions, rng, *, free_views=None,
                    gravity_information: GravityInformation | None = None, scores: list | None = None,
-                   noise_rad: float | None = None):
+                   noise_rad: float | None = None, view_poses: list | None = None):
     """The candidate g_0 whose short joint adjustment has the best score: the MSAC score over all observations
     plus the priors' chi^2 (measured gravities and rotations, :meth:`GravityPriors.chi2`) times the images'
     noise variance (``noise_rad``, default half the threshold). Where the images hardly tell gravity (bars
@@ -370,37 +405,54 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
 
     Every candidate is first scored at the chained poses (landmarks triangulated, no adjustment); the best
     ``refined_candidates`` of them get the short adjustment on a subset of the tracks. ``scores``, when given,
-    receives (g_0, score in rad^2) of every candidate: after its adjustment where it had one, else at the
+    receives a :class:`CandidateScore` of every candidate: after its adjustment where it had one, else at the
     chained poses (an upper bound of what an adjustment would reach); it stays empty for a single candidate.
+    ``view_poses``, one per candidate: None, or (view, R, t) that view's start pose with that candidate (a pair's
+    basin is a gravity and a pose: adjusted from another basin's pose, a candidate may drift off its own).
     """
     if len(candidates) == 1:
         return candidates[0], 1
-    noise2 = (threshold / 2.0 if noise_rad is None else noise_rad) ** 2
+    noise = threshold / 2.0 if noise_rad is None else noise_rad
 
-    def prior_cost(state) -> float:
-        return 0.0 if priors is None else noise2 * priors.chi2(state)
+    def prior_chi2(state) -> float:
+        return 0.0 if priors is None else priors.chi2(state)
 
-    quick = []
-    for g0 in candidates:
-        st, prob = triangulated(rig, obs, BundleState(R, t, g0, np.zeros((obs.num_points, 3))))
-        quick.append(msac_score(observation_errors(prob, st), threshold) + prior_cost(st))
-    order = np.argsort(quick)
-    keep = [candidates[i] for i in order[: opts.refined_candidates]]
+    num_params = 6 * (obs.num_views - 1 if free_views is None else len(free_views)) + 2  # free poses, gravity
+    starts = []
+    for i in range(len(candidates)):
+        Ri, ti = np.array(R, float), np.array(t, float)
+        if view_poses is not None and view_poses[i] is not None:
+            v, Ri[v], ti[v] = view_poses[i]
+        starts.append((Ri, ti))
+    quick, within = [], []
+    for g0, (Ri, ti) in zip(candidates, starts):
+        st, prob = triangulated(rig, obs, BundleState(Ri, ti, g0, np.zeros((obs.num_points, 3))))
+        quick.append(_scored(g0, prob, st, threshold, prior_chi2(st), num_params))
+        within.append(observation_errors(prob, st) < threshold)
+    order = np.argsort([q.chi2(noise) for q in quick])
+    keep = order[: opts.refined_candidates]
     if scores is not None:
-        scores.extend((candidates[i], quick[i]) for i in order[opts.refined_candidates:])
-    pts = np.arange(obs.num_points)
+        scores.extend(quick[i] for i in order[opts.refined_candidates:])
+    # the subset from the landmarks seen twice or more: one seen once fits its ray whatever the poses, and a
+    # subset of mostly such landmarks leaves a view a few tracks that the short adjustment bends it to
+    pts = np.flatnonzero(np.bincount(obs.point, minlength=obs.num_points) >= 2)
     if len(pts) > opts.candidate_tracks:
         pts = np.sort(rng.choice(pts, size=opts.candidate_tracks, replace=False))
-    sub, _ = obs.subset(np.isin(obs.point, pts))
+    chosen = np.isin(obs.point, pts)
     best, best_score = None, math.inf
-    for g0 in keep:
-        res = adjust_bundle(rig, sub, R, t, g0, priors=priors, gravity_information=gravity_information,
+    for i in keep:
+        # each candidate on its own inliers (within the threshold at its start, as its MSAC score counts
+        # them): the Huber loss bounds an outlier's pull but not that of many, and on a stiff rig whose
+        # bending tells gravity weakly they bent it tens of degrees
+        sub, _ = obs.subset(chosen & within[i])
+        res = adjust_bundle(rig, sub, *starts[i], candidates[i], priors=priors, gravity_information=gravity_information,
                             free_views=free_views, max_iterations=opts.candidate_iterations,
                             sigma_rad=threshold / 2.0, tol=1e-3)
         st, prob = triangulated(rig, obs, res.state)
-        score = msac_score(observation_errors(prob, st), threshold) + prior_cost(res.state)
+        scored = _scored(res.state.gravity, prob, st, threshold, prior_chi2(res.state), num_params)
+        score = scored.chi2(noise)
         if scores is not None:
-            scores.append((np.asarray(res.state.gravity, float).reshape(-1, 3)[0], score))
+            scores.append(scored)
         if best is None or score < best_score:
             best, best_score = res.state, score
     return best, len(candidates)
@@ -443,7 +495,7 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
                     gravity_information: GravityInformation | None = None, points=None, free_views=None,
                     max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0,
                     inliers=None, min_rounds: int = 2, tol: float = 1e-6, camera_noise: bool = False,
-                    inlier_sigmas: float | None = None):
+                    inlier_sigmas: float | None = None, offset_sigma=None):
     """Robust joint adjustment: classify observations as inliers (angular error below ``threshold``, rad,
     ``start_factor`` times that at the start, where the poses are only roughly right, and within the given
     ``inliers`` mask, for a start that is already adjusted and classified), adjust on the inliers, re-classify every
@@ -457,7 +509,9 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
     (:func:`hold_camera_noise_scale` of the solve so far, at that solve's sigma, kept fixed), so its covariance
     carries each (hold, camera)'s a posteriori variance factor and the correspondence-bias floor; with measured
     gravity priors that disagree with the solve beyond their stds, vision's noise is inflated by the excess
-    (:func:`measured_gravity_excess`). Returns
+    (:func:`measured_gravity_excess`). ``offset_sigma`` (K, M): the std (rad per axis) of an unknown turn of
+    each hold's camera (a residual ringing nothing measured), which the covariance carries too
+    (:func:`.bundle.offset_covariance`), in every direction at least the model's plus that. Returns
     (BundleResult on the inliers, inlier mask over obs)."""
     state = BundleState(np.asarray(R, float), np.asarray(t, float), gravity,
                         np.zeros((obs.num_points, 3)) if points is None else np.asarray(points, float),
@@ -503,8 +557,14 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
         if np.all(np.isfinite(weighed.covariance)) or not np.all(np.isfinite(res.covariance)):
             res = weighed  # (a weighing that leaves the information singular keeps the solve before it)
             # errors shared within a hold's camera: the covariance holds for them too (cluster-robust)
-            res = replace(res, covariance=cluster_robust_covariance(
-                rig, sub, res, sub.view * rig.num_cameras + sub.cam, huber_k, priors, gravity_information))
+            cluster = sub.view * rig.num_cameras + sub.cam
+            robust = cluster_robust_covariance(rig, sub, res, cluster, huber_k, priors, gravity_information)
+            if offset_sigma is not None:
+                turned = covariance_from_information(res.information) + offset_covariance(
+                    rig, sub, res, cluster, np.asarray(offset_sigma, float).reshape(-1), huber_k, priors,
+                    gravity_information)
+                robust = larger_in_every_direction(robust, turned)
+            res = replace(res, covariance=robust)
     return res, inl
 
 

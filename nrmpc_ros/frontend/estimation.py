@@ -176,8 +176,10 @@ class HoldEstimator:
         scale = self.sequence.noise_scale(ringing_noise_rad(self.rig, hold, obs.cam))
         st.penalized_holds += scale > 1.0
         number = self.sequence.number
+        unknown = None if hold.unknown_ringing_px is None else \
+            hold.unknown_ringing_px / np.array([c.focal_px for c in self.rig.cameras])
         out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale,
-                                     key=hold.stamp, turn=item.turn, offset_rad=offset)
+                                     key=hold.stamp, turn=item.turn, offset_rad=offset, unknown_turn_rad=unknown)
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):

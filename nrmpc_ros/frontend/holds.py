@@ -20,7 +20,10 @@ then decides which frames to use and how much to trust them:
   with their spread as the residual ringing;
 - a hold with one frame (a snapshot) carries the ringing its stop may have
   left, from the IMU's deceleration (or a default load) decayed at the bar's
-  damping; without an IMU it is taken as settled.
+  damping; without an IMU nothing tells when it stopped: it is measured as
+  it stands, and the least ringing a stop of the default load right after
+  the frame before it leaves is an unknown turn of each camera that its
+  covariance carries (``Hold.unknown_ringing_px``).
 
 The ringing a hold may still carry is ``Hold.ringing_px`` (with its source):
 the pipeline turns it into extra bearing noise for the joint estimate.
@@ -232,6 +235,9 @@ class Hold:
     settling: SettlingSeries | None = None  # every camera's image offset over the hold's frames (None: a snapshot)
     ringing_px: float = 0.0  # the residual ringing the measurement may carry (px, largest camera): extra noise
     ringing_source: RingingSource = RingingSource.SETTLED
+    # a snapshot nothing saw stop: per camera the least ringing a stop of holds.stop_load_m_s2 right after the
+    # frame before it leaves (px): not removed, not weighed, an unknown turn the covariance carries (None: none)
+    unknown_ringing_px: np.ndarray | None = None
     trace_t: np.ndarray | None = None  # (F,) stamps of the hold's frames
     trace: np.ndarray | None = None  # (F, M, 2) each camera's image offset from its anchor (NaN: no camera)
     fit: list = field(default_factory=list)  # per camera: the RingingFit of its offsets, or None
@@ -272,6 +278,7 @@ class HoldRecorder:
         self.prediction_at = None  # (stamp, cameras, their image stamps) of a snapshot whose ringing is yet to be
         # predicted: once the IMU's stillness test has decided that instant, at the latest when the hold is measured
         self.jumped = ""  # the camera whose lost tracks opened it inside a stream (a jump, not a lone frame)
+        self.since_previous_s = math.inf  # from the frame set before its first to its first (inf: none before)
 
     def add(self, stamp: float, positions: list, taken: list | None = None) -> None:
         """One frame of the hold at ``stamp``: per camera its tracks' (ids, uv) or None, ``taken`` the stamp of
@@ -332,6 +339,7 @@ class HoldRecorder:
         correction = np.zeros((F, M, 2))  # the fitted ringing removed from every track of a camera
         track_correction = {}  # camera -> (F, n, 2): each track's own fitted ringing, where fitted
         settling = None
+        unknown = None
         if F == 1 and not self.snapshot and imu_still_since is None:
             # a stream's hold cut to one frame (the next one moved, the ones before left it): nothing shows the rig
             # at rest there (a snapshot's stillness is its capture's promise; a stream shows it in its frames)
@@ -343,6 +351,11 @@ class HoldRecorder:
                 ringing_px, source = 0.0, RingingSource.RIGID
             elif imu_still_since is None:
                 ringing_px, source = 0.0, RingingSource.UNKNOWN
+                # the stop came after the frame before (none: any time before): at the least its ringing decayed
+                # over that whole interval
+                # over that whole interval; at a random phase of the swing, along one of the two directions a
+                # bar bends in: a std of half the envelope per axis
+                unknown = 0.5 * bars.envelope(cfg.stop_load_m_s2, self.since_previous_s) * bars.px_per_load
             else:
                 source = RingingSource.IMU if stop_amplitude_px is not None else RingingSource.DEFAULT
                 a0 = stop_amplitude_px if stop_amplitude_px is not None else \
@@ -482,8 +495,8 @@ class HoldRecorder:
         return Hold(start=start, end=float(t[-1]), settled_start=float(t[idx[0]]), settled_end=float(t[idx[-1]]),
                     stamp=float(t[mid]), frames=F, settled_frames=len(idx), residual_px=residual,
                     cameras=cam_holds, snapshot=F == 1, anchor_images=self.anchor_images, ringing=ringing,
-                    ringing_px=ringing_px, ringing_source=source, trace_t=t, trace=trace, fit=fits,
-                    settling=settling), None
+                    ringing_px=ringing_px, ringing_source=source, unknown_ringing_px=unknown, trace_t=t,
+                    trace=trace, fit=fits, settling=settling), None
 
     def settled_duration(self, cfg: HoldConfig, bar_period_s: float, imu_still_since: float | None = None,
                          bars: BarRinging | None = None) -> float:

@@ -510,6 +510,7 @@ class Pipeline:
             anchors.append(trk.positions())
             anchor_images.append(img)
         self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot)
+        self._hold.since_previous_s = stamp - self.last_stamp  # (inf for the first frame set)
         self._hold_rest = [None] * len(anchors)
         self._record(stamp, images, taken)
         self._last_check = stamp
