@@ -469,7 +469,11 @@ class IncrementalSequence:
         its bars may still ring): its observations weigh 1 / noise_scale^2 in every joint solve.
         ``key`` names the view; ``turn`` = (key of an earlier view, R, std rad): the rotation the gyro measured
         from this view's body frame into that view's (p_that = R p_this), a prior of every joint solve with
-        measured gravity while that view precedes this one in the sequence (:class:`~.bundle.RotationPrior`)."""
+        measured gravity while that view precedes this one in the sequence (:class:`~.bundle.RotationPrior`).
+        ``offset_rad``: how far a residual ringing may move each camera's bearings alike (the pair thresholds take
+        it in). ``unknown_turn_rad`` (M,) or one for all: the std (rad per axis) of a turn of each camera nothing
+        measured (a snapshot's ringing without an IMU): the estimate is unchanged, its covariance carries it
+        (:func:`~.bundle.offset_covariance`)."""
         t0 = time.perf_counter()
         cam = np.asarray(cam, dtype=np.int64)
         track = np.asarray(track, dtype=np.int64)
