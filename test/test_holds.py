@@ -13,14 +13,15 @@ from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 RATE = 10.0
 
 
-def record(offsets, noise=0.02, cams=2, n=40, seed=0, missing=(), stamps=None, snapshot=False):
+def record(offsets, noise=0.02, cams=2, n=40, seed=0, missing=(), stamps=None, snapshot=False,
+           since_previous_s=math.inf):
     """A recorder whose frames move every track of camera c by offsets[f] (F, 2) (same for all cameras) plus
     Gaussian noise; frames in ``missing`` lack camera 1; ``stamps`` (F,) the frames' stamps (default f / RATE)."""
     rng = np.random.default_rng(seed)
     ids = np.arange(n)
     base = rng.uniform(20, 300, size=(n, 2))
     anchors = [(ids, base.copy()) for _ in range(cams)]
-    rec = HoldRecorder(0.0, anchors, [None] * cams, snapshot=snapshot)
+    rec = HoldRecorder(0.0, anchors, [None] * cams, snapshot=snapshot, since_previous_s=since_previous_s)
     for f, o in enumerate(offsets):
         pos = []
         for c in range(cams):
@@ -283,8 +284,7 @@ def test_a_snapshot_nothing_saw_stop_carries_the_least_ringing_as_an_unknown_tur
     first snapshot (nothing before it) and a rigid rig carry none, a snapshot the IMU saw stop no unknown turn."""
     cfg = HoldConfig()
     bars = BarRinging(2.5, 0.03, np.array([2.0, 1.0]))
-    rec, _ = record(np.zeros((1, 2)), snapshot=True)
-    rec.since_previous_s = 2.9
+    rec, _ = record(np.zeros((1, 2)), snapshot=True, since_previous_s=2.9)
     hold, _ = rec.measure(cfg, 0.4, bars=bars)
     decay = math.exp(-0.03 * 2 * math.pi * 2.5 * 2.9)
     np.testing.assert_allclose(hold.unknown_ringing_px, 0.5 * cfg.stop_load_m_s2 * decay * np.array([2.0, 1.0]))

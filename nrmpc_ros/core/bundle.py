@@ -1105,31 +1105,11 @@ def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: 
     return _Reduced(e, Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point], D)
 
 
-def offset_covariance(rig: Rig, obs: Observations, res: BundleResult, cluster: np.ndarray,
-                      sigma_rad: np.ndarray, huber_k: float = 3.0, priors: GravityPriors | None = None,
-                      gravity_information: GravityInformation | None = None) -> np.ndarray:
-    """The camera block's covariance that unknown turns of the cameras add: each cluster of observations
-    (``cluster`` (N,), one camera of one hold) turned as one about its camera's centre by a random rotation of
-    std ``sigma_rad`` per axis (``sigma_rad`` (G,) by cluster id, 0 for none), as a residual ringing the
-    images cannot tell (docs/PIPELINE.md, "The joint estimate over the sequence", step 6).
-
-    A turn delta_c moves the residuals by D delta_c, and the solution by -H^-1 A_c delta_c with
-    A_c = sum over the cluster of Jr^T D (landmarks eliminated, as the solve's last step weighed them): the
-    covariance is H^-1 (sum_c sigma_c^2 A_c A_c^T) H^-1. Where the views see a landmark only twice a camera's
-    turn is absorbed by its landmarks and leaves no residual: no residual-based covariance can see it, this
-    one does."""
-    C = covariance_from_information(res.information)
-    nc = C.shape[0]
-    cluster = np.asarray(cluster, np.int64)
-    sig = np.asarray(sigma_rad, float)[cluster] if len(cluster) else np.zeros(0)
-    if nc == 0 or not np.all(np.isfinite(C)) or not np.any(sig > 0):
-        return np.zeros_like(C)
-    red = _reduced_jacobians(rig, obs, res, huber_k, priors, gravity_information)
-    ids, cl = np.unique(cluster, return_inverse=True)
-    A = group_sum(cl, np.einsum("nrc,nrk->nck", red.Jr, red.D), len(ids))  # (G, nc, 3)
-    s2 = np.asarray(sigma_rad, float)[ids] ** 2
-    M = np.einsum("g,gck,gdk->cd", s2, A, A)
-    return C @ M @ C
+def _turn_covariance(red: _Reduced, C: np.ndarray, cl: np.ndarray, s2: np.ndarray) -> np.ndarray:
+    """C (sum_c s2_c A_c A_c^T) C: what random turns of the clusters' cameras (variance ``s2`` (G,) per axis,
+    ``cl`` (N,) each observation's cluster 0..G-1) move the solution by; A_c = sum over the cluster of Jr^T D."""
+    A = group_sum(cl, np.einsum("nrc,nrk->nck", red.Jr, red.D), len(s2))  # (G, nc, 3)
+    return C @ np.einsum("g,gck,gdk->cd", s2, A, A) @ C
 
 
 def larger_in_every_direction(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -1146,7 +1126,8 @@ def larger_in_every_direction(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cluster: np.ndarray,
                               huber_k: float = 3.0, priors: GravityPriors | None = None,
-                              gravity_information: GravityInformation | None = None) -> np.ndarray:
+                              gravity_information: GravityInformation | None = None,
+                              turn_sigma: np.ndarray | None = None) -> np.ndarray:
     """The camera block's covariance of the adjustment ``res`` on ``obs`` that also holds when the errors within
     a cluster of observations (``cluster`` (N,), e.g. one camera of one hold) are correlated: the larger, in
     every direction, of the model's covariance and the jackknife over clusters (docs/PIPELINE.md, "The joint
@@ -1160,22 +1141,39 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     solution: H the information, s_c and H_c the cluster's score and information, landmarks eliminated); the
     spread of those moves, times (G - 1) / G over G clusters, is the jackknife covariance, whatever the
     correlation within a cluster. A cluster whose removal leaves the problem singular counts with its
-    infinitesimal move C s_c."""
+    infinitesimal move C s_c.
+
+    ``turn_sigma`` (by cluster id): the std (rad per axis) of an unknown turn of each cluster's camera about its
+    centre (a residual ringing nothing measured; 0: none). A turn delta_c moves the residuals by D delta_c and
+    the solution by -C A_c delta_c, A_c the sum over the cluster of Jr^T D (landmarks eliminated, as the solve's
+    last step weighed them); where a camera's landmarks are seen in two holds only it leaves no residual, and no
+    jackknife sees it. The covariance is then in every direction at least the model's plus
+    C (sum_c sigma_c^2 A_c A_c^T) C."""
     C = res.covariance
     nc = C.shape[0]
     cluster = np.asarray(cluster, np.int64)
     if nc == 0 or len(obs) != len(cluster) or not np.all(np.isfinite(C)):
         return C
-    _, cl = np.unique(cluster, return_inverse=True)
-    G = int(cl.max()) + 1 if len(cl) else 0
-    if G < 3:
+    ids, cl = np.unique(cluster, return_inverse=True)
+    G = len(ids)
+    s2 = np.zeros(G) if turn_sigma is None else np.asarray(turn_sigma, float)[ids] ** 2
+    if G < 3 and not np.any(s2 > 0):
         return C
     red = _reduced_jacobians(rig, obs, res, huber_k, priors, gravity_information)
+    out = C if G < 3 else _jackknife_covariance(red, cl, G, C, res.information)
+    if np.any(s2 > 0):
+        out = larger_in_every_direction(out, C + _turn_covariance(red, C, cl, s2))
+    return out
+
+
+def _jackknife_covariance(red: _Reduced, cl: np.ndarray, G: int, C: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """The widened jackknife over the G clusters ``cl`` (:func:`cluster_robust_covariance`), in every direction
+    at least the model's C."""
+    nc = C.shape[0]
     Jr, e = red.Jr, red.e
     s_obs = np.einsum("nrc,nr->nc", Jr, e)
     S = group_sum(cl, s_obs, G)
     Hc = group_sum(cl, np.swapaxes(Jr, 1, 2) @ Jr, G)
-    H = res.information
     moves = np.empty((G, nc))
     for c in range(G):  # clusters (holds x cameras), not observations
         A = H - Hc[c]
@@ -1187,7 +1185,7 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
         except np.linalg.LinAlgError:
             moves[c] = C @ S[c]
     d = moves - moves.mean(axis=0)
-    # the larger of the two in every direction: in the model's whitened coordinates, eigenvalues below 1 raised
+    # the jackknife in the model's whitened coordinates, widened along its principal directions
     try:
         Lc = np.linalg.cholesky(0.5 * (C + C.T))
     except np.linalg.LinAlgError:
@@ -1197,7 +1195,7 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     A = dw.T @ dw * ((G - 1.0) / G)
     w, V = np.linalg.eigh(0.5 * (A + A.T))
     w = w * jackknife_widening(dw @ V, G, w)
-    return Lc @ ((V * np.maximum(w, 1.0)) @ V.T) @ Lc.T
+    return larger_in_every_direction(Lc @ ((V * w) @ V.T) @ Lc.T, C)
 
 
 # The coverage a published std promises and the small-sample widening keeps: an error within two of its std, as

@@ -473,7 +473,7 @@ class IncrementalSequence:
         ``offset_rad``: how far a residual ringing may move each camera's bearings alike (the pair thresholds take
         it in). ``unknown_turn_rad`` (M,) or one for all: the std (rad per axis) of a turn of each camera nothing
         measured (a snapshot's ringing without an IMU): the estimate is unchanged, its covariance carries it
-        (:func:`~.bundle.offset_covariance`)."""
+        (:func:`~.bundle.cluster_robust_covariance`)."""
         t0 = time.perf_counter()
         cam = np.asarray(cam, dtype=np.int64)
         track = np.asarray(track, dtype=np.int64)

@@ -31,9 +31,6 @@ from .bundle import (
     adjust_bundle,
     camera_noise_factors,
     cluster_robust_covariance,
-    covariance_from_information,
-    larger_in_every_direction,
-    offset_covariance,
     robust_sigma,
 )
 from .estimators import RIGID_REASON, EstimatorOptions, estimate, pair_method
@@ -382,9 +379,9 @@ class CandidateScore:
         return self.msac_rad2 / noise_rad ** 2 + self.prior_chi2
 
 
-def _scored(gravity, prob: SequenceBundleProblem, state: BundleState, threshold: float, prior_chi2: float,
+def _scored(gravity, prob: SequenceBundleProblem, e: np.ndarray, threshold: float, prior_chi2: float,
             num_params: int) -> CandidateScore:
-    e = prob.residuals(state)
+    """The :class:`CandidateScore` of residuals ``e`` (N, 2) of ``prob``'s observations."""
     seen = np.bincount(prob.obs.point, minlength=prob.obs.num_points)
     tied = seen[prob.obs.point] >= 2  # a landmark seen once fits its ray exactly: no error to measure
     noise = robust_sigma(prob.unwhitened(e)[tied], int(np.count_nonzero(seen >= 2)), num_params) \
@@ -427,8 +424,9 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
     quick, within = [], []
     for g0, (Ri, ti) in zip(candidates, starts):
         st, prob = triangulated(rig, obs, BundleState(Ri, ti, g0, np.zeros((obs.num_points, 3))))
-        quick.append(_scored(g0, prob, st, threshold, prior_chi2(st), num_params))
-        within.append(observation_errors(prob, st) < threshold)
+        e = prob.residuals(st)
+        quick.append(_scored(g0, prob, e, threshold, prior_chi2(st), num_params))
+        within.append(np.linalg.norm(e, axis=1) < threshold)
     order = np.argsort([q.chi2(noise) for q in quick])
     keep = order[: opts.refined_candidates]
     if scores is not None:
@@ -449,7 +447,7 @@ def choose_gravity(rig, obs, R, t, candidates, priors, threshold, opts: Sequence
                             free_views=free_views, max_iterations=opts.candidate_iterations,
                             sigma_rad=threshold / 2.0, tol=1e-3)
         st, prob = triangulated(rig, obs, res.state)
-        scored = _scored(res.state.gravity, prob, st, threshold, prior_chi2(res.state), num_params)
+        scored = _scored(res.state.gravity, prob, prob.residuals(st), threshold, prior_chi2(res.state), num_params)
         score = scored.chi2(noise)
         if scores is not None:
             scores.append(scored)
@@ -511,7 +509,7 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
     gravity priors that disagree with the solve beyond their stds, vision's noise is inflated by the excess
     (:func:`measured_gravity_excess`). ``offset_sigma`` (K, M): the std (rad per axis) of an unknown turn of
     each hold's camera (a residual ringing nothing measured), which the covariance carries too
-    (:func:`.bundle.offset_covariance`), in every direction at least the model's plus that. Returns
+    (:func:`.bundle.cluster_robust_covariance`). Returns
     (BundleResult on the inliers, inlier mask over obs)."""
     state = BundleState(np.asarray(R, float), np.asarray(t, float), gravity,
                         np.zeros((obs.num_points, 3)) if points is None else np.asarray(points, float),
@@ -557,14 +555,9 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
         if np.all(np.isfinite(weighed.covariance)) or not np.all(np.isfinite(res.covariance)):
             res = weighed  # (a weighing that leaves the information singular keeps the solve before it)
             # errors shared within a hold's camera: the covariance holds for them too (cluster-robust)
-            cluster = sub.view * rig.num_cameras + sub.cam
-            robust = cluster_robust_covariance(rig, sub, res, cluster, huber_k, priors, gravity_information)
-            if offset_sigma is not None:
-                turned = covariance_from_information(res.information) + offset_covariance(
-                    rig, sub, res, cluster, np.asarray(offset_sigma, float).reshape(-1), huber_k, priors,
-                    gravity_information)
-                robust = larger_in_every_direction(robust, turned)
-            res = replace(res, covariance=robust)
+            res = replace(res, covariance=cluster_robust_covariance(
+                rig, sub, res, sub.view * rig.num_cameras + sub.cam, huber_k, priors, gravity_information,
+                None if offset_sigma is None else np.asarray(offset_sigma, float).reshape(-1)))
     return res, inl
 
 

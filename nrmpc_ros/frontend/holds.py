@@ -264,8 +264,10 @@ class Hold:
 class HoldRecorder:
     """The frames of the hold being recorded: per frame its stamp and every camera's (ids, uv)."""
 
-    def __init__(self, start: float, anchors: list, anchor_images: list, snapshot: bool = False):
-        """anchors: per camera (ids, uv) of the anchor frame or None; start: when the rig stopped."""
+    def __init__(self, start: float, anchors: list, anchor_images: list, snapshot: bool = False,
+                 since_previous_s: float = math.inf):
+        """anchors: per camera (ids, uv) of the anchor frame or None; start: when the rig stopped;
+        ``since_previous_s``: from the frame set before its first to its first (inf: none before)."""
         self.start = float(start)
         self.anchors = anchors
         self.anchor_images = anchor_images
@@ -278,7 +280,7 @@ class HoldRecorder:
         self.prediction_at = None  # (stamp, cameras, their image stamps) of a snapshot whose ringing is yet to be
         # predicted: once the IMU's stillness test has decided that instant, at the latest when the hold is measured
         self.jumped = ""  # the camera whose lost tracks opened it inside a stream (a jump, not a lone frame)
-        self.since_previous_s = math.inf  # from the frame set before its first to its first (inf: none before)
+        self.since_previous_s = float(since_previous_s)
 
     def add(self, stamp: float, positions: list, taken: list | None = None) -> None:
         """One frame of the hold at ``stamp``: per camera its tracks' (ids, uv) or None, ``taken`` the stamp of
@@ -352,7 +354,6 @@ class HoldRecorder:
             elif imu_still_since is None:
                 ringing_px, source = 0.0, RingingSource.UNKNOWN
                 # the stop came after the frame before (none: any time before): at the least its ringing decayed
-                # over that whole interval
                 # over that whole interval; at a random phase of the swing, along one of the two directions a
                 # bar bends in: a std of half the envelope per axis
                 unknown = 0.5 * bars.envelope(cfg.stop_load_m_s2, self.since_previous_s) * bars.px_per_load

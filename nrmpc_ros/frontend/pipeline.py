@@ -509,8 +509,7 @@ class Pipeline:
             trk.start_hold(top_up)
             anchors.append(trk.positions())
             anchor_images.append(img)
-        self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot)
-        self._hold.since_previous_s = stamp - self.last_stamp  # (inf for the first frame set)
+        self._hold = HoldRecorder(stamp, anchors, anchor_images, snapshot, stamp - self.last_stamp)
         self._hold_rest = [None] * len(anchors)
         self._record(stamp, images, taken)
         self._last_check = stamp
