@@ -62,9 +62,9 @@ KEEP_FRAMES = 5_000
 1 kHz."""
 
 FRAME_LAGS = 1.5
-"""The bent cameras' refinement searches this many frame periods around the gyro's lag: the bars' response lags
-the body by tens of ms for bars of a few Hz (see :class:`ImuClockEstimator`), about one frame period of cameras at
-10-30 Hz, searched with half a period to spare."""
+"""The spread of the bent cameras' peak is read finely over this many frame periods either side of it (and coarsely
+over the whole range, :func:`_bent_grid_step`): the bars' response lags the body by tens of ms for bars of a few
+Hz (see :class:`ImuClockEstimator`), about one frame period of cameras at 10-30 Hz, with half a period to spare."""
 
 
 FAR_GRID_FRACTION = 0.25
@@ -177,7 +177,10 @@ class ImuClockEstimator:
     The estimate is then refined against each camera's predicted rotation over each frame interval, the
     body's (the gyro integrated) plus the change of its bar's bend (:class:`~nrmpc_ros.core.bar_state.
     BarPropagator` on the shifted IMU stream), across the camera's optical axis (the rotation the image
-    shows as motion).
+    shows as motion), over every lag of the range: the images of ringing bars move twice per period of the bars,
+    and their correlation with the prediction peaks that often, so the peak next to the body's lag need not be the
+    clock's (cameras that record only the holds see nothing but ringing, and a lag of a few tens of ms lines the
+    gyro's stops up with it).
     """
 
     def __init__(self, rig=None):
@@ -238,13 +241,19 @@ class ImuClockEstimator:
             from scipy.optimize import minimize_scalar
 
             axis, span = self.rig.rotations[:, :, 2], FRAME_LAGS * np.median(b - a)
+            # every lag of the range: the images' ringing makes the bent cameras' correlation peak again every half
+            # period of the bars, so the peak near the body's lag need not be the clock's
+            step = _bent_grid_step(self.rig, float(np.median(b - a)))
+            grid = np.arange(-MAX_LAG_S, MAX_LAG_S + step / 2, step)
+            k = int(np.argmax([_camera_correlation(bent, t, a, b, y, axis, d) for d in grid]))
             res = minimize_scalar(lambda d: -_camera_correlation(bent, t, a, b, y, axis, d), method="bounded",
-                                  bounds=(lag - span, lag + span), options={"xatol": LAG_TOLERANCE_S})
+                                  bounds=(grid[k] - step, grid[k] + step), options={"xatol": LAG_TOLERANCE_S})
             if -float(res.fun) > best:  # the bent cameras explain the images better than the body alone
                 lag, best, bars_unexplained = float(res.x), -float(res.fun), False
-                lags = np.arange(lag - span, lag + span, max(LAG_STEP_S, span / BENT_SPREAD_LAGS))
-                pred = np.stack([_across_rates(_interp_rows(b_ + d, t, bent) - _interp_rows(a_ + d, t, bent), axis,
-                                               b_ - a_) for d in lags])
+                # the spread over the whole range (a rival peak the resamples prefer is part of it), finely near
+                lags = np.union1d(grid, np.arange(lag - span, lag + span, max(LAG_STEP_S, span / BENT_SPREAD_LAGS)))
+                pred = lambda d: _across_rates(_interp_rows(b_ + d, t, bent) - _interp_rows(a_ + d, t, bent),  # noqa: E731
+                                               axis, b_ - a_)
                 meas = y[ok]
         if best < MIN_CORRELATION:
             return None
@@ -411,20 +420,33 @@ def _camera_correlation(rotation, t, a, b, y, axis, lag: float) -> float:
 
 def _lag_spread(lags, pred, meas, segment, moves: int) -> float:
     """Standard deviation (s) of the peak lag of the correlation of the predicted rates ``pred`` (L lags, F frames,
-    K channels) with the measured ``meas`` (F, K; NaN: none) over resamples of the moves (each frame's move
-    ``segment``), from the moves' sums."""
+    K channels; or a function of the lag giving (F, K)) with the measured ``meas`` (F, K; NaN: none) over resamples
+    of the moves (each frame's move ``segment``), from the moves' sums."""
     use = np.isfinite(meas)
     meas = np.where(use, meas, 0.0)
-    pred = np.where(use[None], pred, 0.0)
     onehot = np.eye(moves)[segment]  # (F, moves)
-    L = len(lags)
-    per_move = np.stack([np.broadcast_to(use.sum(1) @ onehot, (L, moves)), pred.sum(2) @ onehot,
-                         np.broadcast_to(meas.sum(1) @ onehot, (L, moves)), (pred * pred).sum(2) @ onehot,
-                         np.broadcast_to((meas * meas).sum(1) @ onehot, (L, moves)),
-                         (pred * meas[None]).sum(2) @ onehot], axis=-1)
+    fixed = np.stack([use.sum(1) @ onehot, meas.sum(1) @ onehot, (meas * meas).sum(1) @ onehot])  # (3, moves)
+    per_move = np.empty((len(lags), moves, 6))
+    per_move[:, :, 0], per_move[:, :, 2], per_move[:, :, 4] = fixed
+    for i, d in enumerate(lags):  # lags, not frames: each a pass over the frames
+        p = np.where(use, pred(d) if callable(pred) else pred[i], 0.0)
+        per_move[i, :, 1], per_move[i, :, 3], per_move[i, :, 5] = \
+            p.sum(1) @ onehot, (p * p).sum(1) @ onehot, (p * meas).sum(1) @ onehot
     weights = np.random.default_rng(0).dirichlet(np.ones(moves), size=LAG_RESAMPLES) * moves
     peaks = lags[np.argmax(_from_sums(np.einsum("bm,lmk->blk", weights, per_move)), axis=1)]
     return float(np.std(peaks))
+
+
+def _bent_grid_step(rig, frame_s: float) -> float:
+    """Grid (s) of the bent cameras' lag search: an eighth of the shorter of a frame interval and half the fastest
+    bar's period (the images' rate peaks twice per period of a ringing bar), so that no peak falls between two
+    lags; never finer than :data:`LAG_STEP_S`."""
+    from ..core.dynamics import bar_natural_frequencies
+
+    f = bar_natural_frequencies(rig)
+    f = f[np.isfinite(f)]
+    half_period = 0.5 / float(f.max()) if len(f) else math.inf
+    return max(LAG_STEP_S, min(frame_s, half_period) / 8.0)
 
 
 def _gyro_moving(t, integral, a, b, lag: float) -> np.ndarray:
