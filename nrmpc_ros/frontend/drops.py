@@ -101,6 +101,7 @@ class Drop(Enum):
     HOLD_NO_TRACKS = f"hold not used: {Refusal.NO_TRACKS.value}", Stage.PIPELINE
     HOLD_NOT_STILL = f"hold not used: {Refusal.NOT_STILL.value}", Stage.PIPELINE
     HOLD_TRACKS_LOST = f"hold not used: {Refusal.TRACKS_LOST.value}", Stage.PIPELINE
+    HOLD_TURNING = f"hold not used: {Refusal.TURNING.value}", Stage.PIPELINE
     HOLD_FORCED_WITHOUT_IMU = "hold without IMU gravity (4pt-bending forced)", Stage.PIPELINE
     HOLD_IMU_REFUTED = ("hold not published: the images refuted its IMU gravity, and its sequence rests on the "
                         "same IMU's"), Stage.PIPELINE
@@ -152,7 +153,8 @@ _IMU_SAMPLE = {ImuReject.WRONG_SHAPE: Drop.IMU_SAMPLE_WRONG_SHAPE, ImuReject.NOT
 _NOT_AT_REST = {MotionKind.IMU_MOVED: Drop.NOT_AT_REST_IMU, MotionKind.TRACKS_LOST: Drop.NOT_AT_REST_TRACKS_LOST,
                 MotionKind.IMAGE_MOVED: Drop.NOT_AT_REST_IMAGE_MOVED, MotionKind.LEFT_HOLD: Drop.NOT_AT_REST_LEFT_HOLD}
 _HOLD_REFUSED = {Refusal.NO_FRAMES: Drop.HOLD_NO_FRAMES, Refusal.NO_TRACKS: Drop.HOLD_NO_TRACKS,
-                 Refusal.NOT_STILL: Drop.HOLD_NOT_STILL, Refusal.TRACKS_LOST: Drop.HOLD_TRACKS_LOST}
+                 Refusal.NOT_STILL: Drop.HOLD_NOT_STILL, Refusal.TRACKS_LOST: Drop.HOLD_TRACKS_LOST,
+                 Refusal.TURNING: Drop.HOLD_TURNING}
 _NO_IMU_GRAVITY = {ImuRefusal.NO_IMU_BLOCK: Drop.NO_IMU_GRAVITY_NO_BLOCK,
                    ImuRefusal.NO_SAMPLES: Drop.NO_IMU_GRAVITY_NO_SAMPLES,
                    ImuRefusal.FEW_SAMPLES: Drop.NO_IMU_GRAVITY_FEW_SAMPLES,

@@ -64,6 +64,7 @@ class Refusal(Enum):
     NO_TRACKS = "no camera had enough tracks"
     NOT_STILL = "the image never settled (the rig moved)"
     TRACKS_LOST = "too few tracks lasted through the settled frames"
+    TURNING = "the IMU says the rig turned steadily through it"
 
 
 @dataclass(frozen=True)

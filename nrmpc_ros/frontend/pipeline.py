@@ -37,7 +37,7 @@ from .drops import Drop, sorted_counts
 from .estimation import HoldEstimate, HoldEstimator, MeasuredHold, SequenceReset
 from .extrinsics import CameraPoses, FrameExtrinsics
 from .gyro import CameraTurns, rotation_between
-from .holds import BarRinging, Hold, HoldConfig, HoldRecorder, Refusal, RingingSource, slowest_bar_period
+from .holds import BarRinging, Hold, HoldConfig, HoldRecorder, HoldRefusal, Refusal, RingingSource, slowest_bar_period
 from .imu import ImuBuffer, ImuConfig, ImuGravity, _vec3
 from .imu_clock import ImuClockEstimator
 from .imu_clock_check import MeasuredClockOffset, offset_from_moves
@@ -47,11 +47,15 @@ from .noise_correlation import mean_variance_factor
 from .patch_align import PatchAlignConfig
 from .ringing_watch import RingingWatch
 from .snapshot_ringing import correct_pixels, correction_rotations, predict, residual_px, uncertainty
+from .steady_turn import creep_span, steady_turn
 from .tracking import HoldThinning, KltTracker, TrackingConfig
 from .zupt import ZuptConfig, ZuptDetector, describe_noise, ringing_damping
 from .zupt import for_rig as zupt_for_rig
 
 PIPELINE_METHODS = ("auto",) + METHODS
+# the IMU's samples either side of a hold a slow turn through it is looked for in (s): the longest hold the
+# windowed stillness test may have cut into pieces
+CREEP_LOOKAROUND_S = 10.0
 RECENT_PERIODS = 20  # the frame period is the median of this many recent intervals (robust to drops and gaps)
 
 
@@ -727,6 +731,10 @@ class Pipeline:
         hold, why = rec.measure(self.config.holds, self.bar_period_s, since, self.bars,
                                 self._stop_amplitude_px(rec, since))
         if hold is not None:
+            turned = self._steady_turn(hold)
+            if turned is not None:
+                hold, why = None, turned
+        if hold is not None:
             self._remove_predicted_ringing(rec, hold)
         attempt = HoldAttempt(rec.start, rec.stamps[-1] if len(rec) else rec.start, len(rec), hold,
                               str(why) if why is not None else "")
@@ -778,9 +786,21 @@ class Pipeline:
                                 self.config.imu.gyro_scale_error)
         return None if turn is None else (before.stamp, turn.R, turn.sigma_rad)
 
-    def _imu_gravity(self, hold: Hold) -> ImuGravity | None:
-        if self.rig.imu is None or not len(self.imu):
+    def _steady_turn(self, hold: Hold) -> HoldRefusal | None:
+        """The refusal of a hold the body turned through (:mod:`.steady_turn`: the gyro's mean rate over the span
+        its IMU gravity averages), else None; None too without an IMU or its noise."""
+        noise = self.zupt.noise if self.rig.imu is not None and len(self.imu) else None
+        if noise is None:
             return None
+        t0, t1 = self._imu_span(hold)
+        t, _, w = self.imu.window(t0 - CREEP_LOOKAROUND_S, t1 + CREEP_LOOKAROUND_S)
+        t0, t1 = creep_span(t, w, noise, self.zupt.config, t0, t1)
+        inside = (t >= t0) & (t <= t1)
+        turn = steady_turn(t[inside], w[inside], noise, self.zupt.config, self.imu.ringing_hz)
+        return HoldRefusal(Refusal.TURNING, turn.describe()) if turn is not None and turn.turning else None
+
+    def _imu_span(self, hold: Hold) -> tuple:
+        """(t0, t1): the IMU's samples a hold's gravity averages."""
         t0, t1 = hold.settled_start, hold.settled_end
         ringing = self.imu.ringing_hz > 0
         if hold.snapshot or (ringing and t1 - t0 < 1.0 / self.imu.ringing_hz):
@@ -798,6 +818,12 @@ class Pipeline:
                 t1 = max(t1, min(run[1], t0 + after))
             elif hold.snapshot:
                 t0 = t1 - self.imu.pad_s
+        return t0, t1
+
+    def _imu_gravity(self, hold: Hold) -> ImuGravity | None:
+        if self.rig.imu is None or not len(self.imu):
+            return None
+        t0, t1 = self._imu_span(hold)
         imu, why = self.imu.gravity(t0, t1)
         if imu is None:
             self.stats.dropped[Drop.no_imu_gravity(why.rule)] += 1

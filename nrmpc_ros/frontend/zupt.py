@@ -154,6 +154,10 @@ class ZuptConfig:
     max_gyro_bias_rad_s: float = option(0.05, "the gyro bias estimated from the data is at most this (rad/s; MEMS "
                                         "gyros stay within a few deg/s): a steady turn is motion, not bias",
                                         lo=0.0, hi=10.0)
+    gyro_bias_stability_rad_s: float = option(
+        5.2e-4, "how far the gyro's bias may stray over a recording from the one estimated from its still windows "
+        "(rad/s; a MEMS gyro's in-run instability and a few degrees of warming: 0.03 deg/s): a hold whose mean "
+        "rate stands out of it and the noise turned steadily (:mod:`.steady_turn`)", lo=0.0, hi=1.0, lo_open=True)
 
     # the bar the IMU rides on: its damping and static bend (:func:`.mount_ringing.mount_bar`); set from the rig
     # file by :func:`for_rig`, not an option
