@@ -649,3 +649,36 @@ def test_holds_the_body_creeps_through_below_the_windowed_tests_limit_give_no_es
     ev = evaluate([row_from_estimate(e) for e in ests], ref, rig)
     assert ev.outside_holds == 0 and pipe.stats.dropped[Drop.HOLD_TURNING] >= 1, pipe.stats.dropped
     assert ev.holds_with_estimate == ev.holds - 1 >= 2, pipe.stats.dropped
+
+
+@pytest.mark.slow
+def test_snapshots_sooner_after_the_stop_than_half_a_stillness_window_are_estimated(tmp_path):
+    """Snapshots 0.05 s after each stop with a 50 Hz IMU: the windowed stillness test's runs start 0.09 s after the
+    stop (half its window), so every snapshot was taken for a move (none estimated). Every sample from the
+    snapshot to the run reads still on its own: each hold after the first is estimated, its IMU gravity from the
+    samples after the image, its ringing from the stop found sample by sample, within three of its stds."""
+    from nrmpc_ros.bag.reader import BagReader
+    from nrmpc_ros.cli.main import main
+    from nrmpc_ros.core import load_rig
+    from nrmpc_ros.frontend.estimates_csv import row_from_estimate
+    from nrmpc_ros.frontend.evaluation import evaluate
+    from nrmpc_ros.frontend.reference import read_reference
+    from nrmpc_ros.frontend.replay import replay_bag, resolve_imu_topic
+
+    path, rig_file = tmp_path / "bag", tmp_path / "rig.yaml"
+    assert main(["make-bag", "--out", str(path), "--save-rig", str(rig_file), "--resolution", "320x240",
+                 "--cameras", "3", "--layout", "ring", "--bar-hz", "5", "--damping", "0.05", "--capture", "snapshot",
+                 "--snapshot-delay", "0.05", "--imu-rate", "50", "--views", "5", "--seed", "92", "--supersample", "1",
+                 "--no-progress"]) == 0
+    rig = load_rig(rig_file)
+    pipe = Pipeline(rig, PipelineConfig(), method="4pt-bending")
+    with BagReader(path) as bag:
+        imu_topic = resolve_imu_topic(bag, rig, warn=lambda m: None)
+        ests = [e for es in replay_bag(bag, rig, pipe, imu_topic, warn=lambda m: None) for e in es]
+        ref = read_reference(bag, imu_topic)
+    ev = evaluate([row_from_estimate(e) for e in ests], ref, rig)
+    assert pipe.stats.dropped[Drop.SNAPSHOT_MOVED] == 0, pipe.stats.dropped
+    assert ev.holds_with_estimate == ev.holds - 1 == 4 and ev.outside_holds == 0, pipe.stats.dropped
+    for e in ests:
+        g = ref.grav_g[int(np.argmin(np.abs(ref.grav_t - e.stamp)))]
+        assert math.degrees(angle_between(e.gravity, g)) <= 3.0 * e.gravity_sigma_deg

@@ -293,6 +293,26 @@ def test_the_still_run_of_a_hold_spans_the_hold_and_a_move_has_none(rng, imu_rat
     assert det.still_run(holds[-1][0] + 1.0)[1] == t[-1]
 
 
+@pytest.mark.parametrize("imu_rate", [50.0, 100.0, 200.0, 1000.0])
+def test_a_snapshot_sooner_after_the_stop_than_half_a_window_is_still_sample_by_sample(rng, imu_rate):
+    """A still run of the windowed test starts half a window after the stop (0.09 s at 50 Hz): an instant 0.02-0.05
+    s after the stop lies before it, and every sample since reads still on its own, so it leads into that run,
+    which starts at the stop found sample by sample. An instant inside the move, or 0.05 s before the stop, does
+    not (its samples read the move)."""
+    plan = [("hold", 3.0), ("move", 1.0), ("hold", 2.0), ("move", 1.0), ("hold", 2.0)]
+    t, a, w, holds = trace(rng, imu_rate, plan)
+    det = ZuptDetector(noise=estimate_noise(t, a, w))
+    for k in range(len(t)):
+        det.add(t[k], a[k], w[k])
+    for h0, h1 in holds[1:]:
+        for after in (0.02, 0.05):
+            first, last = det.leading_run(h0 + after)
+            assert h0 - 0.06 <= first <= h0 + after and abs(last - h1) <= 0.1, (after, first, h0)
+        assert det.leading_run(h0 - 0.05) is None and det.leading_run(h0 - 0.5) is None
+    if imu_rate == 50.0:  # the windowed test alone takes both instants for the move
+        assert det.is_still(holds[1][0] + 0.02, holds[1][0] + 0.02) is False
+
+
 @pytest.mark.parametrize("imu_rate", [50.0, 200.0, 1000.0])
 def test_an_instant_moments_after_a_stop_is_decided_half_a_window_later_in_a_run_of_any_length(rng, imu_rate):
     """0.15 s after a stop (less than a stillness window and its shortest run at 50 Hz, 0.18 s, past the half

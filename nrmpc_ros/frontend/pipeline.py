@@ -609,6 +609,9 @@ class Pipeline:
     def _imu_still_since(self, hold: HoldRecorder):
         if self.rig.imu is None or not len(self.imu):
             return None
+        if hold.snapshot and len(hold) == 1:  # a snapshot moments after the stop: the stop found sample by sample
+            run = self.zupt.leading_run(hold.stamps[0])
+            return None if run is None else run[0]
         return self.zupt.still_since(hold.stamps[0])
 
     def _measure_early(self, stamp: float) -> list:
@@ -635,10 +638,10 @@ class Pipeline:
         if h is None or h.measured:
             return []
         if h.snapshot and len(h) == 1 and self.rig.imu is not None and len(self.imu):
-            # the rig must be still when the image was taken: its instant in a still run of the IMU (which starts
-            # half a stillness window after the stop; a snapshot taken sooner cannot be told from the move)
+            # the rig must be still when the image was taken: its instant in a still run of the IMU, or before one
+            # (which starts half a stillness window after the stop) with every sample since reading still
             t = h.stamps[0]
-            if self.zupt.is_still(t, t) is False:
+            if self.zupt.is_still(t, t) is False and self.zupt.leading_run(t) is None:
                 self.stats.dropped[Drop.SNAPSHOT_MOVED] += 1
                 return []
         elif h.snapshot and len(h) == 1 and h.jumped:
@@ -690,6 +693,9 @@ class Pipeline:
                 or self.estimator.imu_check.refuted:
             return
         since = self.zupt.still_since(t, any_length=True)
+        if since is None:  # a snapshot moments after the stop, before a run of the windowed test
+            run = self.zupt.leading_run(t)
+            since = None if run is None else run[0]
         if since is None:
             return
         # the accelerometer's bias cancels in the ringing (docs/PIPELINE.md, "Settling"): the estimation stage's
@@ -811,7 +817,7 @@ class Pipeline:
             # hold whose frames span less than a period of that ringing (images ringing by tens of pixels split a
             # hold the IMU holds still; over 0.33 s of a 1.5 Hz bar the mean was 5.7 deg off); its run is found
             # from either end of its frames (the test's window ends a run up to half a window before the move)
-            run = self.zupt.still_run(t1) or self.zupt.still_run(t0)
+            run = self.zupt.leading_run(t1) if hold.snapshot else self.zupt.still_run(t1) or self.zupt.still_run(t0)
             if run is not None:
                 t0 = min(t0, max(run[0], t1 - self.config.holds.measure_s))
                 after = self.config.holds.measure_s if ringing else self.imu.pad_s
