@@ -620,13 +620,9 @@ def test_klt_starts_from_the_imu_turn_through_the_moves(rig3, stream):
     assert full[True] < 0.7 * full[False] and levels[True] < levels[False]
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("imu_rate", [50, 200])
-def test_holds_the_body_creeps_through_below_the_windowed_tests_limit_give_no_estimate(tmp_path, imu_rate):
-    """Half the holds creep at 0.2 deg/s, about the windowed stillness test's limit at 50-200 Hz: it flickers
-    there and cuts each creeping hold into pieces of a tenth of a second, each of which passed as still (and was
-    estimated). Tested over the stretch of the creep, the gyro's mean rate refuses them; every still hold after
-    the first is estimated."""
+def _made_and_replayed(tmp_path, make_bag_args: list, method: str = "4pt-bending"):
+    """``nrmpc make-bag`` with these flags (320x240, one ray per pixel), replayed: (pipeline, estimates, reference,
+    evaluation)."""
     from nrmpc_ros.bag.reader import BagReader
     from nrmpc_ros.cli.main import main
     from nrmpc_ros.core import load_rig
@@ -637,16 +633,27 @@ def test_holds_the_body_creeps_through_below_the_windowed_tests_limit_give_no_es
 
     path, rig_file = tmp_path / "bag", tmp_path / "rig.yaml"
     assert main(["make-bag", "--out", str(path), "--save-rig", str(rig_file), "--resolution", "320x240",
-                 "--cameras", "3", "--layout", "ring", "--bar-hz", "4", "--damping", "0.03", "--capture", "holds",
-                 "--rate", "15", "--imu-rate", str(imu_rate), "--creep-fraction", "0.5", "--creep-deg-per-s", "0.2",
-                 "--views", "7", "--seed", "79", "--supersample", "1", "--no-progress"]) == 0
+                 "--supersample", "1", "--no-progress", *make_bag_args]) == 0
     rig = load_rig(rig_file)
-    pipe = Pipeline(rig, PipelineConfig(), method="4pt-bending")
+    pipe = Pipeline(rig, PipelineConfig(), method=method)
     with BagReader(path) as bag:
         imu_topic = resolve_imu_topic(bag, rig, warn=lambda m: None)
         ests = [e for es in replay_bag(bag, rig, pipe, imu_topic, warn=lambda m: None) for e in es]
         ref = read_reference(bag, imu_topic)
-    ev = evaluate([row_from_estimate(e) for e in ests], ref, rig)
+    return pipe, ests, ref, evaluate([row_from_estimate(e) for e in ests], ref, rig)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("imu_rate", [50, 200])
+def test_holds_the_body_creeps_through_below_the_windowed_tests_limit_give_no_estimate(tmp_path, imu_rate):
+    """Half the holds creep at 0.2 deg/s, about the windowed stillness test's limit at 50-200 Hz: it flickers
+    there and cuts each creeping hold into pieces of a tenth of a second, each of which passed as still (and was
+    estimated). Tested over the stretch of the creep, the gyro's mean rate refuses them; every still hold after
+    the first is estimated."""
+    pipe, _, _, ev = _made_and_replayed(tmp_path, [
+        "--cameras", "3", "--layout", "ring", "--bar-hz", "4", "--damping", "0.03", "--capture", "holds", "--rate",
+        "15", "--imu-rate", str(imu_rate), "--creep-fraction", "0.5", "--creep-deg-per-s", "0.2", "--views", "7",
+        "--seed", "79"])
     assert ev.outside_holds == 0 and pipe.stats.dropped[Drop.HOLD_TURNING] >= 1, pipe.stats.dropped
     assert ev.holds_with_estimate == ev.holds - 1 >= 2, pipe.stats.dropped
 
@@ -657,26 +664,9 @@ def test_snapshots_sooner_after_the_stop_than_half_a_stillness_window_are_estima
     stop (half its window), so every snapshot was taken for a move (none estimated). Every sample from the
     snapshot to the run reads still on its own: each hold after the first is estimated, its IMU gravity from the
     samples after the image, its ringing from the stop found sample by sample, within three of its stds."""
-    from nrmpc_ros.bag.reader import BagReader
-    from nrmpc_ros.cli.main import main
-    from nrmpc_ros.core import load_rig
-    from nrmpc_ros.frontend.estimates_csv import row_from_estimate
-    from nrmpc_ros.frontend.evaluation import evaluate
-    from nrmpc_ros.frontend.reference import read_reference
-    from nrmpc_ros.frontend.replay import replay_bag, resolve_imu_topic
-
-    path, rig_file = tmp_path / "bag", tmp_path / "rig.yaml"
-    assert main(["make-bag", "--out", str(path), "--save-rig", str(rig_file), "--resolution", "320x240",
-                 "--cameras", "3", "--layout", "ring", "--bar-hz", "5", "--damping", "0.05", "--capture", "snapshot",
-                 "--snapshot-delay", "0.05", "--imu-rate", "50", "--views", "5", "--seed", "92", "--supersample", "1",
-                 "--no-progress"]) == 0
-    rig = load_rig(rig_file)
-    pipe = Pipeline(rig, PipelineConfig(), method="4pt-bending")
-    with BagReader(path) as bag:
-        imu_topic = resolve_imu_topic(bag, rig, warn=lambda m: None)
-        ests = [e for es in replay_bag(bag, rig, pipe, imu_topic, warn=lambda m: None) for e in es]
-        ref = read_reference(bag, imu_topic)
-    ev = evaluate([row_from_estimate(e) for e in ests], ref, rig)
+    pipe, ests, ref, ev = _made_and_replayed(tmp_path, [
+        "--cameras", "3", "--layout", "ring", "--bar-hz", "5", "--damping", "0.05", "--capture", "snapshot",
+        "--snapshot-delay", "0.05", "--imu-rate", "50", "--views", "5", "--seed", "92"])
     assert pipe.stats.dropped[Drop.SNAPSHOT_MOVED] == 0, pipe.stats.dropped
     assert ev.holds_with_estimate == ev.holds - 1 == 4 and ev.outside_holds == 0, pipe.stats.dropped
     for e in ests:
