@@ -19,6 +19,7 @@ from nrmpc_ros.frontend.zupt import (
     NoiseSource,
     ZuptConfig,
     ZuptDetector,
+    describe_accel_scale,
     describe_noise,
     estimate_noise,
     for_rig,
@@ -763,3 +764,15 @@ def test_the_mean_of_filtered_noise_varies_as_its_correlation_says(rng):
     factor = mean_variance_factor(noise.accel_correlation, n)
     assert factor > 4.0 and factor == pytest.approx(measured, rel=0.25)
     assert mean_variance_factor(np.ones(1), n) == 1.0
+
+
+@pytest.mark.parametrize("scale, said, unit", [(1.0, False, False), (1.05, False, False), (1.0 / 9.81, True, True),
+                                               (1.2, True, False)])
+def test_an_accelerometer_off_gravitys_scale_is_said(rng, scale, said, unit):
+    """A driver that publishes g instead of m/s^2 (REP 145) reads 1.0 at rest: directions stand, magnitudes are
+    read ten times too small; said with the number, and not within a MEMS accelerometer's few percent."""
+    t, a, w = still_trace(rng)
+    text = describe_accel_scale(estimate_noise(t, a * scale, w), 9.81)
+    assert (text is not None) == said
+    if said:
+        assert f"{np.linalg.norm([0.2, -0.1, 9.8]) * scale:.3g}" in text and ("units of g" in text) == unit

@@ -32,7 +32,7 @@ from ..frontend.runner import PipelineRunner
 from ..frontend.topics import bag_image_topics
 from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
-from ..frontend.zupt import describe_noise
+from ..frontend.zupt import describe_accel_scale, describe_noise
 from ..safeio import check_outputs
 from .argtypes import nonnegative_seconds, number, positive_int, seed
 from .common import add_trajectory_arguments
@@ -303,6 +303,9 @@ def run(args) -> int:
         noise = runner.pipeline.zupt.noise_in_use
         if noise is not None:
             print(f"IMU stillness test: {describe_noise(noise, runner.pipeline.zupt.config)}")
+            scale = describe_accel_scale(noise, runner.pipeline.rig.gravity_magnitude)
+            if scale:
+                print(f"IMU scale: {scale}")
         gaps = describe_gaps(runner.pipeline.imu)
         if gaps:
             print(f"IMU gaps: {gaps}")

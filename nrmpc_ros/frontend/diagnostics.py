@@ -20,7 +20,7 @@ from .drops import Drop, sorted_counts
 from .imu import describe_gaps
 from .imu_agreement import describe_check
 from .imu_clock_check import describe_clock
-from .zupt import NoiseSource, describe_noise
+from .zupt import NoiseSource, describe_accel_scale, describe_noise
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
 
@@ -116,8 +116,12 @@ class ServiceDiagnostics:
                   **dropped}
         new = self._new_drops("imu", total)
         noise = s.runner.pipeline.zupt.noise_in_use
+        scale = None
         if noise is not None:
             values["stillness test"] = describe_noise(noise, s.runner.pipeline.zupt.config)
+            scale = describe_accel_scale(noise, s.rig.gravity_magnitude)
+            if scale:
+                values["accelerometer scale"] = scale
         refuted = describe_check(s.runner.pipeline.estimator.imu_check)
         if refuted:
             values["gravity check"] = refuted
@@ -139,6 +143,8 @@ class ServiceDiagnostics:
         elif refuted:
             level, message = WARN, "the images refute the IMU's gravity (see gravity check" + (
                 "; its clock is seconds off the cameras': see clock check)" if clock is not None else ")")
+        elif scale:
+            level, message = WARN, "the accelerometer's scale is off gravity's (see accelerometer scale)"
         elif noise is not None and noise.source is NoiseSource.WHITE_NOISE:
             level, message = WARN, ("the Imu covariances claim less noise than the samples show: the stillness "
                                     "test uses the samples' (see stillness test)")
