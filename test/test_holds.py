@@ -277,17 +277,23 @@ def test_a_hold_that_never_settles_says_why():
     assert hold is None and why.rule is Refusal.NOT_STILL and "never settled" in why and "px" in why
 
 
-def test_a_snapshot_nothing_saw_stop_carries_the_least_ringing_as_an_unknown_turn():
+def test_a_snapshot_nothing_saw_stop_carries_the_ringing_of_a_stop_at_any_time_since_as_an_unknown_turn():
     """Without an IMU nothing tells when a snapshot's rig stopped: its measurement is unchanged (no ringing
-    removed or weighed), and the least ringing a stop of the default load right after the frame before leaves
-    is an unknown turn of each camera (half the envelope per axis: a random phase, two bending directions). The
-    first snapshot (nothing before it) and a rigid rig carry none, a snapshot the IMU saw stop no unknown turn."""
+    removed or weighed), and the ringing a stop of the default load leaves, at a time as likely as any other
+    since the frame before (the envelope's root mean square over that interval), is an unknown turn of each
+    camera (half of it per axis: a random phase, two bending directions): more than the least ringing (a stop
+    right after the frame before), far more on stiff, damped bars, whose least ringing is none. The first
+    snapshot (nothing before it) and a rigid rig carry none, a snapshot the IMU saw stop no unknown turn."""
     cfg = HoldConfig()
-    bars = BarRinging(2.5, 0.03, np.array([2.0, 1.0]))
-    rec, _ = record(np.zeros((1, 2)), snapshot=True, since_previous_s=2.9)
-    hold, _ = rec.measure(cfg, 0.4, bars=bars)
-    decay = math.exp(-0.03 * 2 * math.pi * 2.5 * 2.9)
-    np.testing.assert_allclose(hold.unknown_ringing_px, 0.5 * cfg.stop_load_m_s2 * decay * np.array([2.0, 1.0]))
+    for freq, zeta in ((2.5, 0.03), (8.0, 0.05)):
+        bars = BarRinging(freq, zeta, np.array([2.0, 1.0]))
+        rec, _ = record(np.zeros((1, 2)), snapshot=True, since_previous_s=2.9)
+        hold, _ = rec.measure(cfg, 1.0 / freq, bars=bars)
+        x = 2 * zeta * 2 * math.pi * freq * 2.9
+        np.testing.assert_allclose(hold.unknown_ringing_px,
+                                   0.5 * cfg.stop_load_m_s2 * math.sqrt((1 - math.exp(-x)) / x) * np.array([2.0, 1.0]))
+        least = 0.5 * cfg.stop_load_m_s2 * math.exp(-x / 2) * 2.0
+        assert hold.unknown_ringing_px[0] > (2.0 if freq < 5 else 300.0) * least
     assert hold.ringing_source is RingingSource.UNKNOWN and hold.ringing_px == 0.0
     first, _ = record(np.zeros((1, 2)), snapshot=True)
     np.testing.assert_array_equal(first.measure(cfg, 0.4, bars=bars)[0].unknown_ringing_px, [0.0, 0.0])

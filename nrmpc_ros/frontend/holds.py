@@ -21,8 +21,9 @@ then decides which frames to use and how much to trust them:
 - a hold with one frame (a snapshot) carries the ringing its stop may have
   left, from the IMU's deceleration (or a default load) decayed at the bar's
   damping; without an IMU nothing tells when it stopped: it is measured as
-  it stands, and the least ringing a stop of the default load right after
-  the frame before it leaves is an unknown turn of each camera that its
+  it stands, and the ringing a stop of the default load leaves, at any time
+  since the frame before as likely as another (the envelope's root mean
+  square over that interval), is an unknown turn of each camera that its
   covariance carries (``Hold.unknown_ringing_px``).
 
 The ringing a hold may still carry is ``Hold.ringing_px`` (with its source):
@@ -186,6 +187,16 @@ class BarRinging:
         return amplitude_px * np.exp(-self.zeta * 2.0 * math.pi * self.freq_hz * tau)
 
 
+    def rms_envelope(self, amplitude_px: float, span_s: float) -> float:
+        """The root mean square of the ringing envelope (px) over a stop at a time uniformly unknown within the
+        ``span_s`` before the instant (the stop started it at ``amplitude_px``): A sqrt((1 - e^(-2 a T)) / (2 a
+        T)), a = zeta 2 pi f; 0 for an unbounded span (nothing before) and for rigid bars."""
+        if not self.period_s or not (math.isfinite(span_s) and span_s > 0.0):
+            return 0.0
+        x = 2.0 * self.zeta * 2.0 * math.pi * self.freq_hz * span_s
+        return float(amplitude_px * math.sqrt(-math.expm1(-x) / x))
+
+
 def slowest_bar_period(rig: Rig) -> float:
     """Period (s) of the slowest flexible bar of the rig; 0 for a rigid rig."""
     f = bar_natural_frequencies(rig)
@@ -236,8 +247,9 @@ class Hold:
     settling: SettlingSeries | None = None  # every camera's image offset over the hold's frames (None: a snapshot)
     ringing_px: float = 0.0  # the residual ringing the measurement may carry (px, largest camera): extra noise
     ringing_source: RingingSource = RingingSource.SETTLED
-    # a snapshot nothing saw stop: per camera the least ringing a stop of holds.stop_load_m_s2 right after the
-    # frame before it leaves (px): not removed, not weighed, an unknown turn the covariance carries (None: none)
+    # a snapshot nothing saw stop: per camera the ringing a stop of holds.stop_load_m_s2 at any time since the
+    # frame before leaves (px, per axis): not removed, not weighed, an unknown turn the covariance carries (None:
+    # none)
     unknown_ringing_px: np.ndarray | None = None
     trace_t: np.ndarray | None = None  # (F,) stamps of the hold's frames
     trace: np.ndarray | None = None  # (F, M, 2) each camera's image offset from its anchor (NaN: no camera)
@@ -354,10 +366,10 @@ class HoldRecorder:
                 ringing_px, source = 0.0, RingingSource.RIGID
             elif imu_still_since is None:
                 ringing_px, source = 0.0, RingingSource.UNKNOWN
-                # the stop came after the frame before (none: any time before): at the least its ringing decayed
-                # over that whole interval; at a random phase of the swing, along one of the two directions a
-                # bar bends in: a std of half the envelope per axis
-                unknown = 0.5 * bars.envelope(cfg.stop_load_m_s2, self.since_previous_s) * bars.px_per_load
+                # the stop came at any time since the frame before, as likely at one as at another (none before:
+                # any time at all): the envelope's root mean square over that interval; at a random phase of the
+                # swing, along one of the two directions a bar bends in: a std of half of it per axis
+                unknown = 0.5 * bars.rms_envelope(cfg.stop_load_m_s2, self.since_previous_s) * bars.px_per_load
             else:
                 source = RingingSource.IMU if stop_amplitude_px is not None else RingingSource.DEFAULT
                 a0 = stop_amplitude_px if stop_amplitude_px is not None else \
