@@ -15,10 +15,13 @@ cannot:
   images (:func:`~nrmpc_ros.frontend.imu_clock_holds.offset_from_turns`),
   taken when their plateau of agreeing lags excludes zero.
 
-A far lag within ``MAX_LAG_S`` is a stamping or transport delay, the bars'
-refinement's to read (:meth:`~nrmpc_ros.frontend.imu_clock.ImuClockEstimator.
-estimate`), not an offset to apply; the moves' verdict then stands and the
-holds are not asked.
+A lag within ``MAX_LAG_S`` (a stamping or transport delay, a low-pass
+filter's group delay) is the near search's to read, against the bent
+cameras (:meth:`~nrmpc_ros.frontend.imu_clock.ImuClockEstimator.estimate`),
+and applied too where it stands out of its std: an IMU stamped 0.15 s late
+holds every hold's IMU stillness 0.15 s into the next move, whose first
+frames the images show moving, and 4 of 6 holds of such a recording were
+refused as never settled.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
-from .imu_clock import MAX_LAG_S, FarClockOffset
+from .imu_clock import MAX_LAG_S, ClockOffset, FarClockOffset
 from .imu_clock_holds import MAX_OFFSET_S, HoldsClockOffset, offset_from_turns
 
 
@@ -34,6 +37,7 @@ class ClockEvidence(Enum):
     """What measured the offset."""
 
     MOVES = "the gyro's rate against the images' motion"
+    LAG = "the gyro's rate against the images' motion, within a quarter second"
     HOLDS = "the rotations between holds"
 
 
@@ -44,7 +48,7 @@ class MeasuredClockOffset:
 
     offset_s: float
     source: ClockEvidence
-    detail: FarClockOffset | HoldsClockOffset
+    detail: FarClockOffset | ClockOffset | HoldsClockOffset
 
 
 def measure_imu_clock(pipeline, ref, rig, estimates: list) -> MeasuredClockOffset | None:
@@ -54,8 +58,13 @@ def measure_imu_clock(pipeline, ref, rig, estimates: list) -> MeasuredClockOffse
     if rig.imu is None or not ref.has_imu:
         return None
     far = pipeline.imu_clock.far_offset(MAX_OFFSET_S)
-    if far is not None and far.unique:
+    if far is not None and far.unique and _from_moves(far) is not None:
         return _from_moves(far)
+    lag = pipeline.imu_clock.estimate()
+    if lag is not None and lag.significant:  # a lag the moves show beyond its std
+        return MeasuredClockOffset(lag.offset_s, ClockEvidence.LAG, lag)
+    if far is not None and far.unique:
+        return None  # the moves single out no offset: the holds are not asked
     turns = _turns_between_holds(estimates, bool(pipeline.estimator.imu_check.refuted))
     found = offset_from_turns(ref.imu_t, ref.imu_w, rig.imu, turns)
     if found is not None and abs(found.offset_s) > found.half_width_s:
@@ -111,6 +120,9 @@ def describe_clock(clock: MeasuredClockOffset) -> str:
     """The measured offset as the replay summary says it."""
     d = clock.detail
     late = f"the IMU's stamps are {-clock.offset_s:+.3f} s off the cameras'"
+    if isinstance(d, ClockOffset):
+        return (f"{late} +- {1e3 * d.std_s:.1f} ms (correlation {d.correlation:.2f} over {d.frames} frames in "
+                f"{d.moves} moves)")
     if isinstance(d, FarClockOffset):
         return (f"{late} (correlation {d.correlation:.2f} over {d.moves} moves, the best other lag's "
                 f"{d.rival_correlation:.2f}; the peak won {100 * d.confidence:.1f} % of resamples of the moves)")

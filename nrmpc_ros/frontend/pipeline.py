@@ -795,7 +795,8 @@ class Pipeline:
     def _steady_turn(self, hold: Hold) -> HoldRefusal | None:
         """The refusal of a hold the body turned through (:mod:`.steady_turn`: the gyro's mean rate over the span
         its IMU gravity averages), else None; None too without an IMU or its noise."""
-        noise = self.zupt.noise if self.rig.imu is not None and len(self.imu) else None
+        # the noise the stillness test used last (asking for a new estimate here would move when it is made)
+        noise = self.zupt.noise_in_use if self.rig.imu is not None and len(self.imu) else None
         if noise is None:
             return None
         t0, t1 = self._imu_span(hold)
