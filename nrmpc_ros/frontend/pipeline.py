@@ -638,10 +638,13 @@ class Pipeline:
         if h is None or h.measured:
             return []
         if h.snapshot and len(h) == 1 and self.rig.imu is not None and len(self.imu):
-            # the rig must be still when the image was taken: its instant in a still run of the IMU, or before one
-            # (which starts half a stillness window after the stop) with every sample since reading still
+            # the rig must be still when the image was taken: its instant in a still run of the IMU, or, for a lone
+            # frame, before one (which starts half a stillness window after the stop) with every sample since
+            # reading still. A stream's frame the tracks jumped to is the end of a move the images could not
+            # follow: a stop moments before it, its ringing at its largest and its stop's load unseen (a 4 Hz
+            # stream's such frame, taken so, moved its sequence's gravity from 0.012 to 0.14 deg)
             t = h.stamps[0]
-            if self.zupt.is_still(t, t) is False and self.zupt.leading_run(t) is None:
+            if self.zupt.is_still(t, t) is False and (h.jumped or self.zupt.leading_run(t) is None):
                 self.stats.dropped[Drop.SNAPSHOT_MOVED] += 1
                 return []
         elif h.snapshot and len(h) == 1 and h.jumped:
