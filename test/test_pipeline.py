@@ -1,8 +1,8 @@
 """Pipeline on rendered frames in memory: holds found in a stream, 4pt/6pt estimates per hold, bad input."""
 
 import math
-from pathlib import Path
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
