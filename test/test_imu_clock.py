@@ -192,3 +192,20 @@ def test_an_imu_inside_a_camera_on_a_swinging_bar_finds_no_far_offset(cameras, i
     rig = rig.with_imu_in(rig.cameras[imu_camera].name)
     far = _rendered_rates(rig, 0.0, seed=seed, signed=True).far_offset(10.0)
     assert far is None or abs(far.offset_s) <= MAX_LAG_S, far
+
+
+def test_the_estimate_is_computed_again_only_once_samples_or_frames_came():
+    """Replay asks for the lag to apply it and again to report it: the second answer is the first, unless the
+    estimator received more since."""
+    rng = np.random.default_rng(7)
+    est = ImuClockEstimator()
+    for t in np.arange(0.0, 30.0, 0.005):
+        est.add_imu(t + 0.02, (_rate(t) + rng.normal(0, 0.002), rng.normal(0, 0.002), 0.0))
+    frames = np.arange(0.5, 29.5, 1 / 15)
+    for a, b in zip(frames[:-1], frames[1:]):
+        est.add_frame(a, b, [_rate(a + (b - a) * np.linspace(0, 1, 50)).mean()])
+    first = est.estimate()
+    assert first is not None and est.estimate() is first
+    est.add_imu(30.1, (0.0, 0.0, 0.0))
+    again = est.estimate()
+    assert again is not first and again.offset_s == pytest.approx(first.offset_s, abs=1e-3)

@@ -184,8 +184,12 @@ class BarRinging:
         tau = np.maximum(np.asarray(tau, dtype=float), 0.0)
         if not self.period_s:
             return np.zeros_like(tau)
-        return amplitude_px * np.exp(-self.zeta * 2.0 * math.pi * self.freq_hz * tau)
+        return amplitude_px * np.exp(-self.decay_per_s * tau)
 
+    @property
+    def decay_per_s(self) -> float:
+        """The envelope's decay rate zeta 2 pi f (1/s)."""
+        return self.zeta * 2.0 * math.pi * self.freq_hz
 
     def rms_envelope(self, amplitude_px: float, span_s: float) -> float:
         """The root mean square of the ringing envelope (px) over a stop at a time uniformly unknown within the
@@ -193,7 +197,7 @@ class BarRinging:
         T)), a = zeta 2 pi f; 0 for an unbounded span (nothing before) and for rigid bars."""
         if not self.period_s or not (math.isfinite(span_s) and span_s > 0.0):
             return 0.0
-        x = 2.0 * self.zeta * 2.0 * math.pi * self.freq_hz * span_s
+        x = 2.0 * self.decay_per_s * span_s
         return float(amplitude_px * math.sqrt(-math.expm1(-x) / x))
 
 

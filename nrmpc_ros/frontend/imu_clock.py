@@ -188,10 +188,13 @@ class ImuClockEstimator:
         self._imu: deque = deque(maxlen=KEEP_IMU_SAMPLES)  # (t, ax, ay, az, wx, wy, wz)
         self._frames: deque = deque(maxlen=KEEP_FRAMES)  # (t_prev, t, rate of each camera rad/s (NaN: none),
         # signed (x, y) motion of each camera rad/s (NaN: none))
+        self._added = 0  # samples and frames added: the last estimate holds while no more came
+        self._estimated: tuple = (-1, None)
 
     def add_imu(self, t: float, gyro, accel=(0.0, 0.0, 0.0)) -> None:
         (ax, ay, az), (wx, wy, wz) = accel, gyro
         self._imu.append((float(t), float(ax), float(ay), float(az), float(wx), float(wy), float(wz)))
+        self._added += 1
 
     def add_frame(self, t_prev: float, t: float, image_rates, image_shifts=None) -> None:
         """Frame interval [t_prev, t] over which camera i's image moved by image_rates[i] (rad/s; NaN: unknown);
@@ -202,6 +205,7 @@ class ImuClockEstimator:
             np.asarray(image_shifts, dtype=float).reshape(len(r), 2)
         if t > t_prev and np.isfinite(r).any():
             self._frames.append((float(t_prev), float(t), r, shifts))
+            self._added += 1
 
     def _collected(self) -> tuple:
         """(IMU rows sorted by stamp (N, 7), their stamps, frame starts (F,), ends (F,), image rates (F, M), signed
@@ -213,6 +217,13 @@ class ImuClockEstimator:
                 np.array([f[2] for f in frames]), np.array([f[3] for f in frames]))
 
     def estimate(self) -> ClockOffset | None:
+        """The lag within :data:`MAX_LAG_S` (module docstring), or None; computed again only once samples or
+        frames were added (a replay asks for it to apply it and again to report it)."""
+        if self._estimated[0] != self._added:
+            self._estimated = (self._added, self._estimate())
+        return self._estimated[1]
+
+    def _estimate(self) -> ClockOffset | None:
         if len(self._imu) < MIN_IMU_SAMPLES or len(self._frames) < MIN_MOVING_FRAMES:
             return None
         imu, t, a, b, y, _ = self._collected()
@@ -252,8 +263,9 @@ class ImuClockEstimator:
                 lag, best, bars_unexplained = float(res.x), -float(res.fun), False
                 # the spread over the whole range (a rival peak the resamples prefer is part of it), finely near
                 lags = np.union1d(grid, np.arange(lag - span, lag + span, max(LAG_STEP_S, span / BENT_SPREAD_LAGS)))
-                pred = lambda d: _across_rates(_interp_rows(b_ + d, t, bent) - _interp_rows(a_ + d, t, bent),  # noqa: E731
-                                               axis, b_ - a_)
+
+                def pred(d):
+                    return _across_rates(_interp_rows(b_ + d, t, bent) - _interp_rows(a_ + d, t, bent), axis, b_ - a_)
                 meas = y[ok]
         if best < MIN_CORRELATION:
             return None

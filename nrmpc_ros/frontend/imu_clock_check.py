@@ -58,8 +58,9 @@ def measure_imu_clock(pipeline, ref, rig, estimates: list) -> MeasuredClockOffse
     if rig.imu is None or not ref.has_imu:
         return None
     far = pipeline.imu_clock.far_offset(MAX_OFFSET_S)
-    if far is not None and far.unique and _from_moves(far) is not None:
-        return _from_moves(far)
+    found = _from_moves(far) if far is not None and far.unique else None
+    if found is not None:
+        return found
     lag = pipeline.imu_clock.estimate()
     if lag is not None and lag.significant:  # a lag the moves show beyond its std
         return MeasuredClockOffset(lag.offset_s, ClockEvidence.LAG, lag)

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .noise_correlation import mean_variance_factor
-from .zupt import ImuNoise, ZuptConfig
+from .zupt import ImuNoise, ZuptConfig, window_length
 
 MIN_SAMPLES = 4
 """Samples a hold's span needs to be tested: fewer leave the mean to one or two samples' noise."""
@@ -76,7 +76,7 @@ def flicker_rate(noise: ImuNoise, cfg: ZuptConfig, period_s: float) -> float:
     its threshold, nu = 6 n - 2 its degrees of freedom; :mod:`.zupt`), and twice that in every one."""
     from scipy.special import chdtri  # a chi-square quantile; imported where used (0.3-0.5 s)
 
-    n = max(cfg.min_window_samples, int(round(cfg.window_s / max(period_s, 1e-9))) + 1)
+    n = int(round(window_length(cfg, period_s) / max(period_s, 1e-9))) + 1
     nu = 6.0 * n - 2.0
     s_w = max(float(noise.gyro_sigma), cfg.gyro_floor_rad_s)
     return 2.0 * s_w * math.sqrt(max(float(chdtri(nu, cfg.significance)) - nu, 1.0) / n)
@@ -90,7 +90,7 @@ def creep_span(t, gyro, noise: ImuNoise, cfg: ZuptConfig, t0: float, t1: float) 
     if len(t) < MIN_SAMPLES:
         return t0, t1
     period = float(np.median(np.diff(t)))
-    half = 0.5 * max(cfg.window_s, cfg.min_window_samples * period)
+    half = 0.5 * window_length(cfg, period)
     c = np.concatenate([np.zeros((1, 3)), np.cumsum(w, axis=0)])
     lo = np.searchsorted(t, t - half, side="left")
     hi = np.searchsorted(t, t + half, side="right")

@@ -305,7 +305,7 @@ def _testable(t: np.ndarray, i0: np.ndarray, i1: np.ndarray, period: float, cfg:
     return ok
 
 
-def _window_length(cfg: ZuptConfig, period: float) -> float:
+def window_length(cfg: ZuptConfig, period: float) -> float:
     """``window_s``, widened on slow IMUs to an odd number of sample periods that holds ``min_window_samples``:
     a centred window of k + 1/2 periods either side holds 2k + 1 samples with its edges half a period from any
     sample, so stamp jitter and rounding do not drop one (a window of exactly m periods would hold m + 1, m or
@@ -331,7 +331,7 @@ def _windows(t: np.ndarray, period: float, cfg: ZuptConfig):
 
     ``brk[j]`` is True when sample j starts a new gap-free segment (always for j = 0).
     """
-    half = 0.5 * _window_length(cfg, period)
+    half = 0.5 * window_length(cfg, period)
     brk = _gap_starts(t, period, cfg)
     seg = np.cumsum(brk) - 1
     starts = np.flatnonzero(brk)
@@ -606,7 +606,7 @@ def _min_run(cfg: ZuptConfig, period: float) -> float:
     """Shortest still run (s): ``min_still_s``, at least one window (whose length follows the IMU's rate), not
     the period a ringing mount's windows span: every sample of a run passed a window that long, so a run
     shorter than it is no turning point of a move (which such a window would hold)."""
-    return max(cfg.min_still_s, _window_length(dataclasses.replace(cfg, mount_ringing_hz=0.0), period))
+    return max(cfg.min_still_s, window_length(dataclasses.replace(cfg, mount_ringing_hz=0.0), period))
 
 
 def _runs(t: np.ndarray, still: np.ndarray, brk: np.ndarray, min_still_s: float):
@@ -721,7 +721,7 @@ class ZuptDetector:
         k = int(np.searchsorted(self._cache_t, t[0]))  # samples trimmed from the buffer
         ct, cs = self._cache_t[k:], self._cache_stat[k:]
         done = ct[-1] if len(ct) else -math.inf
-        win = _window_length(self.config, _period(t, noise))
+        win = window_length(self.config, _period(t, noise))
         i = int(np.searchsorted(t, done - win))  # one window of context before the first new verdict
         stat, _ = _statistic(t[i:], a[i:], w[i:], noise, self.config)
         new_stat = stat[len(ct) - i:]
@@ -770,7 +770,7 @@ class ZuptDetector:
     def window_s(self) -> float:
         """The stillness window in use (s): ``window_s`` widened by the IMU's rate and a ringing mount."""
         noise = self.noise
-        return _window_length(self.config, noise.period_s if noise is not None else math.nan)
+        return window_length(self.config, noise.period_s if noise is not None else math.nan)
 
     def decided(self, t: float) -> bool:
         """Whether the stillness of an instant ``t`` is decided: the newest sample lies half a stillness window
@@ -780,7 +780,7 @@ class ZuptDetector:
         period = noise.period_s if noise is not None else math.nan
         if not (math.isfinite(period) and period > 0):
             return False
-        return self.buffer.last_stamp >= t + 0.5 * _window_length(self.config, period) + period
+        return self.buffer.last_stamp >= t + 0.5 * window_length(self.config, period) + period
 
     def is_still(self, t0: float, t1: float) -> bool | None:
         """True when every sample in [t0, t1] lies in one still run (at least one window long).
@@ -829,7 +829,7 @@ class ZuptDetector:
             return None
         period = noise.period_s if math.isfinite(noise.period_s) else _period(self.buffer.window(-math.inf,
                                                                                                   math.inf)[0])
-        lead = 0.5 * _window_length(self.config, period) + period
+        lead = 0.5 * window_length(self.config, period) + period
         run = self.still_run(t + lead)
         if run is None or not t < run[0] <= t + lead:
             return None
@@ -855,4 +855,5 @@ class ZuptDetector:
 
 
 __all__ = ["ImuNoise", "NoiseSource", "ZuptConfig", "ZuptDetector", "describe_accel_scale", "describe_noise",
-           "estimate_noise", "for_rig", "still_intervals", "still_mask", "still_runs", "still_statistic"]
+           "estimate_noise", "for_rig", "still_intervals", "still_mask", "still_runs", "still_statistic",
+           "window_length"]
