@@ -61,9 +61,9 @@ def measure_imu_clock(pipeline, ref, rig, estimates: list) -> MeasuredClockOffse
     found = _from_moves(far) if far is not None and far.unique else None
     if found is not None:
         return found
-    lag = pipeline.imu_clock.estimate()
-    if lag is not None and lag.significant:  # a lag the moves show beyond its std
-        return MeasuredClockOffset(lag.offset_s, ClockEvidence.LAG, lag)
+    lag = lag_from_moves(pipeline.imu_clock)
+    if lag is not None:
+        return lag
     if far is not None and far.unique:
         return None  # the moves single out no offset: the holds are not asked
     turns = _turns_between_holds(estimates, bool(pipeline.estimator.imu_check.refuted))
@@ -72,6 +72,12 @@ def measure_imu_clock(pipeline, ref, rig, estimates: list) -> MeasuredClockOffse
         return MeasuredClockOffset(found.offset_s, ClockEvidence.HOLDS, found)
     return None
 
+
+LAG_ASKS_GROWTH = 1.25
+"""A running node asks the near search for a lag (:func:`lag_from_moves`) once the holds ended have as many
+moves between them as the search needs, then each time the holds ended have grown by this factor: the search
+reads the whole kept stream (a tenth of a second to a second of CPU), so its cost over a run grows with the log
+of the holds, while a lag is still found within a quarter again the holds that first show it."""
 
 CLOCK_PASSES = 3
 """Passes over a recording whose IMU clock is measured off the cameras' (the first included): the first pass's
@@ -113,6 +119,14 @@ def offset_from_moves(imu_clock) -> MeasuredClockOffset | None:
     return _from_moves(far) if far is not None and far.unique else None
 
 
+def lag_from_moves(imu_clock) -> MeasuredClockOffset | None:
+    """The lag within ``MAX_LAG_S`` the moves show beyond its std (the near search of the :class:`~nrmpc_ros.
+    frontend.imu_clock.ImuClockEstimator` ``imu_clock``, :attr:`~nrmpc_ros.frontend.imu_clock.ClockOffset.
+    significant`), or None: a stamping or transport delay, a filter's group delay."""
+    lag = imu_clock.estimate()
+    return MeasuredClockOffset(lag.offset_s, ClockEvidence.LAG, lag) if lag is not None and lag.significant else None
+
+
 def _from_moves(far: FarClockOffset) -> MeasuredClockOffset | None:
     return MeasuredClockOffset(far.offset_s, ClockEvidence.MOVES, far) if abs(far.offset_s) > MAX_LAG_S else None
 
@@ -131,5 +145,5 @@ def describe_clock(clock: MeasuredClockOffset) -> str:
             f"{d.as_stamped_deg:.1f} deg off the images' as stamped, {d.residual_deg:.2f} deg shifted so)")
 
 
-__all__ = ["CLOCK_PASSES", "ClockEvidence", "MeasuredClockOffset", "clock_passes", "describe_clock",
-           "measure_imu_clock", "offset_from_moves"]
+__all__ = ["CLOCK_PASSES", "LAG_ASKS_GROWTH", "ClockEvidence", "MeasuredClockOffset", "clock_passes", "describe_clock",
+           "lag_from_moves", "measure_imu_clock", "offset_from_moves"]

@@ -213,6 +213,7 @@ class Pipeline:
         self.imu_clock = ImuClockEstimator(rig)  # the IMU's clock against the cameras', from the moves
         self.imu_clock_off: MeasuredClockOffset | None = None  # seconds off, measured once the images refute
         self._clock_measured_at = 0  # the refutations counted when it was last measured
+        self.holds_ended = 0  # holds ended by a move, a jump or the input's end, estimated or not
         self.bars = BarRinging.of(rig, self.config.holds)  # frequency, damping, image offset per load
         self.measured_holds: list | None = None  # a list keeps every measured hold (the bars' ringing, offline)
         self.stats = PipelineStats()
@@ -634,6 +635,7 @@ class Pipeline:
             self._clock_measured_at = refuted  # (here, with the samples and frames this stage collects)
             self.imu_clock_off = offset_from_moves(self.imu_clock)
         h = self._hold
+        self.holds_ended += h is not None
         self._discard()
         if h is None or h.measured:
             return []

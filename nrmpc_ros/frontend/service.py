@@ -47,7 +47,8 @@ from .drops import Drop
 from .extrinsics import NO_IMU_NOTE, imu_mount_warning
 from .feeder import IMU, Feeder
 from .images import stamp_seconds
-from .imu_clock_check import CLOCK_PASSES, describe_clock
+from .imu_clock import MIN_MOVES
+from .imu_clock_check import CLOCK_PASSES, LAG_ASKS_GROWTH, describe_clock, lag_from_moves
 from .liveness import CameraWatch
 from .node_config import NodeConfig
 from .outputs import FrameNames, FramePosesOutput, HoldOutput, hold_output
@@ -263,6 +264,7 @@ class EstimatorService:
         self.reports = ServiceDiagnostics(self)
         self._small: list = [None] * rig.num_cameras  # the last frame set's images, subsampled (image_change)
         self.clock_from = None  # the pipeline whose IMU clock measurement went to the input
+        self._lag_ask = (None, MIN_MOVES + 1)  # (pipeline, its holds ended when its near lag is next asked)
 
     # ------------------------------------------------------------------ inputs (the node's threads, one at a time)
     def on_image(self, index: int, msg, now: float | None) -> None:
@@ -491,14 +493,17 @@ class EstimatorService:
         return outputs
 
     def _apply_clock(self) -> None:
-        """An IMU clock offset the frame stage measured (seconds off the cameras', from the moves) goes to the
-        input: added to the IMU's stamps from the next sample on, a new sequence starting (``input.
-        imu_clock_measured``; at most ``CLOCK_PASSES - 1`` times a run, as the replay's passes)."""
+        """An IMU clock offset the frame stage measured (seconds off the cameras', from the moves; or a lag
+        within a quarter second, :meth:`_near_lag`) goes to the input: added to the IMU's stamps from the next
+        sample on, a new sequence starting (``input.imu_clock_measured``; at most ``CLOCK_PASSES - 1`` times a
+        run, as the replay's passes)."""
         pipeline = self.runner.pipeline
-        measured = pipeline.imu_clock_off
-        if measured is None or pipeline is self.clock_from or not self.config.input.imu_clock_measured:
+        if pipeline is self.clock_from or not self.config.input.imu_clock_measured:
             return  # (the pipeline that measured it runs on until the restart queued behind its frames)
         if self.counts["IMU clock offsets applied"] >= CLOCK_PASSES - 1:
+            return
+        measured = pipeline.imu_clock_off or self._near_lag(pipeline)
+        if measured is None:
             return
         self.clock_from = pipeline
         why = (f"{describe_clock(measured)}: {measured.offset_s:+.3f} s added to the IMU's stamps from now on "
@@ -507,6 +512,20 @@ class EstimatorService:
             self.feeder.reclock_imu(measured.offset_s, "the IMU's clock measured off the cameras'")
         self.counts["IMU clock offsets applied"] += 1
         self.log("warn", f"{why}: the holds start afresh (a new sequence)")
+
+    def _near_lag(self, pipeline):
+        """A lag within a quarter second the moves show beyond its std (:func:`~nrmpc_ros.frontend.
+        imu_clock_check.lag_from_moves`), or None; asked once the holds ended have ``MIN_MOVES`` moves between
+        them, and again each time the holds ended have grown by ``LAG_ASKS_GROWTH`` (docs/PIPELINE.md, "IMU
+        gravity that the images refute"). Replay measures the whole recording after its pass; a running node has
+        only what came so far, and a lag (a stamping delay) holds every hold's IMU stillness into the next move,
+        so no hold settles and nothing refutes the IMU's gravity."""
+        if self._lag_ask[0] is not pipeline:
+            self._lag_ask = (pipeline, MIN_MOVES + 1)
+        if self.rig.imu is None or pipeline.holds_ended < self._lag_ask[1]:
+            return None
+        self._lag_ask = (pipeline, math.ceil(LAG_ASKS_GROWTH * pipeline.holds_ended))
+        return lag_from_moves(pipeline.imu_clock)
 
     def estimate_once(self, timeout: float = 0.0) -> list | None:
         """Run one item of the estimation worker (waiting up to ``timeout`` s for one); publish and return its
