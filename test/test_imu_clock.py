@@ -56,8 +56,10 @@ def test_images_ringing_after_moves_they_skipped_give_no_offset():
     assert est.estimate() is None
 
 
-def _rendered_rates(rig, late_s, seed=2, views=6, signed=False, noisy=True, estimator_rig=..., capture="stream"):
-    """A rendered trajectory's IMU (``noisy``: a MEMS-grade noise), stamped ``late_s`` after the truth, and each
+def _rendered_rates(rig, late_s, seed=2, views=6, signed=False, noisy=True, estimator_rig=..., capture="stream",
+                    gyro_unit=1.0):
+    """A rendered trajectory's IMU (``noisy``: a MEMS-grade noise; its rates in units of ``gyro_unit`` rad/s),
+    stamped ``late_s`` after the truth, and each
     bent camera's image rate across its optical axis per frame interval (no pixels), with ``signed`` also the
     image's signed motion (x, y): an estimator for ``estimator_rig`` (default ``rig``) fed with both. ``capture``:
     the frames of make-bag's capture mode (with "holds" an interval spans each move, as a pipeline passes it on)."""
@@ -84,7 +86,7 @@ def _rendered_rates(rig, late_s, seed=2, views=6, signed=False, noisy=True, esti
     shifts = np.stack([-turn[..., 1], turn[..., 0]], axis=-1) / dt[..., None]  # the scene's shift in each image
     est = ImuClockEstimator(rig if estimator_rig is ... else estimator_rig)
     for k in range(len(imu_t)):
-        est.add_imu(imu_t[k] * 1e-9 + late_s, gyro[k], accel[k])
+        est.add_imu(imu_t[k] * 1e-9 + late_s, gyro[k] / gyro_unit, accel[k])
     for k in range(len(frames) - 1):
         est.add_frame(frames[k] * 1e-9, frames[k + 1] * 1e-9, across[k], shifts[k] if signed else None)
     return est

@@ -767,3 +767,17 @@ def test_rings_of_five_and_six_cameras_see_different_views(cameras):
     for i in range(cameras):
         for j in range(i + 1, cameras):
             assert np.mean(np.abs(images[i] - images[j])) > 5.0, (i, j)
+
+
+def test_imu_units_of_a_driver_that_breaks_rep_103(tmp_path):
+    """--gyro-unit deg/s and --accel-unit g write the same IMU in those units, covariances included (a driver
+    consistent in its own units: the noise it claims is the noise its samples show)."""
+    args = ["--views", "2", "--hold-seconds", "0.4", "--rate", "5", "--resolution", "160x120", "--seed", "3"]
+    si, _ = make(tmp_path, "si", *args)
+    other, _ = make(tmp_path, "other", *args, "--gyro-unit", "deg/s", "--accel-unit", "g")
+    for (_, a), (_, b) in zip(si["/imu/data"], other["/imu/data"]):
+        for name, k in (("angular_velocity", 180.0 / math.pi), ("linear_acceleration", 1.0 / 9.80665)):
+            va, vb = getattr(a, name), getattr(b, name)
+            assert np.allclose([vb.x, vb.y, vb.z], k * np.array([va.x, va.y, va.z]), rtol=1e-12, atol=1e-15)
+            assert np.allclose(getattr(b, name + "_covariance"), k * k * getattr(a, name + "_covariance"))
+    assert len(si["/imu/data"]) == len(other["/imu/data"]) > 10

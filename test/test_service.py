@@ -423,15 +423,25 @@ def test_an_imu_stamped_a_fraction_of_a_second_late_is_measured_and_applied_by_t
     settle, so no IMU gravity is refuted and the far search is never asked. The node asks the near search as
     holds end (once three moves are behind them), applies the lag it finds (one new sequence), and the holds
     after the restart's first are estimated, each within 3 of its std of the truth."""
-    from nrmpc_ros.bag.reader import BagReader
     from nrmpc_ros.cli.main import main
-    from nrmpc_ros.frontend.reference import nearest_stamp, read_reference
 
     path, rig_file = tmp_path / "late", tmp_path / "rig.yaml"
     assert main(["make-bag", "--out", str(path), "--save-rig", str(rig_file), "--resolution", "320x240",
                  "--supersample", "1", "--cameras", "4", "--imu-time-offset-ms", "150", "--rate", "20",
                  "--capture", "stream", "--bar-hz", "3", "--damping", "0.03", "--views", "10", "--seed", "105",
                  "--no-progress"]) == 0
+    s, ests, logs = live_service(path, rig_file)
+    assert s.counts["IMU clock offsets applied"] == 1
+    assert abs(s.feeder.config.imu_clock_offset_s + 0.15) < 0.01
+    applied = [line for line in logs if "added to the IMU's stamps" in line]
+    assert len(applied) == 1 and "a new sequence" in applied[0]
+    assert len(ests) >= 5
+    within_3_std_of_the_truth(path, ests)
+
+
+def live_service(path, rig_file) -> tuple:
+    """(service, the estimates it published, its log lines) of the node fed a make-bag recording as it runs
+    (:func:`_feed_bag` ``live``), its workers run to the end."""
     rig = load_rig(rig_file)
     cameras = [f"/cam{i}/image_raw" for i in range(rig.num_cameras)]
     out, logs = [], []
@@ -442,15 +452,17 @@ def test_an_imu_stamped_a_fraction_of_a_second_late_is_measured_and_applied_by_t
         s.work_once()
     while s.estimate_once() is not None:
         pass
-    assert s.counts["IMU clock offsets applied"] == 1
-    assert abs(s.feeder.config.imu_clock_offset_s + 0.15) < 0.01
-    applied = [line for line in logs if "added to the IMU's stamps" in line]
-    assert len(applied) == 1 and "a new sequence" in applied[0]
+    return s, [o.estimate for o in out], logs
+
+
+def within_3_std_of_the_truth(path, estimates) -> None:
+    """Every estimate's gravity within 3 of its own std of the recording's /ground_truth/gravity."""
+    from nrmpc_ros.bag.reader import BagReader
+    from nrmpc_ros.frontend.reference import nearest_stamp, read_reference
+
     with BagReader(path) as bag:
         truth = read_reference(bag)
-    ests = [o.estimate for o in out]
-    assert len(ests) >= 5
-    for e in ests:
+    for e in estimates:
         g = truth.grav_g[nearest_stamp(truth.grav_t, e.stamp)]
-        err = math.acos(np.clip(g @ e.gravity / np.linalg.norm(g) / np.linalg.norm(e.gravity), -1.0, 1.0))
-        assert math.degrees(err) < 3.0 * e.gravity_sigma_deg, (e.stamp, math.degrees(err), e.gravity_sigma_deg)
+        err = math.degrees(math.acos(np.clip(g @ e.gravity / np.linalg.norm(g) / np.linalg.norm(e.gravity), -1, 1)))
+        assert err < 3.0 * e.gravity_sigma_deg, (e.stamp, err, e.gravity_sigma_deg)

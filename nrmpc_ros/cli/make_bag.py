@@ -19,7 +19,7 @@ from pathlib import Path
 from ..bag.writer import ENCODINGS, STORAGES
 from ..core.rig import load_rig, save_rig
 from ..errors import InputError, OptionError
-from ..render.bagmaker import EXPOSURE_OFFSET_GREY, BagOptions
+from ..render.bagmaker import ACCEL_UNITS, EXPOSURE_OFFSET_GREY, GYRO_UNITS, BagOptions
 from ..render.sequence import CAPTURES, PROFILES, MotionOptions
 from ..safeio import atomic_directory, check_outputs
 from ..sim.scenarios import load_scenario_file
@@ -49,6 +49,7 @@ DEFAULTS = {
     "exposure_period_s": _B.exposure_period_s, "creep_fraction": _M.creep_fraction,
     "creep_deg_per_s": _M.creep_deg_per_s, "bar_hz": None, "camera_latency_ms": _B.camera_latency_ms,
     "camera_burst_s": _B.camera_burst_s, "camera_burst_stagger_ms": _B.camera_burst_stagger_ms,
+    "gyro_unit": _B.gyro_unit, "accel_unit": _B.accel_unit,
     "imu_in_camera": None,
 }
 _INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
@@ -185,6 +186,12 @@ def register(sub):
                          f"constant (default {d['imu_covariance_scale']:g}: the truth)")
     se.add_argument("--imu-bias", type=float, help=f"accelerometer bias norm m/s^2 (default {d['imu_bias']:g})")
     se.add_argument("--gyro-bias", type=float, help=f"gyro bias norm rad/s (default {d['gyro_bias']:g})")
+    se.add_argument("--gyro-unit", choices=sorted(GYRO_UNITS),
+                    help="unit of the Imu messages' angular_velocity and its covariance: deg/s is a driver that "
+                         f"breaks REP 103 (default {d['gyro_unit']})")
+    se.add_argument("--accel-unit", choices=sorted(ACCEL_UNITS),
+                    help="unit of their linear_acceleration and its covariance: g (9.80665 m/s^2) is a driver that "
+                         f"breaks REP 103 (default {d['accel_unit']})")
     se.add_argument("--imu-time-offset-ms", type=float, metavar="MS",
                     help="the IMU's stamps are its true sample times + MS (a constant clock offset to the cameras; "
                          "the bag receives each sample at its true time, as a recorder on the cameras' clock "
@@ -391,7 +398,8 @@ def bag_options(o: dict):
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
                       exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],
                       camera_latency_ms=o["camera_latency_ms"], camera_burst_s=o["camera_burst_s"],
-                      camera_burst_stagger_ms=o["camera_burst_stagger_ms"])
+                      camera_burst_stagger_ms=o["camera_burst_stagger_ms"], gyro_unit=o["gyro_unit"],
+                      accel_unit=o["accel_unit"])
 
 
 def _check_outputs(o: dict, scenario) -> None:

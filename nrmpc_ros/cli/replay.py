@@ -25,6 +25,7 @@ from ..frontend.imu import describe_gaps
 from ..frontend.imu_agreement import describe_check
 from ..frontend.imu_clock import SIGNIFICANT_STDS
 from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock
+from ..frontend.imu_units import DEGREE, describe_gyro_units, gyro_units
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
 from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
@@ -77,6 +78,10 @@ def register(sub):
                    metavar="S", help="add S seconds to every IMU stamp as it is read: an IMU stamped by another "
                    "clock than the cameras' (replay prints it, measured from the rotations between holds, when the "
                    "IMU's stamps are seconds off; default 0)")
+    p.add_argument("--imu-gyro-scale", type=number(float, lo=1e-6, hi=1e6), default=None, metavar="K",
+                   help="multiply every IMU angular rate by K as it is read: 0.0174533 (pi/180) for a driver that "
+                   "writes deg/s (replay measures the unit from the moves and replays with it when the gyro reads "
+                   "deg/s; default 1)")
     p.add_argument("--seed", type=seed, default=0, help="RANSAC seed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", action="store_true", help="print only the statistics, not every estimate")
@@ -109,8 +114,10 @@ def input_config(args) -> FeederConfig:
         d["queue_size"] = args.queue_size
     if getattr(args, "imu_clock_offset", None) is not None:
         d["imu_clock_offset_s"] = args.imu_clock_offset
+    if getattr(args, "imu_gyro_scale", None) is not None:
+        d["imu_gyro_scale"] = args.imu_gyro_scale
     flags = {"sync_tolerance_s": "--sync-tolerance", "queue_size": "--queue-size",
-             "imu_clock_offset_s": "--imu-clock-offset"}
+             "imu_clock_offset_s": "--imu-clock-offset", "imu_gyro_scale": "--imu-gyro-scale"}
     try:
         return from_mapping(FeederConfig, d, "flags")
     except InputError as exc:
@@ -189,6 +196,8 @@ def _replay_pass(args, bag, rig, cfg, inputs: FeederConfig, image_topics, imu_to
         shift = inputs.imu_clock_offset_s
         if shift:  # the IMU's samples in the cameras' clock, as the pipeline read them
             ref = replace(ref, imu_t=ref.imu_t + shift)
+        if inputs.imu_gyro_scale != 1.0:  # ... and in its units
+            ref = replace(ref, imu_w=ref.imu_w * inputs.imu_gyro_scale)
         batch = []
         if args.batch:
             method = rows[-1].method if rows else args.method
@@ -231,8 +240,20 @@ def run(args) -> int:
         inputs = input_config(args)
 
         def run_pass(offset_s):
-            return _replay_pass(args, bag, rig, cfg, replace(inputs, imu_clock_offset_s=offset_s), image_topics,
-                                imu_topic, warn)
+            nonlocal inputs
+            p = _replay_pass(args, bag, rig, cfg, replace(inputs, imu_clock_offset_s=offset_s), image_topics,
+                             imu_topic, warn)
+            if args.imu_gyro_scale is None and imu_topic is not None and inputs.imu_gyro_scale == 1.0:
+                units = gyro_units(p.runner.pipeline.imu_clock)  # a gyro in deg/s: measured once, replayed with
+                if units is not None and units.in_degrees:
+                    inputs = replace(inputs, imu_gyro_scale=DEGREE)
+                    st = p.runner.stats
+                    print(f"IMU gyro units: {describe_gyro_units(units)}; the pass gave {st.estimates} estimates "
+                          f"of {st.holds} holds; replaying with --imu-gyro-scale {DEGREE:.7f} (--imu-gyro-scale 1 "
+                          "keeps the rates as they are)")
+                    p = _replay_pass(args, bag, rig, cfg, replace(inputs, imu_clock_offset_s=offset_s),
+                                     image_topics, imu_topic, warn)
+            return p
 
         def said(measured, before, passes):
             total = before.replay.feeder.config.imu_clock_offset_s + measured.offset_s

@@ -133,6 +133,11 @@ class ServiceDiagnostics:
         if shift or applied:
             values["clock offset"] = (f"{shift:+.3f} s added to the IMU's stamps" + (
                 f" ({applied} measured off the cameras' and applied)" if applied else " (input.imu_clock_offset_s)"))
+        gyro_scale = s.feeder.config.imu_gyro_scale
+        if gyro_scale != 1.0 or s.counts["IMU gyro units applied"]:
+            values["gyro scale"] = (f"the gyro's rates multiplied by {gyro_scale:.7g}" + (
+                " (measured in deg/s off the images' and applied)" if s.counts["IMU gyro units applied"]
+                else " (input.imu_gyro_scale)"))
         clock = s.runner.pipeline.imu_clock_off
         if clock is not None and s.runner.pipeline is not s.clock_from:
             values["clock check"] = (f"{describe_clock(clock)}: set input.imu_clock_offset_s to "

@@ -108,6 +108,13 @@ class FeederConfig:
                                        "an IMU stamped by another clock than the cameras' (s; nrmpc replay measures "
                                        "it from the rotations between holds); a lag of milliseconds is the "
                                        "pipeline's imu_time_offset_s", lo=-86400.0, hi=86400.0)
+    imu_gyro_scale: float = option(1.0, "multiplies every IMU sample's angular rate (its covariance by the square) "
+                                   "as it arrives: 0.0174533 (pi/180) turns a driver's deg/s into the rad/s of "
+                                   "sensor_msgs/Imu (REP 103; nrmpc replay measures it from the moves)",
+                                   lo=1e-6, hi=1e6)
+    imu_units_measured: bool = option(True, "the node multiplies the gyro's rates by pi/180 from then on where the "
+                                      "moves show it reads deg/s, a new sequence starting (as nrmpc replay replays "
+                                      "with it); false: it only warns")
     imu_clock_measured: bool = option(True, "the node adds an IMU clock offset the images measure (the moves "
                                       "against the gyro, once the images refute the IMU's gravity) to this one "
                                       "from then on, a new sequence starting (as nrmpc replay replays with it); "
@@ -207,6 +214,11 @@ class Feeder:
         the message's (linear_acceleration_covariance, angular_velocity_covariance), which set the stillness
         test's noise (:meth:`~nrmpc_ros.frontend.pipeline.Pipeline.add_imu`)."""
         self.events["imu samples"] += 1
+        k = self.config.imu_gyro_scale
+        if k != 1.0:
+            gyro = np.asarray(gyro, dtype=float) * k
+            if covariance is not None and covariance[1] is not None:
+                covariance = (covariance[0], np.asarray(covariance[1], dtype=float) * k * k)
         self._sample(stamp + self.config.imu_clock_offset_s, accel, gyro, now, covariance)
 
     def imu_block(self, block: ImuBlock, now: float | None = None) -> None:
@@ -217,6 +229,9 @@ class Feeder:
         self.events["imu samples"] += n
         if self.config.imu_clock_offset_s:
             block = replace(block, stamps=block.stamps + self.config.imu_clock_offset_s)
+        k = self.config.imu_gyro_scale
+        if k != 1.0:
+            block = replace(block, gyro=block.gyro * k, gyro_cov=block.gyro_cov * (k * k))
         a, w, t = block.accel, block.gyro, block.stamps
         good = bool(n) and bool(np.isfinite(a).all() and np.isfinite(w).all() and a.any(axis=1).all())
         if good and t[0] > self._imu_newest and self.guard.accept_run(IMU, t, now):
@@ -293,6 +308,12 @@ class Feeder:
         self.config = replace(self.config, imu_clock_offset_s=self.config.imu_clock_offset_s + offset_s)
         self._start_afresh(why)
         self.guard = self._new_guard()
+
+    def rescale_gyro(self, factor: float, why: str) -> None:
+        """Multiply the gyro's rates by ``factor`` from now on (a unit measured off the images'): what was taken
+        goes out first, then the frame grouping, the IMU samples and the holds start afresh (a new sequence)."""
+        self.config = replace(self.config, imu_gyro_scale=self.config.imu_gyro_scale * factor)
+        self._start_afresh(why)
 
     def _start_afresh(self, why: str) -> None:
         """What was taken goes out (the frame sets, the IMU samples, a flush), the pipeline restarts (``why``), and

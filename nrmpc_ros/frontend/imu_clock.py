@@ -390,6 +390,35 @@ class ImuClockEstimator:
                               rival_correlation=float(corr[rivals[0]]) if rivals else -1.0,
                               confidence=confidence, moves=moves)
 
+    def moving_rates(self) -> tuple | None:
+        """What the frames the gyro shows moving (:data:`GYRO_MOVE_SIGMAS`) say of its size, its stamps as they
+        are: each camera's image rate (F, M; rad/s, NaN: none), the rate the body's turn (the gyro integrated)
+        predicts across that camera's optical axis (F, M), each frame's move (F,) and the number of moves. None
+        without a rig file's IMU mount, without :data:`MIN_MOVING_FRAMES` such frames in :data:`MIN_MOVES` moves,
+        or where the images' rate and the gyro's prediction do not correlate over all frames
+        (:data:`MIN_CORRELATION`): moves the frames do not show at the gyro's stamps (an IMU clock seconds off)
+        would read the holds' images against the moves' rates."""
+        rig = self.rig
+        if rig is None or rig.imu is None or len(self._imu) < MIN_IMU_SAMPLES or len(self._frames) < MIN_MOVING_FRAMES:
+            return None
+        imu, t, a, b, y, _ = self._collected()
+        inside = (a >= t[0]) & (b <= t[-1]) & np.isfinite(y).any(axis=1)
+        a, b, y = a[inside], b[inside], y[inside]
+        if not len(a):
+            return None
+        w = np.linalg.norm(imu[:, 4:7], axis=1)
+        integral = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))])
+        moving = _gyro_moving(t, integral, a, b, 0.0)
+        segment, moves = _move_segments(moving)
+        if np.count_nonzero(moving) < MIN_MOVING_FRAMES or moves < MIN_MOVES:
+            return None
+        body = _body_turn(rig, imu)
+        turn = (_interp_rows(b, t, body) - _interp_rows(a, t, body))[:, None, :]
+        pred = _across_rates(turn, rig.rotations[:, :, 2], b - a)
+        if _correlation(np.nanmean(pred, axis=1)[None], np.nanmedian(y, axis=1))[0] < MIN_CORRELATION:
+            return None
+        return y[moving], pred[moving], segment[moving], moves
+
     def _rotations(self, imu) -> tuple:
         """Each camera's rotation since the first sample at every IMU sample, body frame: the body's turn (the
         gyro integrated; (N, 1, 3)) and, on a rig whose bars bend, with each bar's bend added ((N, M, 3); the bars
@@ -402,8 +431,7 @@ class ImuClockEstimator:
         (the rates are the body's about, not exactly)."""
         rig = self.rig
         t = imu[:, 0]
-        g = imu[:, 4:7] @ _imu_to_body(rig).T  # body-frame rate (an IMU in a camera: about, not exactly)
-        body = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
+        body = _body_turn(rig, imu)
         if not rig.is_flexible:
             return body[:, None, :], None
         from ..core.bar_state import BarPropagator
@@ -477,6 +505,14 @@ def _across_rates(rot, axis, dt):
     (F,), across each camera's optical axis ``axis`` (M, 3; the part an image shows as motion)."""
     across = rot - np.sum(rot * axis[None], axis=2, keepdims=True) * axis[None]
     return np.linalg.norm(across, axis=2) / dt[:, None]
+
+
+def _body_turn(rig, imu) -> np.ndarray:
+    """The body's rotation vector since the first of the IMU rows ``imu`` (N, 7) at each (N, 3): the gyro's
+    body-frame rate (an IMU in a camera: about, not exactly) integrated by the trapezoid rule."""
+    t = imu[:, 0]
+    g = imu[:, 4:7] @ _imu_to_body(rig).T
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], axis=0)])
 
 
 def _imu_to_body(rig) -> np.ndarray:

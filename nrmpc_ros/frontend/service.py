@@ -49,6 +49,7 @@ from .feeder import IMU, Feeder
 from .images import stamp_seconds
 from .imu_clock import MIN_MOVES
 from .imu_clock_check import CLOCK_PASSES, LAG_ASKS_GROWTH, describe_clock, lag_from_moves
+from .imu_units import DEGREE, describe_gyro_units, gyro_units
 from .liveness import CameraWatch
 from .node_config import NodeConfig
 from .outputs import FrameNames, FramePosesOutput, HoldOutput, hold_output
@@ -264,7 +265,7 @@ class EstimatorService:
         self.reports = ServiceDiagnostics(self)
         self._small: list = [None] * rig.num_cameras  # the last frame set's images, subsampled (image_change)
         self.clock_from = None  # the pipeline whose IMU clock measurement went to the input
-        self._lag_ask = (None, MIN_MOVES + 1)  # (pipeline, its holds ended when its near lag is next asked)
+        self._lag_ask = (None, MIN_MOVES + 1)  # (pipeline, its holds ended when the moves are next asked)
 
     # ------------------------------------------------------------------ inputs (the node's threads, one at a time)
     def on_image(self, index: int, msg, now: float | None) -> None:
@@ -493,16 +494,33 @@ class EstimatorService:
         return outputs
 
     def _apply_clock(self) -> None:
-        """An IMU clock offset the frame stage measured (seconds off the cameras', from the moves; or a lag
-        within a quarter second, :meth:`_near_lag`) goes to the input: added to the IMU's stamps from the next
-        sample on, a new sequence starting (``input.imu_clock_measured``; at most ``CLOCK_PASSES - 1`` times a
-        run, as the replay's passes)."""
+        """What the frame stage measured of the IMU goes to the input, a new sequence starting: the gyro's unit
+        (deg/s: its rates multiplied by pi/180 from the next sample on, once a run; ``input.imu_units_measured``),
+        an IMU clock offset (seconds off the cameras', from the moves; or a lag within a quarter second)
+        added to the IMU's stamps (``input.imu_clock_measured``; at most ``CLOCK_PASSES - 1``
+        times a run, as the replay's passes). Both are asked as holds end (:meth:`_asked`)."""
         pipeline = self.runner.pipeline
-        if pipeline is self.clock_from or not self.config.input.imu_clock_measured:
+        if pipeline is self.clock_from:
             return  # (the pipeline that measured it runs on until the restart queued behind its frames)
-        if self.counts["IMU clock offsets applied"] >= CLOCK_PASSES - 1:
+        asked = self._asked(pipeline)
+        if asked and not self.counts["IMU gyro units applied"] and not self.counts["IMU gyro units warned"]:
+            units = gyro_units(pipeline.imu_clock)
+            if units is not None and units.in_degrees and not self.config.input.imu_units_measured:
+                self.counts["IMU gyro units warned"] += 1
+                self.log("warn", f"{describe_gyro_units(units)}: set input.imu_gyro_scale to "
+                                 f"{self.feeder.config.imu_gyro_scale * DEGREE:.7f}, or fix the driver")
+            elif units is not None and units.in_degrees:
+                self.clock_from = pipeline
+                with self._input_lock:
+                    self.feeder.rescale_gyro(DEGREE, "the IMU's gyro measured in deg/s")
+                self.counts["IMU gyro units applied"] += 1
+                self.log("warn", f"{describe_gyro_units(units)}: its rates are multiplied by {DEGREE:.7f} from now "
+                                 f"on (input.imu_gyro_scale {self.feeder.config.imu_gyro_scale:.7f}): the holds "
+                                 "start afresh (a new sequence)")
+                return
+        if not self.config.input.imu_clock_measured or self.counts["IMU clock offsets applied"] >= CLOCK_PASSES - 1:
             return
-        measured = pipeline.imu_clock_off or self._near_lag(pipeline)
+        measured = pipeline.imu_clock_off or (lag_from_moves(pipeline.imu_clock) if asked else None)
         if measured is None:
             return
         self.clock_from = pipeline
@@ -513,19 +531,20 @@ class EstimatorService:
         self.counts["IMU clock offsets applied"] += 1
         self.log("warn", f"{why}: the holds start afresh (a new sequence)")
 
-    def _near_lag(self, pipeline):
-        """A lag within a quarter second the moves show beyond its std (:func:`~nrmpc_ros.frontend.
-        imu_clock_check.lag_from_moves`), or None; asked once the holds ended have ``MIN_MOVES`` moves between
-        them, and again each time the holds ended have grown by ``LAG_ASKS_GROWTH`` (docs/PIPELINE.md, "IMU
-        gravity that the images refute"). Replay measures the whole recording after its pass; a running node has
-        only what came so far, and a lag (a stamping delay) holds every hold's IMU stillness into the next move,
-        so no hold settles and nothing refutes the IMU's gravity."""
+    def _asked(self, pipeline) -> bool:
+        """Whether the moves are asked what they say of the IMU now (:func:`~nrmpc_ros.frontend.imu_clock_check.
+        lag_from_moves`, :func:`~nrmpc_ros.frontend.imu_units.gyro_units`): once the holds ``pipeline`` ended
+        have ``MIN_MOVES`` moves between them, and again each time the holds ended have grown by
+        ``LAG_ASKS_GROWTH`` (docs/PIPELINE.md, "IMU gravity that the images refute"). Replay measures the whole
+        recording after its pass; a running node has only what came so far, and neither a lag (a stamping delay:
+        it holds every hold's IMU stillness into the next move, so no hold settles) nor a gyro in deg/s (no hold
+        is still) lets the images refute the IMU's gravity."""
         if self._lag_ask[0] is not pipeline:
             self._lag_ask = (pipeline, MIN_MOVES + 1)
         if self.rig.imu is None or pipeline.holds_ended < self._lag_ask[1]:
-            return None
+            return False
         self._lag_ask = (pipeline, math.ceil(LAG_ASKS_GROWTH * pipeline.holds_ended))
-        return lag_from_moves(pipeline.imu_clock)
+        return True
 
     def estimate_once(self, timeout: float = 0.0) -> list | None:
         """Run one item of the estimation worker (waiting up to ``timeout`` s for one); publish and return its

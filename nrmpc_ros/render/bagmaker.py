@@ -63,6 +63,8 @@ POSE_TOPIC = "/ground_truth/pose"
 GRAVITY_TOPIC = "/ground_truth/gravity"
 EXTRINSICS_TOPIC = "/ground_truth/extrinsics/{}"  # .format(camera name): the bent camera's pose in the body
 ANGULAR_VELOCITY_TOPIC = "/ground_truth/angular_velocity"
+GYRO_UNITS = {"rad/s": 1.0, "deg/s": math.pi / 180.0}  # unit -> its size in rad/s
+ACCEL_UNITS = {"m/s^2": 1.0, "g": 9.80665}  # unit -> its size in m/s^2 (standard gravity, as drivers convert)
 EXPOSURE_OFFSET_GREY = 40.0  # grey levels of offset drift per unit of exposure_drift
 WORLD_FRAME = "world"
 IMU_FRAME = "imu"
@@ -97,6 +99,9 @@ class BagOptions:
     imu_bias: float = 0.05  # m/s^2, norm of the constant accelerometer bias (random direction)
     gyro_bias: float = 0.002  # rad/s, norm of the constant gyro bias
     imu: bool = True  # write the IMU topic
+    gyro_unit: str = "rad/s"  # the unit the Imu messages' angular_velocity (and its covariance) is written in:
+    # "deg/s" is a driver that breaks REP 103
+    accel_unit: str = "m/s^2"  # ... and linear_acceleration: "g" is a driver that breaks REP 103
     damping: float | None = None  # damping ratio of the bars' ringing; None: quasi-static bending
     jitter_ms: float = 0.0  # each camera's stamp is off the trigger by U(-jitter, +jitter) ms
     drop_rate: float = 0.0  # probability that a camera loses a frame
@@ -143,6 +148,9 @@ class BagOptions:
             raise OptionError(_OWNER, "drop_rate", f"must be in [0, 1), got {self.drop_rate!r}")
         if self.damping is not None:
             check_damping(self.damping, _OWNER)
+        for name, units in (("gyro_unit", GYRO_UNITS), ("accel_unit", ACCEL_UNITS)):
+            if getattr(self, name) not in units:
+                raise OptionError(_OWNER, name, f"unknown unit {getattr(self, name)!r} (supported: {', '.join(units)})")
         self.motion.validate()
         if self.imu_lowpass_hz and not self.imu_lowpass_hz < 0.5 * self.motion.imu_rate:
             raise OptionError(_OWNER, "imu_lowpass_hz", f"must be 0 (none) or below half the IMU rate "
@@ -318,6 +326,7 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
         imu_period = int(round(1e9 / opts.motion.imu_rate))
         imu_t = np.arange(traj.start_ns, traj.end_ns, imu_period, dtype=np.int64)
         accel, gyro = imu_readings(rig, traj, imu_t, rng_imu, opts, loads)
+        accel, gyro = accel / ACCEL_UNITS[opts.accel_unit], gyro / GYRO_UNITS[opts.gyro_unit]
     else:
         imu_t = np.zeros(0, dtype=np.int64)
     R, p, omega, _ = traj.state(frame_t)
@@ -329,7 +338,8 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     topics = [(image_topic_for(bag_topic(c.image_topic), opts.encoding), bag_topic(c.info_topic)) for c in rig.cameras]
     quality = {"jpeg_quality": opts.jpeg_quality} if opts.encoding in COMPRESSED_FORMATS else {}
     max_jitter_ns = int(np.max(np.abs(jitter_ns), initial=0))
-    claimed = (opts.imu_covariance_scale * opts.imu_noise, opts.imu_covariance_scale * opts.gyro_noise)
+    claimed = (opts.imu_covariance_scale * opts.imu_noise / ACCEL_UNITS[opts.accel_unit],
+               opts.imu_covariance_scale * opts.gyro_noise / GYRO_UNITS[opts.gyro_unit])
     cache = _StillCache(M)
     j = 0  # next IMU sample
     pending: list = []  # heap of (bag time, order, topic, message): written in bag-time order, ties as pushed

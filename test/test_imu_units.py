@@ -1,0 +1,101 @@
+"""The gyro's unit from the moves the images show: rad/s (REP 103) or a driver's deg/s, measured, replayed with
+and applied by the running node."""
+
+import pytest
+from test_imu_clock import _rendered_rates, _ring3
+
+from nrmpc_ros.frontend.imu_units import DEGREE, DEGREES_BELOW, gyro_units
+
+
+def _stiff_ring3():
+    """Three cameras on 8 Hz bars that ring (damping 0.04)."""
+    import dataclasses
+
+    from nrmpc_ros.sim.synthetic import RigSpec, make_rig
+
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=2.3, mass=0.1, bar_length=0.3))
+    return dataclasses.replace(rig, cameras=tuple(dataclasses.replace(c, damping=0.04) for c in rig.cameras))
+
+
+@pytest.mark.parametrize("seed", [2, 3])
+@pytest.mark.parametrize("rig", [_stiff_ring3, _ring3])
+def test_a_gyro_in_rad_s_reads_rad_s_and_one_in_deg_s_reads_deg_s(seed, rig):
+    """The same rendered moves (ringing bars, MEMS noise), the gyro written in rad/s and in deg/s: the images'
+    motion over the gyro's prediction is about 1 (the bars' swing added: up to a few) and 1/57.3 of that, every
+    resample of the moves agreeing. Bars that ring as much in the holds as the moves turn (2.6 Hz, the images
+    correlating with the gyro's turn below 0.5) give no verdict, never a wrong one."""
+    rad = gyro_units(_rendered_rates(rig(), 0.0, seed=seed))
+    deg = gyro_units(_rendered_rates(rig(), 0.0, seed=seed, gyro_unit=DEGREE))
+    if rig is _ring3 and (rad is None or deg is None):
+        assert (rad is None or not rad.in_degrees) and (deg is None or deg.in_degrees)
+        return
+    assert rad is not None and deg is not None
+    assert 0.5 < rad.ratio < 4.0 and not rad.in_degrees and rad.confidence == 0.0, rad
+    assert deg.ratio / DEGREE == pytest.approx(rad.ratio, rel=0.05) and deg.in_degrees and deg.confidence == 1.0, deg
+    assert deg.moves == rad.moves >= 3 and deg.frames == rad.frames
+
+
+def test_a_clock_seconds_off_does_not_read_as_deg_s():
+    """The IMU's stamps 9 s late, in rad/s: the frames the images show moving see the gyro at other moments, whose
+    prediction is smaller, not larger (or no frame moves in both: no verdict)."""
+    units = gyro_units(_rendered_rates(_stiff_ring3(), 9.0, views=8))
+    assert units is None or (units.ratio > DEGREES_BELOW and not units.in_degrees), units
+
+
+def test_cameras_that_record_only_the_holds_give_no_verdict():
+    """No move inside the frames (the cameras skip the moves): nothing to compare the gyro's size with."""
+    assert gyro_units(_rendered_rates(_stiff_ring3(), 0.0, capture="holds", gyro_unit=DEGREE)) is None
+
+
+@pytest.fixture(scope="module")
+def deg_bag(tmp_path_factory):
+    """A stream with the gyro written in deg/s (a driver that breaks REP 103), and its rig file."""
+    from nrmpc_ros.cli.main import main
+
+    d = tmp_path_factory.mktemp("degs")
+    assert main(["make-bag", "--out", str(d / "degs"), "--save-rig", str(d / "rig.yaml"), "--resolution",
+                 "320x240", "--supersample", "1", "--cameras", "4", "--rate", "15", "--capture", "stream",
+                 "--bar-hz", "3", "--damping", "0.03", "--views", "9", "--seed", "11", "--gyro-unit", "deg/s",
+                 "--no-progress"]) == 0
+    return d / "degs", d / "rig.yaml"
+
+
+@pytest.mark.slow
+def test_replay_measures_a_gyro_in_deg_s_and_replays_with_its_scale(deg_bag, tmp_path, capsys):
+    """In deg/s the stillness test reads the gyro's bias as a steady turn and its noise as motion: no hold was
+    estimated. Replay measures the unit from the moves, says so, and replays with --imu-gyro-scale pi/180: every
+    hold is estimated, within 0.2 deg of the truth; --imu-gyro-scale 1 keeps the rates as they are."""
+    from nrmpc_ros.cli.main import main
+
+    path, rig_file = deg_bag
+    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"),
+                 "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    said = [ln for ln in text.splitlines() if ln.startswith("IMU gyro units:")]
+    assert len(said) == 1 and "the gyro reads deg/s" in said[0] and "0 estimates" in said[0], text
+    assert f"--imu-gyro-scale {DEGREE:.7f}" in said[0]
+    assert "with an estimate (after the first): 8/8" in text, text
+    medians = [float(ln.split("median")[1].split()[0]) for ln in text.splitlines()
+               if ln.strip().startswith("gravity vs ground truth")]
+    assert medians and max(medians) < 0.2
+    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "y.csv"), "--no-progress",
+                 "--imu-gyro-scale", "1"]) == 0
+    kept = capsys.readouterr().out
+    assert "IMU gyro units:" not in kept and "with an estimate (after the first): 0/8" in kept
+
+
+@pytest.mark.slow
+def test_the_running_node_measures_a_gyro_in_deg_s_and_applies_its_scale(deg_bag):
+    """The node, fed as it runs: once the holds ended have three moves between them it asks the moves, finds the
+    gyro in deg/s, multiplies its rates by pi/180 from then on (one new sequence, said once, in the IMU
+    diagnostics), and the holds after the restart's first are estimated, each within 3 of its std of the truth."""
+    from test_service import live_service, within_3_std_of_the_truth
+
+    path, rig_file = deg_bag
+    s, ests, logs = live_service(path, rig_file)
+    assert s.counts["IMU gyro units applied"] == 1 and s.feeder.config.imu_gyro_scale == pytest.approx(DEGREE)
+    said = [line for line in logs if "the gyro reads deg/s" in line]
+    assert len(said) == 1 and "a new sequence" in said[0]
+    assert "measured in deg/s" in s.diagnostics()[1].values["gyro scale"]
+    assert len(ests) >= 4
+    within_3_std_of_the_truth(path, ests)
