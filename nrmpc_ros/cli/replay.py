@@ -25,7 +25,7 @@ from ..frontend.imu import describe_gaps
 from ..frontend.imu_agreement import describe_check
 from ..frontend.imu_clock import SIGNIFICANT_STDS
 from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock
-from ..frontend.imu_units import DEGREE, describe_gyro_units, gyro_units
+from ..frontend.imu_units import DEGREE, describe_gyro_noise, describe_gyro_units, gyro_units
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
 from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
@@ -327,6 +327,9 @@ def run(args) -> int:
             scale = describe_accel_scale(noise, runner.pipeline.rig.gravity_magnitude)
             if scale:
                 print(f"IMU scale: {scale}")
+            gyro_noise = describe_gyro_noise(noise) if replay.feeder.config.imu_gyro_scale == 1.0 else None
+            if gyro_noise:
+                print(f"IMU gyro units: {gyro_noise}")
         gaps = describe_gaps(runner.pipeline.imu)
         if gaps:
             print(f"IMU gaps: {gaps}")

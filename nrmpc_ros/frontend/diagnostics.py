@@ -20,6 +20,7 @@ from .drops import Drop, sorted_counts
 from .imu import describe_gaps
 from .imu_agreement import describe_check
 from .imu_clock_check import describe_clock
+from .imu_units import describe_gyro_noise
 from .zupt import NoiseSource, describe_accel_scale, describe_noise
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
@@ -122,6 +123,9 @@ class ServiceDiagnostics:
             scale = describe_accel_scale(noise, s.rig.gravity_magnitude)
             if scale:
                 values["accelerometer scale"] = scale
+            gyro_noise = describe_gyro_noise(noise) if s.feeder.config.imu_gyro_scale == 1.0 else None
+            if gyro_noise:
+                values["gyro noise"] = gyro_noise
         refuted = describe_check(s.runner.pipeline.estimator.imu_check)
         if refuted:
             values["gravity check"] = refuted
@@ -150,6 +154,8 @@ class ServiceDiagnostics:
                 "; its clock is seconds off the cameras': see clock check)" if clock is not None else ")")
         elif scale:
             level, message = WARN, "the accelerometer's scale is off gravity's (see accelerometer scale)"
+        elif noise is not None and "gyro noise" in values:
+            level, message = WARN, "the gyro's noise is beyond any MEMS gyro's: deg/s? (see gyro noise)"
         elif noise is not None and noise.source is NoiseSource.WHITE_NOISE:
             level, message = WARN, ("the Imu covariances claim less noise than the samples show: the stillness "
                                     "test uses the samples' (see stillness test)")

@@ -121,6 +121,13 @@ MIN_MOVES = 3
 """Moves the far search needs, and the near one inside the frames: a move and its return (the same axis back)
 can line up at a wrong lag by chance, a third move about another axis cannot."""
 
+MOVES_SHOWN_QUANTILE = 0.9
+"""The gyro's moves are on camera where the images' median rate over the frames the gyro shows moving exceeds
+this quantile of their rate over the frames it shows still. The stills' ringing after a stop stays below it
+(except on bars that ring as fast as the rig turns: 1.5 Hz bars, 2 cameras on one bar, no verdict); with an IMU
+clock seconds off, the images' own moves fall among the gyro's still frames, more than a tenth of them in a
+recording of moves and holds, and the quantile is a move's rate."""
+
 MAX_RIVALS = 8
 """Local maxima outside the peak's lobe that the resamples test it against: the strongest ones."""
 
@@ -395,9 +402,9 @@ class ImuClockEstimator:
         are: each camera's image rate (F, M; rad/s, NaN: none), the rate the body's turn (the gyro integrated)
         predicts across that camera's optical axis (F, M), each frame's move (F,) and the number of moves. None
         without a rig file's IMU mount, without :data:`MIN_MOVING_FRAMES` such frames in :data:`MIN_MOVES` moves,
-        or where the images' rate and the gyro's prediction do not correlate over all frames
-        (:data:`MIN_CORRELATION`): moves the frames do not show at the gyro's stamps (an IMU clock seconds off)
-        would read the holds' images against the moves' rates."""
+        or where the images do not move where the gyro does (:data:`MOVES_SHOWN_QUANTILE`): moves the frames do
+        not show at the gyro's stamps (an IMU clock seconds off) would read the holds' images against the moves'
+        rates."""
         rig = self.rig
         if rig is None or rig.imu is None or len(self._imu) < MIN_IMU_SAMPLES or len(self._frames) < MIN_MOVING_FRAMES:
             return None
@@ -415,8 +422,9 @@ class ImuClockEstimator:
         body = _body_turn(rig, imu)
         turn = (_interp_rows(b, t, body) - _interp_rows(a, t, body))[:, None, :]
         pred = _across_rates(turn, rig.rotations[:, :, 2], b - a)
-        if _correlation(np.nanmean(pred, axis=1)[None], np.nanmedian(y, axis=1))[0] < MIN_CORRELATION:
-            return None
+        med = np.nanmedian(y, axis=1)
+        if not np.median(med[moving]) > np.quantile(med[~moving], MOVES_SHOWN_QUANTILE, method="linear"):
+            return None  # the images do not move where the gyro does
         return y[moving], pred[moving], segment[moving], moves
 
     def _rotations(self, imu) -> tuple:
