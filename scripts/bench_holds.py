@@ -80,6 +80,7 @@ from nrmpc_ros.frontend.evaluation import evaluate, static_holds
 from nrmpc_ros.frontend.feeder import FeederConfig
 from nrmpc_ros.frontend.imu_clock_check import clock_passes, measure_imu_clock
 from nrmpc_ros.frontend.imu_reference import ImuReference
+from nrmpc_ros.frontend.imu_units import UnitsMeasuringPass
 from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig
 from nrmpc_ros.frontend.reference import STAMP_TOLERANCE_S, nearest_stamp, read_reference
 from nrmpc_ros.frontend.replay import replay_bag, resolve_imu_topic
@@ -160,14 +161,16 @@ def replay_rows(path: Path, rig, method: str, with_holds: bool = False, keep: li
         imu_topic = resolve_imu_topic(bag, rig, warn=lambda m: None)
         ref = read_reference(bag, imu_topic)
 
-        def run_pass(offset_s):  # as nrmpc replay: an IMU clock measured off the cameras' is applied
+        def one_pass(inputs):  # as nrmpc replay: the gyro's unit and an IMU clock measured off the cameras' applied
             pipe = Pipeline(rig, config or PipelineConfig(), method=method)
             if keep is not None:
                 pipe.sequence.keep_history = True
                 pipe.measured_holds = []
-            ests = [e for es in replay_bag(bag, rig, pipe, imu_topic, FeederConfig(imu_clock_offset_s=offset_s),
-                                           warn=lambda m: None) for e in es]
-            return pipe, ests, replace(ref, imu_t=ref.imu_t + offset_s)
+            ests = [e for es in replay_bag(bag, rig, pipe, imu_topic, inputs, warn=lambda m: None) for e in es]
+            return pipe, ests, ref.as_read(inputs)
+
+        run_pass = UnitsMeasuringPass(one_pass, FeederConfig(), lambda result: result[0],
+                                      measure=imu_topic is not None)
 
         def measure(result):
             pipe, ests, shifted = result

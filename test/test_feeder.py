@@ -360,26 +360,28 @@ def test_an_imu_clock_offset_moves_every_imu_stamp_into_the_cameras_clock(rig, r
 
 
 @pytest.mark.parametrize("blocks", [False, True])
-def test_a_gyro_scale_multiplies_every_rate_and_its_covariance(rig, blocks):
-    """input.imu_gyro_scale pi/180 (a driver's deg/s): every rate the pipeline gets is the sample's times it and
-    its covariance times the square (so a claim of 'unknown', -1, stays negative: unknown), one sample at a time
-    or in blocks alike; the accelerometer is untouched."""
-    k = math.pi / 180.0
+def test_unit_scales_multiply_every_sample_and_its_covariance(rig, blocks):
+    """input.imu_gyro_scale pi/180 and input.imu_accel_scale 9.80665 (a driver's deg/s and g): every rate and
+    specific force the pipeline gets is the sample's times its scale and each covariance times the square (so a
+    claim of 'unknown', -1, stays negative: unknown), one sample at a time or in blocks alike."""
+    k, m = math.pi / 180.0, 9.80665
     stamps = 100.0 + np.arange(40) / 200.0
     rates = np.outer(np.arange(1, 41), [10.0, -20.0, 30.0])  # deg/s
+    accels = np.tile([0.1, -0.2, 0.97], (40, 1))  # g
     cov = np.tile(np.diag([4.0, 4.0, -1.0]).reshape(-1), (40, 1))
-    f, work, _ = feeder(rig, imu_gyro_scale=k)
+    f, work, _ = feeder(rig, imu_gyro_scale=k, imu_accel_scale=m)
     if blocks:
-        f.imu_block(ImuBlock(stamps, np.tile([0.0, 0.0, 9.81], (40, 1)), rates, np.zeros((40, 9)), cov))
+        f.imu_block(ImuBlock(stamps, accels, rates, 0.5 * cov, cov))
     else:
-        for t, w, c in zip(stamps, rates, cov):
-            msg = imu(t)
+        for t, a, w, c in zip(stamps, accels, rates, cov):
+            msg = imu(t, a)
             msg.angular_velocity = SimpleNamespace(x=w[0], y=w[1], z=w[2])
-            msg.angular_velocity_covariance, msg.linear_acceleration_covariance = c, np.zeros(9)
+            msg.angular_velocity_covariance, msg.linear_acceleration_covariance = c, 0.5 * c
             f.imu_msg(msg)
     f.end()
     got = [w.data for w in work if w.kind is WorkKind.IMU]
     assert len(got) == 40
-    for (a, w, (_, c)), want_w, want_c in zip(got, rates, cov):
-        assert np.allclose(w, k * want_w, rtol=1e-12) and np.allclose(a, [0.0, 0.0, 9.81])
-        assert np.allclose(c, k * k * want_c, rtol=1e-12) and np.asarray(c)[8] < 0
+    for (a, w, (ca, cw)), want_a, want_w, want_c in zip(got, accels, rates, cov):
+        assert np.allclose(w, k * want_w, rtol=1e-12) and np.allclose(a, m * want_a, rtol=1e-12)
+        assert np.allclose(cw, k * k * want_c, rtol=1e-12) and np.asarray(cw)[8] < 0
+        assert np.allclose(ca, 0.5 * m * m * want_c, rtol=1e-12)

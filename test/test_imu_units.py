@@ -72,9 +72,9 @@ def test_replay_measures_a_gyro_in_deg_s_and_replays_with_its_scale(deg_bag, tmp
     assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"),
                  "--no-progress"]) == 0
     text = capsys.readouterr().out
-    said = [ln for ln in text.splitlines() if ln.startswith("IMU gyro units:")]
+    said = [ln for ln in text.splitlines() if ln.startswith("IMU units:")]
     assert len(said) == 1 and "the gyro reads deg/s" in said[0] and "0 estimates" in said[0], text
-    assert f"--imu-gyro-scale {DEGREE:.7f}" in said[0]
+    assert "--imu-gyro-scale 0.01745329 --imu-accel-scale 1 " in said[0] and "accelerometer" not in said[0]
     assert "with an estimate (after the first): 8/8" in text, text
     medians = [float(ln.split("median")[1].split()[0]) for ln in text.splitlines()
                if ln.strip().startswith("gravity vs ground truth")]
@@ -82,7 +82,7 @@ def test_replay_measures_a_gyro_in_deg_s_and_replays_with_its_scale(deg_bag, tmp
     assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "y.csv"), "--no-progress",
                  "--imu-gyro-scale", "1"]) == 0
     kept = capsys.readouterr().out
-    assert "IMU gyro units:" not in kept and "with an estimate (after the first): 0/8" in kept
+    assert "IMU units:" not in kept and "with an estimate (after the first): 0/8" in kept
 
 
 @pytest.mark.slow
@@ -94,10 +94,12 @@ def test_the_running_node_measures_a_gyro_in_deg_s_and_applies_its_scale(deg_bag
 
     path, rig_file = deg_bag
     s, ests, logs = live_service(path, rig_file)
-    assert s.counts["IMU gyro units applied"] == 1 and s.feeder.config.imu_gyro_scale == pytest.approx(DEGREE)
+    assert s.counts["IMU units applied"] == 1 and s.feeder.config.imu_gyro_scale == pytest.approx(DEGREE)
+    assert s.feeder.config.imu_accel_scale == 1.0
     said = [line for line in logs if "the gyro reads deg/s" in line]
     assert len(said) == 1 and "a new sequence" in said[0]
-    assert "measured in deg/s" in s.diagnostics()[1].values["gyro scale"]
+    assert "0.01745329" in s.diagnostics()[1].values["units"] and "measured and applied" in s.diagnostics()[1].values[
+        "units"]
     assert len(ests) >= 4
     within_3_std_of_the_truth(path, ests)
 
@@ -124,13 +126,33 @@ def test_a_gyro_noise_no_mems_gyro_has_is_said_as_deg_s(rate_hz, density_deg, in
 def test_replay_hints_at_a_gyro_in_deg_s_where_the_cameras_skip_the_moves(tmp_path, capsys):
     """Cameras that record only the holds: no move on camera to measure the unit with, no hold estimated; the
     summary says the gyro's noise is beyond any MEMS gyro's and what to set."""
+    said = [ln for ln in _replayed_holds(tmp_path, capsys, "--gyro-unit", "deg/s").splitlines()
+            if ln.startswith("IMU gyro units:")]
+    assert len(said) == 1 and "noise at rest" in said[0] and "--imu-gyro-scale 0.0174533" in said[0], said
+
+
+@pytest.mark.slow
+def test_replay_measures_an_accelerometer_in_g_and_replays_with_its_scale(tmp_path, capsys):
+    """An accelerometer in g reads 1 at rest: the holds stand (directions) but the bars' loads are a tenth of
+    their size. Replay says so and replays with --imu-accel-scale 9.80665: the same holds, and the still norm
+    then agrees with the rig's gravity (no 'IMU scale:' line)."""
+    text = _replayed_holds(tmp_path, capsys, "--accel-unit", "g")
+    said = [ln for ln in text.splitlines() if ln.startswith("IMU units:")]
+    assert len(said) == 1 and "the accelerometer reads g: 0.99" in said[0] and "deg/s" not in said[0], said
+    assert "--imu-gyro-scale 1 --imu-accel-scale 9.80665" in said[0]
+    assert "IMU scale:" not in text and "with an estimate (after the first): 3/3" in text, text
+
+
+def _replayed_holds(tmp_path, capsys, *units) -> str:
+    """What nrmpc replay prints of a small holds recording (4 holds of 1 s, cameras off in the moves) whose IMU
+    make-bag wrote in ``units``."""
     from nrmpc_ros.cli.main import main
 
     path, rig_file = tmp_path / "holds", tmp_path / "rig.yaml"
     assert main(["make-bag", "--out", str(path), "--save-rig", str(rig_file), "--resolution", "160x120",
                  "--supersample", "1", "--capture", "holds", "--views", "4", "--hold-seconds", "1", "--seed", "25",
-                 "--gyro-unit", "deg/s", "--no-progress"]) == 0
+                 *units, "--no-progress"]) == 0
+    capsys.readouterr()
     assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"),
                  "--no-progress"]) == 0
-    said = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("IMU gyro units:")]
-    assert len(said) == 1 and "noise at rest" in said[0] and "--imu-gyro-scale 0.0174533" in said[0], said
+    return capsys.readouterr().out

@@ -6,7 +6,7 @@ import math
 import sys
 import time
 from contextlib import nullcontext
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from ..frontend.imu import describe_gaps
 from ..frontend.imu_agreement import describe_check
 from ..frontend.imu_clock import SIGNIFICANT_STDS
 from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock
-from ..frontend.imu_units import DEGREE, describe_gyro_noise, describe_gyro_units, gyro_units
+from ..frontend.imu_units import UnitsMeasuringPass, describe_gyro_noise, describe_units
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
 from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
@@ -82,6 +82,9 @@ def register(sub):
                    help="multiply every IMU angular rate by K as it is read: 0.0174533 (pi/180) for a driver that "
                    "writes deg/s (replay measures the unit from the moves and replays with it when the gyro reads "
                    "deg/s; default 1)")
+    p.add_argument("--imu-accel-scale", type=number(float, lo=1e-6, hi=1e6), default=None, metavar="K",
+                   help="multiply every IMU specific force by K as it is read: 9.80665 for a driver that writes g "
+                   "(replay measures the unit from the still norm and replays with it when it reads g; default 1)")
     p.add_argument("--seed", type=seed, default=0, help="RANSAC seed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", action="store_true", help="print only the statistics, not every estimate")
@@ -114,10 +117,12 @@ def input_config(args) -> FeederConfig:
         d["queue_size"] = args.queue_size
     if getattr(args, "imu_clock_offset", None) is not None:
         d["imu_clock_offset_s"] = args.imu_clock_offset
-    if getattr(args, "imu_gyro_scale", None) is not None:
-        d["imu_gyro_scale"] = args.imu_gyro_scale
+    for key in ("imu_gyro_scale", "imu_accel_scale"):
+        if getattr(args, key, None) is not None:
+            d[key] = getattr(args, key)
     flags = {"sync_tolerance_s": "--sync-tolerance", "queue_size": "--queue-size",
-             "imu_clock_offset_s": "--imu-clock-offset", "imu_gyro_scale": "--imu-gyro-scale"}
+             "imu_clock_offset_s": "--imu-clock-offset", "imu_gyro_scale": "--imu-gyro-scale",
+             "imu_accel_scale": "--imu-accel-scale"}
     try:
         return from_mapping(FeederConfig, d, "flags")
     except InputError as exc:
@@ -193,11 +198,7 @@ def _replay_pass(args, bag, rig, cfg, inputs: FeederConfig, image_topics, imu_to
             for poses in runner.pipeline.extrinsics.smoothed():  # the final bias from the first sample on
                 extrinsics.write(poses)
         ref = read_reference(bag, imu_topic, warn)
-        shift = inputs.imu_clock_offset_s
-        if shift:  # the IMU's samples in the cameras' clock, as the pipeline read them
-            ref = replace(ref, imu_t=ref.imu_t + shift)
-        if inputs.imu_gyro_scale != 1.0:  # ... and in its units
-            ref = replace(ref, imu_w=ref.imu_w * inputs.imu_gyro_scale)
+        ref = ref.as_read(inputs)  # the IMU's samples in the cameras' clock and in rad/s, as the pipeline read them
         batch = []
         if args.batch:
             method = rows[-1].method if rows else args.method
@@ -239,21 +240,16 @@ def run(args) -> int:
             warn(imu_mount_warning(rig))
         inputs = input_config(args)
 
-        def run_pass(offset_s):
-            nonlocal inputs
-            p = _replay_pass(args, bag, rig, cfg, replace(inputs, imu_clock_offset_s=offset_s), image_topics,
-                             imu_topic, warn)
-            if args.imu_gyro_scale is None and imu_topic is not None and inputs.imu_gyro_scale == 1.0:
-                units = gyro_units(p.runner.pipeline.imu_clock)  # a gyro in deg/s: measured once, replayed with
-                if units is not None and units.in_degrees:
-                    inputs = replace(inputs, imu_gyro_scale=DEGREE)
-                    st = p.runner.stats
-                    print(f"IMU gyro units: {describe_gyro_units(units)}; the pass gave {st.estimates} estimates "
-                          f"of {st.holds} holds; replaying with --imu-gyro-scale {DEGREE:.7f} (--imu-gyro-scale 1 "
-                          "keeps the rates as they are)")
-                    p = _replay_pass(args, bag, rig, cfg, replace(inputs, imu_clock_offset_s=offset_s),
-                                     image_topics, imu_topic, warn)
-            return p
+        def units_said(units, before):
+            st, given = before.runner.stats, run_pass.inputs
+            print(f"IMU units: {describe_units(units)}; the pass gave {st.estimates} estimates of {st.holds} holds; "
+                  f"replaying with --imu-gyro-scale {given.imu_gyro_scale:.7g} --imu-accel-scale "
+                  f"{given.imu_accel_scale:.7g} (a scale of 1 keeps the samples as they are)")
+
+        run_pass = UnitsMeasuringPass(
+            lambda given: _replay_pass(args, bag, rig, cfg, given, image_topics, imu_topic, warn), inputs,
+            lambda p: p.runner.pipeline, units_said,
+            measure=args.imu_gyro_scale is None and args.imu_accel_scale is None and imu_topic is not None)
 
         def said(measured, before, passes):
             total = before.replay.feeder.config.imu_clock_offset_s + measured.offset_s
@@ -327,7 +323,8 @@ def run(args) -> int:
             scale = describe_accel_scale(noise, runner.pipeline.rig.gravity_magnitude)
             if scale:
                 print(f"IMU scale: {scale}")
-            gyro_noise = describe_gyro_noise(noise) if replay.feeder.config.imu_gyro_scale == 1.0 else None
+            gyro_noise = describe_gyro_noise(noise) if args.imu_gyro_scale is None and \
+                replay.feeder.config.imu_gyro_scale == 1.0 else None  # (a scale given: the user's word stands)
             if gyro_noise:
                 print(f"IMU gyro units: {gyro_noise}")
         gaps = describe_gaps(runner.pipeline.imu)

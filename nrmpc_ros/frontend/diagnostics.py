@@ -137,11 +137,11 @@ class ServiceDiagnostics:
         if shift or applied:
             values["clock offset"] = (f"{shift:+.3f} s added to the IMU's stamps" + (
                 f" ({applied} measured off the cameras' and applied)" if applied else " (input.imu_clock_offset_s)"))
-        gyro_scale = s.feeder.config.imu_gyro_scale
-        if gyro_scale != 1.0 or s.counts["IMU gyro units applied"]:
-            values["gyro scale"] = (f"the gyro's rates multiplied by {gyro_scale:.7g}" + (
-                " (measured in deg/s off the images' and applied)" if s.counts["IMU gyro units applied"]
-                else " (input.imu_gyro_scale)"))
+        scales = (s.feeder.config.imu_gyro_scale, s.feeder.config.imu_accel_scale)
+        if scales != (1.0, 1.0) or s.counts["IMU units applied"]:
+            values["units"] = (f"the gyro's rates multiplied by {scales[0]:.7g}, the specific force by "
+                               f"{scales[1]:.7g}" + (" (measured and applied)" if s.counts["IMU units applied"]
+                                                     else " (input.imu_gyro_scale, input.imu_accel_scale)"))
         clock = s.runner.pipeline.imu_clock_off
         if clock is not None and s.runner.pipeline is not s.clock_from:
             values["clock check"] = (f"{describe_clock(clock)}: set input.imu_clock_offset_s to "

@@ -112,9 +112,13 @@ class FeederConfig:
                                    "as it arrives: 0.0174533 (pi/180) turns a driver's deg/s into the rad/s of "
                                    "sensor_msgs/Imu (REP 103; nrmpc replay measures it from the moves)",
                                    lo=1e-6, hi=1e6)
-    imu_units_measured: bool = option(True, "the node multiplies the gyro's rates by pi/180 from then on where the "
-                                      "moves show it reads deg/s, a new sequence starting (as nrmpc replay replays "
-                                      "with it); false: it only warns")
+    imu_accel_scale: float = option(1.0, "multiplies every IMU sample's specific force (its covariance by the "
+                                    "square) as it arrives: 9.80665 turns a driver's g into the m/s^2 of "
+                                    "sensor_msgs/Imu (REP 103; nrmpc replay measures it from the still norm)",
+                                    lo=1e-6, hi=1e6)
+    imu_units_measured: bool = option(True, "the node multiplies the gyro's rates by pi/180 (the specific force by "
+                                      "9.80665) from then on where the moves show deg/s (the still norm g), a new "
+                                      "sequence starting (as nrmpc replay replays with it); false: it only warns")
     imu_clock_measured: bool = option(True, "the node adds an IMU clock offset the images measure (the moves "
                                       "against the gyro, once the images refute the IMU's gravity) to this one "
                                       "from then on, a new sequence starting (as nrmpc replay replays with it); "
@@ -214,11 +218,12 @@ class Feeder:
         the message's (linear_acceleration_covariance, angular_velocity_covariance), which set the stillness
         test's noise (:meth:`~nrmpc_ros.frontend.pipeline.Pipeline.add_imu`)."""
         self.events["imu samples"] += 1
-        k = self.config.imu_gyro_scale
-        if k != 1.0:
-            gyro = np.asarray(gyro, dtype=float) * k
-            if covariance is not None and covariance[1] is not None:
-                covariance = (covariance[0], np.asarray(covariance[1], dtype=float) * k * k)
+        k, m = self.config.imu_gyro_scale, self.config.imu_accel_scale
+        if k != 1.0 or m != 1.0:
+            accel, gyro = np.asarray(accel, dtype=float) * m, np.asarray(gyro, dtype=float) * k
+            if covariance is not None:
+                covariance = tuple(None if c is None else np.asarray(c, dtype=float) * f * f
+                                   for c, f in zip(covariance, (m, k)))
         self._sample(stamp + self.config.imu_clock_offset_s, accel, gyro, now, covariance)
 
     def imu_block(self, block: ImuBlock, now: float | None = None) -> None:
@@ -229,9 +234,10 @@ class Feeder:
         self.events["imu samples"] += n
         if self.config.imu_clock_offset_s:
             block = replace(block, stamps=block.stamps + self.config.imu_clock_offset_s)
-        k = self.config.imu_gyro_scale
-        if k != 1.0:
-            block = replace(block, gyro=block.gyro * k, gyro_cov=block.gyro_cov * (k * k))
+        k, m = self.config.imu_gyro_scale, self.config.imu_accel_scale
+        if k != 1.0 or m != 1.0:
+            block = replace(block, accel=block.accel * m, gyro=block.gyro * k, accel_cov=block.accel_cov * (m * m),
+                            gyro_cov=block.gyro_cov * (k * k))
         a, w, t = block.accel, block.gyro, block.stamps
         good = bool(n) and bool(np.isfinite(a).all() and np.isfinite(w).all() and a.any(axis=1).all())
         if good and t[0] > self._imu_newest and self.guard.accept_run(IMU, t, now):
@@ -309,10 +315,12 @@ class Feeder:
         self._start_afresh(why)
         self.guard = self._new_guard()
 
-    def rescale_gyro(self, factor: float, why: str) -> None:
-        """Multiply the gyro's rates by ``factor`` from now on (a unit measured off the images'): what was taken
-        goes out first, then the frame grouping, the IMU samples and the holds start afresh (a new sequence)."""
-        self.config = replace(self.config, imu_gyro_scale=self.config.imu_gyro_scale * factor)
+    def rescale_imu(self, gyro_factor: float, accel_factor: float, why: str) -> None:
+        """Multiply the gyro's rates and the specific force by these factors from now on (units measured): what was
+        taken goes out first, then the frame grouping, the IMU samples and the holds start afresh (a new
+        sequence)."""
+        self.config = replace(self.config, imu_gyro_scale=self.config.imu_gyro_scale * gyro_factor,
+                              imu_accel_scale=self.config.imu_accel_scale * accel_factor)
         self._start_afresh(why)
 
     def _start_afresh(self, why: str) -> None:

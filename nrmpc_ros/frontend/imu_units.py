@@ -1,6 +1,10 @@
-"""Whether the IMU's gyro reads degrees per second, from the moves the images show.
+"""The IMU's units: whether its gyro reads degrees per second (from the moves the images show) and its
+accelerometer g (from its still norm).
 
-sensor_msgs/Imu carries rad/s (REP 103). A driver that passes a chip's deg/s
+sensor_msgs/Imu carries rad/s and m/s^2 (REP 103). An accelerometer in g
+reads 1 at rest: directions, and so holds and IMU gravities, stand, but the
+bars' loads are read at a tenth of their size. The rest of this is the
+gyro's. A driver that passes a chip's deg/s
 on makes every rate 57.3 times its size: the stillness test reads the gyro's
 bias as a steady turn and its noise as motion, the gyro's turns throw the
 tracks' predictions off, and on a rendered recording of 9 holds none was
@@ -27,14 +31,18 @@ clock they do not.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .imu_clock import CONFIDENCE, MIN_MOVES, RESAMPLES
+from .zupt import ACCEL_SCALE_TOLERANCE
 
 DEGREE = math.pi / 180.0
 """One degree in radians: the scale that turns a gyro's deg/s into rad/s."""
+
+STANDARD_GRAVITY = 9.80665
+"""m/s^2 in one g, as drivers convert."""
 
 DEGREES_BELOW = math.sqrt(DEGREE)
 """The ratio of the images' motion to the gyro's below which the gyro reads deg/s: the geometric mean of 1 (rad/s)
@@ -43,7 +51,7 @@ and :data:`DEGREE` (deg/s)."""
 
 @dataclass(frozen=True)
 class GyroUnits:
-    """The images' motion over the motion the gyro predicts (summed over the moving frames; about 1 in rad/s,
+    """The images' motion over the motion the gyro predicts (the median over the moving frames; about 1 in rad/s,
     :data:`DEGREE` in deg/s), the share of resamples of the moves that read deg/s, and the frames and moves
     used."""
 
@@ -82,6 +90,85 @@ def gyro_units(imu_clock) -> GyroUnits | None:
                      frames=int(np.count_nonzero(use)), moves=len(order))
 
 
+def accel_in_g(noise, gravity_m_s2: float) -> bool:
+    """Whether the accelerometer reads in units of g: its still norm (of an :class:`~nrmpc_ros.frontend.zupt.
+    ImuNoise`, the quietest windows' mean) times :data:`STANDARD_GRAVITY` is the rig's gravity within
+    :data:`~nrmpc_ros.frontend.zupt.ACCEL_SCALE_TOLERANCE` (a MEMS accelerometer's scale error and bias keep it
+    within a few percent), where it reads about 1 where m/s^2 would read 9.8."""
+    norm = float(noise.accel_norm)
+    return math.isfinite(norm) and gravity_m_s2 > 0 and \
+        abs(norm * STANDARD_GRAVITY / gravity_m_s2 - 1.0) <= ACCEL_SCALE_TOLERANCE < abs(norm / gravity_m_s2 - 1.0)
+
+
+@dataclass(frozen=True)
+class ImuUnits:
+    """What a pass over a recording measured of the IMU's units: the gyro's (None: not measurable) and whether
+    the accelerometer reads g (with its still norm)."""
+
+    gyro: GyroUnits | None
+    accel_in_g: bool
+    accel_norm: float
+
+    @property
+    def gyro_scale(self) -> float:
+        """The factor that turns the gyro's rates into rad/s."""
+        return DEGREE if self.gyro is not None and self.gyro.in_degrees else 1.0
+
+    @property
+    def accel_scale(self) -> float:
+        """The factor that turns the accelerometer's readings into m/s^2."""
+        return STANDARD_GRAVITY if self.accel_in_g else 1.0
+
+    @property
+    def wrong(self) -> bool:
+        """Whether either reads another unit than sensor_msgs/Imu's."""
+        return self.gyro_scale != 1.0 or self.accel_scale != 1.0
+
+
+def imu_units(pipeline) -> ImuUnits:
+    """The IMU's units as a :class:`~nrmpc_ros.frontend.pipeline.Pipeline`'s collected samples and frames measure
+    them: the gyro's from the moves (:func:`gyro_units`), the accelerometer's from its still norm
+    (:func:`accel_in_g`)."""
+    noise = pipeline.zupt.noise_in_use
+    g = noise is not None and accel_in_g(noise, pipeline.rig.gravity_magnitude)
+    return ImuUnits(gyro_units(pipeline.imu_clock), g, float(noise.accel_norm) if noise is not None else math.nan)
+
+
+def describe_units(units: ImuUnits) -> str:
+    """What is in another unit, as the replay summary and the node's warning say it."""
+    parts = [describe_gyro_units(units.gyro)] if units.gyro_scale != 1.0 else []
+    if units.accel_in_g:
+        parts.append(f"the accelerometer reads g: {units.accel_norm:.3g} at rest")
+    return "; ".join(parts) + "; sensor_msgs/Imu carries rad/s and m/s^2 (REP 103)"
+
+
+class UnitsMeasuringPass:
+    """A pass over a recording, ``run_pass(inputs)`` with the input settings ``inputs`` (a
+    :class:`~nrmpc_ros.frontend.feeder.FeederConfig`), called with the IMU clock offset to add
+    (:func:`~nrmpc_ros.frontend.imu_clock_check.clock_passes` calls it so): the first pass measures the IMU's units
+    (:func:`imu_units` of ``pipeline_of(result)``); where either is not sensor_msgs/Imu's, ``said(units, result)``
+    hears it and the pass runs again with ``imu_gyro_scale`` and ``imu_accel_scale`` multiplied by what turns
+    them into rad/s and m/s^2, which every later pass keeps (:attr:`inputs`). ``measure`` False: never measured
+    (the scales were given)."""
+
+    def __init__(self, run_pass, inputs, pipeline_of, said=None, measure: bool = True):
+        self.run_pass, self.inputs, self.pipeline_of, self.said = run_pass, inputs, pipeline_of, said
+        self._measure = measure
+
+    def __call__(self, offset_s: float):
+        result = self.run_pass(replace(self.inputs, imu_clock_offset_s=offset_s))
+        if self._measure:
+            self._measure = False
+            units = imu_units(self.pipeline_of(result))
+            if units.wrong:
+                self.inputs = replace(self.inputs, imu_gyro_scale=self.inputs.imu_gyro_scale * units.gyro_scale,
+                                      imu_accel_scale=self.inputs.imu_accel_scale * units.accel_scale)
+                if self.said is not None:
+                    self.said(units, result)
+                result = self.run_pass(replace(self.inputs, imu_clock_offset_s=offset_s))
+        return result
+
+
 NOISIEST_GYRO_DENSITY = 0.1 * DEGREE
 """rad/s/sqrt(Hz): the noisiest MEMS gyros' rate noise density (datasheets give 0.003-0.1 deg/s/sqrt(Hz)). At a
 sample rate r its noise per sample is at most this times sqrt(r / 2); a gyro in deg/s reads 57 times its own."""
@@ -107,8 +194,9 @@ def describe_gyro_units(units: GyroUnits) -> str:
     verdict = "the gyro reads deg/s" if units.in_degrees else "the gyro reads rad/s"
     return (f"{verdict}: the images move {units.ratio:.3g} times as fast as it says over {units.frames} moving "
             f"frames in {units.moves} moves (about 1 in rad/s, {DEGREE:.4f} in deg/s; {100 * units.confidence:.0f} % "
-            "of resamples of the moves read deg/s); sensor_msgs/Imu carries rad/s (REP 103)")
+            "of resamples of the moves read deg/s)")
 
 
-__all__ = ["DEGREE", "DEGREES_BELOW", "GyroUnits", "NOISIEST_GYRO_DENSITY", "describe_gyro_noise",
-           "describe_gyro_units", "gyro_units"]
+__all__ = ["DEGREE", "DEGREES_BELOW", "GyroUnits", "ImuUnits", "NOISIEST_GYRO_DENSITY", "STANDARD_GRAVITY",
+           "UnitsMeasuringPass", "accel_in_g", "describe_gyro_noise", "describe_gyro_units", "describe_units",
+           "gyro_units", "imu_units"]

@@ -7,7 +7,7 @@ benchmarks; :func:`nearest_stamp` is the one rule that pairs an estimate's stamp
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -45,6 +45,13 @@ class Reference:
     @property
     def has_gravity(self) -> bool:
         return len(self.grav_t) > 0
+
+    def as_read(self, inputs) -> Reference:
+        """The IMU's samples as a pipeline read them with the input settings ``inputs`` (a
+        :class:`~nrmpc_ros.frontend.feeder.FeederConfig`): in the cameras' clock (``imu_clock_offset_s`` added)
+        and in rad/s and m/s^2 (``imu_gyro_scale``, ``imu_accel_scale``)."""
+        return replace(self, imu_t=self.imu_t + inputs.imu_clock_offset_s, imu_w=self.imu_w * inputs.imu_gyro_scale,
+                       imu_a=self.imu_a * inputs.imu_accel_scale)
 
 
 def _vec(v) -> list:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Callable, Iterator
-from dataclasses import replace
 
 from ..bag.reader import BagReader
 from ..core.rig import Rig
@@ -26,6 +25,7 @@ from .droplog import DropLog
 from .drops import sorted_counts
 from .feeder import Feeder, FeederConfig
 from .imu_clock_check import clock_passes, describe_clock, measure_imu_clock
+from .imu_units import UnitsMeasuringPass, describe_units
 from .pipeline import Pipeline, PipelineConfig
 from .reference import read_reference
 from .runner import PipelineRunner
@@ -171,14 +171,18 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
     topic = resolve_imu_topic(bag, rig, imu_topic, required=True, warn=warn)
     ref = read_reference(bag, topic, warn)
 
-    def run_pass(offset_s):  # an IMU clock measured off the cameras' is applied, as nrmpc replay does
+    def one_pass(inputs):  # the gyro's unit and an IMU clock measured off the cameras' applied, as nrmpc replay does
         pipe = Pipeline(rig, config, method="4pt-bending")
         pipe.sequence.keep_history = True
         pipe.measured_holds = [] if holds is not None else None
         runner = PipelineRunner.around(pipe, drops=DropLog(math.inf))
-        ests = [e for es in replay_bag(bag, rig, runner, topic, FeederConfig(imu_clock_offset_s=offset_s), warn=warn,
-                                       progress=progress) for e in es]
-        return runner, ests, replace(ref, imu_t=ref.imu_t + offset_s)
+        ests = [e for es in replay_bag(bag, rig, runner, topic, inputs, warn=warn, progress=progress) for e in es]
+        return runner, ests, ref.as_read(inputs)
+
+    def units_said(units, result):
+        warn(f"IMU units: {describe_units(units)}; replaying in rad/s and m/s^2")
+
+    run_pass = UnitsMeasuringPass(one_pass, FeederConfig(), lambda result: result[0].pipeline, units_said)
 
     def measure(result):
         runner, ests, shifted = result

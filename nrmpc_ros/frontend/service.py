@@ -49,7 +49,7 @@ from .feeder import IMU, Feeder
 from .images import stamp_seconds
 from .imu_clock import MIN_MOVES
 from .imu_clock_check import CLOCK_PASSES, LAG_ASKS_GROWTH, describe_clock, lag_from_moves
-from .imu_units import DEGREE, describe_gyro_units, gyro_units
+from .imu_units import describe_units, imu_units
 from .liveness import CameraWatch
 from .node_config import NodeConfig
 from .outputs import FrameNames, FramePosesOutput, HoldOutput, hold_output
@@ -494,8 +494,8 @@ class EstimatorService:
         return outputs
 
     def _apply_clock(self) -> None:
-        """What the frame stage measured of the IMU goes to the input, a new sequence starting: the gyro's unit
-        (deg/s: its rates multiplied by pi/180 from the next sample on, once a run; ``input.imu_units_measured``),
+        """What the frame stage measured of the IMU goes to the input, a new sequence starting: its units (deg/s,
+        g: multiplied into rad/s and m/s^2 from the next sample on, once a run; ``input.imu_units_measured``),
         an IMU clock offset (seconds off the cameras', from the moves; or a lag within a quarter second)
         added to the IMU's stamps (``input.imu_clock_measured``; at most ``CLOCK_PASSES - 1``
         times a run, as the replay's passes). Both are asked as holds end (:meth:`_asked`)."""
@@ -503,20 +503,23 @@ class EstimatorService:
         if pipeline is self.clock_from:
             return  # (the pipeline that measured it runs on until the restart queued behind its frames)
         asked = self._asked(pipeline)
-        if asked and not self.counts["IMU gyro units applied"] and not self.counts["IMU gyro units warned"]:
-            units = gyro_units(pipeline.imu_clock)
-            if units is not None and units.in_degrees and not self.config.input.imu_units_measured:
-                self.counts["IMU gyro units warned"] += 1
-                self.log("warn", f"{describe_gyro_units(units)}: set input.imu_gyro_scale to "
-                                 f"{self.feeder.config.imu_gyro_scale * DEGREE:.7f}, or fix the driver")
-            elif units is not None and units.in_degrees:
+        if asked and not self.counts["IMU units applied"] and not self.counts["IMU units warned"]:
+            units = imu_units(pipeline)
+            given = self.feeder.config
+            if units.wrong and not self.config.input.imu_units_measured:
+                self.counts["IMU units warned"] += 1
+                self.log("warn", f"{describe_units(units)}: set input.imu_gyro_scale to "
+                                 f"{given.imu_gyro_scale * units.gyro_scale:.7g} and input.imu_accel_scale to "
+                                 f"{given.imu_accel_scale * units.accel_scale:.7g}, or fix the driver")
+            elif units.wrong:
                 self.clock_from = pipeline
                 with self._input_lock:
-                    self.feeder.rescale_gyro(DEGREE, "the IMU's gyro measured in deg/s")
-                self.counts["IMU gyro units applied"] += 1
-                self.log("warn", f"{describe_gyro_units(units)}: its rates are multiplied by {DEGREE:.7f} from now "
-                                 f"on (input.imu_gyro_scale {self.feeder.config.imu_gyro_scale:.7f}): the holds "
-                                 "start afresh (a new sequence)")
+                    self.feeder.rescale_imu(units.gyro_scale, units.accel_scale, "the IMU's units measured")
+                self.counts["IMU units applied"] += 1
+                self.log("warn", f"{describe_units(units)}: the rates are multiplied by {units.gyro_scale:.7g} and "
+                                 f"the specific force by {units.accel_scale:.7g} from now on (input.imu_gyro_scale "
+                                 f"{self.feeder.config.imu_gyro_scale:.7g}, input.imu_accel_scale "
+                                 f"{self.feeder.config.imu_accel_scale:.7g}): the holds start afresh (a new sequence)")
                 return
         if not self.config.input.imu_clock_measured or self.counts["IMU clock offsets applied"] >= CLOCK_PASSES - 1:
             return
@@ -533,7 +536,7 @@ class EstimatorService:
 
     def _asked(self, pipeline) -> bool:
         """Whether the moves are asked what they say of the IMU now (:func:`~nrmpc_ros.frontend.imu_clock_check.
-        lag_from_moves`, :func:`~nrmpc_ros.frontend.imu_units.gyro_units`): once the holds ``pipeline`` ended
+        lag_from_moves`, :func:`~nrmpc_ros.frontend.imu_units.imu_units`): once the holds ``pipeline`` ended
         have ``MIN_MOVES`` moves between them, and again each time the holds ended have grown by
         ``LAG_ASKS_GROWTH`` (docs/PIPELINE.md, "IMU gravity that the images refute"). Replay measures the whole
         recording after its pass; a running node has only what came so far, and neither a lag (a stamping delay:
