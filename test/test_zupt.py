@@ -126,6 +126,22 @@ def test_holds_between_moves(rng, rate):
     assert stat.shape == t.shape and np.nanmax(stat) > 100  # moves are far above the threshold
 
 
+@pytest.mark.parametrize("bias_deg_s", [3.4, 17.0])
+def test_an_uncalibrated_gyros_bias_of_degrees_per_second_is_bias_not_motion(rng, bias_deg_s):
+    """A consumer MEMS gyro's zero-rate offset is specified within 20 deg/s: at 3.4 deg/s (beyond the earlier
+    3 deg/s bound) every window read as motion and no hold was found. The holds are found as with a calibrated
+    gyro, and the bias is the gyro's."""
+    plan = [("hold", 3.0), ("move", 1.5), ("hold", 2.0), ("move", 1.0), ("hold", 3.0)]
+    bias = math.radians(bias_deg_s) * np.array([0.6, -0.48, 0.64])
+    t, a, w, holds = trace(rng, 200.0, plan, bias=bias)
+    noise = estimate_noise(t, a, w)
+    assert np.abs(noise.gyro_bias - bias).max() < 3e-4
+    iv = still_intervals(t, a, w, noise)
+    assert len(iv) == len(holds) == 3
+    for (f0, f1), (h0, h1) in zip(iv, holds):
+        assert h0 - 0.005 <= f0 <= h0 + ZuptConfig().window_s and h1 - ZuptConfig().window_s <= f1 <= h1
+
+
 def test_single_still_sample_between_moves_is_no_interval(rng):
     t, a, w, _ = trace(rng, 200.0, [("move", 1.0), ("move", 1.0)], accel_sigma=0.0, gyro_sigma=0.0, bias=np.zeros(3))
     k = int(np.argmin(np.abs(t - 1.0)))  # between the moves the rate is zero for one sample

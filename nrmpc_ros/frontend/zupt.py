@@ -86,7 +86,11 @@ estimate of s^2. The gyro bias and the still norm of the accelerometer come
 from the same quietest windows (their median): a constant slow rotation
 looks like gyro bias, so the still windows must be the majority of the
 quietest ones, and the bias is bounded by ``max_gyro_bias_rad_s`` (a
-physical bound of MEMS gyros), so that a steady turn stays a motion. A rig that never holds still makes the
+physical bound of MEMS gyros: an uncalibrated consumer part's zero-rate
+offset is specified within 20 deg/s; at the earlier 3 deg/s bound a gyro 3.4
+deg/s off had every window read as motion and no hold), so that a faster
+steady turn stays a motion; a slower one the whole recording long reads as
+bias, and the images, which do move, refuse its frames. A rig that never holds still makes the
 quietest *motion* look like noise: the estimate is too large and motion
 passes as still. Give the covariances (or a known :class:`ImuNoise`) then.
 """
@@ -151,8 +155,9 @@ class ZuptConfig:
     use_covariance: bool = option(True, "take the noise the sensor_msgs/Imu covariances claim (raised to the "
                                   "white noise the samples show); false: estimate it from the samples alone "
                                   "(a driver whose covariances claim too little of a low-pass filtered IMU)")
-    max_gyro_bias_rad_s: float = option(0.05, "the gyro bias estimated from the data is at most this (rad/s; MEMS "
-                                        "gyros stay within a few deg/s): a steady turn is motion, not bias",
+    max_gyro_bias_rad_s: float = option(0.35, "the gyro bias estimated from the data is at most this (rad/s: an "
+                                        "uncalibrated consumer MEMS gyro's zero-rate offset is specified within "
+                                        "20 deg/s, 1-5 deg/s typical): a faster steady turn is motion, not bias",
                                         lo=0.0, hi=10.0)
     gyro_bias_stability_rad_s: float = option(
         5.2e-4, "how far the gyro's bias may stray over a recording from the one estimated from its still windows "
