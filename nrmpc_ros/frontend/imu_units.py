@@ -5,11 +5,12 @@ sensor_msgs/Imu carries rad/s and m/s^2 (REP 103). An accelerometer in g
 reads 1 at rest: directions, and so holds and IMU gravities, stand, but the
 bars' loads are read at a tenth of their size. The rest of this is the
 gyro's. A driver that passes a chip's deg/s
-on makes every rate 57.3 times its size: the stillness test reads the gyro's
-bias as a steady turn and its noise as motion, the gyro's turns throw the
-tracks' predictions off, and on a rendered recording of 9 holds none was
-estimated. The covariances, where the driver fills them in the same unit, do
-not tell: the noise they claim is as large as the noise the samples show.
+on makes every rate 57.3 times its size: a real gyro's bias of 1-5 deg/s reads
+as 1-5 rad/s, beyond what the stillness test takes for a bias (every window
+moving), and the gyro's turns throw the tracks' predictions off (rendered
+recordings with a 0.1 deg/s bias lost up to 5 of 7 holds). The covariances,
+where the driver fills them in the same unit, do not tell: the noise they
+claim is as large as the noise the samples show.
 
 The images measure the turn's size. Over the frames the gyro shows moving,
 the cameras' median image rate is divided by the median rate the body's turn
