@@ -19,7 +19,6 @@ from nrmpc_ros.frontend.zupt import (
     NoiseSource,
     ZuptConfig,
     ZuptDetector,
-    describe_accel_scale,
     describe_noise,
     estimate_noise,
     for_rig,
@@ -787,6 +786,8 @@ def test_the_mean_of_filtered_noise_varies_as_its_correlation_says(rng):
 def test_an_accelerometer_off_gravitys_scale_is_said(rng, scale, said, unit):
     """A driver that publishes g instead of m/s^2 (REP 145) reads 1.0 at rest: directions stand, magnitudes are
     read ten times too small; said with the number, and not within a MEMS accelerometer's few percent."""
+    from nrmpc_ros.frontend.imu_units import describe_accel_scale
+
     t, a, w = still_trace(rng)
     text = describe_accel_scale(estimate_noise(t, a * scale, w), 9.81)
     assert (text is not None) == said

@@ -25,7 +25,7 @@ from ..frontend.imu import describe_gaps
 from ..frontend.imu_agreement import describe_check
 from ..frontend.imu_clock import SIGNIFICANT_STDS
 from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock
-from ..frontend.imu_units import UnitsMeasuringPass, describe_gyro_noise, describe_units
+from ..frontend.imu_units import UnitsMeasuringPass, describe_accel_scale, describe_gyro_noise, describe_units
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
 from ..frontend.replay import BagReplay, check_camera_info, resolve_imu_topic
@@ -33,7 +33,7 @@ from ..frontend.runner import PipelineRunner
 from ..frontend.topics import bag_image_topics
 from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
-from ..frontend.zupt import describe_accel_scale, describe_noise
+from ..frontend.zupt import describe_noise
 from ..safeio import check_outputs
 from .argtypes import nonnegative_seconds, number, positive_int, seed
 from .common import add_trajectory_arguments

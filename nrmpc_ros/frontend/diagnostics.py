@@ -20,8 +20,8 @@ from .drops import Drop, sorted_counts
 from .imu import describe_gaps
 from .imu_agreement import describe_check
 from .imu_clock_check import describe_clock
-from .imu_units import describe_gyro_noise
-from .zupt import NoiseSource, describe_accel_scale, describe_noise
+from .imu_units import describe_accel_scale, describe_gyro_noise
+from .zupt import NoiseSource, describe_noise
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
 
@@ -143,7 +143,7 @@ class ServiceDiagnostics:
                                f"{scales[1]:.7g}" + (" (measured and applied)" if s.counts["IMU units applied"]
                                                      else " (input.imu_gyro_scale, input.imu_accel_scale)"))
         clock = s.runner.pipeline.imu_clock_off
-        if clock is not None and s.runner.pipeline is not s.clock_from:
+        if clock is not None and s.runner.pipeline is not s.measured_from:
             values["clock check"] = (f"{describe_clock(clock)}: set input.imu_clock_offset_s to "
                                      f"{s.feeder.config.imu_clock_offset_s + clock.offset_s:.3f}, or fix the IMU's "
                                      "clock")

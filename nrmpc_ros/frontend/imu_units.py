@@ -3,11 +3,12 @@ accelerometer g (from its still norm).
 
 sensor_msgs/Imu carries rad/s and m/s^2 (REP 103). An accelerometer in g
 reads 1 at rest: directions, and so holds and IMU gravities, stand, but the
-bars' loads are read at a tenth of their size. The rest of this is the
-gyro's. A driver that passes a chip's deg/s
-on makes every rate 57.3 times its size: a real gyro's bias of 1-5 deg/s reads
-as 1-5 rad/s, beyond what the stillness test takes for a bias (every window
-moving), and the gyro's turns throw the tracks' predictions off (rendered
+bars' loads are read at a tenth of their size (:func:`accel_in_g`,
+:func:`describe_accel_scale`).
+
+A gyro driver that passes a chip's deg/s on makes every rate 57.3 times its
+size: a real gyro's bias of 1-5 deg/s reads as 1-5 rad/s, beyond what the
+stillness test takes for a bias (every window moving), and the gyro's turns throw the tracks' predictions off (rendered
 recordings with a 0.1 deg/s bias lost up to 5 of 7 holds). The covariances,
 where the driver fills them in the same unit, do not tell: the noise they
 claim is as large as the noise the samples show.
@@ -37,13 +38,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .imu_clock import CONFIDENCE, MIN_MOVES, RESAMPLES
-from .zupt import ACCEL_SCALE_TOLERANCE
 
 DEGREE = math.pi / 180.0
 """One degree in radians: the scale that turns a gyro's deg/s into rad/s."""
 
 STANDARD_GRAVITY = 9.80665
 """m/s^2 in one g, as drivers convert."""
+
+ACCEL_SCALE_TOLERANCE = 0.1
+"""The share by which the accelerometer's still norm may differ from the rig's gravity (in m/s^2, or in g times
+:data:`STANDARD_GRAVITY`) and still read as that unit: a MEMS accelerometer's scale error and bias keep it within a
+few percent of g."""
 
 DEGREES_BELOW = math.sqrt(DEGREE)
 """The ratio of the images' motion to the gyro's below which the gyro reads deg/s: the geometric mean of 1 (rad/s)
@@ -94,11 +99,24 @@ def gyro_units(imu_clock) -> GyroUnits | None:
 def accel_in_g(noise, gravity_m_s2: float) -> bool:
     """Whether the accelerometer reads in units of g: its still norm (of an :class:`~nrmpc_ros.frontend.zupt.
     ImuNoise`, the quietest windows' mean) times :data:`STANDARD_GRAVITY` is the rig's gravity within
-    :data:`~nrmpc_ros.frontend.zupt.ACCEL_SCALE_TOLERANCE` (a MEMS accelerometer's scale error and bias keep it
-    within a few percent), where it reads about 1 where m/s^2 would read 9.8."""
+    :data:`ACCEL_SCALE_TOLERANCE`, where it reads about 1 where m/s^2 would read 9.8."""
     norm = float(noise.accel_norm)
     return math.isfinite(norm) and gravity_m_s2 > 0 and \
         abs(norm * STANDARD_GRAVITY / gravity_m_s2 - 1.0) <= ACCEL_SCALE_TOLERANCE < abs(norm / gravity_m_s2 - 1.0)
+
+
+def describe_accel_scale(noise, gravity_m_s2: float) -> str | None:
+    """A sentence when the accelerometer's still norm (of an :class:`~nrmpc_ros.frontend.zupt.ImuNoise`) is off
+    the rig's gravity by more than :data:`ACCEL_SCALE_TOLERANCE`, with "in units of g?" where :func:`accel_in_g`;
+    else None. Directions do not depend on the scale, so holds and IMU gravities stand; what takes the magnitude
+    (the bars' loads, the tip IMU's bend, the stillness test's noise from the covariances) reads it as it is."""
+    norm = float(noise.accel_norm)
+    if not (math.isfinite(norm) and gravity_m_s2 > 0) or abs(norm / gravity_m_s2 - 1.0) <= ACCEL_SCALE_TOLERANCE:
+        return None
+    unit = " (in units of g?)" if accel_in_g(noise, gravity_m_s2) else ""
+    return (f"the accelerometer reads {norm:.3g} at rest where gravity is {gravity_m_s2:.3g} m/s^2{unit}: "
+            f"sensor_msgs/Imu carries m/s^2 (REP 145), and the bars' loads are read at {norm / gravity_m_s2:.3g} "
+            f"times their size: scale the driver's output")
 
 
 @dataclass(frozen=True)
@@ -198,6 +216,6 @@ def describe_gyro_units(units: GyroUnits) -> str:
             "of resamples of the moves read deg/s)")
 
 
-__all__ = ["DEGREE", "DEGREES_BELOW", "GyroUnits", "ImuUnits", "NOISIEST_GYRO_DENSITY", "STANDARD_GRAVITY",
-           "UnitsMeasuringPass", "accel_in_g", "describe_gyro_noise", "describe_gyro_units", "describe_units",
-           "gyro_units", "imu_units"]
+__all__ = ["ACCEL_SCALE_TOLERANCE", "DEGREE", "DEGREES_BELOW", "GyroUnits", "ImuUnits", "NOISIEST_GYRO_DENSITY",
+           "STANDARD_GRAVITY", "UnitsMeasuringPass", "accel_in_g", "describe_accel_scale", "describe_gyro_noise",
+           "describe_gyro_units", "describe_units", "gyro_units", "imu_units"]

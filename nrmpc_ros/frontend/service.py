@@ -264,7 +264,7 @@ class EstimatorService:
         self._estimating = False  # the estimation worker is on a hold
         self.reports = ServiceDiagnostics(self)
         self._small: list = [None] * rig.num_cameras  # the last frame set's images, subsampled (image_change)
-        self.clock_from = None  # the pipeline whose IMU clock measurement went to the input
+        self.measured_from = None  # the pipeline whose measurement of the IMU (units, clock) went to the input
         self._lag_ask = (None, MIN_MOVES + 1)  # (pipeline, its holds ended when the moves are next asked)
 
     # ------------------------------------------------------------------ inputs (the node's threads, one at a time)
@@ -479,7 +479,7 @@ class EstimatorService:
             arrival = work.data[1] if work.kind is WorkKind.FRAMES else self.clock()
             for item in self.runner.take_stage_work():
                 self.holds.put(item, arrival)
-            self._apply_clock()
+            self._apply_imu_measures()
         finally:
             self._running = False
         stats = self.runner.stats
@@ -493,14 +493,14 @@ class EstimatorService:
         self._status_changed(outputs)
         return outputs
 
-    def _apply_clock(self) -> None:
+    def _apply_imu_measures(self) -> None:
         """What the frame stage measured of the IMU goes to the input, a new sequence starting: its units (deg/s,
         g: multiplied into rad/s and m/s^2 from the next sample on, once a run; ``input.imu_units_measured``),
         an IMU clock offset (seconds off the cameras', from the moves; or a lag within a quarter second)
         added to the IMU's stamps (``input.imu_clock_measured``; at most ``CLOCK_PASSES - 1``
         times a run, as the replay's passes). Both are asked as holds end (:meth:`_asked`)."""
         pipeline = self.runner.pipeline
-        if pipeline is self.clock_from:
+        if pipeline is self.measured_from:
             return  # (the pipeline that measured it runs on until the restart queued behind its frames)
         asked = self._asked(pipeline)
         if asked and not self.counts["IMU units applied"] and not self.counts["IMU units warned"]:
@@ -512,7 +512,7 @@ class EstimatorService:
                                  f"{given.imu_gyro_scale * units.gyro_scale:.7g} and input.imu_accel_scale to "
                                  f"{given.imu_accel_scale * units.accel_scale:.7g}, or fix the driver")
             elif units.wrong:
-                self.clock_from = pipeline
+                self.measured_from = pipeline
                 with self._input_lock:
                     self.feeder.rescale_imu(units.gyro_scale, units.accel_scale, "the IMU's units measured")
                 self.counts["IMU units applied"] += 1
@@ -526,7 +526,7 @@ class EstimatorService:
         measured = pipeline.imu_clock_off or (lag_from_moves(pipeline.imu_clock) if asked else None)
         if measured is None:
             return
-        self.clock_from = pipeline
+        self.measured_from = pipeline
         why = (f"{describe_clock(measured)}: {measured.offset_s:+.3f} s added to the IMU's stamps from now on "
                f"(input.imu_clock_offset_s {self.feeder.config.imu_clock_offset_s + measured.offset_s:.3f})")
         with self._input_lock:

@@ -226,25 +226,6 @@ def describe_noise(noise: ImuNoise, cfg: ZuptConfig) -> str:
     return text
 
 
-ACCEL_SCALE_TOLERANCE = 0.1
-"""The share by which the accelerometer's still norm may differ from the rig's gravity before it is reported: a
-MEMS accelerometer's scale error and bias keep it within a few percent of g."""
-
-
-def describe_accel_scale(noise: ImuNoise, gravity_m_s2: float) -> str | None:
-    """A sentence when the accelerometer's still norm (from the quietest windows) is off the rig's gravity by more
-    than :data:`ACCEL_SCALE_TOLERANCE` (units of g read 1.0, not 9.8), else None. Directions do not depend on
-    the scale, so holds and IMU gravities stand; what takes the magnitude (the bars' loads, the tip IMU's
-    bend, the stillness test's noise from the covariances) reads the scale as it is."""
-    norm = float(noise.accel_norm)
-    if not (math.isfinite(norm) and gravity_m_s2 > 0) or abs(norm / gravity_m_s2 - 1.0) <= ACCEL_SCALE_TOLERANCE:
-        return None
-    unit = " (in units of g?)" if abs(norm - 1.0) <= ACCEL_SCALE_TOLERANCE else ""
-    return (f"the accelerometer reads {norm:.3g} at rest where gravity is {gravity_m_s2:.3g} m/s^2{unit}: "
-            f"sensor_msgs/Imu carries m/s^2 (REP 145), and the bars' loads are read at {norm / gravity_m_s2:.3g} "
-            f"times their size: scale the driver's output")
-
-
 def _valid_samples(t, accel, gyro, source: str):
     """(t, accel, gyro) of the finite samples and their indices; InputError for wrong shapes or unordered stamps."""
     t = np.asarray(t, dtype=float).reshape(-1)
@@ -859,6 +840,6 @@ class ZuptDetector:
         return None if run is None else run[0]
 
 
-__all__ = ["ImuNoise", "NoiseSource", "ZuptConfig", "ZuptDetector", "describe_accel_scale", "describe_noise",
+__all__ = ["ImuNoise", "NoiseSource", "ZuptConfig", "ZuptDetector", "describe_noise",
            "estimate_noise", "for_rig", "still_intervals", "still_mask", "still_runs", "still_statistic",
            "window_length"]
