@@ -710,6 +710,7 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--imu-time-offset-ms", "nan"], "--imu-time-offset-ms"), (["--bar-hz", "3", "--EI", "1"], "--bar-hz"),
     (["--bar-hz", "0"], "--bar-hz"), (["--bar-hz", "3", "--mass", "0"], "--bar-hz"),
     (["--rig", "config/sample_cross4.yaml", "--bar-hz", "3"], "--bar-hz"),
+    (["--accel-scale-error", "-0.01"], "--accel-scale-error"), (["--accel-scale-error", "1"], "--accel-scale-error"),
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
     rig_flags = ["--no-progress"] if "--rig" in args else TINY
@@ -781,3 +782,19 @@ def test_imu_units_of_a_driver_that_breaks_rep_103(tmp_path):
             assert np.allclose([vb.x, vb.y, vb.z], k * np.array([va.x, va.y, va.z]), rtol=1e-12, atol=1e-15)
             assert np.allclose(getattr(b, name + "_covariance"), k * k * getattr(a, name + "_covariance"))
     assert len(si["/imu/data"]) == len(other["/imu/data"]) > 10
+
+
+def test_an_accelerometer_scale_error_scales_each_axis_within_its_bound(tmp_path):
+    """--accel-scale-error S: each axis of the accelerometer reads (1 + s) times what it reads without, s within
+    +-S and one per axis (the bias and noise drawn as before); the gyro and the images are untouched."""
+    args = ["--views", "2", "--hold-seconds", "0.4", "--rate", "5", "--resolution", "160x120", "--seed", "3",
+            "--imu-noise", "0", "--imu-bias", "0"]
+    exact, _ = make(tmp_path, "exact", *args)
+    scaled, _ = make(tmp_path, "scaled", *args, "--accel-scale-error", "0.03")
+    a = vectors(exact, "/imu/data", "linear_acceleration")
+    b = vectors(scaled, "/imu/data", "linear_acceleration")
+    ratio = b / a
+    assert np.allclose(ratio, ratio[0], rtol=1e-9) and np.all(np.abs(ratio[0] - 1) <= 0.03)
+    assert np.ptp(ratio[0]) > 1e-3, "a scale per axis"
+    assert np.array_equal(vectors(exact, "/imu/data", "angular_velocity"),
+                          vectors(scaled, "/imu/data", "angular_velocity"))

@@ -14,6 +14,7 @@ from ..bag.reader import BagReader, bag_root
 from ..config import from_mapping, load_mapping
 from ..core import load_rig
 from ..errors import InputError
+from ..frontend.accel_tilt import describe_tilt
 from ..frontend.droplog import DropLog
 from ..frontend.drops import sorted_counts
 from ..frontend.estimates_csv import CsvWriter, batch_rows, row_from_estimate
@@ -323,6 +324,9 @@ def run(args) -> int:
             scale = describe_accel_scale(noise, runner.pipeline.rig.gravity_magnitude)
             if scale:
                 print(f"IMU scale: {scale}")
+            tilt = describe_tilt(runner.pipeline.accel_tilt)
+            if tilt:
+                print(f"IMU bias: {tilt}")
             gyro_noise = describe_gyro_noise(noise) if args.imu_gyro_scale is None and \
                 replay.feeder.config.imu_gyro_scale == 1.0 else None  # (a scale given: the user's word stands)
             if gyro_noise:

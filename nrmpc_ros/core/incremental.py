@@ -220,6 +220,7 @@ class _View:
     t: np.ndarray | None = None
     key: object = None  # what names the view (the hold's stamp), for the turns of later views
     turn: tuple | None = None  # (key of the view before it, R: p_before = R p_this, std rad) from the gyro
+    tilt_sigma: float | None = None  # prior std (rad) of the measured gravity's tilt known at this view
 
     def __post_init__(self):
         if self.inlier is None:
@@ -462,7 +463,8 @@ class IncrementalSequence:
     # ----------------------------------------------------------------- views
     def add_view(self, cam, track, f, measured_gravity=None, measured_sigma_rad: float | None = None,
                  noise_scale: float = 1.0, key=None, turn: tuple | None = None,
-                 offset_rad: float = 0.0, unknown_turn_rad=None) -> ViewEstimate | NewSequence:
+                 offset_rad: float = 0.0, unknown_turn_rad=None,
+                 tilt_sigma_rad: float | None = None) -> ViewEstimate | NewSequence:
         """Add the next view's observations; returns its :class:`ViewEstimate`, or :class:`NewSequence` for a
         view that is the origin of a sequence (the first one, or one no earlier view links to).
         ``noise_scale`` (>= 1): the view's bearing noise std over the nominal one (a hold measured while
@@ -473,7 +475,9 @@ class IncrementalSequence:
         ``offset_rad``: how far a residual ringing may move each camera's bearings alike (the pair thresholds take
         it in). ``unknown_turn_rad`` (M,) or one for all: the std (rad per axis) of a turn of each camera nothing
         measured (a snapshot's ringing without an IMU): the estimate is unchanged, its covariance carries it
-        (:func:`~.bundle.cluster_robust_covariance`)."""
+        (:func:`~.bundle.cluster_robust_covariance`). ``tilt_sigma_rad``: the prior std of the measured gravity's
+        constant tilt known at this view (what the accelerometer's norms show); the newest view's is the
+        sequence's from then on (None: ``options.gravity_bias_sigma``; no tilt where that is None)."""
         t0 = time.perf_counter()
         cam = np.asarray(cam, dtype=np.int64)
         track = np.asarray(track, dtype=np.int64)
@@ -488,7 +492,8 @@ class IncrementalSequence:
                                      (self.rig.num_cameras,)).copy()
         new = _View(cam, track, f, g, sg, max(float(noise_scale), 1.0) if math.isfinite(noise_scale) else 1.0,
                     float(offset_rad) if offset_rad > 0 and math.isfinite(offset_rad) else 0.0,
-                    unknown_turn_rad=turned, key=key, turn=turn)
+                    unknown_turn_rad=turned, key=key, turn=turn,
+                    tilt_sigma=float(tilt_sigma_rad) if tilt_sigma_rad is not None and tilt_sigma_rad > 0 else None)
         s.views.append(new)
         if k == 0:
             new.R, new.t = np.eye(3), np.zeros(3)
@@ -719,7 +724,15 @@ class IncrementalSequence:
         g = s.measured(K)
         if not np.isfinite(g).any():
             return None
-        return GravityPriors(g, s.measured_sigmas(K), self.options.gravity_bias_sigma, s.turns(K))
+        return GravityPriors(g, s.measured_sigmas(K), self._tilt_sigma(K), s.turns(K))
+
+    def _tilt_sigma(self, K: int) -> float | None:
+        """The prior std of the measured gravity's tilt in a solve of the first K views: the newest of them that
+        knows one (the accelerometer's evidence grows), else the options'; None where the options have no tilt."""
+        if self.options.gravity_bias_sigma is None:
+            return None
+        known = [v.tilt_sigma for v in self.seq.views[:K] if v.tilt_sigma is not None]
+        return known[-1] if known else self.options.gravity_bias_sigma
 
     def _update_gravity(self, k: int, j: int, est) -> None:
         """Choose the origin's gravity among the joint one and the new pair's candidates (see the module)."""

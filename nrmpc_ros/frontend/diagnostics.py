@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .accel_tilt import describe_tilt
 from .drops import Drop, sorted_counts
 from .imu import describe_gaps
 from .imu_agreement import describe_check
@@ -123,6 +124,9 @@ class ServiceDiagnostics:
             scale = describe_accel_scale(noise, s.rig.gravity_magnitude)
             if scale:
                 values["accelerometer scale"] = scale
+            tilt = describe_tilt(s.runner.pipeline.accel_tilt)
+            if tilt:
+                values["accelerometer bias"] = tilt
             gyro_noise = describe_gyro_noise(noise) if s.feeder.config.imu_gyro_scale == 1.0 else None
             if gyro_noise:
                 values["gyro noise"] = gyro_noise

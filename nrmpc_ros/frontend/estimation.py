@@ -97,13 +97,16 @@ class MeasuredHold:
     """A hold the intake measured, ready for the estimation stage: the hold, its averaged accelerometer gravity
     (None: no IMU or too few samples) with that gravity's angular std (rad), the gyro's rotation from the
     previous hold given to the stage since the last reset as (that hold's stamp, R, std rad) (None: no such
-    hold or no gyro), and the entry of the pipeline's hold log it fills in (None: no log kept)."""
+    hold or no gyro), the entry of the pipeline's hold log it fills in (None: no log kept), and the prior std
+    (rad) of the accelerometer's tilt the still holds' norms support so far
+    (:class:`~nrmpc_ros.frontend.accel_tilt.AccelTiltEvidence`; None: the sequence options')."""
 
     hold: Hold
     imu: ImuGravity | None
     imu_sigma_rad: float | None
     turn: tuple | None
     attempt: object | None = None
+    tilt_sigma_rad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -179,7 +182,8 @@ class HoldEstimator:
         unknown = None if hold.unknown_ringing_px is None else \
             hold.unknown_ringing_px / np.array([c.focal_px for c in self.rig.cameras])
         out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale,
-                                     key=hold.stamp, turn=item.turn, offset_rad=offset, unknown_turn_rad=unknown)
+                                     key=hold.stamp, turn=item.turn, offset_rad=offset, unknown_turn_rad=unknown,
+                                     tilt_sigma_rad=item.tilt_sigma_rad)
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):

@@ -33,6 +33,7 @@ from ..core.incremental import IncrementalSequence
 from ..core.rig import Rig
 from ..core.sequence_steps import CORRESPONDENCE_BIAS_FLOOR_PX, SequenceOptions
 from ..errors import InputError
+from .accel_tilt import UNCALIBRATED_TILT_DEG, AccelTiltEvidence
 from .drops import Drop, sorted_counts
 from .estimation import HoldEstimate, HoldEstimator, MeasuredHold, SequenceReset
 from .extrinsics import CameraPoses, FrameExtrinsics
@@ -74,8 +75,12 @@ class PipelineConfig:
                          lo=2, hi=10000)
     imu_gravity_floor_deg: float = option(0.05, "least angular std of a hold's averaged IMU gravity (deg), "
                                           "besides its bias", lo=0.0, hi=90.0, lo_open=True)
-    imu_bias_sigma_deg: float = option(0.3, "prior std of the accelerometer's constant tilt (bias) estimated "
-                                       "jointly (deg); 0: no such tilt", lo=0.0, hi=90.0)
+    imu_bias_sigma_deg: float = option(0.3, "prior std of a calibrated accelerometer's constant tilt (bias) "
+                                       "estimated jointly (deg), what its still norms cannot rule out; 0: no such "
+                                       "tilt", lo=0.0, hi=90.0)
+    imu_bias_max_deg: float = option(round(UNCALIBRATED_TILT_DEG, 2), "the tilt an uncalibrated accelerometer's bias "
+                                     "may give its gravity (deg): the tilt's prior until the still holds' norms "
+                                     "measure it (docs/PIPELINE.md, The accelerometer's tilt)", lo=0.0, hi=90.0)
     seed: int = option(0, "RANSAC seed", lo=0, hi=2**63 - 1)
     imu_time_offset_s: float = option(0.0, "added to every IMU stamp before the bars' state is propagated from "
                                       "it: the IMU's clock against the cameras' (s)", lo=-1.0, hi=1.0)
@@ -211,6 +216,10 @@ class Pipeline:
                                           bias_prior_ms2=ms2(self.config.imu_bias_sigma_deg),
                                           floor_ms2=ms2(self.config.imu_gravity_floor_deg)) if rig.imu else None
         self.imu_clock = ImuClockEstimator(rig)  # the IMU's clock against the cameras', from the moves
+        # how far the accelerometer's bias tilts its gravity, from the still holds' norms: the tilt's prior
+        self.accel_tilt = AccelTiltEvidence(math.radians(self.config.imu_bias_sigma_deg),
+                                            math.radians(self.config.imu_bias_max_deg),
+                                            math.radians(self.config.imu_gravity_floor_deg))
         self.imu_clock_off: MeasuredClockOffset | None = None  # seconds off, measured once the images refute
         self._clock_measured_at = 0  # the refutations counted when it was last measured
         self.holds_ended = 0  # holds ended by a move, a jump or the input's end, estimated or not
@@ -769,16 +778,18 @@ class Pipeline:
         imu = self._imu_gravity(hold)
         if imu is not None and self.extrinsics is not None:  # every still hold tells the accelerometer's bias
             self.extrinsics.observe_still(hold.stamp, imu.accel_mean, imu.accel_mean_std, 1)
-        sigma = None
+        sigma = tilt = None
         if imu is not None:
             white = imu.accel_mean_std / self.rig.gravity_magnitude
             sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg))
+            tilt = self.accel_tilt.observe_still(imu.accel_mean, imu.accel_mean_std ** 2).prior_sigma_rad
         refused = imu is None and self.method == "4pt-bending"  # the stage links it, then refuses it
         turn = None if refused or self._last_hold is None else self._gyro_rotation(self._last_hold, hold)
         if not refused:
             self._last_hold = hold
         self._handed += 1
-        return self._hand_over(MeasuredHold(hold, imu, sigma, turn, attempt if self.hold_log is not None else None))
+        return self._hand_over(MeasuredHold(hold, imu, sigma, turn, attempt if self.hold_log is not None else None,
+                                            tilt))
 
     def _gyro_rotation(self, before: Hold, after: Hold):
         """(``before``'s stamp, R, std rad): the body's rotation from hold ``after`` into hold ``before`` from the

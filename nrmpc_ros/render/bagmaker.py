@@ -97,6 +97,8 @@ class BagOptions:
     imu_covariance_scale: float = 1.0  # the Imu messages' covariances say this times the true noise std (a driver's
     # claim: 1 true, 0 all zeros = unknown, 0.1 a noise density taken for a per-sample std, 10 a generous constant)
     imu_bias: float = 0.05  # m/s^2, norm of the constant accelerometer bias (random direction)
+    accel_scale_error: float = 0.0  # each accelerometer axis reads (1 + s) times the truth, s uniform in +-this (an
+    # uncalibrated MEMS chip's sensitivity error: 0.01-0.03)
     gyro_bias: float = 0.002  # rad/s, norm of the constant gyro bias
     imu: bool = True  # write the IMU topic
     gyro_unit: str = "rad/s"  # the unit the Imu messages' angular_velocity (and its covariance) is written in:
@@ -127,10 +129,13 @@ class BagOptions:
         if not (isinstance(self.supersample, numbers.Integral) and 1 <= self.supersample <= 8):
             raise OptionError(_OWNER, "supersample", f"must be an integer in [1, 8], got {self.supersample!r}")
         for name in ("image_noise", "imu_noise", "gyro_noise", "imu_bias", "gyro_bias", "jitter_ms",
-                     "imu_covariance_scale", "imu_lowpass_hz"):
+                     "imu_covariance_scale", "imu_lowpass_hz", "accel_scale_error"):
             value = getattr(self, name)
             if not (_real(value) and value >= 0):
                 raise OptionError(_OWNER, name, f"must be a finite number >= 0, got {value!r}")
+        if not self.accel_scale_error < 1.0:
+            raise OptionError(_OWNER, "accel_scale_error", f"must be below 1 (an axis reading (1 + s) times the "
+                              f"truth with s down to -S), got {self.accel_scale_error!r}")
         if not (_real(self.imu_time_offset_ms) and abs(self.imu_time_offset_ms) <= 1e4):
             raise OptionError(_OWNER, "imu_time_offset_ms", f"must be a finite number of ms within +-10000, "
                               f"got {self.imu_time_offset_ms!r}")
@@ -212,6 +217,8 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
     gyro_bias = opts.gyro_bias * normalize(rng.normal(size=3))
     accel_noise = rng.normal(scale=opts.imu_noise, size=accel.shape)
     gyro_noise = rng.normal(scale=opts.gyro_noise, size=gyro.shape)
+    if opts.accel_scale_error:  # drawn last: recordings without it keep their random streams
+        accel = accel * (1.0 + opts.accel_scale_error * rng.uniform(-1.0, 1.0, size=3))
     if opts.imu_lowpass_hz:
         accel, gyro = (_lowpass(x, opts.imu_lowpass_hz, opts.motion.imu_rate) for x in (accel, gyro))
         accel_noise, gyro_noise = (_lowpass(x, opts.imu_lowpass_hz, opts.motion.imu_rate, unit_noise=True)

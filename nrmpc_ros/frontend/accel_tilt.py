@@ -1,0 +1,136 @@
+"""How far the accelerometer's bias may tilt its gravity: the prior of the joint estimate's tilt, measured from the
+still holds' norms (docs/PIPELINE.md, "The accelerometer's tilt").
+
+At rest an accelerometer reads a_k = -g_k + b. Its direction is tilted off
+gravity by b's part across g_k over |g|, the same vector in the sensor frame
+at every hold. A factory-calibrated IMU keeps that within a few mg (0.3 deg:
+``imu_bias_sigma_deg``); a raw consumer MEMS chip's zero-g offset is specified
+within 50-80 mg per axis (3-5 deg: ``imu_bias_max_deg``, which
+:data:`UNCALIBRATED_TILT_DEG` sets). The joint estimate over the sequence
+takes the tilt as an unknown under a prior (:class:`~nrmpc_ros.core.bundle.
+GravityPriors`); a prior tighter than the tilt is a broken promise: the
+estimates land several of their stds off, and where the images pin gravity
+loosely (two cameras on one bar) the IMU's tilt itself.
+
+The norms measure it, independently of the directions the joint estimate
+uses. To first order in b, |a_k| = |g| + b . u_k (u_k the hold's measured
+direction): over holds at several attitudes the norm varies with b,
+
+    |a_k| / median |a| = c + beta . u_k,
+
+beta = b / |g| (rad: the most it tilts any hold), c free (the local gravity
+and the accelerometer's scale; b along the holds' mean direction shares c's
+regressor until the holds' attitudes spread). A weighted least-squares fit
+with beta's prior the uncalibrated chip's: before the holds span attitudes
+beta's part across their mean direction is as open as that prior, and the
+tilt's prior is wide; once they do, it is measured, and the prior per axis
+becomes
+
+    sigma^2 = sigma_calibrated^2 + |beta_hat|^2 + tr(P C_beta P) / 2,
+
+P the projection across the mean direction: the calibrated floor, the bias
+the norms show, and what they still leave open across gravity (b along
+gravity tilts nothing until the attitudes spread, and then it is measured).
+An uncalibrated prior no wider than the calibrated one keeps the calibrated
+prior throughout: the user's word for a calibrated IMU.
+Unequal scales of the three axes make the norm vary with attitude too, and
+tilt the direction alike: they widen the prior, the safe way. Nothing here is
+refused: the evidence only grades how far the IMU's absolute tilt is trusted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.so3 import tangent_basis
+
+UNCALIBRATED_TILT_DEG = math.degrees(math.atan(0.08))
+"""The tilt a raw consumer MEMS accelerometer's zero-g offset may give its gravity (deg): 80 mg per axis, the widest
+of the common chips' specifications (50 mg x/y and 80 mg z for one, 20-40 mg for newer ones)."""
+
+TILT_HOLDS = 50
+"""The still holds kept for the fit: the recent ones (a bias drifts slowly with temperature)."""
+
+
+@dataclass(frozen=True)
+class TiltEvidence:
+    """What the still holds' norms say of the accelerometer's tilt: ``holds`` holds fitted, the bias's size over
+    gravity (rad: the most it tilts a hold), the std per axis across the holds' mean direction the fit leaves open
+    (rad), and the prior std per axis of the joint estimate's tilt that follows (rad)."""
+
+    holds: int
+    tilt_rad: float
+    open_rad: float
+    prior_sigma_rad: float
+
+
+class AccelTiltEvidence:
+    """The still holds' mean accelerometer vectors (any unit, any frame fixed to the sensor) and the variance of
+    each mean's norm, in; :class:`TiltEvidence` out (see the module)."""
+
+    def __init__(self, calibrated_sigma_rad: float, uncalibrated_sigma_rad: float, floor_rad: float = 0.0):
+        self.calibrated_sigma_rad = float(calibrated_sigma_rad)
+        self.uncalibrated_sigma_rad = float(uncalibrated_sigma_rad)
+        self.floor_rad = float(floor_rad)
+        self._holds: deque = deque(maxlen=TILT_HOLDS)  # (mean accelerometer (3,), variance of its norm)
+        self.evidence = self._fit()
+
+    def observe_still(self, accel_mean, norm_var: float = 0.0) -> TiltEvidence:
+        """A still hold's mean accelerometer and the variance of that mean along any axis (its unit squared)."""
+        a = np.asarray(accel_mean, dtype=float).reshape(3)
+        if np.all(np.isfinite(a)) and np.linalg.norm(a) > 0 and math.isfinite(norm_var) and norm_var >= 0:
+            self._holds.append((a, float(norm_var)))
+            self.evidence = self._fit()
+        return self.evidence
+
+    @property
+    def graded(self) -> bool:
+        """Whether the evidence grades the prior (an uncalibrated prior wider than the calibrated one)."""
+        return self.uncalibrated_sigma_rad > self.calibrated_sigma_rad
+
+    def _fit(self) -> TiltEvidence:
+        # the fit's prior: where the calibrated prior is kept, an uncalibrated chip's, so that a tilt beyond it is said
+        wide = self.uncalibrated_sigma_rad if self.graded else \
+            max(self.calibrated_sigma_rad, math.radians(UNCALIBRATED_TILT_DEG))
+        if not self._holds:
+            return self._evidence(0, 0.0, wide)
+        a = np.array([h[0] for h in self._holds])
+        norms = np.linalg.norm(a, axis=1)
+        scale = float(np.median(norms))
+        var = np.array([h[1] for h in self._holds]) / scale ** 2 + self.floor_rad ** 2
+        u = a / norms[:, None]
+        design = np.column_stack([np.ones(len(u)), u])
+        weight = 1.0 / np.maximum(var, 1e-30)
+        normal = design.T @ (design * weight[:, None])
+        normal[1:, 1:] += np.eye(3) / wide ** 2
+        cov = np.linalg.pinv(normal)
+        theta = cov @ (design.T @ (weight * (norms / scale)))
+        beta, c_beta = theta[1:], cov[1:, 1:]
+        mean = np.sum(u * weight[:, None], axis=0)
+        across = tangent_basis(mean / np.linalg.norm(mean))  # (3, 2)
+        open_rad = math.sqrt(max(float(np.trace(across.T @ c_beta @ across)) / 2.0, 0.0))
+        return self._evidence(len(u), float(np.linalg.norm(beta)), open_rad)
+
+    def _evidence(self, holds: int, tilt: float, open_rad: float) -> TiltEvidence:
+        prior = math.sqrt(self.calibrated_sigma_rad ** 2 + tilt ** 2 + open_rad ** 2) if self.graded else \
+            self.calibrated_sigma_rad
+        return TiltEvidence(holds, tilt, open_rad, prior)
+
+
+def describe_tilt(tilt: AccelTiltEvidence) -> str | None:
+    """A sentence where the norms show a tilt beyond twice the calibrated prior and beyond what they leave open
+    (an accelerometer whose bias is not calibrated out), else None."""
+    ev, calibrated = tilt.evidence, tilt.calibrated_sigma_rad
+    if ev.holds < 3 or not ev.tilt_rad > 2.0 * max(calibrated, ev.open_rad):
+        return None
+    said = (f"the accelerometer's still norm varies with attitude as a bias that tilts its gravity by up to "
+            f"{math.degrees(ev.tilt_rad):.2f} deg would make it ({ev.holds} holds)")
+    if tilt.graded:
+        return (f"{said}: the tilt is estimated with a prior of {math.degrees(ev.prior_sigma_rad):.2f} deg, not "
+                f"the calibrated {math.degrees(calibrated):.2f} (calibrate the bias out for tighter IMU gravities)")
+    return (f"{said}, beyond the calibrated prior of {math.degrees(calibrated):.2f} deg that imu_bias_max_deg keeps: "
+            f"gravities and their stds lean on it (raise imu_bias_max_deg, or calibrate the bias out)")
