@@ -288,6 +288,32 @@ def test_a_view_the_joint_solve_keeps_too_few_landmarks_of_starts_a_new_sequence
     np.testing.assert_allclose(earlier.R, before)
 
 
+def test_a_view_whose_resection_does_not_hold_is_placed_by_its_pair_instead(noisy, monkeypatch):
+    """Past the young views a view is placed by resection on the window's landmarks; where that pose does not
+    hold in the window solve (a resection on landmarks matched by chance: here every such pose turned 40 deg)
+    the view is placed by the two-view estimate instead and estimated, not cut off as a new sequence."""
+    import dataclasses
+
+    import nrmpc_ros.core.incremental as incremental
+
+    real = incremental.resect_on_landmarks
+
+    def by_chance(*args, **kwargs):
+        placed = real(*args, **kwargs)
+        if placed is None:
+            return None
+        res, hit = placed
+        return dataclasses.replace(res, R=res.R @ exp_so3(np.radians([40.0, 0.0, 0.0]))), hit
+
+    monkeypatch.setattr(incremental, "resect_on_landmarks", by_chance)
+    p = noisy
+    seq = IncrementalSequence(p.rig, "6pt-bending", window=10, seed=0)
+    outs = feed(seq, p)
+    assert all(isinstance(v, ViewEstimate) and v.sequence == 0 for v in outs[1:])
+    err = math.degrees(float(angle_between(outs[-1].gravity, p.gravity[-1])))
+    assert err < 4 * math.degrees(outs[-1].gravity_sigma_rad) + 0.05
+
+
 def test_a_pair_takes_in_the_offset_a_ringing_moves_each_cameras_bearings_by():
     """A snapshot's residual ringing turns all of a camera's bearings alike, each camera its own way (30 px
     here). Under the nominal 2 px threshold the pair of views keeps about two thirds of the observations (and the

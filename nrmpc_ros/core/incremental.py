@@ -500,6 +500,22 @@ class IncrementalSequence:
             return NewSequence(s.number, StartReason.FIRST_VIEW)
         before = ([(v.R, v.t, v.inlier) for v in s.views[:k]], s.gravity, s.rivals)  # what the solves replace
         placed = self._resect(k)
+        out = self._place_and_solve(k, placed, before, t0)
+        if out is None and placed is not None:
+            # the resection's pose did not hold in the window solve (placed on landmarks it matched by chance):
+            # the pair route, as for a view no resection places
+            out = self._place_and_solve(k, None, before, t0)
+        if out is None:
+            self._restart_from_last()
+            return NewSequence(self.seq.number, StartReason.FEW_INLIERS)
+        return out
+
+    def _place_and_solve(self, k: int, placed, before: tuple, t0: float):
+        """View k placed by ``placed`` (a resection's (reference, method, pose)) or, where None, by the pair route,
+        then the window solve: its :class:`ViewEstimate`, :class:`NewSequence` where no pair links it, or None
+        where the window solve kept too few of its observations (the views given back what ``before`` holds)."""
+        s = self.seq
+        new = s.views[k]
         warm = placed is not None
         if warm:
             j, pm, (new.R, new.t) = placed
@@ -527,8 +543,8 @@ class IncrementalSequence:
                 v.R, v.t, v.inlier = R, t, inlier
             s.set_gravity(before[1])
             s.rivals = before[2]
-            self._restart_from_last()
-            return NewSequence(self.seq.number, StartReason.FEW_INLIERS)
+            new.inlier = np.ones(len(new.cam), bool)
+            return None
         self._retire(first + 1)
         origin = None
         if merged is not None and first <= merged[1] < k:  # the previous view in time is the earlier sequence's last
