@@ -450,11 +450,12 @@ def _view_bounds(rig, seq, s, k: int, truth: list, holds: list, imu_floor_deg: f
         g = np.where(np.isfinite(ms)[:, None], np.array([gk for _, _, gk in truth]), np.nan)
         # the gyro's rotations between consecutive holds at their stds, at the truth's rotations
         turns = tuple(RotationPrior(a, b, R[a].T @ R[b], sd) for a, b, _, sd in s.turns(k + 1))
-        priors = GravityPriors(g, ms, seq.options.gravity_bias_sigma, turns)
+        tilt = s.tilt_sigma(k + 1, seq.options.gravity_bias_sigma)  # the prior the estimate had
+        priors = GravityPriors(g, ms, tilt, turns)
         # the accelerometer's own white noise: its std without the floor the pipeline adds (the tilt stays)
         floor = math.radians(imu_floor_deg)
         white = GravityPriors(g, np.sqrt(np.maximum(ms**2 - floor**2, (1e-3 * floor) ** 2)),
-                              seq.options.gravity_bias_sigma, turns)
+                              tilt, turns)
     focal = np.array([c.focal_px for c in rig.cameras])
     r = {}
 

@@ -284,6 +284,15 @@ class _Sequence:
         """(K,) the measured gravity's std (rad) of views [0, upto)."""
         return np.array([v.measured_sigma for v in self.views[:upto]])
 
+    def tilt_sigma(self, upto: int | None, default: float | None) -> float | None:
+        """The prior std (rad) of the measured gravity's tilt in a solve of views [0, upto): the newest of them
+        that knows one (the accelerometer's evidence grows), else ``default``; None where ``default`` is None
+        (no tilt estimated)."""
+        if default is None:
+            return None
+        known = [v.tilt_sigma for v in self.views[:upto] if v.tilt_sigma is not None]
+        return known[-1] if known else default
+
     def turns(self, upto: int | None = None) -> tuple:
         """The gyro's rotations between consecutive views [0, upto) (:class:`~.bundle.RotationPrior` each): a
         view's turn counts where the view before it is the one it was measured from."""
@@ -740,15 +749,7 @@ class IncrementalSequence:
         g = s.measured(K)
         if not np.isfinite(g).any():
             return None
-        return GravityPriors(g, s.measured_sigmas(K), self._tilt_sigma(K), s.turns(K))
-
-    def _tilt_sigma(self, K: int) -> float | None:
-        """The prior std of the measured gravity's tilt in a solve of the first K views: the newest of them that
-        knows one (the accelerometer's evidence grows), else the options'; None where the options have no tilt."""
-        if self.options.gravity_bias_sigma is None:
-            return None
-        known = [v.tilt_sigma for v in self.seq.views[:K] if v.tilt_sigma is not None]
-        return known[-1] if known else self.options.gravity_bias_sigma
+        return GravityPriors(g, s.measured_sigmas(K), s.tilt_sigma(K, self.options.gravity_bias_sigma), s.turns(K))
 
     def _update_gravity(self, k: int, j: int, est) -> None:
         """Choose the origin's gravity among the joint one and the new pair's candidates (see the module)."""
