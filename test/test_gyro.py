@@ -47,6 +47,20 @@ def test_the_turn_between_two_holds_is_found_within_its_std(seed):
     assert err < math.radians(0.3)
 
 
+@pytest.mark.parametrize("scale", [1.0, 180.0 / math.pi])
+def test_the_angle_as_read_is_not_wrapped(scale):
+    """The angle the rates turn as read: the turn's 25 deg for a gyro in rad/s, 57 times that (1432 deg, wrapped
+    it would be 8 deg) for the same rates in deg/s: what the images' turn measures the unit by."""
+    rng = np.random.default_rng(3)
+    buf, _ = samples(rng, bias=np.zeros(3), noise=0.0)
+    scaled = ImuBuffer()
+    t, a, w = buf.window(0.0, 3.5)
+    for ti, ai, wi in zip(t, a, w):
+        scaled.add(float(ti), ai, scale * wi)
+    turn = rotation_between(scaled, ImuMount(), (0.1, 0.99), (0.99, 2.6), max_age_s=0.1, scale_error=0.01)
+    assert turn.read_angle_rad == pytest.approx(scale * TURN, rel=1e-3)
+
+
 def test_the_imu_mount_turns_the_rotation_into_the_body_frame(rng):
     buf, truth = samples(rng, bias=np.zeros(3), noise=1e-4)
     M = exp_so3(np.array([0.0, 0.0, math.pi / 2]))  # IMU -> body

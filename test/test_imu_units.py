@@ -1,10 +1,13 @@
 """The gyro's unit from the moves the images show: rad/s (REP 103) or a driver's deg/s, measured, replayed with
 and applied by the running node."""
 
+import math
+
+import numpy as np
 import pytest
 from test_imu_clock import _rendered_rates, _ring3
 
-from nrmpc_ros.frontend.imu_units import DEGREE, gyro_units
+from nrmpc_ros.frontend.imu_units import DEGREE, GyroEvidence, gyro_units, gyro_units_from_turns
 
 
 def _stiff_ring3():
@@ -156,3 +159,56 @@ def _replayed_holds(tmp_path, capsys, *units) -> str:
     assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"),
                  "--no-progress"]) == 0
     return capsys.readouterr().out
+
+
+def _turns(images_deg, read_deg, before_ok=True):
+    """What a pipeline collected of the turns between holds: the images' angle and the gyro's as read (deg)."""
+    from types import SimpleNamespace
+
+    images = [(k, k + 1, math.radians(a)) for k, a in enumerate(images_deg)]
+    gyro = {k + 1: (k if before_ok else k - 1, math.radians(r)) for k, r in enumerate(read_deg)}
+    return SimpleNamespace(images_turns=images, gyro_turns=gyro)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_turns_between_holds_read_a_gyro_in_rad_s_and_one_in_deg_s(seed):
+    """Turns of 5-30 deg the images measured to a hundredth of a degree, the gyro's to 1 %: in rad/s the ratio is
+    1, in deg/s 1/57.3; the verdict is the one the moves on camera give (GyroUnits, 95 % of resamples)."""
+    rng = np.random.default_rng(seed)
+    true = rng.uniform(5.0, 30.0, size=6)
+    images = true + rng.normal(scale=0.01, size=6)
+    read = true * (1 + rng.normal(scale=0.01, size=6))
+    rad = gyro_units_from_turns(_turns(images, read))
+    deg = gyro_units_from_turns(_turns(images, read / DEGREE))
+    assert rad.evidence is GyroEvidence.TURNS_BETWEEN_HOLDS and rad.moves == 6
+    assert not rad.in_degrees and rad.ratio == pytest.approx(1.0, abs=0.05)
+    assert deg.in_degrees and deg.ratio == pytest.approx(DEGREE, rel=0.05)
+
+
+def test_turns_that_cannot_measure_the_unit_give_no_verdict():
+    """Fewer than three turns, turns under 2 deg (a gyro in rad/s taken for deg/s would shrink them to nothing
+    the images see), and a gyro turn from another hold than the images' are not evidence."""
+    assert gyro_units_from_turns(_turns([10.0, 20.0], [10.0, 20.0])) is None
+    assert gyro_units_from_turns(_turns([1.0, 1.5, 1.9, 20.0], [57.0, 86.0, 109.0, 1146.0])) is None
+    assert gyro_units_from_turns(_turns([10.0, 20.0, 15.0], [573.0, 1146.0, 859.0], before_ok=False)) is None
+
+
+@pytest.mark.slow
+def test_replay_measures_a_gyro_in_deg_s_from_the_turns_between_holds(tmp_path, capsys):
+    """Cameras that record only the holds: no move on camera, but the holds' poses turn the rig by what the gyro
+    says 57 times over. Replay measures the unit from those turns and replays with its scale: every hold
+    estimated, as when told."""
+    from nrmpc_ros.cli.main import main
+
+    path, rig_file = tmp_path / "holds", tmp_path / "rig.yaml"
+    assert main(["make-bag", "--out", str(path), "--save-rig", str(rig_file), "--resolution", "160x120",
+                 "--supersample", "1", "--capture", "holds", "--views", "6", "--hold-seconds", "1", "--seed", "26",
+                 "--gyro-unit", "deg/s", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["replay", str(path), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"),
+                 "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    said = [ln for ln in text.splitlines() if ln.startswith("IMU units:")]
+    assert len(said) == 1 and "the gyro reads deg/s: the images turn the rig" in said[0], text
+    assert "--imu-gyro-scale 0.01745329" in said[0] and "IMU gyro units:" not in text
+    assert "with an estimate (after the first): 5/5" in text, text

@@ -128,17 +128,20 @@ class HoldEstimator:
     stay landmarks for later holds) but not estimated, never silently by another method.
     ``on_gravity((sequence, gravity, cov_gravity, turns))`` receives each estimate's gravity with the rotation
     [(stamp, R)] of every hold of its sequence into its frame (the accelerometer bias's evidence,
-    :meth:`~nrmpc_ros.frontend.extrinsics.FrameExtrinsics.observe_sequence`).
+    :meth:`~nrmpc_ros.frontend.extrinsics.FrameExtrinsics.observe_sequence`). ``on_turn((stamp before, stamp,
+    angle rad))`` receives the angle the images turned the body by between a hold and the hold its gyro turn was
+    measured from (the gyro's unit: :func:`~nrmpc_ros.frontend.imu_units.gyro_units_from_turns`).
     """
 
     def __init__(self, rig: Rig, sequence: IncrementalSequence, linker: HoldLinker, stats,
-                 require_imu: bool = False, on_gravity=None):
+                 require_imu: bool = False, on_gravity=None, on_turn=None):
         self.rig = rig
         self.sequence = sequence
         self.linker = linker
         self.stats = stats
         self.require_imu = require_imu
         self.on_gravity = on_gravity
+        self.on_turn = on_turn
         self.imu_check = ImuGravityCheck(sequence)  # does each hold's IMU gravity agree with the images?
         self.consumed = 0  # measured holds run so far (the intake counts those it made: the difference waits)
         self._hold_stamps: list = []  # stamp of every hold of the current sequence
@@ -216,6 +219,10 @@ class HoldEstimator:
                 done.append(est)
             self._origin = None
         self._hold_stamps.append(hold.stamp)
+        if self.on_turn is not None and item.turn is not None:
+            angle = self.sequence.images_turn_rad(item.turn[0], hold.stamp)
+            if angle is not None:
+                self.on_turn((item.turn[0], hold.stamp, angle))
         if g is None and out.gravity is not None:  # the images' gravity of the hold
             self.imu_check.remember(obs.cam, obs.landmark, obs.f, out.gravity, out.gravity_sigma_rad, offset)
         if verdict is Agreement.REFUTED:

@@ -15,18 +15,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.rig import ImuMount
-from ..core.so3 import exp_so3
+from ..core.so3 import exp_so3, rotation_angle
 from .imu import ImuBuffer
 
 
 @dataclass(frozen=True)
 class GyroRotation:
     """The rotation of the body between two holds: ``R`` maps the later hold's body frame into the earlier
-    one's (p_before = R p_after); ``sigma_rad`` its angular std; the gyro samples integrated."""
+    one's (p_before = R p_after); ``sigma_rad`` its angular std; the gyro samples integrated; and the angle the
+    rates turn as read, not wrapped at pi (rad: the rates taken for deg/s turn by this times one degree), which
+    the images' turn between the holds measures the gyro's unit by (docs/INPUTS.md, units)."""
 
     R: np.ndarray
     sigma_rad: float
     samples: int
+    read_angle_rad: float = math.nan
 
 
 def ordered_product(Rs: np.ndarray) -> np.ndarray:
@@ -70,7 +73,9 @@ def rotation_between(buffer: ImuBuffer, mount: ImuMount, still: tuple, move: tup
     sigma = math.sqrt(sigma_w ** 2 * T * float(np.mean(dt)) + (sigma_w / math.sqrt(len(ws)) * T) ** 2
                       + (scale_error * travelled) ** 2)
     M = mount.rotation  # IMU -> body
-    return GyroRotation(M @ R_imu @ M.T, sigma, len(t))
+    degree = math.radians(1.0)
+    read = float(rotation_angle(ordered_product(exp_so3(steps * degree)))) / degree
+    return GyroRotation(M @ R_imu @ M.T, sigma, len(t), read)
 
 
 

@@ -32,6 +32,7 @@ clock they do not.
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass, replace
 
@@ -55,16 +56,29 @@ DEGREES_BELOW = math.sqrt(DEGREE)
 and :data:`DEGREE` (deg/s)."""
 
 
+class GyroEvidence(enum.Enum):
+    """What measured the gyro's unit."""
+
+    MOVES_ON_CAMERA = "moves on camera"  # the images' rate over the gyro's, frame by frame in the moves
+    TURNS_BETWEEN_HOLDS = "turns between holds"  # the images' rotation between holds over the gyro's
+
+
+MIN_TURN_DEG = 2.0
+"""The least turn (deg) between two holds that measures the gyro's unit: a turn the images measure to hundredths
+of a degree, and one a gyro in rad/s, taken for deg/s, would shrink below 0.04 deg."""
+
+
 @dataclass(frozen=True)
 class GyroUnits:
-    """The images' motion over the motion the gyro predicts (the median over the moving frames; about 1 in rad/s,
-    :data:`DEGREE` in deg/s), the share of resamples of the moves that read deg/s, and the frames and moves
-    used."""
+    """The images' motion over the motion the gyro predicts (the median over the moving frames, or over the turns
+    between holds; about 1 in rad/s, :data:`DEGREE` in deg/s), the share of resamples of the moves that read
+    deg/s, the frames (0 for turns) and moves used, and what measured it."""
 
     ratio: float
     confidence: float
     frames: int
     moves: int
+    evidence: GyroEvidence = GyroEvidence.MOVES_ON_CAMERA
 
     @property
     def in_degrees(self) -> bool:
@@ -86,14 +100,37 @@ def gyro_units(imu_clock) -> GyroUnits | None:
     use = np.isfinite(frame_ratio)
     per_move = np.array([np.median(frame_ratio[use & (move == m)]) if np.any(use & (move == m)) else np.nan
                          for m in range(moves)])
+    return _verdict(per_move, float(np.median(frame_ratio[use])), int(np.count_nonzero(use)),
+                    GyroEvidence.MOVES_ON_CAMERA)
+
+
+def gyro_units_from_turns(pipeline) -> GyroUnits | None:
+    """The gyro's unit as the turns between holds measure it: for each hold whose gyro turn from the hold before
+    it the images also measured (both in one sequence; a turn of at least :data:`MIN_TURN_DEG`), the images'
+    angle over the gyro's angle as read (not wrapped at pi: a gyro in deg/s reads 57 times the turn); the
+    verdict as :func:`gyro_units` takes it. Where the cameras record only the holds (or one snapshot each) the
+    moves are off camera, but the holds' poses are not. None with fewer than
+    :data:`~nrmpc_ros.frontend.imu_clock.MIN_MOVES` such turns."""
+    ratios = []
+    for before, stamp, images in list(pipeline.images_turns):
+        gyro = pipeline.gyro_turns.get(stamp)
+        if gyro is not None and gyro[0] == before and images >= math.radians(MIN_TURN_DEG) and gyro[1] > 0:
+            ratios.append(images / gyro[1])
+    ratios = np.array(ratios)
+    return _verdict(ratios, float(np.median(ratios)) if len(ratios) else math.nan, 0,
+                    GyroEvidence.TURNS_BETWEEN_HOLDS)
+
+
+def _verdict(per_move: np.ndarray, ratio: float, frames: int, evidence: GyroEvidence) -> GyroUnits | None:
+    """The verdict over the moves' ratios (module docstring): None with fewer than MIN_MOVES."""
     per_move = per_move[np.isfinite(per_move)]
     if len(per_move) < MIN_MOVES:
         return None
     order = np.sort(per_move)
     weights = np.random.default_rng(0).dirichlet(np.ones(len(order)), size=RESAMPLES)  # (B, moves), sorted moves
     resampled = order[np.argmax(np.cumsum(weights, axis=1) >= 0.5, axis=1)]  # each resample's weighted median
-    return GyroUnits(ratio=float(np.median(frame_ratio[use])), confidence=float(np.mean(resampled < DEGREES_BELOW)),
-                     frames=int(np.count_nonzero(use)), moves=len(order))
+    return GyroUnits(ratio=ratio, confidence=float(np.mean(resampled < DEGREES_BELOW)), frames=frames,
+                     moves=len(order), evidence=evidence)
 
 
 def accel_in_g(noise, gravity_m_s2: float) -> bool:
@@ -146,11 +183,12 @@ class ImuUnits:
 
 def imu_units(pipeline) -> ImuUnits:
     """The IMU's units as a :class:`~nrmpc_ros.frontend.pipeline.Pipeline`'s collected samples and frames measure
-    them: the gyro's from the moves (:func:`gyro_units`), the accelerometer's from its still norm
-    (:func:`accel_in_g`)."""
+    them: the gyro's from the moves (:func:`gyro_units`), else from the turns between holds
+    (:func:`gyro_units_from_turns`), the accelerometer's from its still norm (:func:`accel_in_g`)."""
     noise = pipeline.zupt.noise_in_use
     g = noise is not None and accel_in_g(noise, pipeline.rig.gravity_magnitude)
-    return ImuUnits(gyro_units(pipeline.imu_clock), g, float(noise.accel_norm) if noise is not None else math.nan)
+    gyro = gyro_units(pipeline.imu_clock) or gyro_units_from_turns(pipeline)
+    return ImuUnits(gyro, g, float(noise.accel_norm) if noise is not None else math.nan)
 
 
 def describe_units(units: ImuUnits) -> str:
@@ -211,11 +249,14 @@ def describe_gyro_noise(noise) -> str | None:
 def describe_gyro_units(units: GyroUnits) -> str:
     """The measurement as the replay summary and the node's warning say it."""
     verdict = "the gyro reads deg/s" if units.in_degrees else "the gyro reads rad/s"
-    return (f"{verdict}: the images move {units.ratio:.3g} times as fast as it says over {units.frames} moving "
-            f"frames in {units.moves} moves (about 1 in rad/s, {DEGREE:.4f} in deg/s; {100 * units.confidence:.0f} % "
+    seen = f"the images move {units.ratio:.3g} times as fast as it says over {units.frames} moving frames in " \
+        f"{units.moves} moves" if units.evidence is GyroEvidence.MOVES_ON_CAMERA else \
+        f"the images turn the rig {units.ratio:.3g} times as far between holds as it says over {units.moves} moves"
+    return (f"{verdict}: {seen} (about 1 in rad/s, {DEGREE:.4f} in deg/s; {100 * units.confidence:.0f} % "
             "of resamples of the moves read deg/s)")
 
 
-__all__ = ["ACCEL_SCALE_TOLERANCE", "DEGREE", "DEGREES_BELOW", "GyroUnits", "ImuUnits", "NOISIEST_GYRO_DENSITY",
-           "STANDARD_GRAVITY", "UnitsMeasuringPass", "accel_in_g", "describe_accel_scale", "describe_gyro_noise",
-           "describe_gyro_units", "describe_units", "gyro_units", "imu_units"]
+__all__ = ["ACCEL_SCALE_TOLERANCE", "DEGREE", "DEGREES_BELOW", "MIN_TURN_DEG", "GyroEvidence", "GyroUnits",
+           "ImuUnits", "NOISIEST_GYRO_DENSITY", "STANDARD_GRAVITY", "UnitsMeasuringPass", "accel_in_g",
+           "describe_accel_scale", "describe_gyro_noise", "describe_gyro_units", "describe_units", "gyro_units",
+           "gyro_units_from_turns", "imu_units"]

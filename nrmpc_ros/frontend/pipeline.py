@@ -54,6 +54,7 @@ from .zupt import ZuptConfig, ZuptDetector, describe_noise, ringing_damping
 from .zupt import for_rig as zupt_for_rig
 
 PIPELINE_METHODS = ("auto",) + METHODS
+TURNS_KEPT = 200  # the gyro's and the images' turns between holds kept for the gyro's unit
 # the IMU's samples either side of a hold a slow turn through it is looked for in (s): the longest hold the
 # windowed stillness test may have cut into pieces
 CREEP_LOOKAROUND_S = 10.0
@@ -234,8 +235,13 @@ class Pipeline:
         # gravity reaches the accelerometer's bias through an inbox the intake empties before it next uses the
         # bars' state (the node runs the stage in another thread)
         self._gravity_inbox: deque = deque()
+        # the gyro's turn between consecutive holds as read (stamp -> (earlier hold's stamp, angle rad)) and the
+        # images' turn between them (the stage appends): the gyro's unit where the moves are off camera
+        self.gyro_turns: dict = {}
+        self.images_turns: deque = deque(maxlen=TURNS_KEPT)
         self.estimator = HoldEstimator(rig, self.sequence, self.linker, self.stats, method == "4pt-bending",
-                                       self._gravity_inbox.append if self.extrinsics is not None else None)
+                                       self._gravity_inbox.append if self.extrinsics is not None else None,
+                                       self.images_turns.append if rig.imu is not None else None)
         self.handoff: list | None = None  # None: a measured hold is estimated at once; a list: it is appended
         self._handed = 0  # measured holds handed to the estimation stage
         self.trackers = [KltTracker(self.config.tracking, cam) for cam in rig.cameras]
@@ -806,7 +812,12 @@ class Pipeline:
             still, move = run_a, (run_a[1], run_b[0])
         turn = rotation_between(self.imu, self.rig.imu, still, move, self.config.imu.max_age_s,
                                 self.config.imu.gyro_scale_error)
-        return None if turn is None else (before.stamp, turn.R, turn.sigma_rad)
+        if turn is None:
+            return None
+        self.gyro_turns[after.stamp] = (before.stamp, turn.read_angle_rad)
+        while len(self.gyro_turns) > TURNS_KEPT:
+            self.gyro_turns.pop(next(iter(self.gyro_turns)))
+        return before.stamp, turn.R, turn.sigma_rad
 
     def _steady_turn(self, hold: Hold) -> HoldRefusal | None:
         """The refusal of a hold the body turned through (:mod:`.steady_turn`: the gyro's mean rate over the span
