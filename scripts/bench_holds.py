@@ -25,7 +25,10 @@ stream through the moves with the IMU stamped 2 s late (another clock: replayed,
 the offset the recording shows); ``imuswing`` the IMU inside the second camera on a stream at 15 Hz through
 abrupt (trapezoidal) moves, IMU at 400 Hz, bars damped at 0.02: the tip swings by tenths of a radian after a stop;
 ``imusnap`` one image per camera 0.3 s after each stop, the IMU (100 Hz) inside the first camera, bars damped at
-0.02: the snapshots catch the bars ringing by tens of pixels and the images tell gravity hardly at all.
+0.02: the snapshots catch the bars ringing by tens of pixels and the images tell gravity hardly at all;
+``imuraw`` an accelerometer nobody calibrated (bias 0.6 m/s^2, 3.5 deg of tilt, and each axis's scale within
++-2 %); ``gyrodeg`` a gyro driver that writes deg/s (the cameras record only the holds: the unit is measured
+from the turns between them, as ``nrmpc replay`` does).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -301,6 +304,8 @@ def matrix_styles() -> dict:
         "imudlpf": lambda M: ({**base, "imu_rate": 1000.0}, {**bag, "imu_lowpass_hz": 40.0}),
         "imucov": lambda M: (base, {**bag, "imu_covariance_scale": 0.2}),
         "imuclock2s": lambda M: ({**base, "capture": "stream"}, {**bag, "imu_time_offset_ms": 2000.0}),
+        "imuraw": lambda M: (base, {**bag, "imu_bias": 0.6, "accel_scale_error": 0.02}),
+        "gyrodeg": lambda M: (base, {**bag, "gyro_unit": "deg/s"}),
     }
 
 
@@ -320,7 +325,8 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("snap0.5", "line2-soft"), ("snap0.15", "cross4-soft"), ("camrates", "ring5-stiff"),
          ("exposure", "ring6-soft"), ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft"),
          ("noimu", "ring3-soft"), ("imubar", "ring5-soft"), ("imudlpf", "ring6-stiff"), ("imucov", "cross4-soft"),
-         ("imuclock2s", "ring3-soft"), ("imuswing", "cross4-soft")]
+         ("imuclock2s", "ring3-soft"), ("imuswing", "cross4-soft"), ("imuraw", "ring3-stiff"),
+         ("gyrodeg", "line2-soft")]
 
 
 def matrix_cells(full: bool) -> list:
