@@ -455,6 +455,7 @@ def test_an_uncalibrated_accelerometer_is_said_in_the_imu_diagnostics_and_the_no
     within_3_std_of_the_truth(path, ests)
     said = s.diagnostics()[1].values["accelerometer bias"]
     assert "tilts its gravity by up to 4.6" in said and "estimated with a prior of" in said
+    assert "subtract it from the readings" in said
 
 
 def live_service(path, rig_file) -> tuple:

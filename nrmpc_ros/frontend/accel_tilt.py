@@ -121,16 +121,24 @@ class AccelTiltEvidence:
         return TiltEvidence(holds, tilt, open_rad, prior)
 
 
-def describe_tilt(tilt: AccelTiltEvidence) -> str | None:
+def describe_tilt(tilt: AccelTiltEvidence, bias=None) -> str | None:
     """A sentence where the norms show a tilt beyond twice the calibrated prior and beyond what they leave open
-    (an accelerometer whose bias is not calibrated out), else None."""
+    (an accelerometer whose bias is not calibrated out), else None; with ``bias`` (an
+    :class:`~nrmpc_ros.frontend.extrinsics.AccelBiasEstimate` that vision's gravity informed) the bias vector to
+    calibrate out."""
     ev, calibrated = tilt.evidence, tilt.calibrated_sigma_rad
     if ev.holds < 3 or not ev.tilt_rad > 2.0 * max(calibrated, ev.open_rad):
         return None
     said = (f"the accelerometer's still norm varies with attitude as a bias that tilts its gravity by up to "
             f"{math.degrees(ev.tilt_rad):.2f} deg would make it ({ev.holds} holds)")
     if tilt.graded:
-        return (f"{said}: the tilt is estimated with a prior of {math.degrees(ev.prior_sigma_rad):.2f} deg, not "
+        said = (f"{said}: the tilt is estimated with a prior of {math.degrees(ev.prior_sigma_rad):.2f} deg, not "
                 f"the calibrated {math.degrees(calibrated):.2f} (calibrate the bias out for tighter IMU gravities)")
-    return (f"{said}, beyond the calibrated prior of {math.degrees(calibrated):.2f} deg that imu_bias_max_deg keeps: "
-            f"gravities and their stds lean on it (raise imu_bias_max_deg, or calibrate the bias out)")
+    else:
+        said = (f"{said}, beyond the calibrated prior of {math.degrees(calibrated):.2f} deg that imu_bias_max_deg "
+                f"keeps: gravities and their stds lean on it (raise imu_bias_max_deg, or calibrate the bias out)")
+    if bias is not None and bias.with_gravity > 0 and np.all(np.isfinite(bias.std_ms2)):
+        said += (f"; with the images' gravity the bias reads {np.array2string(bias.bias_ms2, precision=3)} +- "
+                 f"{np.array2string(bias.std_ms2, precision=3)} m/s^2 in the IMU's frame ({bias.holds} holds): "
+                 f"subtract it from the readings")
+    return said

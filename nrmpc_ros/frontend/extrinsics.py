@@ -113,6 +113,11 @@ class AccelBias:
             self._still.pop(next(iter(self._still)))
         self.estimate = self._solve()
 
+    def set_prior(self, prior_ms2: float | None) -> None:
+        """The prior's std per axis from now on (the next measurement solves with it): what the still holds'
+        norms grade (:class:`~nrmpc_ros.frontend.accel_tilt.AccelTiltEvidence`)."""
+        self.prior_ms2 = prior_ms2
+
     def observe_group(self, group, gravity, cov_gravity, members) -> None:
         """Vision's gravity (m/s^2) in one frame with its covariance ((3, 3), across gravity) for the holds
         ``members`` [(key, M (3, 3))], M turning that frame into the hold's IMU frame (a_k = -M g + b); holds
@@ -232,6 +237,12 @@ class FrameExtrinsics:
                 self._sample_blocks.append(np.array(self._samples))
                 self._samples = []
         self.bars.add_imu(stamp, (float(ax) - b[0], float(ay) - b[1], float(az) - b[2]), gyro)
+
+    def set_bias_prior(self, prior_ms2: float) -> None:
+        """The accelerometer bias's prior std per axis (m/s^2) from the next still hold on (none where the rig
+        declares the accelerometer unbiased)."""
+        if self.accel_bias is not None:
+            self.accel_bias.set_prior(prior_ms2)
 
     @property
     def bias_estimate(self) -> AccelBiasEstimate | None:

@@ -782,13 +782,14 @@ class Pipeline:
         st.averaged_noise_px.append(hold.averaged_noise_px)
         st.settled_frames.append(hold.settled_frames)
         imu = self._imu_gravity(hold)
-        if imu is not None and self.extrinsics is not None:  # every still hold tells the accelerometer's bias
-            self.extrinsics.observe_still(hold.stamp, imu.accel_mean, imu.accel_mean_std, 1)
         sigma = tilt = None
         if imu is not None:
             white = imu.accel_mean_std / self.rig.gravity_magnitude
             sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg))
             tilt = self.accel_tilt.observe_still(imu.accel_mean, imu.accel_mean_std ** 2).prior_sigma_rad
+            if self.extrinsics is not None:  # every still hold tells the accelerometer's bias, under that prior
+                self.extrinsics.set_bias_prior(self.rig.gravity_magnitude * math.tan(tilt))
+                self.extrinsics.observe_still(hold.stamp, imu.accel_mean, imu.accel_mean_std, 1)
         refused = imu is None and self.method == "4pt-bending"  # the stage links it, then refuses it
         turn = None if refused or self._last_hold is None else self._gyro_rotation(self._last_hold, hold)
         if not refused:
