@@ -324,8 +324,7 @@ def run(args) -> int:
             scale = describe_accel_scale(noise, runner.pipeline.rig.gravity_magnitude)
             if scale:
                 print(f"IMU scale: {scale}")
-            tilt = describe_tilt(runner.pipeline.accel_tilt, runner.pipeline.extrinsics.bias_estimate
-                                 if runner.pipeline.extrinsics is not None else None)
+            tilt = describe_tilt(runner.pipeline.accel_tilt, runner.pipeline.extrinsics)
             if tilt:
                 print(f"IMU bias: {tilt}")
             gyro_noise = describe_gyro_noise(noise) if args.imu_gyro_scale is None and \

@@ -121,11 +121,11 @@ class AccelTiltEvidence:
         return TiltEvidence(holds, tilt, open_rad, prior)
 
 
-def describe_tilt(tilt: AccelTiltEvidence, bias=None) -> str | None:
+def describe_tilt(tilt: AccelTiltEvidence, extrinsics=None) -> str | None:
     """A sentence where the norms show a tilt beyond twice the calibrated prior and beyond what they leave open
-    (an accelerometer whose bias is not calibrated out), else None; with ``bias`` (an
-    :class:`~nrmpc_ros.frontend.extrinsics.AccelBiasEstimate` that vision's gravity informed) the bias vector to
-    calibrate out."""
+    (an accelerometer whose bias is not calibrated out), else None; with ``extrinsics`` (the pipeline's
+    :class:`~nrmpc_ros.frontend.extrinsics.FrameExtrinsics`, None without an IMU) the bias vector to calibrate
+    out, where vision's gravity informed its estimate."""
     ev, calibrated = tilt.evidence, tilt.calibrated_sigma_rad
     if ev.holds < 3 or not ev.tilt_rad > 2.0 * max(calibrated, ev.open_rad):
         return None
@@ -137,6 +137,7 @@ def describe_tilt(tilt: AccelTiltEvidence, bias=None) -> str | None:
     else:
         said = (f"{said}, beyond the calibrated prior of {math.degrees(calibrated):.2f} deg that imu_bias_max_deg "
                 f"keeps: gravities and their stds lean on it (raise imu_bias_max_deg, or calibrate the bias out)")
+    bias = None if extrinsics is None else extrinsics.bias_estimate
     if bias is not None and bias.with_gravity > 0 and np.all(np.isfinite(bias.std_ms2)):
         said += (f"; with the images' gravity the bias reads {np.array2string(bias.bias_ms2, precision=3)} +- "
                  f"{np.array2string(bias.std_ms2, precision=3)} m/s^2 in the IMU's frame ({bias.holds} holds): "

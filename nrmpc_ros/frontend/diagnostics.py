@@ -124,9 +124,7 @@ class ServiceDiagnostics:
             scale = describe_accel_scale(noise, s.rig.gravity_magnitude)
             if scale:
                 values["accelerometer scale"] = scale
-            pipe = s.runner.pipeline
-            tilt = describe_tilt(pipe.accel_tilt, pipe.extrinsics.bias_estimate if pipe.extrinsics is not None
-                                 else None)
+            tilt = describe_tilt(s.runner.pipeline.accel_tilt, s.runner.pipeline.extrinsics)
             if tilt:
                 values["accelerometer bias"] = tilt
             gyro_noise = describe_gyro_noise(noise) if s.feeder.config.imu_gyro_scale == 1.0 else None
