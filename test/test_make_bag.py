@@ -711,6 +711,8 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--bar-hz", "0"], "--bar-hz"), (["--bar-hz", "3", "--mass", "0"], "--bar-hz"),
     (["--rig", "config/sample_cross4.yaml", "--bar-hz", "3"], "--bar-hz"),
     (["--accel-scale-error", "-0.01"], "--accel-scale-error"), (["--accel-scale-error", "1"], "--accel-scale-error"),
+    (["--vibration", "-1"], "--vibration"), (["--vibration-hz", "0"], "--vibration-hz"),
+    (["--vibration-hz", "inf"], "--vibration-hz"),
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
     rig_flags = ["--no-progress"] if "--rig" in args else TINY
@@ -798,3 +800,23 @@ def test_an_accelerometer_scale_error_scales_each_axis_within_its_bound(tmp_path
     assert np.ptp(ratio[0]) > 1e-3, "a scale per axis"
     assert np.array_equal(vectors(exact, "/imu/data", "angular_velocity"),
                           vectors(scaled, "/imu/data", "angular_velocity"))
+
+
+def test_a_motors_vibration_shakes_the_imu_at_its_frequency_and_leaves_the_images(tmp_path):
+    """--vibration A --vibration-hz F: the accelerometer reads a sine at F of A m/s^2 RMS over its axes on top of
+    what it read without (the gyro its rocking, smaller), sampled at the IMU's stamps (aliased where those are
+    slower than 2 F); the images and everything drawn before are untouched."""
+    args = ["--views", "2", "--hold-seconds", "0.4", "--rate", "5", "--resolution", "160x120", "--seed", "3",
+            "--imu-rate", "1000"]
+    calm, _ = make(tmp_path, "calm", *args)
+    shaken, _ = make(tmp_path, "shaken", *args, "--vibration", "1.5", "--vibration-hz", "60")
+    d = vectors(shaken, "/imu/data", "linear_acceleration") - vectors(calm, "/imu/data", "linear_acceleration")
+    assert math.sqrt(float(np.mean(np.sum(d ** 2, axis=1)))) == pytest.approx(1.5, rel=0.05)
+    spectrum = np.abs(np.fft.rfft(d - d.mean(axis=0), axis=0)).sum(axis=1)
+    peak_hz = np.fft.rfftfreq(len(d), 1e-3)[int(np.argmax(spectrum))]
+    assert peak_hz == pytest.approx(60.0, abs=1.0)
+    g = vectors(shaken, "/imu/data", "angular_velocity") - vectors(calm, "/imu/data", "angular_velocity")
+    assert 0.0 < float(np.abs(g).max()) < 0.1
+    images = [topic for topic in calm if topic.endswith("image_raw")]
+    assert images and all(np.array_equal(a.data, b.data) for topic in images
+                          for (_, a), (_, b) in zip(calm[topic], shaken[topic]))

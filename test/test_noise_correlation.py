@@ -6,9 +6,11 @@ import pytest
 from nrmpc_ros.frontend.noise_correlation import (
     autocorrelation,
     mean_variance_factor,
+    periodic,
     quadratic_moments,
     spread_null,
     statistic_null,
+    vibration_period,
 )
 
 
@@ -78,3 +80,47 @@ def test_the_mean_of_correlated_noise_varies_as_its_correlation_says(rng):
     measured = float(np.var(means)) * n
     assert mean_variance_factor(0.8 ** np.arange(n), n) == pytest.approx(measured, rel=0.1)
     assert mean_variance_factor(np.ones(1), n) == 1.0
+
+
+@pytest.mark.parametrize("rate, hz", [(50.0, 20.0), (100.0, 30.0), (100.0, 95.0), (200.0, 45.0), (1000.0, 35.0),
+                                      (1000.0, 150.0)])
+def test_a_vibrations_autocorrelation_is_kept_whole_and_is_a_covariance(rng, rate, hz):
+    """A motor's sine (aliased where the IMU is slower than twice it) under white noise: its correlation is not
+    cut at a zero crossing, its period as sampled is found, and the variance of a window's mean it gives is
+    positive at every length and at least what the windows show (a cut cosine made it negative)."""
+    t = np.arange(40000) / rate
+    x = np.sin(2 * np.pi * hz * t[:, None] + rng.uniform(0, 2 * np.pi, 3)) + 0.1 * rng.normal(size=(len(t), 3))
+    cover = (np.arange(len(t)) // 400) % 4 != 3
+    rho = autocorrelation(x, cover, 100)
+    assert periodic(rho) and len(rho) == 100
+    alias = abs(hz - rate * round(hz / rate))
+    assert abs(vibration_period(rho) - rate / alias) <= 1.0
+    factors = np.array([mean_variance_factor(rho, n) for n in range(2, 101)])
+    assert np.all(factors > 0)
+    c = np.concatenate([np.zeros((1, 3)), np.cumsum(x, axis=0)])
+    for n in (8, 20, 50, 200, 400):  # within the lags measured, and a hold's mean beyond them
+        means = (c[n:] - c[:-n]) / n  # every window of n samples, wherever it starts on the sine
+        assert mean_variance_factor(rho, n) >= 0.8 * float(np.var(means)) * n / float(np.var(x))
+    assert mean_variance_factor(rho, 400) < 0.5  # the vibration averages out over a hold
+
+
+@pytest.mark.parametrize("cutoff, rate", [(5.0, 50.0), (20.0, 200.0), (20.0, 400.0), (40.0, 1000.0), (100.0, 1000.0)])
+def test_a_low_pass_filters_correlation_is_no_vibration(rng, cutoff, rate):
+    """A MEMS IMU's 2nd-order Butterworth filter: its correlation decays (undershooting by a few hundredths) and
+    is cut where the data cannot tell it from 0, as before."""
+    from scipy.signal import butter, sosfilt
+
+    x = sosfilt(butter(2, cutoff, fs=rate, output="sos"), rng.normal(size=(40000, 3)), axis=0)
+    rho = autocorrelation(x, np.ones(len(x), bool), 100)
+    assert not periodic(rho) and vibration_period(rho) is None
+    assert 3 <= len(rho) <= 30
+
+
+def test_a_correlation_cut_at_a_zero_crossing_never_gives_a_negative_variance():
+    """A cosine cut where it first crosses 0 is no covariance: its sums over long windows went negative (a
+    steady-turn test took the square root of one); the mean's variance is never below that of one sample
+    over n."""
+    cut = np.cos(2 * np.pi * 0.15 * np.arange(4))
+    for n in (5, 20, 100, 1000):
+        assert mean_variance_factor(cut, n) >= 1.0 / n
+        assert quadratic_moments(cut, n)[2] >= 1.0

@@ -159,6 +159,29 @@ def test_noise_free_imu_uses_the_floors(rng):
     assert len(iv) == 2 and iv[0][1] < 2.0 and iv[1][0] > 3.0
 
 
+@pytest.mark.parametrize("rate, hz, rms", [(50.0, 20.0, 0.3), (100.0, 30.0, 0.5), (200.0, 45.0, 1.5),
+                                           (200.0, 120.0, 2.0), (1000.0, 35.0, 1.0), (1000.0, 150.0, 3.0)])
+def test_a_motors_vibration_the_covariances_do_not_claim_is_noise_not_motion(rng, rate, hz, rms):
+    """A motor running all along (an engine, idling propellers) shakes the accelerometer by tenths to whole
+    m/s^2 at tens to hundreds of Hz; the Imu messages' covariances claim the sensor's noise alone, and where the
+    vibration is slow beside the samples their steps do not show it either. The quietest windows' samples
+    vibrate (a periodic correlation): their spread is taken as noise, and the holds are found whole."""
+    plan = [("hold", 3.0), ("move", 1.0), ("hold", 3.0), ("move", 1.2), ("hold", 3.0)]
+    t, a, w, holds = trace(rng, rate, plan)
+    shake = np.sqrt(2.0) * rms * np.array([0.6, 0.5, 0.62]) / np.linalg.norm([0.6, 0.5, 0.62])
+    a = a + shake * np.sin(2 * np.pi * hz * t[:, None] + np.array([0.3, 1.9, 4.0]))
+    cov_a, cov_w = (np.eye(3) * 0.02 ** 2).ravel(), (np.eye(3) * 0.002 ** 2).ravel()
+    noise = estimate_noise(t, a, w, covariance=(cov_a, cov_w))
+    assert noise.source is NoiseSource.VIBRATION and noise.claimed == (0.02, 0.002)
+    assert "vibrate at" in describe_noise(noise, ZuptConfig())
+    found = still_intervals(t, a, w, noise)
+    assert len(found) == len(holds)
+    for (f0, f1), (h0, h1) in zip(found, holds):
+        assert h0 - 0.05 <= f0 < h0 + 0.3 and h1 - 0.3 < f1 <= h1 + 0.05
+    quiet = estimate_noise(*still_trace(rng, rate=rate), covariance=(cov_a, cov_w))
+    assert quiet.source is NoiseSource.COVARIANCE  # no vibration: the claim stands
+
+
 def test_noise_from_covariance_or_data(rng):
     t, a, w, holds = trace(rng, 200.0, [("hold", 3.0), ("move", 1.0), ("hold", 3.0)])
     cov_a, cov_w = (np.eye(3) * 0.02 ** 2).ravel(), (np.eye(3) * 0.002 ** 2).ravel()

@@ -41,6 +41,7 @@ DEFAULTS = {
     "seed": _B.seed, "image_noise": _B.image_noise, "imu_noise": _B.imu_noise, "gyro_noise": _B.gyro_noise,
     "imu_covariance_scale": _B.imu_covariance_scale, "imu_lowpass_hz": _B.imu_lowpass_hz, "imu_bias": _B.imu_bias,
     "gyro_bias": _B.gyro_bias, "accel_scale_error": _B.accel_scale_error,
+    "vibration": _B.vibration, "vibration_hz": _B.vibration_hz,
     "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
     "supersample": _B.supersample, "out": None, "no_progress": False,
@@ -189,6 +190,13 @@ def register(sub):
     se.add_argument("--accel-scale-error", type=float, metavar="S",
                     help="each accelerometer axis reads (1 + s) times the truth, s uniform in +-S per axis: an "
                          f"uncalibrated MEMS chip's sensitivity error, 0.01-0.03 (default {d['accel_scale_error']:g})")
+    se.add_argument("--vibration", type=float, metavar="A",
+                    help="a motor's vibration the IMU reads all along, A m/s^2 RMS (an engine or idling "
+                         "propellers: 0.1-3), with the rocking it brings to the gyro; the images do not show it "
+                         f"(default {d['vibration']:g}: none)")
+    se.add_argument("--vibration-hz", type=float, metavar="HZ",
+                    help="its frequency; an IMU sampling slower than twice it reads it aliased "
+                         f"(default {d['vibration_hz']:g})")
     se.add_argument("--gyro-unit", choices=sorted(GYRO_UNITS),
                     help="unit of the Imu messages' angular_velocity and its covariance: deg/s is a driver that "
                          f"breaks REP 103 (default {d['gyro_unit']})")
@@ -397,7 +405,8 @@ def bag_options(o: dict):
                       storage=o["storage"], image_noise=o["image_noise"], imu_noise=o["imu_noise"],
                       gyro_noise=o["gyro_noise"], imu_covariance_scale=o["imu_covariance_scale"],
                       imu_lowpass_hz=o["imu_lowpass_hz"], imu_bias=o["imu_bias"], gyro_bias=o["gyro_bias"],
-                      accel_scale_error=o["accel_scale_error"], imu=not o["no_imu"], damping=o["damping"],
+                      accel_scale_error=o["accel_scale_error"], vibration=o["vibration"],
+                      vibration_hz=o["vibration_hz"], imu=not o["no_imu"], damping=o["damping"],
                       jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
                       exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],

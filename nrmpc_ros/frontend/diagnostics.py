@@ -160,6 +160,9 @@ class ServiceDiagnostics:
             level, message = WARN, "the accelerometer's scale is off gravity's (see accelerometer scale)"
         elif noise is not None and "gyro noise" in values:
             level, message = WARN, "the gyro's noise is beyond any MEMS gyro's: deg/s? (see gyro noise)"
+        elif noise is not None and noise.source is NoiseSource.VIBRATION:
+            level, message = OK, (f"{s.received[topic]} samples; the IMU vibrates (a motor?): the stillness test "
+                                  "takes the vibration as noise (see stillness test)")
         elif noise is not None and noise.source is NoiseSource.WHITE_NOISE:
             level, message = WARN, ("the Imu covariances claim less noise than the samples show: the stillness "
                                     "test uses the samples' (see stillness test)")

@@ -17,6 +17,9 @@ import math
 import numpy as np
 
 AUTOCORRELATION_SAMPLES = 1 << 18  # the noise's autocorrelation comes from the newest this many samples at most
+VIBRATION_RETURN = 0.3
+"""The correlation a vibration's autocorrelation swings to either side of 0 (its share of the power, at least
+this): a 2nd-order low-pass filter's undershoots by a few hundredths."""
 
 
 def per_value(fn, dof: np.ndarray) -> np.ndarray:
@@ -30,7 +33,8 @@ def autocorrelation(x: np.ndarray, cover: np.ndarray, lags: int) -> np.ndarray:
     True (the still windows'), each run of them about its own mean, the axes pooled, from the newest
     ``AUTOCORRELATION_SAMPLES`` at most (by FFT), at most half as many lags as there are such samples. It ends
     before the first lag whose estimate lies within two standard errors of 0: lags the data cannot tell from
-    white count as uncorrelated. [1.0]: white."""
+    white count as uncorrelated; unless it is a vibration's (:func:`periodic`), then all ``lags`` are kept.
+    [1.0]: white."""
     x, cover = x[-AUTOCORRELATION_SAMPLES:], cover[-AUTOCORRELATION_SAMPLES:]
     lags = min(lags, int(cover.sum()) // 2)  # few samples yet (a recording's first second): the first lags
     if lags < 2:
@@ -54,9 +58,34 @@ def autocorrelation(x: np.ndarray, cover: np.ndarray, lags: int) -> np.ndarray:
     owed = (np.maximum(length[:, None] - np.arange(lags)[None, :], 0.0) / length[:, None]).sum(axis=0)
     var = acov[0] / pairs[0] / (1.0 - owed[0] / pairs[0])
     rho = (acov / pairs + var * owed / pairs) / var
+    if periodic(rho):
+        # a vibration's sine, not a filter's decay: every lag is kept, each over all the samples (the biased
+        # estimate: a covariance, so no window's mean or spread gets a negative variance from a cosine cut at
+        # a zero crossing)
+        return rho * (pairs / pairs[0])
     quiet = np.abs(rho[1:]) < 2.0 / np.sqrt(3.0 * pairs[1:])  # within two standard errors of 0
     end = 1 + (int(np.argmax(quiet)) if quiet.any() else len(rho) - 1)
     return rho[:end].copy()
+
+
+def periodic(correlation: np.ndarray) -> bool:
+    """Whether an autocorrelation (lags in samples, from :func:`autocorrelation`) is a vibration's: after its
+    first minimum below -:data:`VIBRATION_RETURN` it comes back above +:data:`VIBRATION_RETURN`. A low-pass
+    filter's decays and undershoots a little at most; a motor's sine returns to its own share of the power."""
+    rho = np.asarray(correlation, dtype=float)
+    below = np.flatnonzero(rho < -VIBRATION_RETURN)
+    return bool(len(below)) and bool(np.any(rho[below[0]:] > VIBRATION_RETURN))
+
+
+def vibration_period(correlation: np.ndarray) -> float | None:
+    """A vibration's period as sampled (samples; aliased where the samples are slower than twice its frequency):
+    four times its autocorrelation's first zero crossing, interpolated between lags; None where the correlation
+    is no vibration's (:func:`periodic`)."""
+    if not periodic(correlation):
+        return None
+    rho = np.asarray(correlation, dtype=float)
+    k = int(np.argmax(rho < 0.0))
+    return max(4.0 * (k - 1 + float(rho[k - 1] / (rho[k - 1] - rho[k]))), 2.0)
 
 
 def quadratic_moments(rho: np.ndarray, n: int) -> tuple:
@@ -69,7 +98,7 @@ def quadratic_moments(rho: np.ndarray, n: int) -> tuple:
     r[:k] = rho[:k]
     weight = n - np.arange(n)  # pairs at each lag
     tr_r2 = float(weight[0] + 2.0 * np.sum(weight[1:] * r[1:] ** 2))
-    s1 = float(weight[0] + 2.0 * np.sum(weight[1:] * r[1:]))
+    s1 = max(float(weight[0] + 2.0 * np.sum(weight[1:] * r[1:])), 1.0)  # as in mean_variance_factor
     if k > 1:
         row_sums = np.convolve(np.concatenate([r[:0:-1], r]), np.ones(n), mode="valid")  # R 1
         r1_sq = float(row_sums @ row_sums)
@@ -81,9 +110,21 @@ def quadratic_moments(rho: np.ndarray, n: int) -> tuple:
 def mean_variance_factor(correlation: np.ndarray, n: int) -> float:
     """The variance of the mean of n consecutive samples of noise with autocorrelation ``correlation`` (lags
     in samples) over its white-noise value s^2 / n: 1'R1 / n, above 1 where a low-pass filter makes
-    neighbouring samples alike."""
+    neighbouring samples alike, below 1 where it alternates (a vibration's sine, bounded by its envelope over
+    windows longer than its measured lags), and never below 1 / n (a mean
+    no surer than that of one sample over n): an autocorrelation cut at the first lag the data cannot tell from 0
+    is no covariance, and a vibration's cut cosine would otherwise make the variance negative."""
+    if n > len(correlation) and periodic(correlation):
+        # a vibration's sine averages out over a window longer than the lags measured: its mean over n samples
+        # is at most sqrt(2) its rms / (n sin(pi / P)) (a geometric sum; P its period in samples), the rest of
+        # the power white. Its share of the power is the cosine's amplitude, the largest correlation at a lag.
+        share = min(float(np.max(np.abs(np.asarray(correlation, dtype=float)[1:]))), 1.0)
+        sine = math.sin(math.pi / vibration_period(correlation)) ** 2
+        return max(1.0 - share + share * 2.0 / (n * sine), 1.0 / n)
     rho = np.asarray(correlation, dtype=float)[1:max(int(n), 1)]
-    return 1.0 + 2.0 * float(np.sum((1.0 - np.arange(1, len(rho) + 1) / n) * rho)) if len(rho) else 1.0
+    if not len(rho):
+        return 1.0
+    return max(1.0 + 2.0 * float(np.sum((1.0 - np.arange(1, len(rho) + 1) / n) * rho)), 1.0 / max(int(n), 1))
 
 
 def spread_null(n: np.ndarray, extra: int, rho: np.ndarray) -> tuple:
@@ -127,5 +168,5 @@ def statistic_null(n: np.ndarray, extra: int, accel_correlation: np.ndarray, gyr
     return cn[..., 0], cn[..., 1], cn[..., 2]
 
 
-__all__ = ["AUTOCORRELATION_SAMPLES", "autocorrelation", "mean_variance_factor", "per_value", "quadratic_moments",
-           "spread_null", "statistic_null"]
+__all__ = ["AUTOCORRELATION_SAMPLES", "VIBRATION_RETURN", "autocorrelation", "mean_variance_factor", "per_value",
+           "periodic", "quadratic_moments", "spread_null", "statistic_null", "vibration_period"]

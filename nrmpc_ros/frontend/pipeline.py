@@ -44,7 +44,7 @@ from .imu_clock import ImuClockEstimator
 from .imu_clock_check import MeasuredClockOffset, offset_from_moves
 from .linking import HoldLinker
 from .motion import Motion, MotionKind
-from .noise_correlation import mean_variance_factor
+from .noise_correlation import mean_variance_factor, periodic
 from .patch_align import PatchAlignConfig
 from .ringing_watch import RingingWatch
 from .snapshot_ringing import correct_pixels, correction_rotations, predict, residual_px, uncertainty
@@ -863,10 +863,15 @@ class Pipeline:
         if imu is None:
             self.stats.dropped[Drop.no_imu_gravity(why.rule)] += 1
             return None
-        noise = self.zupt.noise_in_use  # a low-pass filtered IMU's samples share their noise: its mean varies more
-        factor = mean_variance_factor(noise.accel_correlation, imu.num_samples) if noise is not None else 1.0
-        return replace(imu, accel_mean_std=imu.accel_mean_std * math.sqrt(factor)) if factor > 1.0 \
-            else imu
+        # a low-pass filtered IMU's samples share their noise: its mean varies more; a motor's vibration, which
+        # the samples' scatter holds, averages out: it varies less
+        noise = self.zupt.noise_in_use
+        if noise is None:
+            return imu
+        factor = mean_variance_factor(noise.accel_correlation, imu.num_samples)
+        if factor > 1.0 or periodic(noise.accel_correlation):
+            return replace(imu, accel_mean_std=imu.accel_mean_std * math.sqrt(factor))
+        return imu
 
     # ------------------------------------------------------------------ batch
     def batch(self) -> list:

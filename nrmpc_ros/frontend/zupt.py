@@ -109,7 +109,7 @@ from ..core.loss import MAD_TO_STD
 from ..errors import InputError
 from .imu import ImuBuffer, ImuReject
 from .mount_ringing import RINGING_PARAMETERS, MountBar, MountTurn, mount_bar, mount_ringing_hz, ringing_moments
-from .noise_correlation import autocorrelation, per_value, spread_null, statistic_null
+from .noise_correlation import autocorrelation, per_value, periodic, spread_null, statistic_null, vibration_period
 
 # A window on a ringing mount spans at least this many periods of its ringing to be tested (a hair less than
 # one: a window of one period holds samples over one period less one sample's spacing, plus stamp jitter).
@@ -180,6 +180,7 @@ class NoiseSource(str, Enum):
     DATA = "data"  # the quietest windows of the samples
     COVARIANCE = "covariance"  # the sensor_msgs/Imu covariances
     WHITE_NOISE = "white noise"  # the samples' white noise, where it is above what the covariances claim
+    VIBRATION = "vibration"  # the quietest windows' spread, where their samples vibrate (a periodic correlation)
 
 
 @dataclass
@@ -212,6 +213,15 @@ def describe_noise(noise: ImuNoise, cfg: ZuptConfig) -> str:
         text += (f": the Imu messages' covariances claim {noise.claimed[0]:.3g} m/s^2 and {noise.claimed[1]:.3g} "
                  f"rad/s, up to {ratio:.3g}x less than the samples show; tested with the claim, still windows read "
                  f"as motion")
+    elif noise.source is NoiseSource.VIBRATION:
+        lags = [vibration_period(rho) for rho in (noise.accel_correlation, noise.gyro_correlation)]
+        lag = next((k for k in lags if k is not None), None)
+        known = lag is not None and math.isfinite(noise.period_s)
+        at = f" at about {1.0 / (lag * noise.period_s):.2g} Hz as sampled" if known else ""
+        claim = (f"; the Imu messages' covariances claim {noise.claimed[0]:.3g} m/s^2 and {noise.claimed[1]:.3g} "
+                 f"rad/s" if noise.claimed is not None else "")
+        text += (f" the quietest windows show: their samples vibrate{at}, a motor's vibration taken as noise, "
+                 f"which a window's mean averages out{claim}")
     elif noise.source is NoiseSource.COVARIANCE and noise.quietest is not None:
         ratio = max(q / u for q, u in zip(noise.quietest, used))
         if ratio > CLAIM_REFUTED:  # smooth motion or correlated noise: the data cannot tell which
@@ -221,8 +231,9 @@ def describe_noise(noise: ImuNoise, cfg: ZuptConfig) -> str:
     lags = max(len(noise.accel_correlation), len(noise.gyro_correlation)) - 1
     if lags > 0:
         span = f" ({1e3 * lags * noise.period_s:.3g} ms)" if math.isfinite(noise.period_s) else ""
-        text += (f"; neighbouring samples' noise correlated over {lags} samples{span}, as an IMU's low-pass filter "
-                 f"makes it: taken into the test")
+        cause = "the vibration" if noise.source is NoiseSource.VIBRATION else "an IMU's low-pass filter"
+        text += (f"; neighbouring samples' noise correlated over {lags} samples{span}, as {cause} makes it: taken into "
+                 f"the test")
     return text
 
 
@@ -438,6 +449,11 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
             sa, sw = max(s_a, white[0]), max(s_w, white[1])
             refuted = sa > CLAIM_REFUTED * s_a or sw > CLAIM_REFUTED * s_w
             src = NoiseSource.WHITE_NOISE if refuted else NoiseSource.COVARIANCE
+            shaken = [periodic(rho) for rho in correlation]
+            if any(shaken):  # a motor's vibration: neither claimed nor, slower than the samples, in their steps
+                sa = max(sa, math.sqrt(max(var_a, 0.0))) if shaken[0] else sa
+                sw = max(sw, math.sqrt(max(var_w, 0.0))) if shaken[1] else sw
+                src = NoiseSource.VIBRATION
         else:
             sa, sw = (math.sqrt(v) if v > 0 else 0.0 for v in (var_a, var_w))  # nan: a degenerate spread
             src = NoiseSource.DATA

@@ -100,6 +100,9 @@ class BagOptions:
     accel_scale_error: float = 0.0  # each accelerometer axis reads (1 + s) times the truth, s uniform in +-this (an
     # uncalibrated MEMS chip's sensitivity error: 0.01-0.03)
     gyro_bias: float = 0.002  # rad/s, norm of the constant gyro bias
+    vibration: float = 0.0  # m/s^2 RMS of a motor's vibration the accelerometer reads all along (an engine or
+    # idling propellers: 0.1-3), a sine at vibration_hz on each axis; the gyro reads the rocking it comes with
+    vibration_hz: float = 60.0  # its frequency (an IMU sampling slower than twice it reads it aliased)
     imu: bool = True  # write the IMU topic
     gyro_unit: str = "rad/s"  # the unit the Imu messages' angular_velocity (and its covariance) is written in:
     # "deg/s" is a driver that breaks REP 103
@@ -129,13 +132,16 @@ class BagOptions:
         if not (isinstance(self.supersample, numbers.Integral) and 1 <= self.supersample <= 8):
             raise OptionError(_OWNER, "supersample", f"must be an integer in [1, 8], got {self.supersample!r}")
         for name in ("image_noise", "imu_noise", "gyro_noise", "imu_bias", "gyro_bias", "jitter_ms",
-                     "imu_covariance_scale", "imu_lowpass_hz", "accel_scale_error"):
+                     "imu_covariance_scale", "imu_lowpass_hz", "accel_scale_error", "vibration"):
             value = getattr(self, name)
             if not (_real(value) and value >= 0):
                 raise OptionError(_OWNER, name, f"must be a finite number >= 0, got {value!r}")
         if not self.accel_scale_error < 1.0:
             raise OptionError(_OWNER, "accel_scale_error", f"must be below 1 (an axis reading (1 + s) times the "
                               f"truth with s down to -S), got {self.accel_scale_error!r}")
+        if not (_real(self.vibration_hz) and 0 < self.vibration_hz <= 1e4):
+            raise OptionError(_OWNER, "vibration_hz", f"must be a finite number in (0, 10000] Hz, "
+                              f"got {self.vibration_hz!r}")
         if not (_real(self.imu_time_offset_ms) and abs(self.imu_time_offset_ms) <= 1e4):
             raise OptionError(_OWNER, "imu_time_offset_ms", f"must be a finite number of ms within +-10000, "
                               f"got {self.imu_time_offset_ms!r}")
@@ -219,11 +225,34 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
     gyro_noise = rng.normal(scale=opts.gyro_noise, size=gyro.shape)
     if opts.accel_scale_error:  # drawn last: recordings without it keep their random streams
         accel = accel * (1.0 + opts.accel_scale_error * rng.uniform(-1.0, 1.0, size=3))
+    if opts.vibration:  # drawn after the scale error, for the same reason
+        accel_vib, gyro_vib = _vibration(np.asarray(t_ns), opts.vibration, opts.vibration_hz, rng)
+        accel, gyro = accel + accel_vib, gyro + gyro_vib
     if opts.imu_lowpass_hz:
         accel, gyro = (_lowpass(x, opts.imu_lowpass_hz, opts.motion.imu_rate) for x in (accel, gyro))
         accel_noise, gyro_noise = (_lowpass(x, opts.imu_lowpass_hz, opts.motion.imu_rate, unit_noise=True)
                                    for x in (accel_noise, gyro_noise))
     return accel + accel_bias + accel_noise, gyro + gyro_bias + gyro_noise
+
+
+VIBRATION_PIVOT_M = 0.2  # a vibration's rocking: the mount turns about a pivot this far away
+
+
+def _vibration(t_ns: np.ndarray, rms: float, hz: float, rng: np.random.Generator) -> tuple:
+    """Accelerometer and gyro readings (N, 3) of a motor's vibration at ``hz``, ``rms`` m/s^2 over the three
+    axes: on each axis a sine of its own amplitude and phase, and the rocking that comes with it (angular
+    acceleration rms / pivot, so a rate of that over 2 pi hz). Sampled at the IMU's stamps, so an IMU slower than
+    twice ``hz`` reads it aliased, as one without an anti-aliasing filter does. The cameras move with it by
+    micrometres and microradians (rms / (2 pi hz)^2): the images do not show it, and far above the bars'
+    frequencies it does not excite them."""
+    t = (t_ns - t_ns[0]) * 1e-9
+    share = normalize(np.abs(rng.normal(size=3)) + 0.2)
+    phases = rng.uniform(0.0, 2.0 * math.pi, size=(2, 3))
+    omega = 2.0 * math.pi * hz
+    amplitude = math.sqrt(2.0) * rms * share
+    accel = amplitude * np.sin(omega * t[:, None] + phases[0])
+    gyro = (amplitude / (VIBRATION_PIVOT_M * omega)) * np.sin(omega * t[:, None] + phases[1])
+    return accel, gyro
 
 
 def _lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float, unit_noise: bool = False) -> np.ndarray:
