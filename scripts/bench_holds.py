@@ -29,7 +29,8 @@ abrupt (trapezoidal) moves, IMU at 400 Hz, bars damped at 0.02: the tip swings b
 ``imuraw`` an accelerometer nobody calibrated (bias 0.6 m/s^2, 3.5 deg of tilt, and each axis's scale within
 +-2 %); ``gyrodeg`` a gyro driver that writes deg/s (the cameras record only the holds: the unit is measured
 from the turns between them, as ``nrmpc replay`` does); ``vibration`` a running motor the IMU reads all along (1.5 m/s^2
-RMS at 45 Hz, with its rocking on the gyro), which the Imu messages' covariances do not claim.
+RMS at 45 Hz, with its rocking on the gyro), which the Imu messages' covariances do not claim; ``imuhost`` an IMU
+at 400 Hz stamped when the host reads it (up to 6 ms late, in batches of one stamp).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -308,6 +309,7 @@ def matrix_styles() -> dict:
         "imuraw": lambda M: (base, {**bag, "imu_bias": 0.6, "accel_scale_error": 0.02}),
         "gyrodeg": lambda M: (base, {**bag, "gyro_unit": "deg/s"}),
         "vibration": lambda M: (base, {**bag, "vibration": 1.5, "vibration_hz": 45.0}),
+        "imuhost": lambda M: ({**base, "imu_rate": 400.0}, {**bag, "imu_stamp_jitter_ms": 6.0}),
     }
 
 
@@ -328,7 +330,7 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("exposure", "ring6-soft"), ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft"),
          ("noimu", "ring3-soft"), ("imubar", "ring5-soft"), ("imudlpf", "ring6-stiff"), ("imucov", "cross4-soft"),
          ("imuclock2s", "ring3-soft"), ("imuswing", "cross4-soft"), ("imuraw", "ring3-stiff"),
-         ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff")]
+         ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff"), ("imuhost", "ring5-soft")]
 
 
 def matrix_cells(full: bool) -> list:

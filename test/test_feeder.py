@@ -144,7 +144,7 @@ def test_bad_inputs_are_dropped_counted_and_logged_once(rig):
     f.imu_msg(imu(100.0, accel=(math.nan, 0.0, 9.81)))
     f.imu_msg(imu(100.005, accel=(0.0, 0.0, 0.0)))
     f.imu_msg(imu(100.01))
-    f.imu_msg(imu(100.01))  # not newer than the last
+    f.imu_msg(imu(100.008))  # older than the last
     counts = f.drops.counts()
     assert counts[(TOPICS[0], Drop.IMAGE_NOT_DECODED)] == 2
     assert counts[(TOPICS[1], Drop.WRONG_IMAGE_SIZE)] == 1
@@ -253,7 +253,7 @@ def test_imu_samples_handed_over_in_blocks_give_the_work_of_sample_by_sample(rig
 
 
 def test_bad_samples_in_a_block_are_dropped_as_one_by_one(rig):
-    stamps = [100.0, 100.005, 100.01, 100.01, 100.02, 99.0, 2145916800.0, 100.03]
+    stamps = [100.0, 100.005, 100.01, 100.008, 100.02, 99.0, 2145916800.0, 100.03]
     accel = np.tile([0.0, 0.0, 9.81], (len(stamps), 1))
     accel[0, 0], accel[1] = math.nan, 0.0
     f, work, _ = feeder(rig)
@@ -385,3 +385,20 @@ def test_unit_scales_multiply_every_sample_and_its_covariance(rig, blocks):
         assert np.allclose(w, k * want_w, rtol=1e-12) and np.allclose(a, m * want_a, rtol=1e-12)
         assert np.allclose(cw, k * k * want_c, rtol=1e-12) and np.asarray(cw)[8] < 0
         assert np.allclose(ca, 0.5 * m * m * want_c, rtol=1e-12)
+
+
+def test_imu_samples_stamped_alike_in_batches_are_kept_and_spread_over_their_interval(rig):
+    """A driver that stamps samples when the host reads them gets several in one read with one stamp: they are
+    the samples taken since the read before, in order. Each batch is spread evenly over the interval since the
+    stamp before it (its last sample keeps the stamp); none is dropped, and a sample older than the newest still
+    is (out of order)."""
+    f, work, _ = feeder(rig)
+    reads = [100.0, 100.02, 100.02, 100.02, 100.02, 100.03, 100.05, 100.05]
+    for t in reads:
+        f.imu_msg(imu(t))
+    f.imu_msg(imu(100.04))  # older than the newest
+    f.end()
+    stamps = [t for k, t in trace(work) if k is WorkKind.IMU]
+    assert stamps == pytest.approx([100.0, 100.005, 100.01, 100.015, 100.02, 100.03, 100.04, 100.05])
+    assert f.drops.counts()[("/imu/data", Drop.IMU_OUT_OF_ORDER)] == 1
+    assert f.events["imu samples stamped alike"] == 4

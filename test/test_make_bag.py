@@ -711,7 +711,7 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--bar-hz", "0"], "--bar-hz"), (["--bar-hz", "3", "--mass", "0"], "--bar-hz"),
     (["--rig", "config/sample_cross4.yaml", "--bar-hz", "3"], "--bar-hz"),
     (["--accel-scale-error", "-0.01"], "--accel-scale-error"), (["--accel-scale-error", "1"], "--accel-scale-error"),
-    (["--vibration", "-1"], "--vibration"), (["--vibration-hz", "0"], "--vibration-hz"),
+    (["--vibration", "-1"], "--vibration"), (["--imu-stamp-jitter-ms", "-1"], "--imu-stamp-jitter-ms"), (["--vibration-hz", "0"], "--vibration-hz"),
     (["--vibration-hz", "inf"], "--vibration-hz"),
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
@@ -820,3 +820,22 @@ def test_a_motors_vibration_shakes_the_imu_at_its_frequency_and_leaves_the_image
     images = [topic for topic in calm if topic.endswith("image_raw")]
     assert images and all(np.array_equal(a.data, b.data) for topic in images
                           for (_, a), (_, b) in zip(calm[topic], shaken[topic]))
+
+
+def test_an_imu_stamped_when_the_host_reads_it_trails_its_samples_in_order(tmp_path):
+    """--imu-stamp-jitter-ms J: each sample is stamped (and recorded) up to J ms after it was taken, in arrival
+    order, so above the sample period some come in batches of one stamp; the readings and the images are those
+    of the recording stamped when taken."""
+    args = ["--views", "2", "--hold-seconds", "0.4", "--rate", "5", "--resolution", "160x120", "--seed", "3",
+            "--imu-rate", "500"]
+    taken, _ = make(tmp_path, "taken", *args)
+    read, _ = make(tmp_path, "read", *args, "--imu-stamp-jitter-ms", "6")
+    t0 = np.array([stamp(m) for _, m in taken["/imu/data"]])
+    t1 = np.array([stamp(m) for _, m in read["/imu/data"]])
+    assert len(t0) == len(t1)
+    late = (t1 - t0) * 1e-6
+    assert late.min() >= 0.0 and late.max() <= 6.0 and late.mean() > 2.0
+    assert np.all(np.diff(t1) >= 0) and np.any(np.diff(t1) == 0), "in order, some in batches"
+    assert [t for t, _ in read["/imu/data"]] == t1.tolist()
+    assert np.array_equal(vectors(taken, "/imu/data", "linear_acceleration"),
+                          vectors(read, "/imu/data", "linear_acceleration"))

@@ -41,7 +41,7 @@ DEFAULTS = {
     "seed": _B.seed, "image_noise": _B.image_noise, "imu_noise": _B.imu_noise, "gyro_noise": _B.gyro_noise,
     "imu_covariance_scale": _B.imu_covariance_scale, "imu_lowpass_hz": _B.imu_lowpass_hz, "imu_bias": _B.imu_bias,
     "gyro_bias": _B.gyro_bias, "accel_scale_error": _B.accel_scale_error,
-    "vibration": _B.vibration, "vibration_hz": _B.vibration_hz,
+    "vibration": _B.vibration, "vibration_hz": _B.vibration_hz, "imu_stamp_jitter_ms": _B.imu_stamp_jitter_ms,
     "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
     "supersample": _B.supersample, "out": None, "no_progress": False,
@@ -197,6 +197,10 @@ def register(sub):
     se.add_argument("--vibration-hz", type=float, metavar="HZ",
                     help="its frequency; an IMU sampling slower than twice it reads it aliased "
                          f"(default {d['vibration_hz']:g})")
+    se.add_argument("--imu-stamp-jitter-ms", type=float, metavar="MS",
+                    help="a driver that stamps each IMU sample when the host receives it: the stamp trails the "
+                         "sample by up to MS ms (uniform), in arrival order; above the sample period samples come "
+                         f"in batches (default {d['imu_stamp_jitter_ms']:g}: stamped when taken)")
     se.add_argument("--gyro-unit", choices=sorted(GYRO_UNITS),
                     help="unit of the Imu messages' angular_velocity and its covariance: deg/s is a driver that "
                          f"breaks REP 103 (default {d['gyro_unit']})")
@@ -406,7 +410,8 @@ def bag_options(o: dict):
                       gyro_noise=o["gyro_noise"], imu_covariance_scale=o["imu_covariance_scale"],
                       imu_lowpass_hz=o["imu_lowpass_hz"], imu_bias=o["imu_bias"], gyro_bias=o["gyro_bias"],
                       accel_scale_error=o["accel_scale_error"], vibration=o["vibration"],
-                      vibration_hz=o["vibration_hz"], imu=not o["no_imu"], damping=o["damping"],
+                      vibration_hz=o["vibration_hz"],
+                      imu_stamp_jitter_ms=o["imu_stamp_jitter_ms"], imu=not o["no_imu"], damping=o["damping"],
                       jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
                       exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],

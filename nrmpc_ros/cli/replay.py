@@ -301,6 +301,10 @@ def run(args) -> int:
     if not st.holds:
         print(runner.pipeline.no_hold_report() or "no hold found: no frame set reached the pipeline")
     print(f"inputs dropped: {replay.drops.summary()}")
+    alike = replay.feeder.events["imu samples stamped alike"]
+    if alike:
+        print(f"IMU samples stamped alike: {alike} (a driver that reads them in batches; each batch spread evenly "
+              f"over the interval since the stamp before it)")
     jumps = replay.feeder.events["time jumps back"]
     if jumps:
         print(f"time jumps back: {jumps} (each started a new sequence)")

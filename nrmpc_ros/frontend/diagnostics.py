@@ -117,6 +117,9 @@ class ServiceDiagnostics:
         values = {"topic": topic, "samples": s.received[topic], "rate (Hz)": f"{self._rate(topic, now):.2f}",
                   **dropped}
         new = self._new_drops("imu", total)
+        alike = s.feeder.events["imu samples stamped alike"]
+        if alike:
+            values["samples stamped alike"] = f"{alike} (read in batches: spread over each batch's interval)"
         noise = s.runner.pipeline.zupt.noise_in_use
         scale = None
         if noise is not None:

@@ -6,7 +6,10 @@ what its subscriptions receive; both run the work that comes out through
 are the replay's whenever the same messages arrive. Per message:
 
 1. decode and check (images: decodable, the rig file's size; IMU samples:
-   finite, non-zero acceleration) -- a bad message is dropped and counted;
+   finite, non-zero acceleration, stamps not older than the newest) -- a bad
+   message is dropped and counted; IMU samples read in one batch with one
+   stamp are kept, spread over the interval since the stamp before them
+   (docs/INPUTS.md, "Topics of a bag");
 2. the stamp policy of :class:`~nrmpc_ros.frontend.stamps.StampGuard`
    (stamps in the future dropped; a confirmed jump back in time ends the
    sequence: the open hold is estimated, then the pipeline starts afresh);
@@ -159,6 +162,7 @@ class Feeder:
         self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
         self._imu: deque = deque()  # (stamp, accel, gyro, covariances or None)
         self._imu_newest = -math.inf
+        self._imu_floor, self._imu_batch = -math.inf, 0  # the stamp before the newest; samples stamped newest
         self._cam_newest = [-math.inf] * self.rig.num_cameras  # newest frame accepted per camera
         window = 2 * c.imu_max_lag_s  # each camera's deliveries in the IMU's stamps (.last: the IMU's newest
         # when it last sent), the IMU's in the cameras' newest stamps (.last: theirs when its latest sample came)
@@ -241,7 +245,8 @@ class Feeder:
         a, w, t = block.accel, block.gyro, block.stamps
         good = bool(n) and bool(np.isfinite(a).all() and np.isfinite(w).all() and a.any(axis=1).all())
         if good and t[0] > self._imu_newest and self.guard.accept_run(IMU, t, now):
-            self._imu_newest = float(t[-1])
+            self._imu_floor = float(t[-2]) if n > 1 else self._imu_newest
+            self._imu_newest, self._imu_batch = float(t[-1]), 1
             self._imu_gaps.delivered(max(self._cam_newest), float(t[0]))
             covs = zip(block.accel_cov, block.gyro_cov)
             self._imu.extend((s, ai, wi, c) for s, ai, wi, c in zip(t.tolist(), a.tolist(), w.tolist(), covs))
@@ -338,10 +343,16 @@ class Feeder:
 
     def _accept(self, stream, stamp: float, payload, now: float | None = None) -> None:
         if stream == IMU:
+            if stamp == self._imu_newest and len(self._imu) >= self._imu_batch:
+                self._imu.append((stamp, *payload))
+                self._respace_batch()
+                self._release()
+                return
             if stamp <= self._imu_newest:
                 self._drop(self._name(IMU), Drop.IMU_OUT_OF_ORDER, f"{self._name(IMU)}: IMU sample at "
                            f"{stamp:.6f} s is not newer than the last one ({self._imu_newest:.6f} s)")
                 return
+            self._imu_floor, self._imu_batch = self._imu_newest, 1
             self._imu_newest = stamp
             self._imu_gaps.delivered(max(self._cam_newest), stamp)
             self._imu.append((stamp, *payload))
@@ -350,6 +361,19 @@ class Feeder:
             self._cam_gaps[stream].delivered(self._imu_newest, stamp)
             self._emit_sets(self.sync.add(stream, stamp, payload, arrival=now))
         self._release()
+
+    def _respace_batch(self) -> None:
+        """The samples at the end of the queue that share the newest stamp (a driver that stamps samples when
+        the host receives them, several in one read of a serial or USB link) spread evenly over the interval
+        since the stamp before them, the last one keeping its stamp: they were taken in that interval, in
+        their order. Without a stamp before them (the stream's first), a microsecond apart."""
+        self._imu_batch += 1
+        self.events["imu samples stamped alike"] += 1
+        k, newest = self._imu_batch, self._imu_newest
+        floor = self._imu_floor if math.isfinite(self._imu_floor) else newest - k * 1e-6
+        for i in range(k):
+            _, *data = self._imu[len(self._imu) - k + i]
+            self._imu[len(self._imu) - k + i] = (floor + (newest - floor) * (i + 1) / k, *data)
 
     def _emit_sets(self, sets: list) -> None:
         for stream, stamp, reason in self.sync.take_dropped():

@@ -112,6 +112,9 @@ class BagOptions:
     drop_rate: float = 0.0  # probability that a camera loses a frame
     supersample: int = 2  # rays per pixel side: a pixel integrates its area (1: point sampling, aliased)
     imu_time_offset_ms: float = 0.0  # IMU stamps = true sample time + this (a constant clock offset)
+    imu_stamp_jitter_ms: float = 0.0  # a driver that stamps each IMU sample when the host receives it: the
+    # stamp trails the sample by U(0, this) ms, kept in arrival order (a serial or USB link; where this exceeds
+    # the sample period, samples arrive in batches of nearly equal stamps)
     exposure_drift: float = 0.0  # amplitude of each camera's slow gain change (0.2: gain 0.8-1.2)
     exposure_period_s: float = 20.0  # typical period of the exposure drift
     camera_latency_ms: float = 0.0  # each image is received (bag time) this long after its stamp
@@ -151,7 +154,8 @@ class BagOptions:
         if not (_real(self.exposure_period_s) and self.exposure_period_s > 0):
             raise OptionError(_OWNER, "exposure_period_s", f"must be a finite number > 0, "
                               f"got {self.exposure_period_s!r}")
-        for name, top in (("camera_latency_ms", 10000), ("camera_burst_s", 10), ("camera_burst_stagger_ms", 1000)):
+        for name, top in (("camera_latency_ms", 10000), ("camera_burst_s", 10), ("camera_burst_stagger_ms", 1000),
+                          ("imu_stamp_jitter_ms", 1000)):
             value = getattr(self, name)
             if not (_real(value) and 0 <= value <= top):
                 raise OptionError(_OWNER, name, f"must be a finite number in [0, {top}], got {value!r}")
@@ -336,7 +340,8 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     opts.validate()
     opts.motion.validate_cameras(rig.num_cameras)
     ss = np.random.SeedSequence(int(opts.seed))
-    rng_traj, rng_imu, rng_img, rng_jitter, rng_drop, rng_exposure = (np.random.default_rng(s) for s in ss.spawn(6))
+    rng_traj, rng_imu, rng_img, rng_jitter, rng_drop, rng_exposure, rng_stamp = (
+        np.random.default_rng(s) for s in ss.spawn(7))  # a seed's first six streams as before a seventh was added
     scene = make_scene(int(opts.seed))
     traj = make_trajectory(rng_traj, opts.motion, rig.gravity_magnitude)
     loads = CameraLoads(rig, traj, opts.damping)
@@ -365,6 +370,10 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
         accel, gyro = accel / ACCEL_UNITS[opts.accel_unit], gyro / GYRO_UNITS[opts.gyro_unit]
     else:
         imu_t = np.zeros(0, dtype=np.int64)
+    imu_stamp = imu_t  # when each sample is stamped and received: when taken, or on a host that receives it late
+    if opts.imu_stamp_jitter_ms:
+        delay = rng_stamp.uniform(0.0, opts.imu_stamp_jitter_ms * 1e6, size=len(imu_t))
+        imu_stamp = np.maximum.accumulate(imu_t + np.rint(delay).astype(np.int64))
     R, p, omega, _ = traj.state(frame_t)
     g_true = traj.gravity_body(R)
     cam_loads = loads.at(frame_t)  # (F, M, 3)
@@ -397,8 +406,8 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                 # IMU samples taken up to this trigger's latest camera stamp, received when taken (the recorder's
                 # clock); their stamps carry the IMU clock's offset
                 while j < len(imu_t) and imu_t[j] <= t + max_jitter_ns:
-                    ts = int(imu_t[j]) + imu_offset_ns
-                    push(int(imu_t[j]), imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
+                    ts = int(imu_stamp[j]) + imu_offset_ns
+                    push(int(imu_stamp[j]), imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
                     j += 1
                 Rs, cs = renderer.camera_poses(R[n], p[n], cam_loads[n])
                 key = view if view < 0 or not creeping[view] else -1  # a creeping body is re-rendered every time
@@ -430,8 +439,8 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                 flush(min(t + max_jitter_ns, nxt))
                 bar.update(1)
             while j < len(imu_t):
-                ts = int(imu_t[j]) + imu_offset_ns
-                push(int(imu_t[j]), imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
+                ts = int(imu_stamp[j]) + imu_offset_ns
+                push(int(imu_stamp[j]), imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
                 j += 1
             flush(np.iinfo(np.int64).max)
             bar.close()
