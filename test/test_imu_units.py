@@ -212,3 +212,39 @@ def test_replay_measures_a_gyro_in_deg_s_from_the_turns_between_holds(tmp_path, 
     assert len(said) == 1 and "the gyro reads deg/s: the images turn the rig" in said[0], text
     assert "--imu-gyro-scale 0.01745329" in said[0] and "IMU gyro units:" not in text
     assert "with an estimate (after the first): 5/5" in text, text
+
+
+def test_an_accelerometer_that_reads_no_gravity_at_rest_is_told_from_one_in_g():
+    """A fused driver's linear acceleration (gravity taken out) reads its noise and bias at rest, a few
+    hundredths of a m/s^2: its still means' directions are no gravity. An accelerometer in g reads about 1, a
+    tenth of the rig's gravity, and is scaled instead; one in m/s^2 reads the gravity."""
+    from types import SimpleNamespace
+
+    from nrmpc_ros.frontend.imu_units import describe_accel_scale, reads_no_gravity
+
+    for norm, none in ((0.04, True), (0.3, True), (1.0, False), (9.79, False), (math.nan, False)):
+        assert reads_no_gravity(SimpleNamespace(accel_norm=norm), 9.81) is none
+    said = describe_accel_scale(SimpleNamespace(accel_norm=0.04), 9.81)
+    assert "gravity taken out" in said and "not used" in said
+    assert "in units of g?" in describe_accel_scale(SimpleNamespace(accel_norm=1.0), 9.81)
+
+
+@pytest.mark.slow
+def test_replay_of_an_imu_topic_with_gravity_taken_out_estimates_from_the_images(tmp_path, capsys):
+    """The IMU topic a fused driver publishes as linear acceleration: every hold is estimated, without the
+    IMU's gravity (each counted, and the summary says why), where the images' refutation of its gravity lost the
+    first holds."""
+    from nrmpc_ros.cli.main import main
+
+    bag, rig_file = tmp_path / "linear", tmp_path / "rig.yaml"
+    assert main(["make-bag", "--out", str(bag), "--save-rig", str(rig_file), "--resolution", "320x240",
+                 "--supersample", "1", "--cameras", "4", "--views", "6", "--bar-hz", "4", "--damping", "0.05",
+                 "--seed", "41", "--imu-gravity-removed", "--no-progress"]) == 0
+    assert main(["replay", str(bag), "--rig", str(rig_file), "--out", str(tmp_path / "x.csv"), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "with an estimate (after the first): 5/5" in text, text
+    assert "hold without IMU gravity: the accelerometer reads no gravity at rest" in text
+    assert any(ln.startswith("IMU scale:") and "gravity taken out" in ln for ln in text.splitlines())
+    medians = [float(ln.split("median")[1].split()[0]) for ln in text.splitlines()
+               if ln.strip().startswith("gravity vs ground truth")]
+    assert medians and max(medians) < 0.3

@@ -711,7 +711,8 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--bar-hz", "0"], "--bar-hz"), (["--bar-hz", "3", "--mass", "0"], "--bar-hz"),
     (["--rig", "config/sample_cross4.yaml", "--bar-hz", "3"], "--bar-hz"),
     (["--accel-scale-error", "-0.01"], "--accel-scale-error"), (["--accel-scale-error", "1"], "--accel-scale-error"),
-    (["--vibration", "-1"], "--vibration"), (["--imu-stamp-jitter-ms", "-1"], "--imu-stamp-jitter-ms"), (["--vibration-hz", "0"], "--vibration-hz"),
+    (["--vibration", "-1"], "--vibration"), (["--imu-stamp-jitter-ms", "-1"], "--imu-stamp-jitter-ms"),
+    (["--vibration-hz", "0"], "--vibration-hz"),
     (["--vibration-hz", "inf"], "--vibration-hz"),
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
@@ -839,3 +840,17 @@ def test_an_imu_stamped_when_the_host_reads_it_trails_its_samples_in_order(tmp_p
     assert [t for t, _ in read["/imu/data"]] == t1.tolist()
     assert np.array_equal(vectors(taken, "/imu/data", "linear_acceleration"),
                           vectors(read, "/imu/data", "linear_acceleration"))
+
+
+def test_an_imu_topic_with_gravity_taken_out_reads_about_zero_at_rest(tmp_path):
+    """--imu-gravity-removed: a fused driver's linear acceleration, the specific force plus gravity (in the
+    IMU's axes): about 0 at rest where the raw accelerometer reads gravity's size; the gyro is the same."""
+    args = ["--views", "2", "--hold-seconds", "0.4", "--rate", "5", "--resolution", "160x120", "--seed", "3",
+            "--imu-noise", "0", "--imu-bias", "0"]
+    raw, _ = make(tmp_path, "raw", *args)
+    linear, _ = make(tmp_path, "linear", *args, "--imu-gravity-removed")
+    a, b = (vectors(m, "/imu/data", "linear_acceleration") for m in (raw, linear))
+    assert np.linalg.norm(a[0]) == pytest.approx(9.81, abs=1e-6) and np.linalg.norm(b[0]) < 1e-6
+    assert np.allclose(np.linalg.norm(a - b, axis=1), 9.81)
+    assert np.array_equal(vectors(raw, "/imu/data", "angular_velocity"),
+                          vectors(linear, "/imu/data", "angular_velocity"))

@@ -42,6 +42,7 @@ DEFAULTS = {
     "imu_covariance_scale": _B.imu_covariance_scale, "imu_lowpass_hz": _B.imu_lowpass_hz, "imu_bias": _B.imu_bias,
     "gyro_bias": _B.gyro_bias, "accel_scale_error": _B.accel_scale_error,
     "vibration": _B.vibration, "vibration_hz": _B.vibration_hz, "imu_stamp_jitter_ms": _B.imu_stamp_jitter_ms,
+    "imu_gravity_removed": _B.imu_gravity_removed,
     "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
     "supersample": _B.supersample, "out": None, "no_progress": False,
@@ -201,6 +202,9 @@ def register(sub):
                     help="a driver that stamps each IMU sample when the host receives it: the stamp trails the "
                          "sample by up to MS ms (uniform), in arrival order; above the sample period samples come "
                          f"in batches (default {d['imu_stamp_jitter_ms']:g}: stamped when taken)")
+    se.add_argument("--imu-gravity-removed", action="store_true",
+                    help="the IMU topic carries a fused driver's linear acceleration (gravity taken out: about 0 at "
+                         "rest), as an AHRS publishes beside its raw accelerometer")
     se.add_argument("--gyro-unit", choices=sorted(GYRO_UNITS),
                     help="unit of the Imu messages' angular_velocity and its covariance: deg/s is a driver that "
                          f"breaks REP 103 (default {d['gyro_unit']})")
@@ -411,7 +415,8 @@ def bag_options(o: dict):
                       imu_lowpass_hz=o["imu_lowpass_hz"], imu_bias=o["imu_bias"], gyro_bias=o["gyro_bias"],
                       accel_scale_error=o["accel_scale_error"], vibration=o["vibration"],
                       vibration_hz=o["vibration_hz"],
-                      imu_stamp_jitter_ms=o["imu_stamp_jitter_ms"], imu=not o["no_imu"], damping=o["damping"],
+                      imu_stamp_jitter_ms=o["imu_stamp_jitter_ms"], imu_gravity_removed=o["imu_gravity_removed"],
+                      imu=not o["no_imu"], damping=o["damping"],
                       jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
                       exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],

@@ -86,6 +86,7 @@ class ImuRefusal(Enum):
     DOUBTED = "not testable while an earlier one stands refuted"
     PENDING = "the first after holds without one: waits for the next hold's test"
     UNUSABLE = "refuted on consecutive holds: the IMU's gravity is not used (its rotation or clock)"
+    NO_GRAVITY = "the accelerometer reads no gravity at rest (taken out by a fused driver?)"
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,9 @@ DEGREE = math.pi / 180.0
 STANDARD_GRAVITY = 9.80665
 """m/s^2 in one g, as drivers convert."""
 
+NO_GRAVITY_SHARE = 0.05
+"""Below this share of the rig's gravity the accelerometer's still norm reads no gravity: noise and bias, a few
+hundredths of a m/s^2 (an accelerometer in g reads about a tenth of it, 1 / 9.81, and is scaled instead)."""
 ACCEL_SCALE_TOLERANCE = 0.1
 """The share by which the accelerometer's still norm may differ from the rig's gravity (in m/s^2, or in g times
 :data:`STANDARD_GRAVITY`) and still read as that unit: a MEMS accelerometer's scale error and bias keep it within a
@@ -142,6 +145,14 @@ def accel_in_g(noise, gravity_m_s2: float) -> bool:
         abs(norm * STANDARD_GRAVITY / gravity_m_s2 - 1.0) <= ACCEL_SCALE_TOLERANCE < abs(norm / gravity_m_s2 - 1.0)
 
 
+def reads_no_gravity(noise, gravity_m_s2: float) -> bool:
+    """Whether the accelerometer's still norm (of an :class:`~nrmpc_ros.frontend.zupt.ImuNoise`) is below
+    :data:`NO_GRAVITY_SHARE` of the rig's gravity: it reads no gravity at rest (a fused driver's linear
+    acceleration, gravity taken out), so the directions of its still means are its noise and bias, not gravity."""
+    norm = float(noise.accel_norm)
+    return math.isfinite(norm) and gravity_m_s2 > 0 and norm < NO_GRAVITY_SHARE * gravity_m_s2
+
+
 def describe_accel_scale(noise, gravity_m_s2: float) -> str | None:
     """A sentence when the accelerometer's still norm (of an :class:`~nrmpc_ros.frontend.zupt.ImuNoise`) is off
     the rig's gravity by more than :data:`ACCEL_SCALE_TOLERANCE`, with "in units of g?" where :func:`accel_in_g`;
@@ -150,6 +161,10 @@ def describe_accel_scale(noise, gravity_m_s2: float) -> str | None:
     norm = float(noise.accel_norm)
     if not (math.isfinite(norm) and gravity_m_s2 > 0) or abs(norm / gravity_m_s2 - 1.0) <= ACCEL_SCALE_TOLERANCE:
         return None
+    if reads_no_gravity(noise, gravity_m_s2):
+        return (f"the accelerometer reads {norm:.3g} m/s^2 at rest where gravity is {gravity_m_s2:.3g}: gravity "
+                f"taken out (a fused driver's linear acceleration?); its gravity is not used (vision only): record "
+                f"the raw accelerometer's topic (REP 145: sensor_msgs/Imu carries the specific force)")
     unit = " (in units of g?)" if accel_in_g(noise, gravity_m_s2) else ""
     return (f"the accelerometer reads {norm:.3g} at rest where gravity is {gravity_m_s2:.3g} m/s^2{unit}: "
             f"sensor_msgs/Imu carries m/s^2 (REP 145), and the bars' loads are read at {norm / gravity_m_s2:.3g} "
@@ -256,7 +271,7 @@ def describe_gyro_units(units: GyroUnits) -> str:
             "of resamples of the moves read deg/s)")
 
 
-__all__ = ["ACCEL_SCALE_TOLERANCE", "DEGREE", "DEGREES_BELOW", "MIN_TURN_DEG", "GyroEvidence", "GyroUnits",
-           "ImuUnits", "NOISIEST_GYRO_DENSITY", "STANDARD_GRAVITY", "UnitsMeasuringPass", "accel_in_g",
+__all__ = ["ACCEL_SCALE_TOLERANCE", "DEGREE", "DEGREES_BELOW", "MIN_TURN_DEG", "NO_GRAVITY_SHARE", "GyroEvidence",
+           "GyroUnits", "ImuUnits", "NOISIEST_GYRO_DENSITY", "STANDARD_GRAVITY", "UnitsMeasuringPass", "accel_in_g",
            "describe_accel_scale", "describe_gyro_noise", "describe_gyro_units", "describe_units", "gyro_units",
-           "gyro_units_from_turns", "imu_units"]
+           "gyro_units_from_turns", "imu_units", "reads_no_gravity"]

@@ -39,9 +39,10 @@ from .estimation import HoldEstimate, HoldEstimator, MeasuredHold, SequenceReset
 from .extrinsics import CameraPoses, FrameExtrinsics
 from .gyro import CameraTurns, rotation_between
 from .holds import BarRinging, Hold, HoldConfig, HoldRecorder, HoldRefusal, Refusal, RingingSource, slowest_bar_period
-from .imu import ImuBuffer, ImuConfig, ImuGravity, _vec3
+from .imu import ImuBuffer, ImuConfig, ImuGravity, ImuRefusal, _vec3
 from .imu_clock import ImuClockEstimator
 from .imu_clock_check import MeasuredClockOffset, offset_from_moves
+from .imu_units import reads_no_gravity
 from .linking import HoldLinker
 from .motion import Motion, MotionKind
 from .noise_correlation import mean_variance_factor, periodic
@@ -868,6 +869,9 @@ class Pipeline:
         noise = self.zupt.noise_in_use
         if noise is None:
             return imu
+        if reads_no_gravity(noise, self.rig.gravity_magnitude):
+            self.stats.dropped[Drop.no_imu_gravity(ImuRefusal.NO_GRAVITY)] += 1
+            return None
         factor = mean_variance_factor(noise.accel_correlation, imu.num_samples)
         if factor > 1.0 or periodic(noise.accel_correlation):
             return replace(imu, accel_mean_std=imu.accel_mean_std * math.sqrt(factor))

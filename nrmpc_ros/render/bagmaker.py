@@ -103,6 +103,8 @@ class BagOptions:
     vibration: float = 0.0  # m/s^2 RMS of a motor's vibration the accelerometer reads all along (an engine or
     # idling propellers: 0.1-3), a sine at vibration_hz on each axis; the gyro reads the rocking it comes with
     vibration_hz: float = 60.0  # its frequency (an IMU sampling slower than twice it reads it aliased)
+    imu_gravity_removed: bool = False  # the topic carries a fused driver's linear acceleration: the specific force
+    # with gravity taken out (an AHRS's output, not the accelerometer's), ~0 at rest
     imu: bool = True  # write the IMU topic
     gyro_unit: str = "rad/s"  # the unit the Imu messages' angular_velocity (and its covariance) is written in:
     # "deg/s" is a driver that breaks REP 103
@@ -221,6 +223,8 @@ def imu_readings(rig: Rig, traj: Trajectory, t_ns, rng: np.random.Generator, opt
             f_body = f_body + 2.0 * cross(omega, c_d * perp(vi))
             w_body = omega + np.einsum("nij,nj->ni", J_l, bend_rotation_vectors(rig, vi, cams=[i])[:, 0])
     to_imu = np.einsum("ji,njk->nik", imu.rotation, np.swapaxes(mount_R, 1, 2))  # body -> IMU
+    if opts.imu_gravity_removed:  # a fused driver's linear acceleration: gravity added back to the specific force
+        f_body = f_body + traj.gravity_body(R)
     accel = np.einsum("nij,nj->ni", to_imu, f_body)
     gyro = np.einsum("nij,nj->ni", to_imu, w_body)
     accel_bias = opts.imu_bias * normalize(rng.normal(size=3))
