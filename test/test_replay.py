@@ -132,3 +132,21 @@ def test_covariances_that_claim_too_little_are_said_and_overruled(recordings_dir
     line = next(ln for ln in text.splitlines() if ln.startswith("IMU stillness test:"))
     assert "from the white noise" in line and "covariances claim 0.004 m/s^2 and 0.0004 rad/s" in line
     assert "with an estimate (after the first): 2/2" in text
+
+
+@pytest.mark.slow
+def test_a_low_pass_filtered_imu_whose_driver_claims_a_fifth_of_its_noise_loses_no_hold(tmp_path, capsys):
+    """An IMU that low-pass filters at 20 Hz and whose messages' covariances claim a fifth of its noise: the claim
+    read every window as motion (0 holds) and the filter hides the noise from the samples' steps. The images held
+    still where the IMU read motion, so the claim is dropped for the samples' own noise, and said."""
+    out, rig = tmp_path / "dlpf", tmp_path / "rig.yaml"
+    assert main(["make-bag", "--out", str(out), "--save-rig", str(rig), "--resolution", "320x240", "--supersample",
+                 "1", "--cameras", "3", "--views", "6", "--bar-hz", "4", "--damping", "0.05", "--imu-rate", "400",
+                 "--imu-lowpass-hz", "20", "--imu-covariance-scale", "0.2", "--seed", "22", "--no-progress"]) == 0
+    assert main(["replay", str(out), "--rig", str(rig), "--out", str(tmp_path / "x.csv"), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "with an estimate (after the first): 5/5" in text, text
+    assert any(ln.startswith("IMU covariances: not used") for ln in text.splitlines()), text
+    medians = [float(ln.split("median")[1].split()[0]) for ln in text.splitlines()
+               if ln.strip().startswith("gravity vs ground truth")]
+    assert medians and max(medians) < 0.2

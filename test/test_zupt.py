@@ -19,6 +19,7 @@ from nrmpc_ros.frontend.zupt import (
     NoiseSource,
     ZuptConfig,
     ZuptDetector,
+    claim_disputed,
     describe_noise,
     estimate_noise,
     for_rig,
@@ -816,3 +817,35 @@ def test_an_accelerometer_off_gravitys_scale_is_said(rng, scale, said, unit):
     assert (text is not None) == said
     if said:
         assert f"{np.linalg.norm([0.2, -0.1, 9.8]) * scale:.3g}" in text and ("units of g" in text) == unit
+
+
+def test_a_low_pass_filtered_imu_whose_covariances_claim_its_white_noise_is_disputed_and_can_be_dropped(rng):
+    """A driver that claims its chip's white noise for a 20 Hz low-pass filtered 400 Hz stream: the claim reads
+    every window as motion and the quietest windows show more than it (disputed: only the images can tell
+    correlated noise from smooth motion). Dropped (what the pipeline does when the images held still), the noise
+    comes from the samples and the holds are found; an honest claim is not disputed."""
+    from scipy.signal import butter, sosfilt
+
+    rate = 400.0
+    t, a, w, holds = trace(rng, rate, [("hold", 3.0), ("move", 1.0), ("hold", 3.0), ("move", 1.0), ("hold", 3.0)],
+                           accel_sigma=0.0, gyro_sigma=0.0)
+    sos = butter(2, 20.0, fs=rate, output="sos")
+    for x, sigma in ((a, 0.02), (w, 0.002)):
+        n = sosfilt(sos, rng.normal(size=x.shape), axis=0)
+        x += sigma * n / n.std(axis=0)
+    claim = ((np.eye(3) * 0.004 ** 2).ravel(), (np.eye(3) * 0.0004 ** 2).ravel())
+    z = ZuptDetector(ZuptConfig())
+    for k in range(len(t)):
+        z.add(t[k], a[k], w[k], covariance=claim)
+    assert claim_disputed(z.noise) and not z.covariance_distrusted
+    assert not any(z.is_still(h0 + 0.5, h1 - 0.5) for h0, h1 in holds)
+    assert z.distrust_covariance() and z.covariance_distrusted and not z.distrust_covariance()
+    assert z.noise.source is NoiseSource.DATA
+    assert all(z.is_still(h0 + 0.5, h1 - 0.5) for h0, h1 in holds)
+    z.add(t[-1] + 1.0 / rate, a[-1], w[-1], covariance=claim)  # later claims are not taken again
+    assert z.noise.source is NoiseSource.DATA
+    honest = ZuptDetector(ZuptConfig())
+    t, a, w = still_trace(rng, rate=rate)
+    for k in range(len(t)):
+        honest.add(t[k], a[k], w[k], covariance=((np.eye(3) * 0.02 ** 2).ravel(), (np.eye(3) * 0.002 ** 2).ravel()))
+    assert not claim_disputed(honest.noise)

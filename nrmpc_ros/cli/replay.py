@@ -34,7 +34,7 @@ from ..frontend.runner import PipelineRunner
 from ..frontend.topics import bag_image_topics
 from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
-from ..frontend.zupt import describe_noise
+from ..frontend.zupt import IMAGES_STILL_WINDOWS, describe_noise
 from ..safeio import check_outputs
 from .argtypes import nonnegative_seconds, number, positive_int, seed
 from .common import add_trajectory_arguments
@@ -325,6 +325,12 @@ def run(args) -> int:
         noise = runner.pipeline.zupt.noise_in_use
         if noise is not None:
             print(f"IMU stillness test: {describe_noise(noise, runner.pipeline.zupt.config)}")
+            since = st.covariance_distrusted_at
+            if since is not None:
+                print(f"IMU covariances: not used from {since:.3f} s: the images held still for "
+                      f"{IMAGES_STILL_WINDOWS} stillness-test windows where the noise they claim read every window "
+                      f"as motion and the quietest windows showed more (a low-pass filtered IMU?); the samples' own "
+                      f"noise since (zupt.use_covariance: false from the start)")
             scale = describe_accel_scale(noise, runner.pipeline.rig.gravity_magnitude)
             if scale:
                 print(f"IMU scale: {scale}")

@@ -117,6 +117,9 @@ class ServiceDiagnostics:
         values = {"topic": topic, "samples": s.received[topic], "rate (Hz)": f"{self._rate(topic, now):.2f}",
                   **dropped}
         new = self._new_drops("imu", total)
+        if s.runner.pipeline.zupt.covariance_distrusted:
+            values["covariances"] = ("not used: the images held still where the noise they claim read every window "
+                                     "as motion (the samples' own noise since)")
         alike = s.feeder.events["imu samples stamped alike"]
         if alike:
             values["samples stamped alike"] = f"{alike} (read in batches: spread over each batch's interval)"

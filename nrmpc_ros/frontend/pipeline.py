@@ -51,7 +51,14 @@ from .ringing_watch import RingingWatch
 from .snapshot_ringing import correct_pixels, correction_rotations, predict, residual_px, uncertainty
 from .steady_turn import creep_span, steady_turn
 from .tracking import HoldThinning, KltTracker, TrackingConfig
-from .zupt import ZuptConfig, ZuptDetector, describe_noise, ringing_damping
+from .zupt import (
+    IMAGES_STILL_WINDOWS,
+    ZuptConfig,
+    ZuptDetector,
+    claim_disputed,
+    describe_noise,
+    ringing_damping,
+)
 from .zupt import for_rig as zupt_for_rig
 
 PIPELINE_METHODS = ("auto",) + METHODS
@@ -177,6 +184,7 @@ class PipelineStats:
     noise_px: list = field(default_factory=list)  # one frame's track position noise
     averaged_noise_px: list = field(default_factory=list)
     settled_frames: list = field(default_factory=list)
+    covariance_distrusted_at: float | None = None  # stamp (s) from which the IMU's noise is the samples' own
 
     def as_dict(self) -> dict:
         def med(v):
@@ -190,7 +198,8 @@ class PipelineStats:
                 "sequences": self.sequences, "merges": self.merges, "bridges": self.bridges,
                 "methods": dict(self.methods), "dropped": {k.message: n for k, n in sorted_counts(self.dropped)},
                 "median_settle_s": med(self.settle_s), "median_residual_px": med(self.residual_px),
-                "median_noise_px": med(self.noise_px), "median_averaged_noise_px": med(self.averaged_noise_px)}
+                "median_noise_px": med(self.noise_px), "median_averaged_noise_px": med(self.averaged_noise_px),
+                "covariance_distrusted_at": self.covariance_distrusted_at}
 
 
 class Pipeline:
@@ -208,6 +217,7 @@ class Pipeline:
         zupt = zupt_for_rig(self.config.zupt, rig)
         self.imu = ImuBuffer(rig, self.config.imu, zupt.mount_ringing_hz or 0.0, ringing_damping(zupt))
         self.zupt = ZuptDetector(zupt, buffer=self.imu)
+        self._images_still_s = 0.0  # how long the images have held still while the IMU read motion (s)
         self.bar_period_s = slowest_bar_period(rig)
         # the bars' state from the IMU: every camera's extrinsics at any frame set (docs/PIPELINE.md)
         # the accelerometer's bias: prior std and floor are the configured tilts at the rig's gravity
@@ -480,9 +490,12 @@ class Pipeline:
         radius of the one it had when the hold began (:mod:`.ringing_watch`).
         """
         imu = self.zupt.is_still(t0, t1) if self.rig.imu is not None and len(self.imu) else None
-        if imu is False:
-            return False, Motion(MotionKind.IMU_MOVED)
         cfg = self.config.holds
+        if imu is False:
+            self._dispute_imu(t0, t1, steps)
+            return False, Motion(MotionKind.IMU_MOVED)
+        if imu is True:
+            self._images_still_s = 0.0
         for i, s in enumerate(steps):
             if s is None:
                 continue
@@ -505,6 +518,22 @@ class Pipeline:
             if stepped and path.kept() is False:  # near the hold, but no longer ringing about its rest: moving
                 return False, Motion(MotionKind.LEFT_HOLD, name, s.offset_px)
         return True, None
+
+    def _dispute_imu(self, t0: float, t1: float, steps: list) -> None:
+        """The IMU read motion between two frames: where every camera's image held still (no track lost, a step
+        of at most ``still_step_px``) for :data:`~.zupt.IMAGES_STILL_WINDOWS` stillness-test windows in a row
+        while the noise in use is a claim the quietest windows dispute, the claim is dropped for the samples' own
+        noise (docs/PIPELINE.md, Holds)."""
+        limit = self.config.holds.still_step_px
+        quiet = [s for s in steps if s is not None]
+        if not quiet or any(s.lost or not (math.isfinite(s.motion_px) and s.motion_px <= limit) for s in quiet):
+            self._images_still_s = 0.0
+            return
+        self._images_still_s += t1 - t0
+        if self._images_still_s >= IMAGES_STILL_WINDOWS * self.zupt.window_s and \
+                claim_disputed(self.zupt.noise_in_use) and self.zupt.distrust_covariance():
+            self.stats.covariance_distrusted_at = t1
+            self._images_still_s = 0.0
 
     def _rings_about(self, path, i: int, radius_px: float) -> bool:
         """Whether camera i's image rings about a rest (``path``, :meth:`.ringing_watch.RingingWatch.judge`): no

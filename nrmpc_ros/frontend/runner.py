@@ -54,11 +54,14 @@ class StageWork:
 
 
 def merge_stats(a: PipelineStats, b: PipelineStats) -> PipelineStats:
-    """Counts added, per-hold lists joined."""
+    """Counts added, per-hold lists joined; a stamp the first of the two that has one."""
     out = {}
     for f in dataclasses.fields(PipelineStats):
         x, y = getattr(a, f.name), getattr(b, f.name)
-        out[f.name] = Counter(x) + Counter(y) if isinstance(x, Counter) else x + y
+        if x is None or y is None:
+            out[f.name] = y if x is None else x
+        else:
+            out[f.name] = Counter(x) + Counter(y) if isinstance(x, Counter) else x + y
     return PipelineStats(**out)
 
 

@@ -645,6 +645,25 @@ def still_intervals(t, accel, gyro, noise: ImuNoise, cfg: ZuptConfig | None = No
     return [(float(tv[i]), float(tv[j])) for i, j in zip(starts, ends)]
 
 
+IMAGES_STILL_WINDOWS = 10
+"""Stillness-test windows' worth of frames the images must hold still for, while every window reads as motion
+with the noise the covariances claim and the quietest windows show more than the claim, before the claim is
+dropped for the samples' own noise (:meth:`ZuptDetector.distrust_covariance`): with the right noise ten still
+windows in a row false-alarm once in 10^50."""
+
+
+def claim_disputed(noise: ImuNoise | None) -> bool:
+    """Whether the noise in use is the covariances' claim (raised to the white noise or not) while the quietest
+    windows show more than :data:`CLAIM_REFUTED` times it: correlated noise the claim leaves out, or smooth
+    motion; the images tell which."""
+    if noise is None or noise.quietest is None or noise.claimed is None:
+        return False
+    if noise.source not in (NoiseSource.COVARIANCE, NoiseSource.WHITE_NOISE):
+        return False
+    used = (max(noise.accel_sigma, 1e-12), max(noise.gyro_sigma, 1e-12))
+    return max(q / u for q, u in zip(noise.quietest, used)) > CLAIM_REFUTED
+
+
 class ZuptDetector:
     """Online stillness detector over an :class:`~nrmpc_ros.frontend.imu.ImuBuffer`.
 
@@ -671,6 +690,7 @@ class ZuptDetector:
         self._noise_stamp = -math.inf  # newest sample stamp at the last noise estimate
         self._noise_span = 0.0  # the span of the samples that estimate used (s)
         self._covariance = covariance
+        self.covariance_distrusted = False  # the images refuted the claimed noise: estimated from the data since
         self._cache_t = np.empty(0)  # stamps and statistics of the samples whose window is complete
         self._cache_stat = np.empty(0)
         self._cache_noise = None
@@ -681,7 +701,7 @@ class ZuptDetector:
         ``covariance`` (linear_acceleration_covariance, angular_velocity_covariance) of the message: the first
         that says something (see :func:`estimate_noise`) fixes the noise from then on.
         """
-        if covariance is not None and self._covariance is None and not self._fixed:
+        if covariance is not None and self._covariance is None and not self._fixed and not self.covariance_distrusted:
             try:
                 ok = all(_sigma_from_covariance(c, self.buffer.source, n) is not None
                          for c, n in zip(covariance, ("linear_acceleration", "angular_velocity")))
@@ -691,6 +711,15 @@ class ZuptDetector:
                 self._covariance = covariance
                 self._noise = None  # estimated again, now from the covariances
         return self.buffer.add(t, accel, gyro)
+
+    def distrust_covariance(self) -> bool:
+        """Estimate the noise from the samples alone from now on (as ``use_covariance: false``): the images held
+        still where the noise the messages' covariances claim read every window as motion (a low-pass filtered
+        IMU whose driver claims its white noise). False where the noise is fixed or not from the covariances."""
+        if self._fixed or self._covariance is None:
+            return False
+        self._covariance, self.covariance_distrusted, self._noise = None, True, None
+        return True
 
     @property
     def noise_in_use(self) -> ImuNoise | None:
