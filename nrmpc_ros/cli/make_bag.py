@@ -198,13 +198,13 @@ def register(sub):
     se.add_argument("--vibration-hz", type=float, metavar="HZ",
                     help="its frequency; an IMU sampling slower than twice it reads it aliased "
                          f"(default {d['vibration_hz']:g})")
+    se.add_argument("--imu-gravity-removed", action="store_true",
+                    help="the IMU topic carries a fused driver's linear acceleration (gravity taken out: about 0 at "
+                         "rest), as an AHRS publishes beside its raw accelerometer")
     se.add_argument("--imu-stamp-jitter-ms", type=float, metavar="MS",
                     help="a driver that stamps each IMU sample when the host receives it: the stamp trails the "
                          "sample by up to MS ms (uniform), in arrival order; above the sample period samples come "
                          f"in batches (default {d['imu_stamp_jitter_ms']:g}: stamped when taken)")
-    se.add_argument("--imu-gravity-removed", action="store_true",
-                    help="the IMU topic carries a fused driver's linear acceleration (gravity taken out: about 0 at "
-                         "rest), as an AHRS publishes beside its raw accelerometer")
     se.add_argument("--gyro-unit", choices=sorted(GYRO_UNITS),
                     help="unit of the Imu messages' angular_velocity and its covariance: deg/s is a driver that "
                          f"breaks REP 103 (default {d['gyro_unit']})")
