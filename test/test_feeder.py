@@ -140,7 +140,7 @@ def test_bad_inputs_are_dropped_counted_and_logged_once(rig):
     f, work, logs = feeder(rig)
     f.image(0, image(100.0, encoding="32FC1"))
     f.image(0, image(100.1, encoding="32FC1"))
-    f.image(1, image(100.0, w=32, h=24))
+    f.image(1, image(100.0, w=48, h=48))  # another aspect ratio: no resize recovers it
     f.imu_msg(imu(100.0, accel=(math.nan, 0.0, 9.81)))
     f.imu_msg(imu(100.005, accel=(0.0, 0.0, 0.0)))
     f.imu_msg(imu(100.01))
@@ -152,7 +152,7 @@ def test_bad_inputs_are_dropped_counted_and_logged_once(rig):
     assert counts[("/imu/data", Drop.IMU_ZERO_ACCEL)] == 1
     assert counts[("/imu/data", Drop.IMU_OUT_OF_ORDER)] == 1
     warned = [line for level, line in logs if level == "warn"]
-    assert len(warned) == 5 and any("32FC1" in w for w in warned) and any("32x24" in w for w in warned)
+    assert len(warned) == 5 and any("32FC1" in w for w in warned) and any("48x48" in w for w in warned)
     f.end()
     assert [k for k, _ in trace(work)] == [WorkKind.IMU, WorkKind.FLUSH]  # the good sample went on
 
@@ -402,3 +402,20 @@ def test_imu_samples_stamped_alike_in_batches_are_kept_and_spread_over_their_int
     assert stamps == pytest.approx([100.0, 100.005, 100.01, 100.015, 100.02, 100.03, 100.04, 100.05])
     assert f.drops.counts()[("/imu/data", Drop.IMU_OUT_OF_ORDER)] == 1
     assert f.events["imu samples stamped alike"] == 4
+
+
+def test_images_binned_or_resized_from_the_rig_files_size_are_resized_back_and_said_once(rig):
+    """A stream at half (or twice) the size its rig file was calibrated at, same aspect ratio: each image is
+    resampled to the rig file's size, pixel centres kept, with one warning per camera; the frame sets carry
+    images of the rig's size."""
+    f, work, logs = feeder(rig, imu_topic=None)
+    for t in (100.0, 100.1, 100.2):
+        for i in range(4):
+            w, h = (32, 24) if i < 2 else (128, 96)
+            f.image(i, image(t, w=w, h=h, value=100))
+    f.end()
+    sets = [w.data[0] for w in work if w.kind is WorkKind.FRAMES]
+    assert sets and all(img.shape == (48, 64) for fs in sets for img in fs.images if img is not None)
+    warned = [line for level, line in logs if level == "warn" and "resized by" in line]
+    assert len(warned) == 4 and any("32x24" in w and "resized by 2" in w for w in warned)
+    assert f.resized == [3, 3, 3, 3] and not f.drops.counts()

@@ -8,7 +8,7 @@ import pytest
 from rosbags.typesys import Stores, get_typestore
 
 from nrmpc_ros.errors import InputError
-from nrmpc_ros.frontend.images import decode_image, stamp_seconds, to_uint8
+from nrmpc_ros.frontend.images import decode_image, resize_to, scale_to, stamp_seconds, to_uint8
 
 
 def raw(arr, encoding, step=None, bigendian=False):
@@ -192,3 +192,21 @@ def test_short_data_and_bad_step():
 def test_undecodable_compressed():
     with pytest.raises(InputError, match="/cam0/compressed.*cannot decode"):
         decode_image(SimpleNamespace(format="jpeg", data=b"not a jpeg"), "/cam0/compressed")
+
+
+def test_a_binned_image_resized_to_the_full_sensor_keeps_its_pixel_centres():
+    """2x2 binning: binned pixel j covers full pixels 2j and 2j + 1, its centre at 2j + 1/2. A bright dot
+    at binned (x, y) lands at full (2x + 1/2, 2y + 1/2) after resizing back; another aspect ratio or a factor
+    beyond 8 is no resize."""
+    small = np.zeros((60, 80), np.uint8)
+    cv2.circle(small, (30, 20), 3, 255, -1)
+    assert scale_to(small, (160, 120)) == 2.0 and scale_to(small, (40, 30)) == 0.5
+    assert scale_to(small, (160, 160)) is None and scale_to(small, (800, 600)) is None
+    big = resize_to(small, (160, 120)).astype(float)
+    ys, xs = np.mgrid[:120, :160]
+    centre = (float((xs * big).sum() / big.sum()), float((ys * big).sum() / big.sum()))
+    assert centre == pytest.approx((2 * 30 + 0.5, 2 * 20 + 0.5), abs=0.05)
+    back = resize_to(big.astype(np.uint8), (80, 60)).astype(float)
+    ys, xs = np.mgrid[:60, :80]
+    assert (float((xs * back).sum() / back.sum()), float((ys * back).sum() / back.sum())) == pytest.approx(
+        (30.0, 20.0), abs=0.05)

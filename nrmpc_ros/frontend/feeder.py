@@ -67,7 +67,7 @@ from ..errors import InputError
 from .delivery import BURST_MARGIN, DeliveryGaps
 from .droplog import DropLog
 from .drops import Drop
-from .images import decode_image, ros_seconds, stamp_seconds
+from .images import decode_image, resize_to, ros_seconds, scale_to, stamp_seconds
 from .imu_block import ImuBlock
 from .pipeline import FrameSet
 from .stamps import JumpPolicy, StampGuard
@@ -152,6 +152,7 @@ class Feeder:
         self.guard = self._new_guard()
         self.events = Counter()  # "time jumps back", "frame sets", "imu samples", "images"
         self._stamps: OrderedDict = OrderedDict()  # frame stamp (s) -> (sec, nanosec) as received
+        self.resized = [0] * rig.num_cameras  # images per camera resized to the rig file's size
         self._new_epoch()
 
     def _new_epoch(self) -> None:
@@ -200,9 +201,19 @@ class Feeder:
         cam = self.rig.cameras[index]
         w, h = cam.resolution
         if img.shape != (h, w):
-            self._drop(topic, Drop.WRONG_IMAGE_SIZE, f"{topic}: image is {img.shape[1]}x{img.shape[0]}, the rig "
-                                                     f"file {self.rig.source} says {w}x{h} for camera {cam.name!r}")
-            return
+            scale = scale_to(img, (w, h))
+            if scale is None:
+                self._drop(topic, Drop.WRONG_IMAGE_SIZE, f"{topic}: image is {img.shape[1]}x{img.shape[0]}, the "
+                                                         f"rig file {self.rig.source} says {w}x{h} for camera "
+                                                         f"{cam.name!r} (another aspect ratio)")
+                return
+            if not self.resized[index]:
+                self.log("warn", f"{topic}: images are {img.shape[1]}x{img.shape[0]}, the rig file "
+                                 f"{self.rig.source} says {w}x{h} for camera {cam.name!r}: resized by {scale:.4g} to "
+                                 f"its calibration (a binned or resized stream; calibrate at the stream's size for "
+                                 f"its full accuracy)")
+            self.resized[index] += 1
+            img = resize_to(img, (w, h))
         st = msg.header.stamp
         sec, nsec = int(st.sec), int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
         stamp = ros_seconds(sec, nsec)

@@ -153,6 +153,30 @@ def decode_image(msg, source: str, depth_bits: int | None = None) -> np.ndarray:
     raise InputError(source, f"not a sensor_msgs/Image or CompressedImage ({type(msg).__name__})")
 
 
+RESIZE_RANGE = (0.125, 8.0)
+"""Scales from a stream's images to the rig file's size that are resized: binning or a driver's resize by up to 8
+either way; beyond it the images are another camera's."""
+
+
+def scale_to(img: np.ndarray, size: tuple) -> float | None:
+    """The one factor that takes ``img`` to ``size`` (width, height) pixel for pixel, where both sides scale
+    alike (within a pixel of the smaller image) and by a factor in :data:`RESIZE_RANGE`; None otherwise (another
+    aspect ratio: a crop or another camera, no resize recovers it)."""
+    h, w = img.shape[:2]
+    sx, sy = size[0] / w, size[1] / h
+    if abs(sx - sy) * min(w, h) > max(sx, sy) or not RESIZE_RANGE[0] <= sx <= RESIZE_RANGE[1]:
+        return None
+    return sx
+
+
+def resize_to(img: np.ndarray, size: tuple) -> np.ndarray:
+    """``img`` resampled to ``size`` (width, height), pixel centres kept (x_rig = s (x + 1/2) - 1/2: what 2x2
+    binning does to the full sensor's pixels, so a rig file calibrated at full size stays exact): averaging when
+    it shrinks, bilinear when it grows."""
+    grow = size[0] > img.shape[1]
+    return cv2.resize(img, size, interpolation=cv2.INTER_LINEAR if grow else cv2.INTER_AREA)
+
+
 def ros_seconds(sec, nanosec) -> float:
     """A ROS stamp (sec, nanosec) in seconds (float); every reader of stamps computes them so, bit for bit."""
     return float(sec) + 1e-9 * float(nanosec)
