@@ -523,7 +523,7 @@ class Pipeline:
         """The IMU read motion between two frames: where every camera's image held still (no track lost, a step
         of at most ``still_step_px``) for :data:`~.zupt.IMAGES_STILL_WINDOWS` stillness-test windows in a row
         while the noise in use is a claim the quietest windows dispute, the claim is dropped for the samples' own
-        noise (docs/PIPELINE.md, Holds)."""
+        noise and a new sequence starts (docs/PIPELINE.md, Holds)."""
         limit = self.config.holds.still_step_px
         quiet = [s for s in steps if s is not None]
         if not quiet or any(s.lost or not (math.isfinite(s.motion_px) and s.motion_px <= limit) for s in quiet):
@@ -534,6 +534,9 @@ class Pipeline:
                 claim_disputed(self.zupt.noise_in_use) and self.zupt.distrust_covariance():
             self.stats.covariance_distrusted_at = t1
             self._images_still_s = 0.0
+            # no hold is open (the claim read the last second as motion), but the last one may have been cut
+            # by it from the hold about to open at the same pose: a pair without motion. A new sequence starts.
+            self.reset()
 
     def _rings_about(self, path, i: int, radius_px: float) -> bool:
         """Whether camera i's image rings about a rest (``path``, :meth:`.ringing_watch.RingingWatch.judge`): no

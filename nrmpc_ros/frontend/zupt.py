@@ -117,6 +117,9 @@ RINGING_SPAN_PERIODS = 0.95
 # A covariance's noise below 1/CLAIM_REFUTED of the white noise the samples show is refuted (that estimate
 # scatters by a few percent): the source is then the white noise (the noise used is the larger either way).
 CLAIM_REFUTED = 1.25
+# The noise's autocorrelation is measured over this many windows' lags: a vibration down to a quarter of a
+# window's frequency (2.5 Hz at 0.1 s) shows its return, and so is told from a filter's decay.
+VIBRATION_WINDOWS = 4
 
 
 @dataclass
@@ -474,7 +477,9 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     np.add.at(cover, i0[ok][quiet], 1)
     np.add.at(cover, i1[ok][quiet], -1)
     cover = np.cumsum(cover[:-1]) > 0
-    lags = int(np.max(n[ok]))
+    # lags over a window's samples tell a filter's correlation; a vibration slower than a window (an engine at
+    # idle, an alias) returns only after it: VIBRATION_WINDOWS windows' worth are measured
+    lags = VIBRATION_WINDOWS * int(np.max(n[ok]))
     # a sensor whose samples show less than its floor holds no noise to correlate (a simulated one): white
     noisy = (var_a >= cfg.accel_floor_m_s2 ** 2, var_w >= cfg.gyro_floor_rad_s ** 2)
 
@@ -487,11 +492,32 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     var_a, var_w, _ = _quantile_variances(ssa[ok], ssw[ok], n[ok], extra, correlation, cfg)
     noise = noise_of(var_a, var_w, correlation)
     still = _statistic(t, a, w, noise, cfg)[0] < 1.0
-    if still.sum() <= cover.sum():
+    if still.sum() > cover.sum():
+        correlation = correlation_of(still)
+        var_a, var_w, _ = _quantile_variances(ssa[ok], ssw[ok], n[ok], extra, correlation, cfg)
+        noise = noise_of(var_a, var_w, correlation)
+    return _bias_through_vibration(noise, t, a, w, cfg)
+
+
+def _bias_through_vibration(noise: ImuNoise, t, a, w, cfg: ZuptConfig) -> ImuNoise:
+    """Where the gyro vibrates (its correlation periodic), a window's mean holds part of a period of its
+    rocking and the quietest windows catch it at one phase: the bias is then the mean rate over the samples the
+    test calls still, whole periods of it, less two windows at either end of each still run (the slow ends of a
+    move pass for still under a vibration's noise)."""
+    if not periodic(noise.gyro_correlation):
         return noise
-    correlation = correlation_of(still)
-    var_a, var_w, _ = _quantile_variances(ssa[ok], ssw[ok], n[ok], extra, correlation, cfg)
-    return noise_of(var_a, var_w, correlation)
+    from scipy.ndimage import binary_erosion  # imported where used
+
+    still = _statistic(t, a, w, noise, cfg)[0] < 1.0
+    edge = int(round(2.0 * window_length(cfg, noise.period_s) / noise.period_s)) if noise.period_s > 0 else 0
+    inner = binary_erosion(still, np.ones(2 * edge + 1, bool)) if edge else still
+    if inner.sum() < len(noise.gyro_correlation):
+        return noise
+    bias = w[inner].mean(axis=0)
+    size = float(np.linalg.norm(bias))
+    if size > cfg.max_gyro_bias_rad_s:
+        bias = bias * (cfg.max_gyro_bias_rad_s / size)
+    return dataclasses.replace(noise, gyro_bias=bias)
 
 
 def _quantile_variances(ssa, ssw, n, extra: int, correlation, cfg: ZuptConfig):
