@@ -402,6 +402,12 @@ def test_imu_samples_stamped_alike_in_batches_are_kept_and_spread_over_their_int
     assert stamps == pytest.approx([100.0, 100.005, 100.01, 100.015, 100.02, 100.03, 100.04, 100.05])
     assert f.drops.counts()[("/imu/data", Drop.IMU_OUT_OF_ORDER)] == 1
     assert f.events["imu samples stamped alike"] == 4
+    g, blocks, _ = feeder(rig)  # the node hands samples over in blocks: the same work
+    g.imu_block(imu_block(reads[:3]))
+    g.imu_block(imu_block(reads[3:]))
+    g.imu_block(imu_block([100.04]))
+    g.end()
+    assert trace(blocks) == trace(work) and g.events == f.events
 
 
 def test_images_binned_or_resized_from_the_rig_files_size_are_resized_back_and_said_once(rig):
