@@ -104,7 +104,7 @@ def test_missing_topic_and_wrong_size(bag, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "/cam9/image_raw" in err and "/cam0/image_raw" in err
     rig = yaml.safe_load(rig_file.read_text())
-    rig["cameras"][1]["resolution"] = [640, 480]
+    rig["cameras"][1]["resolution"] = [400, 240]  # another aspect ratio: no resize recovers it
     bad.write_text(yaml.safe_dump(rig))
     assert main(["replay", str(path), "--rig", str(bad), "--out", str(tmp_path / "y.csv"), "--no-progress"]) == 0
     captured = capsys.readouterr()
