@@ -111,16 +111,16 @@ def mean_variance_factor(correlation: np.ndarray, n: int) -> float:
     """The variance of the mean of n consecutive samples of noise with autocorrelation ``correlation`` (lags
     in samples) over its white-noise value s^2 / n: 1'R1 / n, above 1 where a low-pass filter makes
     neighbouring samples alike, below 1 where it alternates (a vibration's sine, bounded by its envelope over
-    windows longer than its measured lags), and never below 1 / n (a mean
-    no surer than that of one sample over n): an autocorrelation cut at the first lag the data cannot tell from 0
-    is no covariance, and a vibration's cut cosine would otherwise make the variance negative."""
-    if n > len(correlation) and periodic(correlation):
+    windows longer than its measured lags), and never below 1 / n (a mean no surer than that of one sample over
+    n): an autocorrelation cut at the first lag the data cannot tell from 0 is no covariance, and a vibration's
+    cut cosine would otherwise make the variance negative."""
+    period = vibration_period(correlation) if n > len(correlation) else None
+    if period is not None:
         # a vibration's sine averages out over a window longer than the lags measured: its mean over n samples
         # is at most sqrt(2) its rms / (n sin(pi / P)) (a geometric sum; P its period in samples), the rest of
         # the power white. Its share of the power is the cosine's amplitude, the largest correlation at a lag.
         share = min(float(np.max(np.abs(np.asarray(correlation, dtype=float)[1:]))), 1.0)
-        sine = math.sin(math.pi / vibration_period(correlation)) ** 2
-        return max(1.0 - share + share * 2.0 / (n * sine), 1.0 / n)
+        return max(1.0 - share + share * 2.0 / (n * math.sin(math.pi / period) ** 2), 1.0 / n)
     rho = np.asarray(correlation, dtype=float)[1:max(int(n), 1)]
     if not len(rho):
         return 1.0

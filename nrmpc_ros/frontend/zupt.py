@@ -217,10 +217,10 @@ def describe_noise(noise: ImuNoise, cfg: ZuptConfig) -> str:
                  f"rad/s, up to {ratio:.3g}x less than the samples show; tested with the claim, still windows read "
                  f"as motion")
     elif noise.source is NoiseSource.VIBRATION:
-        lags = [vibration_period(rho) for rho in (noise.accel_correlation, noise.gyro_correlation)]
-        lag = next((k for k in lags if k is not None), None)
-        known = lag is not None and math.isfinite(noise.period_s)
-        at = f" at about {1.0 / (lag * noise.period_s):.3g} Hz as sampled" if known else ""
+        periods = [vibration_period(rho) for rho in (noise.accel_correlation, noise.gyro_correlation)]
+        period = next((p for p in periods if p is not None), None)  # samples
+        known = period is not None and math.isfinite(noise.period_s)
+        at = f" at about {1.0 / (period * noise.period_s):.3g} Hz as sampled" if known else ""
         claim = (f"; the Imu messages' covariances claim {noise.claimed[0]:.3g} m/s^2 and {noise.claimed[1]:.3g} "
                  f"rad/s" if noise.claimed is not None else "")
         text += (f" the quietest windows show: their samples vibrate{at}, a motor's vibration taken as noise, "

@@ -399,6 +399,11 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
             def push(ts, topic, msg):
                 heapq.heappush(pending, (int(ts), next(order), topic, msg))
 
+            def push_imu(k):
+                """IMU sample k, received when stamped; its stamp carries the IMU clock's offset."""
+                msg = bag.imu_msg(int(imu_stamp[k]) + imu_offset_ns, IMU_FRAME, accel[k], gyro[k], *claimed)
+                push(int(imu_stamp[k]), imu_topic, msg)
+
             def flush(until_ns):
                 while pending and pending[0][0] <= until_ns:
                     ts, _, topic, msg = heapq.heappop(pending)
@@ -410,8 +415,7 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                 # IMU samples taken up to this trigger's latest camera stamp, received when taken (the recorder's
                 # clock); their stamps carry the IMU clock's offset
                 while j < len(imu_t) and imu_t[j] <= t + max_jitter_ns:
-                    ts = int(imu_stamp[j]) + imu_offset_ns
-                    push(int(imu_stamp[j]), imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
+                    push_imu(j)
                     j += 1
                 Rs, cs = renderer.camera_poses(R[n], p[n], cam_loads[n])
                 key = view if view < 0 or not creeping[view] else -1  # a creeping body is re-rendered every time
@@ -443,8 +447,7 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                 flush(min(t + max_jitter_ns, nxt))
                 bar.update(1)
             while j < len(imu_t):
-                ts = int(imu_stamp[j]) + imu_offset_ns
-                push(int(imu_stamp[j]), imu_topic, bag.imu_msg(ts, IMU_FRAME, accel[j], gyro[j], *claimed))
+                push_imu(j)
                 j += 1
             flush(np.iinfo(np.int64).max)
             bar.close()
