@@ -425,3 +425,71 @@ def test_images_binned_or_resized_from_the_rig_files_size_are_resized_back_and_s
     warned = [line for level, line in logs if level == "warn" and "resized by" in line]
     assert len(warned) == 4 and any("32x24" in w and "resized by 2" in w for w in warned)
     assert f.resized == [3, 3, 3, 3] and not f.drops.counts()
+
+
+def feed_as_arrived(f, msgs, blocks: bool = False):
+    """As :func:`feed`, each message at its own arrival time (``now``); with ``blocks`` the IMU samples that
+    arrive one after another are handed over in blocks of up to 8, at the last one's arrival."""
+    pending = []
+
+    def hand_over():
+        for k in range(0, len(pending), 8):
+            part = pending[k:k + 8]
+            f.imu_block(imu_block([t for _, t in part]), part[-1][0])
+        pending.clear()
+
+    for arrival, kind, i, t in msgs:
+        if kind == "image":
+            hand_over()
+            f.image(i, image(t), arrival)
+        elif blocks:
+            pending.append((arrival, t))
+        else:
+            f.imu_msg(imu(t), arrival)
+    hand_over()
+
+
+@pytest.mark.parametrize("blocks", [False, True])
+@pytest.mark.parametrize("first", ["imu", "cameras"])
+@pytest.mark.parametrize("clock_s", [-1699999000.0 + 100.0, 3600.0])
+def test_an_imu_on_another_clock_is_moved_onto_the_cameras_by_its_arrival_times(rig, blocks, first, clock_s):
+    """An IMU stamped by its own counter (100 s at the cameras' 1.7e9) or an hour ahead (a time zone), each sample
+    arriving when it was taken: its stamps are moved onto the cameras' clock once a camera and three samples
+    have arrived, said once, whichever input starts first, one sample at a time or in blocks; the work is the
+    same as with an IMU on the cameras' clock from the moment both run."""
+    t0 = 1_700_000_000.0
+    late = {"imu": "image", "cameras": "imu"}[first]
+    msgs = [m for m in messages(t0=t0, seconds=3.0) if m[1] != late or m[3] >= t0 + 0.5]
+    runs = []
+    for offset in (0.0, clock_s):
+        f, work, logs = feeder(rig)
+        feed_as_arrived(f, [(a, kind, i, t + offset if kind == "imu" else t) for a, kind, i, t in msgs], blocks)
+        f.end()
+        runs.append((f, [(k, t) for k, t in trace(work) if t is None or t >= t0 + 1.0], logs))
+    (same, same_work, _), (other, other_work, logs) = runs
+    assert not same.rebases and len(other.rebases) == 1
+    assert other.rebases[0].offset_s == pytest.approx(-clock_s, abs=1e-6) and other.rebases[0].onto_arrival
+    assert other.config.imu_clock_offset_s == pytest.approx(-clock_s, abs=1e-6)
+    assert [k for k, _ in other_work] == [k for k, _ in same_work]
+    assert [t for _, t in other_work] == pytest.approx([t for _, t in same_work], abs=1e-5)
+    warned = [line for level, line in logs if "another clock" in line]
+    assert len(warned) == 1 and f"{abs(clock_s):.3f} s" in warned[0]
+
+
+@pytest.mark.parametrize("first, count, shift_s", [(50, 1, 3600.0), (0, 400, 5.0)],
+                         ids=["one corrupt stamp", "a lag of seconds"])
+def test_a_corrupt_stamp_or_a_lag_of_seconds_is_no_other_clock(rig, first, count, shift_s):
+    """One IMU stamp an hour off among good ones is the stamp checks' to drop (a clock needs three in a row);
+    an IMU 5 s off the cameras is the measured searches' (within FAR_CLOCK_S): neither is moved."""
+    t0 = 1_700_000_000.0
+    msgs = messages(t0=t0, seconds=2.0)
+    imu_at = [k for k, m in enumerate(msgs) if m[1] == "imu"]
+    assert len(imu_at) == 400
+    shifted = list(msgs)
+    for k in imu_at[first:first + count]:
+        a, kind, i, t = msgs[k]
+        shifted[k] = (a, kind, i, t + shift_s)
+    f, _, _ = feeder(rig)
+    feed_as_arrived(f, shifted)
+    f.end()
+    assert not f.rebases and f.config.imu_clock_offset_s == 0.0

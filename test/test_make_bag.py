@@ -714,6 +714,7 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--vibration", "-1"], "--vibration"), (["--imu-stamp-jitter-ms", "-1"], "--imu-stamp-jitter-ms"),
     (["--vibration-hz", "0"], "--vibration-hz"),
     (["--vibration-hz", "inf"], "--vibration-hz"),
+    (["--imu-clock-start-s", "-1"], "--imu-clock-start-s"), (["--imu-clock-start-s", "3e9"], "--imu-clock-start-s"),
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
     rig_flags = ["--no-progress"] if "--rig" in args else TINY
@@ -840,6 +841,19 @@ def test_an_imu_stamped_when_the_host_reads_it_trails_its_samples_in_order(tmp_p
     assert [t for t, _ in read["/imu/data"]] == t1.tolist()
     assert np.array_equal(vectors(taken, "/imu/data", "linear_acceleration"),
                           vectors(read, "/imu/data", "linear_acceleration"))
+
+
+def test_an_imu_on_its_own_clock_is_stamped_by_it_and_recorded_when_taken(tmp_path):
+    """--imu-clock-start-s S: the IMU's stamps come from its own clock, which reads S at the first frame (a counter
+    since power-on); the recorder receives each sample when it was taken, on the cameras' clock."""
+    args = ["--views", "2", "--hold-seconds", "0.4", "--rate", "5", "--resolution", "160x120", "--seed", "3"]
+    right, _ = make(tmp_path, "right", *args)
+    own, _ = make(tmp_path, "own", *args, "--imu-clock-start-s", "1000.5")
+    t0 = np.array([stamp(m) for _, m in right["/imu/data"]])
+    t1 = np.array([stamp(m) for _, m in own["/imu/data"]])
+    first_frame = stamp(right["/cam0/image_raw"][0][1])
+    assert np.array_equal(t1 - t0, np.full(len(t0), 1_000_500_000_000 - first_frame))
+    assert [t for t, _ in own["/imu/data"]] == t0.tolist()
 
 
 def test_an_imu_topic_with_gravity_taken_out_reads_about_zero_at_rest(tmp_path):

@@ -1,24 +1,28 @@
 """The estimator node's start and stop over DDS (processes, as ``ros2 launch`` runs them): SIGINT and SIGTERM end
 it within ``SHUTDOWN_S`` at full load with the shutdown summary logged; ``image_transport: auto`` finds raw and
-compressed cameras whether the node or the publishers start first.
+compressed cameras whether the node or the publishers start first; an IMU stamped by its own clock is moved
+onto the cameras' whichever driver starts first.
 
 Harness (listener, injector, bag, CPU hog) from :mod:`test_node_e2e`.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import random
 import signal
 import threading
 import time
 
+import numpy as np
 import pytest
-from rendered_bags import CAMERAS
+from rendered_bags import CAMERAS, IMU, restamped, rewrite, stamp_ns
 from test_node_e2e import (
     CpuHog,
     Injector,
     Listener,
+    Session,
     bag,  # noqa: F401 - fixture
     env_for,
     estimator,
@@ -160,3 +164,42 @@ def test_auto_transport_finds_the_cameras_in_either_start_order(bag, replayed, t
     assert all(abs(a - b) <= FRAME_PERIOD_US for a, b in zip(got, sorted(replayed))), (got, sorted(replayed))
     if order == "node first" and transport == "compressed":
         assert "subscribing to /cam0/image_raw/compressed instead (published)" in log
+
+
+@pytest.mark.parametrize("first", ["imu", "cameras"])
+def test_an_imu_on_its_own_clock_is_moved_onto_the_cameras_whichever_driver_starts_first(bag, replayed,  # noqa: F811
+                                                                                          tmp_path, first):
+    """The IMU stamps with a counter since its power-on (1000 s when the recording starts), the cameras with the
+    host's clock; one driver starts 1.5 s (of stamps) before the other. The node moves the IMU onto the cameras'
+    clock by when the samples arrive, says so in the IMU's diagnostics, and publishes the replay's estimates of
+    the bag stamped right (the holds the late driver saw whole), each within its std: played at 2x, the arrival
+    clock runs at half the stamps' rate, so the samples sit up to half a frame period off where they were
+    taken."""
+    path, rig, _ = bag
+    start_ns = 1_700_000_000 * 1_000_000_000
+
+    def edit(topic, t, msg):
+        yield topic, t, (restamped(msg, stamp_ns(msg) - start_ns + 1000 * 1_000_000_000) if topic == IMU else msg)
+
+    own = rewrite(path, tmp_path / "own", edit)
+    with Session(tmp_path, rig, *DEEP_QUEUES) as run:
+        inject = Injector(run.domain, own)
+        try:
+            inject.wait_for_subscribers(timeout=90.0)
+            inject.play(rate=2.0, skip=lambda dt, topic: dt < 1_500_000_000 and (topic == IMU) == (first == "cameras"))
+        finally:
+            inject.close()
+        run.listener.wait_until_done(timeout=180)
+        time.sleep(0.5)
+    log = run.log()
+    imu = run.listener.last("IMU")[2]
+    assert "from the arrival times" in imu.get("clock offset", ""), (imu, log[-3000:])
+    assert "another clock" in log
+    got = run.listener.gravity_by_stamp()
+    later = [s for s in got if s >= stamp_key(1_700_000_002.0)]
+    assert len(later) >= len([s for s in replayed if s >= stamp_key(1_700_000_002.0)]) >= 2
+    for s in later:
+        row = replayed[s]
+        g = np.array([float(row[k]) for k in ("gx", "gy", "gz")])
+        off = math.degrees(math.acos(np.clip(got[s] @ g / np.linalg.norm(got[s]) / np.linalg.norm(g), -1, 1)))
+        assert off < float(row["gravity_sigma_deg"]), (s, off, row["gravity_sigma_deg"], log[-3000:])

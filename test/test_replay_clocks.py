@@ -73,3 +73,29 @@ def test_stamps_in_2038_and_nan_imu_samples_are_dropped_counted_and_change_nothi
     assert all(np.array_equal(gravity(a), gravity(b)) for a, b in zip(rows, dirty_rows))
     assert printed.count(": stamp in the future 1") == 4, "counted per camera topic"
     assert f"/imu/data: IMU sample with NaN or inf {injected['nan']}" in printed
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("clock_ns", [1000 * 1_000_000_000, 1_700_003_600 * 1_000_000_000],
+                         ids=["counter since power-on", "an hour ahead"])
+def test_an_imu_on_its_own_clock_is_moved_onto_the_cameras_and_gives_their_estimates(clean, tmp_path, capsys,
+                                                                                        clock_ns):
+    """An IMU stamped by its own clock (a counter at 1000 s when the recording starts, or a clock an hour ahead):
+    the replay moves its samples onto the cameras' clock by their recording times and says so; every hold
+    keeps its IMU gravity and its estimate is the one of the bag stamped right (to within the first samples,
+    read before a camera)."""
+    bag, rig, _ = clean
+    start = 1_700_000_000 * 1_000_000_000
+
+    def edit(topic, t, msg):
+        yield topic, t, (restamped(msg, stamp_ns(msg) - start + clock_ns) if topic == IMU else msg)
+
+    other = rewrite(bag, tmp_path / "other", edit)
+    rows, _ = replay(bag, rig, tmp_path / "right.csv", capsys)
+    other_rows, printed = replay(other, rig, tmp_path / "other.csv", capsys)
+    assert rows and [r["stamp"] for r in rows] == [r["stamp"] for r in other_rows]
+    assert [r["method"] for r in rows] == [r["method"] for r in other_rows] and rows[0]["method"] == "4pt-bending"
+    assert all(np.allclose(gravity(a), gravity(b), atol=1e-6) for a, b in zip(rows, other_rows))
+    offset = (clock_ns - start) * 1e-9
+    said = [line for line in printed.splitlines() if line.startswith("IMU clock: /imu/data: stamps")]
+    assert len(said) == 1 and f"{abs(offset):.3f} s {'ahead of' if offset > 0 else 'behind'}" in said[0]

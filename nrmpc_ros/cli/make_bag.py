@@ -46,7 +46,8 @@ DEFAULTS = {
     "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
     "supersample": _B.supersample, "out": None, "no_progress": False,
-    "imu_time_offset_ms": _B.imu_time_offset_ms, "camera_rates": None, "camera_phases_ms": None,
+    "imu_time_offset_ms": _B.imu_time_offset_ms, "imu_clock_start_s": _B.imu_clock_start_s,
+    "camera_rates": None, "camera_phases_ms": None,
     "hold_seconds_range": None, "snapshot_delay": None, "exposure_drift": _B.exposure_drift,
     "exposure_period_s": _B.exposure_period_s, "creep_fraction": _M.creep_fraction,
     "creep_deg_per_s": _M.creep_deg_per_s, "bar_hz": None, "camera_latency_ms": _B.camera_latency_ms,
@@ -215,6 +216,10 @@ def register(sub):
                     help="the IMU's stamps are its true sample times + MS (a constant clock offset to the cameras; "
                          "the bag receives each sample at its true time, as a recorder on the cameras' clock "
                          "would; default 0)")
+    se.add_argument("--imu-clock-start-s", type=float, metavar="S",
+                    help="the IMU stamps with its own clock, which reads S seconds at the first frame (e.g. 1000: a "
+                         "counter since its power-on, or the cameras' start plus 3600: a clock an hour ahead); the "
+                         "bag still receives each sample at its true time (default: the cameras' clock)")
     se.add_argument("--exposure-drift", type=float, metavar="A",
                     help="auto-exposure drift: each camera's grey levels become gain I + offset, the gain drifting "
                          f"slowly within 1 +- A and the offset within +- {EXPOSURE_OFFSET_GREY:g} A grey levels, "
@@ -419,6 +424,7 @@ def bag_options(o: dict):
                       imu=not o["no_imu"], damping=o["damping"],
                       jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
+                      imu_clock_start_s=o["imu_clock_start_s"],
                       exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],
                       camera_latency_ms=o["camera_latency_ms"], camera_burst_s=o["camera_burst_s"],
                       camera_burst_stagger_ms=o["camera_burst_stagger_ms"], gyro_unit=o["gyro_unit"],

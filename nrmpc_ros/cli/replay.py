@@ -21,7 +21,7 @@ from ..frontend.estimates_csv import CsvWriter, batch_rows, row_from_estimate
 from ..frontend.evaluation import evaluate
 from ..frontend.evaluation_report import format_report
 from ..frontend.extrinsics import NO_IMU_NOTE, ExtrinsicsCsv, hold_poses, imu_mount_warning
-from ..frontend.feeder import FeederConfig
+from ..frontend.feeder import MAX_CLOCK_OFFSET_S, FeederConfig
 from ..frontend.imu import describe_gaps
 from ..frontend.imu_agreement import describe_check
 from ..frontend.imu_clock import SIGNIFICANT_STDS
@@ -75,10 +75,10 @@ def register(sub):
                         "of the smallest camera frame period, estimated from the stamps)")
     p.add_argument("--queue-size", type=positive_int, default=None,
                    help=f"synchronizer queue depth per camera (default {FeederConfig().queue_size})")
-    p.add_argument("--imu-clock-offset", type=number(float, lo=-86400.0, hi=86400.0, unit="s"), default=None,
-                   metavar="S", help="add S seconds to every IMU stamp as it is read: an IMU stamped by another "
-                   "clock than the cameras' (replay prints it, measured from the rotations between holds, when the "
-                   "IMU's stamps are seconds off; default 0)")
+    p.add_argument("--imu-clock-offset", type=number(float, lo=-MAX_CLOCK_OFFSET_S, hi=MAX_CLOCK_OFFSET_S, unit="s"),
+                   default=None, metavar="S", help="add S seconds to every IMU stamp as it is read: an IMU stamped by "
+                   "another clock than the cameras' (replay prints it, measured from the rotations between holds "
+                   "when the IMU's stamps are seconds off, from the arrival times when more; default 0)")
     p.add_argument("--imu-gyro-scale", type=number(float, lo=1e-6, hi=1e6), default=None, metavar="K",
                    help="multiply every IMU angular rate by K as it is read: 0.0174533 (pi/180) for a driver that "
                    "writes deg/s (replay measures the unit from the moves and replays with it when the gyro reads "
@@ -199,7 +199,8 @@ def _replay_pass(args, bag, rig, cfg, inputs: FeederConfig, image_topics, imu_to
             for poses in runner.pipeline.extrinsics.smoothed():  # the final bias from the first sample on
                 extrinsics.write(poses)
         ref = read_reference(bag, imu_topic, warn)
-        ref = ref.as_read(inputs)  # the IMU's samples in the cameras' clock and in rad/s, as the pipeline read them
+        ref = ref.as_read(replay.feeder.config)  # the IMU's samples in the cameras' clock and in rad/s, as the
+        # pipeline read them (an IMU on another clock moved onto the cameras' as it arrived)
         batch = []
         if args.batch:
             method = rows[-1].method if rows else args.method
@@ -261,7 +262,7 @@ def run(args) -> int:
 
         if args.imu_clock_offset is None and imu_topic is not None:  # measured and applied
             p, measured, _ = clock_passes(run_pass, lambda q: q.measured_clock(rig), inputs.imu_clock_offset_s,
-                                          said)
+                                          said, applied=lambda q: q.replay.feeder.config.imu_clock_offset_s)
         else:
             p = run_pass(inputs.imu_clock_offset_s)
             measured = p.measured_clock(rig) if imu_topic is not None else None
@@ -305,6 +306,8 @@ def run(args) -> int:
     if alike:
         print(f"IMU samples stamped alike: {alike} (a driver that reads them in batches; each batch spread evenly "
               f"over the interval since the stamp before it)")
+    for rebase in replay.feeder.rebases:
+        print(f"IMU clock: {rebase.describe(imu_topic)}")
     jumps = replay.feeder.events["time jumps back"]
     if jumps:
         print(f"time jumps back: {jumps} (each started a new sequence)")

@@ -144,9 +144,12 @@ class ServiceDiagnostics:
             values["gaps"] = gaps
         shift = s.feeder.config.imu_clock_offset_s
         applied = s.counts["IMU clock offsets applied"]
-        if shift or applied:
-            values["clock offset"] = (f"{shift:+.3f} s added to the IMU's stamps" + (
-                f" ({applied} measured off the cameras' and applied)" if applied else " (input.imu_clock_offset_s)"))
+        rebased = len(s.feeder.rebases)
+        if shift or applied or rebased:
+            how = [f"{applied} measured off the cameras' and applied"] if applied else []
+            how += [f"{rebased} from the arrival times: another clock"] if rebased else []
+            how = "; ".join(how) or "input.imu_clock_offset_s"
+            values["clock offset"] = f"{shift:+.3f} s added to the IMU's stamps ({how})"
         scales = (s.feeder.config.imu_gyro_scale, s.feeder.config.imu_accel_scale)
         if scales != (1.0, 1.0) or s.counts["IMU units applied"]:
             values["units"] = (f"the gyro's rates multiplied by {scales[0]:.7g}, the specific force by "

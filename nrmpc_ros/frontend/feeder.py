@@ -64,6 +64,7 @@ import numpy as np
 from ..config import check, option
 from ..core.rig import Rig
 from ..errors import InputError
+from .clock_domain import ClockDomains, ClockRebase
 from .delivery import BURST_MARGIN, DeliveryGaps
 from .droplog import DropLog
 from .drops import Drop
@@ -77,6 +78,7 @@ from .work import Work, WorkKind
 IMU = "imu"  # stream id of the IMU in the stamp guard (cameras are 0..M-1)
 HELD_QUEUES = 4  # a candidate jump back holds up to this many frame queues of messages: every camera's and the
 # IMU's messages of the new time wait there until a second input (or jump_confirm of one) confirms it
+MAX_CLOCK_OFFSET_S = 2.0**32  # s: the span of a ROS stamp's seconds (a device counter, GPS time, any epoch)
 STAMPS_KEPT = 4096  # frame stamps remembered as received (sec, nanosec): far more than the sets waiting
 
 
@@ -109,8 +111,9 @@ class FeederConfig:
                                   "IMU lags too far behind the cameras to wait for", lo=0.0, hi=600.0)
     imu_clock_offset_s: float = option(0.0, "added to every IMU stamp as it arrives, before anything else reads it: "
                                        "an IMU stamped by another clock than the cameras' (s; nrmpc replay measures "
-                                       "it from the rotations between holds); a lag of milliseconds is the "
-                                       "pipeline's imu_time_offset_s", lo=-86400.0, hi=86400.0)
+                                       "it from the rotations between holds, and both from the arrival times where "
+                                       "it is more than 10 s); a lag of milliseconds is the pipeline's "
+                                       "imu_time_offset_s", lo=-MAX_CLOCK_OFFSET_S, hi=MAX_CLOCK_OFFSET_S)
     imu_gyro_scale: float = option(1.0, "multiplies every IMU sample's angular rate (its covariance by the square) "
                                    "as it arrives: 0.0174533 (pi/180) turns a driver's deg/s into the rad/s of "
                                    "sensor_msgs/Imu (REP 103; nrmpc replay measures it from the moves)",
@@ -153,6 +156,8 @@ class Feeder:
         self.events = Counter()  # "time jumps back", "frame sets", "imu samples", "images"
         self._stamps: OrderedDict = OrderedDict()  # frame stamp (s) -> (sec, nanosec) as received
         self.resized = [0] * rig.num_cameras  # images per camera resized to the rig file's size
+        self.rebases: list = []  # ClockRebase: the IMU moved onto the cameras' clock
+        self._domains = ClockDomains(self.config.jump_confirm)
         self._new_epoch()
 
     def _new_epoch(self) -> None:
@@ -163,6 +168,8 @@ class Feeder:
         self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
         self._imu: deque = deque()  # (stamp, accel, gyro, covariances or None)
         self._imu_newest = -math.inf
+        self._imu_out = 0  # IMU samples handed over in this epoch
+        self._domains.reset()
         self._imu_floor, self._imu_batch = -math.inf, 0  # the stamp before the newest; samples stamped newest
         self._cam_newest = [-math.inf] * self.rig.num_cameras  # newest frame accepted per camera
         window = 2 * c.imu_max_lag_s  # each camera's deliveries in the IMU's stamps (.last: the IMU's newest
@@ -239,6 +246,9 @@ class Feeder:
             if covariance is not None:
                 covariance = tuple(None if c is None else np.asarray(c, dtype=float) * f * f
                                    for c, f in zip(covariance, (m, k)))
+        rebase = self._domains.imu(stamp + self.config.imu_clock_offset_s, now)
+        if rebase is not None:
+            self._rebase_imu(rebase)
         self._sample(stamp + self.config.imu_clock_offset_s, accel, gyro, now, covariance)
 
     def imu_block(self, block: ImuBlock, now: float | None = None) -> None:
@@ -249,6 +259,10 @@ class Feeder:
         self.events["imu samples"] += n
         if self.config.imu_clock_offset_s:
             block = replace(block, stamps=block.stamps + self.config.imu_clock_offset_s)
+        rebase = self._domains.imu(block.stamps, now) if n else None
+        if rebase is not None:
+            self._rebase_imu(rebase)
+            block = replace(block, stamps=block.stamps + rebase.offset_s)
         k, m = self.config.imu_gyro_scale, self.config.imu_accel_scale
         if k != 1.0 or m != 1.0:
             block = replace(block, accel=block.accel * m, gyro=block.gyro * k, accel_cov=block.accel_cov * (m * m),
@@ -331,6 +345,29 @@ class Feeder:
         self._start_afresh(why)
         self.guard = self._new_guard()
 
+    def _rebase_imu(self, rebase: ClockRebase) -> None:
+        """Move the IMU onto the cameras' clock (:mod:`~nrmpc_ros.frontend.clock_domain`): its offset grows by the
+        rebase's, the samples waiting are moved with it, the stamp checks and the inputs' delivery records start
+        afresh (they hold the old clock's stamps), and the pipeline too where it was handed samples of the old
+        clock; the frame grouping keeps its frames."""
+        self.rebases.append(rebase)
+        self.events["imu clock rebased"] += 1
+        why = rebase.describe(self._name(IMU))
+        self.log("warn", why)
+        d = rebase.offset_s
+        self.config = replace(self.config, imu_clock_offset_s=self.config.imu_clock_offset_s + d)
+        self._imu = deque((s + d, *data) for s, *data in self._imu)
+        self._imu_newest += d
+        self._imu_floor += d
+        window = 2 * self.config.imu_max_lag_s
+        self._cam_gaps = [DeliveryGaps(window) for _ in range(self.rig.num_cameras)]
+        self._imu_gaps = DeliveryGaps(window)
+        self.guard = self._new_guard()
+        if self._imu_out:
+            self._imu_out = 0
+            self.sink(Work(WorkKind.RESTART, data=why))
+        self._release()
+
     def rescale_imu(self, gyro_factor: float, accel_factor: float, why: str) -> None:
         """Multiply the gyro's rates and the specific force by these factors from now on (units measured): what was
         taken goes out first, then the frame grouping, the IMU samples and the holds start afresh (a new
@@ -371,6 +408,10 @@ class Feeder:
             self._cam_newest[stream] = max(self._cam_newest[stream], stamp)
             self._cam_gaps[stream].delivered(self._imu_newest, stamp)
             self._emit_sets(self.sync.add(stream, stamp, payload, arrival=now))
+            rebase = self._domains.camera(stamp, now) if self.imu_topic is not None else None
+            if rebase is not None:  # a camera's stamps the checks accepted: the IMU's clock is judged against them
+                self._rebase_imu(rebase)
+                return
         self._release()
 
     def _respace_batch(self) -> None:
@@ -442,6 +483,7 @@ class Feeder:
             break
 
     def _emit_imu(self) -> None:
+        self._imu_out += 1
         s, *data = self._imu.popleft()
         self.sink(Work(WorkKind.IMU, s, tuple(data)))
 

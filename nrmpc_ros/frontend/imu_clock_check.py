@@ -85,18 +85,20 @@ holds, placed with the wrong IMU, measure the offset coarsely (tenths of a secon
 second's, placed right, measure what remains finer."""
 
 
-def clock_passes(run_pass, measure, offset_s: float = 0.0, said=None) -> tuple:
+def clock_passes(run_pass, measure, offset_s: float = 0.0, said=None, applied=None) -> tuple:
     """A recording replayed until its IMU clock agrees with the cameras': ``run_pass(offset_s)`` replays it with
     that offset added to the IMU's stamps and returns its result, ``measure(result)`` the offset that result still
     shows (:func:`measure_imu_clock`) or None; while one is measured, up to :data:`CLOCK_PASSES` passes, the
-    next pass adds it. ``said(measured, result, passes)`` hears each offset applied. Returns (the last pass's
-    result, what it still measures or None, the offset it ran with)."""
+    next pass adds it to what the last one ended with: ``applied(result)``, the offset its feeder had at the end
+    (an IMU on another clock is moved as it arrives, :mod:`~nrmpc_ros.frontend.clock_domain`), or the one it was
+    given. ``said(measured, result, passes)`` hears each offset applied. Returns (the last pass's result, what it
+    still measures or None, the offset it ran with)."""
     result = run_pass(offset_s)
     measured, passes = measure(result), 1
     while measured is not None and passes < CLOCK_PASSES:
         if said is not None:
             said(measured, result, passes)
-        offset_s += measured.offset_s
+        offset_s = (offset_s if applied is None else applied(result)) + measured.offset_s
         result = run_pass(offset_s)
         measured, passes = measure(result), passes + 1
     return result, measured, offset_s

@@ -176,8 +176,9 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
         pipe.sequence.keep_history = True
         pipe.measured_holds = [] if holds is not None else None
         runner = PipelineRunner.around(pipe, drops=DropLog(math.inf))
-        ests = [e for es in replay_bag(bag, rig, runner, topic, inputs, warn=warn, progress=progress) for e in es]
-        return runner, ests, ref.as_read(inputs)
+        replay = BagReplay(bag, rig, runner, topic, inputs, warn)
+        ests = [e for es in replay.run(progress) for e in es]
+        return runner, ests, ref.as_read(replay.feeder.config), replay.feeder.config.imu_clock_offset_s
 
     def units_said(units, result):
         warn(f"IMU units: {describe_units(units)}; replaying in rad/s and m/s^2")
@@ -185,14 +186,14 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
     run_pass = UnitsMeasuringPass(one_pass, FeederConfig(), lambda result: result[0].pipeline, units_said)
 
     def measure(result):
-        runner, ests, shifted = result
+        runner, ests, shifted, _ = result
         return measure_imu_clock(runner.pipeline, shifted, rig, ests)
 
     def said(measured, result, passes):
         warn(f"IMU clock against the cameras ({measured.source.value}): {describe_clock(measured)}; replaying "
              "with that offset added to the IMU's stamps")
 
-    (runner, _, _), _, _ = clock_passes(run_pass, measure, said=said)
+    (runner, *_), _, _ = clock_passes(run_pass, measure, said=said, applied=lambda result: result[3])
     if holds is not None:
         holds.extend(runner.pipeline.measured_holds)
     st = runner.stats

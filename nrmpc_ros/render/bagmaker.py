@@ -17,7 +17,8 @@ with a slow sinusoidal gain (1 +- ``exposure_drift``) and offset
 throughout) reads the specific force (``a = -g`` when still, through the
 rig's ``imu`` mount) plus white noise and a constant bias, and the body
 angular velocity; its stamps may be off the cameras' clock by a constant
-``imu_time_offset_ms``. A camera driver may deliver its images late: each
+``imu_time_offset_ms``, or come from its own clock (``imu_clock_start_s``:
+what that clock reads at the first frame). A camera driver may deliver its images late: each
 image's bag time (when the recorder received it) may trail its stamp by
 ``camera_latency_ms`` and, with ``camera_burst_s``, come in bursts (a driver
 or link that buffers, every image of a burst received together at the
@@ -114,6 +115,8 @@ class BagOptions:
     drop_rate: float = 0.0  # probability that a camera loses a frame
     supersample: int = 2  # rays per pixel side: a pixel integrates its area (1: point sampling, aliased)
     imu_time_offset_ms: float = 0.0  # IMU stamps = true sample time + this (a constant clock offset)
+    imu_clock_start_s: float | None = None  # the IMU stamps with its own clock, reading this at the first frame
+    # (a device counter since power-on, another epoch); None: the cameras' clock
     imu_stamp_jitter_ms: float = 0.0  # a driver that stamps each IMU sample when the host receives it: the
     # stamp trails the sample by U(0, this) ms, kept in arrival order (a serial or USB link; where this exceeds
     # the sample period, samples arrive in batches of nearly equal stamps)
@@ -150,6 +153,10 @@ class BagOptions:
         if not (_real(self.imu_time_offset_ms) and abs(self.imu_time_offset_ms) <= 1e4):
             raise OptionError(_OWNER, "imu_time_offset_ms", f"must be a finite number of ms within +-10000, "
                               f"got {self.imu_time_offset_ms!r}")
+        if self.imu_clock_start_s is not None and not (_real(self.imu_clock_start_s)
+                                                       and 0 <= self.imu_clock_start_s < 2.0**31):
+            raise OptionError(_OWNER, "imu_clock_start_s", f"must be a finite number of s in [0, 2^31) (a ROS "
+                              f"stamp's seconds), got {self.imu_clock_start_s!r}")
         if not (_real(self.exposure_drift) and 0 <= self.exposure_drift <= 0.5):
             raise OptionError(_OWNER, "exposure_drift", f"must be in [0, 0.5] (a gain change), "
                               f"got {self.exposure_drift!r}")
@@ -357,6 +364,8 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     dropped = rng_drop.random(size=(len(frame_t), M)) < opts.drop_rate
     exposure = Exposure(M, opts, rng_exposure) if opts.exposure_drift else None
     imu_offset_ns = int(round(opts.imu_time_offset_ms * 1e6))
+    if opts.imu_clock_start_s is not None:  # another clock: it reads imu_clock_start_s at the first frame
+        imu_offset_ns += int(round(opts.imu_clock_start_s * 1e9)) - traj.start_ns
     latency_ns, burst_ns = int(round(opts.camera_latency_ms * 1e6)), int(round(opts.camera_burst_s * 1e9))
     stagger_ns = int(round(opts.camera_burst_stagger_ms * 1e6))
 
