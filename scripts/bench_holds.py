@@ -30,7 +30,9 @@ abrupt (trapezoidal) moves, IMU at 400 Hz, bars damped at 0.02: the tip swings b
 +-2 %); ``gyrodeg`` a gyro driver that writes deg/s (the cameras record only the holds: the unit is measured
 from the turns between them, as ``nrmpc replay`` does); ``vibration`` a running motor the IMU reads all along (1.5 m/s^2
 RMS at 45 Hz, with its rocking on the gyro), which the Imu messages' covariances do not claim; ``imuhost`` an IMU
-at 400 Hz stamped when the host reads it (up to 6 ms late, in batches of one stamp).
+at 400 Hz stamped when the host reads it (up to 6 ms late, in batches of one stamp); ``imucounter`` an IMU stamped
+by its own counter (1000 s at the first frame; replayed as ``nrmpc replay`` does, moved onto the cameras' clock by
+the recording times).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -88,7 +90,7 @@ from nrmpc_ros.frontend.imu_reference import ImuReference
 from nrmpc_ros.frontend.imu_units import UnitsMeasuringPass
 from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig
 from nrmpc_ros.frontend.reference import STAMP_TOLERANCE_S, nearest_stamp, read_reference
-from nrmpc_ros.frontend.replay import replay_bag, resolve_imu_topic
+from nrmpc_ros.frontend.replay import BagReplay, resolve_imu_topic
 from nrmpc_ros.render.bagmaker import ANGULAR_VELOCITY_TOPIC, BagOptions, make_bag
 from nrmpc_ros.render.sequence import MotionOptions
 from nrmpc_ros.sim.synthetic import RigSpec, make_rig
@@ -171,17 +173,18 @@ def replay_rows(path: Path, rig, method: str, with_holds: bool = False, keep: li
             if keep is not None:
                 pipe.sequence.keep_history = True
                 pipe.measured_holds = []
-            ests = [e for es in replay_bag(bag, rig, pipe, imu_topic, inputs, warn=lambda m: None) for e in es]
-            return pipe, ests, ref.as_read(inputs)
+            replay = BagReplay(bag, rig, pipe, imu_topic, inputs, warn=lambda m: None)
+            ests = [e for es in replay.run() for e in es]
+            return pipe, ests, ref.as_read(replay.feeder.config), replay.feeder.config.imu_clock_offset_s
 
         run_pass = UnitsMeasuringPass(one_pass, FeederConfig(), lambda result: result[0],
                                       measure=imu_topic is not None)
 
         def measure(result):
-            pipe, ests, shifted = result
+            pipe, ests, shifted, _ = result
             return measure_imu_clock(pipe, shifted, rig, ests) if imu_topic is not None else None
 
-        (pipe, ests, ref), _, _ = clock_passes(run_pass, measure)
+        (pipe, ests, ref, _), _, _ = clock_passes(run_pass, measure, applied=lambda result: result[3])
         if keep is not None:
             keep.extend(ests)
         rows = [row_from_estimate(e) for e in ests]
@@ -310,6 +313,7 @@ def matrix_styles() -> dict:
         "gyrodeg": lambda M: (base, {**bag, "gyro_unit": "deg/s"}),
         "vibration": lambda M: (base, {**bag, "vibration": 1.5, "vibration_hz": 45.0}),
         "imuhost": lambda M: ({**base, "imu_rate": 400.0}, {**bag, "imu_stamp_jitter_ms": 6.0}),
+        "imucounter": lambda M: (base, {**bag, "imu_clock_start_s": 1000.0}),
     }
 
 
@@ -330,7 +334,8 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("exposure", "ring6-soft"), ("creep", "cross4-stiff"), ("imuclock", "line2-stiff"), ("swsync", "line2-soft"),
          ("noimu", "ring3-soft"), ("imubar", "ring5-soft"), ("imudlpf", "ring6-stiff"), ("imucov", "cross4-soft"),
          ("imuclock2s", "ring3-soft"), ("imuswing", "cross4-soft"), ("imuraw", "ring3-stiff"),
-         ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff"), ("imuhost", "ring5-soft")]
+         ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff"), ("imuhost", "ring5-soft"),
+         ("imucounter", "ring6-soft")]
 
 
 def matrix_cells(full: bool) -> list:
