@@ -493,3 +493,46 @@ def test_a_corrupt_stamp_or_a_lag_of_seconds_is_no_other_clock(rig, first, count
     feed_as_arrived(f, shifted)
     f.end()
     assert not f.rebases and f.config.imu_clock_offset_s == 0.0
+
+
+@pytest.mark.parametrize("first", ["together", "foreign camera", "imu"])
+def test_a_camera_on_its_own_clock_is_moved_onto_the_others_and_its_frames_grouped_with_theirs(rig, first):
+    """Camera 1 stamps with a counter since its power-on (2500 s at the others' 1.7e9), each frame arriving when
+    it was taken: once it and another input are known, it is moved onto the arrival clock the others stamp
+    with, said once; from then on every frame set is complete and the work is that of a camera on the common
+    clock. Its first frames, held while its clock was unknown, are not lost; where it starts alone (before the
+    others), the first frames handed over with the old clock start afresh."""
+    t0 = 1_700_000_000.0
+    late = {"together": None, "foreign camera": "others", "imu": "cameras"}[first]
+
+    def starts(m):
+        kind, i, t = m[1], m[2], m[3]
+        if late == "others" and (kind == "imu" or i != 1):
+            return t >= t0 + 0.5
+        return late != "cameras" or kind == "imu" or t >= t0 + 0.5
+
+    msgs = [m for m in messages(t0=t0, seconds=3.0) if starts(m)]
+    runs = []
+    for offset in (0.0, -t0 + 2500.0):
+        f, work, logs = feeder(rig)
+        feed_as_arrived(f, [(a, kind, i, t + offset if kind == "image" and i == 1 else t)
+                            for a, kind, i, t in msgs])
+        f.end()
+        runs.append((f, work, logs))
+    (same, same_work, _), (other, other_work, logs) = runs
+    assert [r.stream for r in other.rebases] == [1] and other.camera_clock_offset_s(1) == pytest.approx(t0 - 2500.0)
+    assert len([line for _, line in logs if "another clock" in line]) == 1
+    after = t0 + (1.0 if late else 0.0)
+    sets = [w.data[0] for w in other_work if w.kind is WorkKind.FRAMES and w.stamp >= after]
+    assert sets and all(all(img is not None for img in fs.images) for fs in sets)
+
+    def tail(work, since):
+        kept = [(k, t) for k, t in trace(work) if t is not None and t >= since]
+        return [k for k, _ in kept], [t for _, t in kept]
+
+    assert tail(other_work, after)[0] == tail(same_work, after)[0]
+    assert tail(other_work, after)[1] == pytest.approx(tail(same_work, after)[1], abs=1e-5)
+    restarted = any(w.kind is WorkKind.RESTART for w in other_work)
+    assert restarted == (first == "foreign camera")
+    if late is None:
+        assert tail(other_work, 0.0)[0] == tail(same_work, 0.0)[0], "held, not lost"

@@ -715,6 +715,9 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--vibration-hz", "0"], "--vibration-hz"),
     (["--vibration-hz", "inf"], "--vibration-hz"),
     (["--imu-clock-start-s", "-1"], "--imu-clock-start-s"), (["--imu-clock-start-s", "3e9"], "--imu-clock-start-s"),
+    (["--camera-clock-start-s", "1,x"], "--camera-clock-start-s"),
+    (["--camera-clock-start-s", ",-5"], "--camera-clock-start-s"),
+    (["--camera-clock-start-s", "1,2,3"], "--camera-clock-start-s"),
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
     rig_flags = ["--no-progress"] if "--rig" in args else TINY
@@ -843,9 +846,10 @@ def test_an_imu_stamped_when_the_host_reads_it_trails_its_samples_in_order(tmp_p
                           vectors(read, "/imu/data", "linear_acceleration"))
 
 
-def test_an_imu_on_its_own_clock_is_stamped_by_it_and_recorded_when_taken(tmp_path):
+def test_an_imu_or_a_camera_on_its_own_clock_is_stamped_by_it_and_recorded_when_taken(tmp_path):
     """--imu-clock-start-s S: the IMU's stamps come from its own clock, which reads S at the first frame (a counter
-    since power-on); the recorder receives each sample when it was taken, on the cameras' clock."""
+    since power-on); the recorder receives each sample when it was taken, on the cameras' clock. The same for a
+    camera (--camera-clock-start-s, one entry per camera, empty for the common clock)."""
     args = ["--views", "2", "--hold-seconds", "0.4", "--rate", "5", "--resolution", "160x120", "--seed", "3"]
     right, _ = make(tmp_path, "right", *args)
     own, _ = make(tmp_path, "own", *args, "--imu-clock-start-s", "1000.5")
@@ -854,6 +858,10 @@ def test_an_imu_on_its_own_clock_is_stamped_by_it_and_recorded_when_taken(tmp_pa
     first_frame = stamp(right["/cam0/image_raw"][0][1])
     assert np.array_equal(t1 - t0, np.full(len(t0), 1_000_500_000_000 - first_frame))
     assert [t for t, _ in own["/imu/data"]] == t0.tolist()
+    cams, _ = make(tmp_path, "cams", *args, "--camera-clock-start-s", ",2500")
+    for topic, shift in (("/cam0/image_raw", 0), ("/cam1/image_raw", 2_500_000_000_000 - first_frame)):
+        assert [stamp(m) - shift for _, m in cams[topic]] == [stamp(m) for _, m in right[topic]]
+        assert [t for t, _ in cams[topic]] == [t for t, _ in right[topic]], "received on the common clock"
 
 
 def test_an_imu_topic_with_gravity_taken_out_reads_about_zero_at_rest(tmp_path):

@@ -166,34 +166,39 @@ def test_auto_transport_finds_the_cameras_in_either_start_order(bag, replayed, t
         assert "subscribing to /cam0/image_raw/compressed instead (published)" in log
 
 
-@pytest.mark.parametrize("first", ["imu", "cameras"])
-def test_an_imu_on_its_own_clock_is_moved_onto_the_cameras_whichever_driver_starts_first(bag, replayed,  # noqa: F811
-                                                                                          tmp_path, first):
-    """The IMU stamps with a counter since its power-on (1000 s when the recording starts), the cameras with the
-    host's clock; one driver starts 1.5 s (of stamps) before the other. The node moves the IMU onto the cameras'
-    clock by when the samples arrive, says so in the IMU's diagnostics, and publishes the replay's estimates of
-    the bag stamped right (the holds the late driver saw whole), each within its std: played at 2x, the arrival
-    clock runs at half the stamps' rate, so the samples sit up to half a frame period off where they were
-    taken."""
+@pytest.mark.parametrize("topic, first", [(IMU, "imu"), (IMU, "cameras"), (CAMERAS[1], "cameras")],
+                         ids=["IMU clock, IMU first", "IMU clock, cameras first", "camera clock, cameras first"])
+def test_an_input_on_its_own_clock_is_moved_onto_the_others_whichever_driver_starts_first(bag, replayed,  # noqa: F811
+                                                                                          tmp_path, topic, first):
+    """The IMU (or one camera) stamps with a counter since its power-on (1000 s when the recording starts), the
+    others with the host's clock; one driver starts 1.5 s (of stamps) before the other. The node moves it onto
+    the others' clock by when its messages arrive, says so in its diagnostics, and publishes the replay's
+    estimates of the bag stamped right (the holds the late driver saw whole), each within its std: played at
+    2x, the arrival clock runs at half the stamps' rate, so the samples sit up to half a frame period off
+    where they were taken."""
     path, rig, _ = bag
     start_ns = 1_700_000_000 * 1_000_000_000
 
-    def edit(topic, t, msg):
-        yield topic, t, (restamped(msg, stamp_ns(msg) - start_ns + 1000 * 1_000_000_000) if topic == IMU else msg)
+    def edit(t, k, msg):
+        yield t, k, (restamped(msg, stamp_ns(msg) - start_ns + 1000 * 1_000_000_000) if t == topic else msg)
 
     own = rewrite(path, tmp_path / "own", edit)
     with Session(tmp_path, rig, *DEEP_QUEUES) as run:
         inject = Injector(run.domain, own)
         try:
             inject.wait_for_subscribers(timeout=90.0)
-            inject.play(rate=2.0, skip=lambda dt, topic: dt < 1_500_000_000 and (topic == IMU) == (first == "cameras"))
+            inject.play(rate=2.0, skip=lambda dt, t: dt < 1_500_000_000 and (t == IMU) == (first == "cameras"))
         finally:
             inject.close()
         run.listener.wait_until_done(timeout=180)
         time.sleep(0.5)
     log = run.log()
-    imu = run.listener.last("IMU")[2]
-    assert "from the arrival times" in imu.get("clock offset", ""), (imu, log[-3000:])
+    if topic == IMU:
+        said = run.listener.last("IMU")[2].get("clock offset", "")
+        assert "from the arrival times" in said, (said, log[-3000:])
+    else:
+        cams = run.listener.last("cameras")[2]
+        assert "another clock" in cams.get(f"{topic}: clock", ""), (cams, log[-3000:])
     assert "another clock" in log
     got = run.listener.gravity_by_stamp()
     later = [s for s in got if s >= stamp_key(1_700_000_002.0)]

@@ -47,6 +47,7 @@ DEFAULTS = {
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
     "supersample": _B.supersample, "out": None, "no_progress": False,
     "imu_time_offset_ms": _B.imu_time_offset_ms, "imu_clock_start_s": _B.imu_clock_start_s,
+    "camera_clock_start_s": _B.camera_clock_start_s,
     "camera_rates": None, "camera_phases_ms": None,
     "hold_seconds_range": None, "snapshot_delay": None, "exposure_drift": _B.exposure_drift,
     "exposure_period_s": _B.exposure_period_s, "creep_fraction": _M.creep_fraction,
@@ -78,6 +79,22 @@ def _floats(text) -> tuple:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers such as 10,15,30, got {text!r}") from None
     if not values or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, got {text!r}")
+    return values
+
+
+def _clock_starts(text) -> tuple:
+    """'1000,,' (or a YAML list with nulls) -> (1000.0, None, None): per camera the reading of its own clock at
+    the first frame, or None (the common clock)."""
+    items = text if isinstance(text, (list, tuple)) else str(text).split(",")
+    try:
+        if any(isinstance(x, bool) for x in items):
+            raise ValueError
+        values = tuple(None if x is None or (isinstance(x, str) and not x.strip()) else float(x) for x in items)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected comma-separated seconds, an empty entry for a camera on the "
+                                         f"common clock, such as 1000,,, got {text!r}") from None
+    if not values or not all(v is None or math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected comma-separated finite seconds, got {text!r}")
     return values
 
 
@@ -220,6 +237,11 @@ def register(sub):
                     help="the IMU stamps with its own clock, which reads S seconds at the first frame (e.g. 1000: a "
                          "counter since its power-on, or the cameras' start plus 3600: a clock an hour ahead); the "
                          "bag still receives each sample at its true time (default: the cameras' clock)")
+    se.add_argument("--camera-clock-start-s", type=_clock_starts, metavar="S0,S1,...",
+                    help="cameras that stamp with their own clocks, one entry per camera: what its clock reads at "
+                         "the first frame (e.g. 1000: a counter since its power-on), empty for a camera on the "
+                         "common clock (e.g. ,2500,: the second camera only); the bag still receives each image "
+                         "when the common clock would (default: every camera on the common clock)")
     se.add_argument("--exposure-drift", type=float, metavar="A",
                     help="auto-exposure drift: each camera's grey levels become gain I + offset, the gain drifting "
                          f"slowly within 1 +- A and the offset within +- {EXPOSURE_OFFSET_GREY:g} A grey levels, "
@@ -283,7 +305,7 @@ def _coerce(action, value, source: str, key: str):
             raise bad("needs a value")
         return None
     kind = action.type
-    if kind in (_floats, _pair) and isinstance(value, (list, tuple)):
+    if kind in (_floats, _pair, _clock_starts) and isinstance(value, (list, tuple)):
         try:
             return kind(list(value))
         except argparse.ArgumentTypeError as exc:
@@ -424,7 +446,7 @@ def bag_options(o: dict):
                       imu=not o["no_imu"], damping=o["damping"],
                       jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
-                      imu_clock_start_s=o["imu_clock_start_s"],
+                      imu_clock_start_s=o["imu_clock_start_s"], camera_clock_start_s=o["camera_clock_start_s"],
                       exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],
                       camera_latency_ms=o["camera_latency_ms"], camera_burst_s=o["camera_burst_s"],
                       camera_burst_stagger_ms=o["camera_burst_stagger_ms"], gyro_unit=o["gyro_unit"],

@@ -21,7 +21,7 @@ from ..frontend.estimates_csv import CsvWriter, batch_rows, row_from_estimate
 from ..frontend.evaluation import evaluate
 from ..frontend.evaluation_report import format_report
 from ..frontend.extrinsics import NO_IMU_NOTE, ExtrinsicsCsv, hold_poses, imu_mount_warning
-from ..frontend.feeder import MAX_CLOCK_OFFSET_S, FeederConfig
+from ..frontend.feeder import IMU, MAX_CLOCK_OFFSET_S, FeederConfig
 from ..frontend.imu import describe_gaps
 from ..frontend.imu_agreement import describe_check
 from ..frontend.imu_clock import SIGNIFICANT_STDS
@@ -307,7 +307,8 @@ def run(args) -> int:
         print(f"IMU samples stamped alike: {alike} (a driver that reads them in batches; each batch spread evenly "
               f"over the interval since the stamp before it)")
     for rebase in replay.feeder.rebases:
-        print(f"IMU clock: {rebase.describe(imu_topic)}")
+        print(f"{'IMU' if rebase.stream == IMU else 'camera'} clock: "
+              f"{rebase.describe(replay.feeder.name_of(rebase.stream))}")
     jumps = replay.feeder.events["time jumps back"]
     if jumps:
         print(f"time jumps back: {jumps} (each started a new sequence)")

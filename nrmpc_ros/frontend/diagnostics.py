@@ -18,6 +18,7 @@ import numpy as np
 
 from .accel_tilt import describe_tilt
 from .drops import Drop, sorted_counts
+from .feeder import IMU
 from .imu import describe_gaps
 from .imu_agreement import describe_check
 from .imu_clock_check import describe_clock
@@ -89,6 +90,9 @@ class ServiceDiagnostics:
             values[f"{topic}: rate (Hz)"] = f"{self._rate(topic, now):.2f}"
             values[f"{topic}: state"] = "input ended" if s.watch.ended is not None else s.watch.state[i]
             values[f"{topic}: camera_info"] = s.camera_info.get(i, "none received")
+            moved = s.feeder.camera_clock_offset_s(i)
+            if moved:
+                values[f"{topic}: clock"] = f"{moved:+.3f} s added to its stamps (another clock; arrival times)"
         total, dropped = self._drops_of(set(s.camera_topics))
         values.update(dropped)
         values["frame sets"] = s.feeder.events["frame sets"]
@@ -144,7 +148,7 @@ class ServiceDiagnostics:
             values["gaps"] = gaps
         shift = s.feeder.config.imu_clock_offset_s
         applied = s.counts["IMU clock offsets applied"]
-        rebased = len(s.feeder.rebases)
+        rebased = sum(r.stream == IMU for r in s.feeder.rebases)
         if shift or applied or rebased:
             how = [f"{applied} measured off the cameras' and applied"] if applied else []
             how += [f"{rebased} from the arrival times: another clock"] if rebased else []

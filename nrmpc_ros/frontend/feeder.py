@@ -79,6 +79,8 @@ IMU = "imu"  # stream id of the IMU in the stamp guard (cameras are 0..M-1)
 HELD_QUEUES = 4  # a candidate jump back holds up to this many frame queues of messages: every camera's and the
 # IMU's messages of the new time wait there until a second input (or jump_confirm of one) confirms it
 MAX_CLOCK_OFFSET_S = 2.0**32  # s: the span of a ROS stamp's seconds (a device counter, GPS time, any epoch)
+EARLY_FRAMES_HELD = 8  # frames per camera held at most at the start, while a camera's arrival lags are apart
+# from the others' and its clock is not known yet
 STAMPS_KEPT = 4096  # frame stamps remembered as received (sec, nanosec): far more than the sets waiting
 
 
@@ -156,15 +158,17 @@ class Feeder:
         self.events = Counter()  # "time jumps back", "frame sets", "imu samples", "images"
         self._stamps: OrderedDict = OrderedDict()  # frame stamp (s) -> (sec, nanosec) as received
         self.resized = [0] * rig.num_cameras  # images per camera resized to the rig file's size
-        self.rebases: list = []  # ClockRebase: the IMU moved onto the cameras' clock
-        self._domains = ClockDomains(self.config.jump_confirm)
+        self.rebases: list = []  # ClockRebase: inputs moved onto the others' clock
+        self._camera_offsets = [0.0] * rig.num_cameras  # s added to each camera's stamps (moved off its own clock)
+        self._early: list | None = []  # the cameras' first frames, held while a camera's arrival lags are apart
+        # from the other inputs' and its clock is not known yet (None from then on)
+        self._domains = ClockDomains(list(range(rig.num_cameras)) + ([IMU] if imu_topic is not None else []),
+                                     self.config.jump_confirm)
         self._new_epoch()
 
     def _new_epoch(self) -> None:
         c = self.config
-        self.sync = StampSynchronizer(self.rig.num_cameras, c.sync_tolerance_s or None, c.queue_size,
-                                      config=c.grouping, jumps=c.jump_policy(),
-                                      names=[cam.name for cam in self.rig.cameras])
+        self.sync = self._new_sync()
         self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
         self._imu: deque = deque()  # (stamp, accel, gyro, covariances or None)
         self._imu_newest = -math.inf
@@ -176,6 +180,11 @@ class Feeder:
         # when it last sent), the IMU's in the cameras' newest stamps (.last: theirs when its latest sample came)
         self._cam_gaps = [DeliveryGaps(window) for _ in range(self.rig.num_cameras)]
         self._imu_gaps = DeliveryGaps(window)
+
+    def _new_sync(self) -> StampSynchronizer:
+        c = self.config
+        return StampSynchronizer(self.rig.num_cameras, c.sync_tolerance_s or None, c.queue_size, config=c.grouping,
+                                 jumps=c.jump_policy(), names=[cam.name for cam in self.rig.cameras])
 
     def burst_frame_sets(self) -> int:
         """The most frame sets one delivery of a camera has brought lately: the largest age of a frame it
@@ -223,10 +232,28 @@ class Feeder:
             img = resize_to(img, (w, h))
         st = msg.header.stamp
         sec, nsec = int(st.sec), int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
+        self._clock_seen(index, ros_seconds(sec, nsec) + self._camera_offsets[index], now)
+        early = self._early
+        if now is not None and early is not None:
+            suspect = [i for i in range(self.rig.num_cameras)
+                       if self._domains.lag(i) is None and self._domains.apart(i)]
+            if suspect and len(early) < EARLY_FRAMES_HELD * self.rig.num_cameras:
+                early.append((index, sec, nsec, img, now))  # until the suspect camera's clock is known: its
+                return  # frames handed over would be grouped alone and reach the holds with a foreign stamp
+            self._early = [] if not suspect and any(self._domains.lag(i) is None
+                                                    for i in range(self.rig.num_cameras)) else None
+            for held in early:
+                self._frame(*held)
+        self._frame(index, sec, nsec, img, now)
+
+    def _frame(self, index: int, sec: int, nsec: int, img, now: float | None) -> None:
         stamp = ros_seconds(sec, nsec)
-        self._stamps[stamp] = (sec, nsec)
-        while len(self._stamps) > STAMPS_KEPT:
-            self._stamps.popitem(last=False)
+        if self._camera_offsets[index]:
+            stamp += self._camera_offsets[index]  # published with the stamp it was moved to
+        else:
+            self._stamps[stamp] = (sec, nsec)
+            while len(self._stamps) > STAMPS_KEPT:
+                self._stamps.popitem(last=False)
         self._checked(index, stamp, img, now)
 
     def imu_msg(self, msg, now: float | None = None) -> None:
@@ -246,9 +273,7 @@ class Feeder:
             if covariance is not None:
                 covariance = tuple(None if c is None else np.asarray(c, dtype=float) * f * f
                                    for c, f in zip(covariance, (m, k)))
-        rebase = self._domains.imu(stamp + self.config.imu_clock_offset_s, now)
-        if rebase is not None:
-            self._rebase_imu(rebase)
+        self._clock_seen(IMU, stamp + self.config.imu_clock_offset_s, now)
         self._sample(stamp + self.config.imu_clock_offset_s, accel, gyro, now, covariance)
 
     def imu_block(self, block: ImuBlock, now: float | None = None) -> None:
@@ -259,10 +284,9 @@ class Feeder:
         self.events["imu samples"] += n
         if self.config.imu_clock_offset_s:
             block = replace(block, stamps=block.stamps + self.config.imu_clock_offset_s)
-        rebase = self._domains.imu(block.stamps, now) if n else None
-        if rebase is not None:
-            self._rebase_imu(rebase)
-            block = replace(block, stamps=block.stamps + rebase.offset_s)
+        before = self.config.imu_clock_offset_s
+        if n and IMU in self._clock_seen(IMU, block.stamps, now):
+            block = replace(block, stamps=block.stamps + (self.config.imu_clock_offset_s - before))
         k, m = self.config.imu_gyro_scale, self.config.imu_accel_scale
         if k != 1.0 or m != 1.0:
             block = replace(block, accel=block.accel * m, gyro=block.gyro * k, accel_cov=block.accel_cov * (m * m),
@@ -317,20 +341,25 @@ class Feeder:
         return (int(sec) + ns // 1_000_000_000, ns % 1_000_000_000)
 
     # ------------------------------------------------------------------ stamps
-    def _name(self, stream) -> str:
+    def camera_clock_offset_s(self, index: int) -> float:
+        """Seconds added to camera ``index``'s stamps (0 unless it was found on another clock)."""
+        return self._camera_offsets[index]
+
+    def name_of(self, stream) -> str:
+        """The topic of input ``stream`` (a camera index or the IMU)."""
         return (self.imu_topic or IMU) if stream == IMU else self.topics[stream]
 
     def _checked(self, stream, stamp: float, payload, now: float | None) -> None:
         verdict = self.guard.check(stream, stamp, payload, now)
         for reason, message in verdict.drops:
-            self._drop(self._name(stream), reason, f"{self._name(stream)}: {message}")
+            self._drop(self.name_of(stream), reason, f"{self.name_of(stream)}: {message}")
         if verdict.jump is not None:
             self._jump_back(verdict.jump)
         elif verdict.accept:
             self._accept(stream, stamp, payload, now)
 
     def _jump_back(self, jump) -> None:
-        why = jump.describe(self._name(jump.stream))
+        why = jump.describe(self.name_of(jump.stream))
         self.events["time jumps back"] += 1
         self.log("warn", f"{why}: the frame grouping, the IMU samples and the holds start afresh (a new sequence)")
         self._start_afresh(why)
@@ -345,14 +374,40 @@ class Feeder:
         self._start_afresh(why)
         self.guard = self._new_guard()
 
+    def _clock_seen(self, stream, stamps, now: float | None) -> set:
+        """Hand the arrival lags of ``stamps`` (as read, offsets added) to the clock check
+        (:mod:`~nrmpc_ros.frontend.clock_domain`) and move every input it finds on another clock; the inputs
+        moved."""
+        rebases = self._domains.seen(stream, stamps, now)
+        for rebase in rebases:
+            if rebase.stream == IMU:
+                self._rebase_imu(rebase)
+            else:
+                self._rebase_camera(rebase)
+        return {r.stream for r in rebases}
+
+    def _rebase_camera(self, rebase: ClockRebase) -> None:
+        """Move a camera onto the others' clock: its offset grows by the rebase's. Its first frames, held while
+        their arrival lags were apart from the others', now go in with it; where frames of the old clock were
+        handed over already (the camera spoke first, or its clock changed on the way), what was taken goes out
+        and the frame grouping, the IMU samples and the holds start afresh, as after a jump of the clock."""
+        self.rebases.append(rebase)
+        self.events["camera clocks moved"] += 1
+        why = rebase.describe(self.name_of(rebase.stream))
+        self.log("warn", why)
+        self._camera_offsets[rebase.stream] += rebase.offset_s
+        if self._cam_newest[rebase.stream] > -math.inf:
+            self._start_afresh(why)
+        self.guard = self._new_guard()
+
     def _rebase_imu(self, rebase: ClockRebase) -> None:
-        """Move the IMU onto the cameras' clock (:mod:`~nrmpc_ros.frontend.clock_domain`): its offset grows by the
+        """Move the IMU onto the others' clock (:mod:`~nrmpc_ros.frontend.clock_domain`): its offset grows by the
         rebase's, the samples waiting are moved with it, the stamp checks and the inputs' delivery records start
         afresh (they hold the old clock's stamps), and the pipeline too where it was handed samples of the old
         clock; the frame grouping keeps its frames."""
         self.rebases.append(rebase)
-        self.events["imu clock rebased"] += 1
-        why = rebase.describe(self._name(IMU))
+        self.events["imu clocks moved"] += 1
+        why = rebase.describe(self.name_of(IMU))
         self.log("warn", why)
         d = rebase.offset_s
         self.config = replace(self.config, imu_clock_offset_s=self.config.imu_clock_offset_s + d)
@@ -397,7 +452,7 @@ class Feeder:
                 self._release()
                 return
             if stamp <= self._imu_newest:
-                self._drop(self._name(IMU), Drop.IMU_OUT_OF_ORDER, f"{self._name(IMU)}: IMU sample at "
+                self._drop(self.name_of(IMU), Drop.IMU_OUT_OF_ORDER, f"{self.name_of(IMU)}: IMU sample at "
                            f"{stamp:.6f} s is not newer than the last one ({self._imu_newest:.6f} s)")
                 return
             self._imu_floor, self._imu_batch = self._imu_newest, 1
@@ -408,10 +463,6 @@ class Feeder:
             self._cam_newest[stream] = max(self._cam_newest[stream], stamp)
             self._cam_gaps[stream].delivered(self._imu_newest, stamp)
             self._emit_sets(self.sync.add(stream, stamp, payload, arrival=now))
-            rebase = self._domains.camera(stamp, now) if self.imu_topic is not None else None
-            if rebase is not None:  # a camera's stamps the checks accepted: the IMU's clock is judged against them
-                self._rebase_imu(rebase)
-                return
         self._release()
 
     def _respace_batch(self) -> None:

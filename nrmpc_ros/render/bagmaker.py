@@ -18,7 +18,8 @@ throughout) reads the specific force (``a = -g`` when still, through the
 rig's ``imu`` mount) plus white noise and a constant bias, and the body
 angular velocity; its stamps may be off the cameras' clock by a constant
 ``imu_time_offset_ms``, or come from its own clock (``imu_clock_start_s``:
-what that clock reads at the first frame). A camera driver may deliver its images late: each
+what that clock reads at the first frame); a camera may stamp with its own
+clock too (``camera_clock_start_s``). A camera driver may deliver its images late: each
 image's bag time (when the recorder received it) may trail its stamp by
 ``camera_latency_ms`` and, with ``camera_burst_s``, come in bursts (a driver
 or link that buffers, every image of a burst received together at the
@@ -117,6 +118,8 @@ class BagOptions:
     imu_time_offset_ms: float = 0.0  # IMU stamps = true sample time + this (a constant clock offset)
     imu_clock_start_s: float | None = None  # the IMU stamps with its own clock, reading this at the first frame
     # (a device counter since power-on, another epoch); None: the cameras' clock
+    camera_clock_start_s: tuple | None = None  # per camera: its own clock's reading at the first frame, or None
+    # (the common clock); None: every camera on the common clock
     imu_stamp_jitter_ms: float = 0.0  # a driver that stamps each IMU sample when the host receives it: the
     # stamp trails the sample by U(0, this) ms, kept in arrival order (a serial or USB link; where this exceeds
     # the sample period, samples arrive in batches of nearly equal stamps)
@@ -157,6 +160,10 @@ class BagOptions:
                                                        and 0 <= self.imu_clock_start_s < 2.0**31):
             raise OptionError(_OWNER, "imu_clock_start_s", f"must be a finite number of s in [0, 2^31) (a ROS "
                               f"stamp's seconds), got {self.imu_clock_start_s!r}")
+        if self.camera_clock_start_s is not None and not all(
+                v is None or (_real(v) and 0 <= v < 2.0**31) for v in self.camera_clock_start_s):
+            raise OptionError(_OWNER, "camera_clock_start_s", f"each must be empty or a finite number of s in [0, "
+                              f"2^31), got {self.camera_clock_start_s!r}")
         if not (_real(self.exposure_drift) and 0 <= self.exposure_drift <= 0.5):
             raise OptionError(_OWNER, "exposure_drift", f"must be in [0, 0.5] (a gain change), "
                               f"got {self.exposure_drift!r}")
@@ -367,6 +374,10 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     if opts.imu_clock_start_s is not None:  # another clock: it reads imu_clock_start_s at the first frame
         imu_offset_ns += int(round(opts.imu_clock_start_s * 1e9)) - traj.start_ns
     latency_ns, burst_ns = int(round(opts.camera_latency_ms * 1e6)), int(round(opts.camera_burst_s * 1e9))
+    clocks = opts.camera_clock_start_s or (None,) * M
+    if len(clocks) != M:
+        raise OptionError(_OWNER, "camera_clock_start_s", f"needs one entry per camera ({M}), got {len(clocks)}")
+    camera_clock_ns = [0 if c is None else int(round(c * 1e9)) - traj.start_ns for c in clocks]
     stagger_ns = int(round(opts.camera_burst_stagger_ms * 1e6))
 
     def received(stamp_ns: int, camera: int) -> int:
@@ -443,8 +454,9 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                         img = gain * img + offset
                     u8 = np.clip(np.rint(img + noise), 0, 255).astype(np.uint8)
                     ts = t + int(jitter_ns[n, i])
-                    push(received(ts, i), topics[i][0], bag.image_msg(u8, ts, cam.name, opts.encoding, **quality))
-                    push(received(ts, i), topics[i][1], bag.camera_info_msg(cam, ts))
+                    own = ts + camera_clock_ns[i]  # the stamp of the camera's own clock
+                    push(received(ts, i), topics[i][0], bag.image_msg(u8, own, cam.name, opts.encoding, **quality))
+                    push(received(ts, i), topics[i][1], bag.camera_info_msg(cam, own))
                     push(ts, EXTRINSICS_TOPIC.format(cam.name),
                          bag.pose_msg(ts, rig.body_frame, gt_W[n, i], gt_w[n, i]))
                 push(t, POSE_TOPIC, bag.pose_msg(t, WORLD_FRAME, R[n], p[n]))
