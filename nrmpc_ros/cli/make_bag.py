@@ -234,14 +234,12 @@ def register(sub):
                          "the bag receives each sample at its true time, as a recorder on the cameras' clock "
                          "would; default 0)")
     se.add_argument("--imu-clock-start-s", type=float, metavar="S",
-                    help="the IMU stamps with its own clock, which reads S seconds at the first frame (e.g. 1000: a "
-                         "counter since its power-on, or the cameras' start plus 3600: a clock an hour ahead); the "
-                         "bag still receives each sample at its true time (default: the cameras' clock)")
+                    help="the IMU stamps with its own clock, reading S s at the first frame (1000: a counter since "
+                         "power-on); received on the cameras' clock (default: stamped by it)")
     se.add_argument("--camera-clock-start-s", type=_clock_starts, metavar="S0,S1,...",
-                    help="cameras that stamp with their own clocks, one entry per camera: what its clock reads at "
-                         "the first frame (e.g. 1000: a counter since its power-on), empty for a camera on the "
-                         "common clock (e.g. ,2500,: the second camera only); the bag still receives each image "
-                         "when the common clock would (default: every camera on the common clock)")
+                    help="cameras stamping with their own clocks: per camera what its clock reads at the first "
+                         "frame, empty for one on the common clock (,2500,: the second camera's counter); received "
+                         "on the common clock (default: every camera on it)")
     se.add_argument("--exposure-drift", type=float, metavar="A",
                     help="auto-exposure drift: each camera's grey levels become gain I + offset, the gain drifting "
                          f"slowly within 1 +- A and the offset within +- {EXPOSURE_OFFSET_GREY:g} A grey levels, "
