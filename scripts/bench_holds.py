@@ -32,7 +32,8 @@ from the turns between them, as ``nrmpc replay`` does); ``vibration`` a running 
 RMS at 45 Hz, with its rocking on the gyro), which the Imu messages' covariances do not claim; ``imuhost`` an IMU
 at 400 Hz stamped when the host reads it (up to 6 ms late, in batches of one stamp); ``imucounter`` an IMU stamped
 by its own counter (1000 s at the first frame; replayed as ``nrmpc replay`` does, moved onto the cameras' clock by
-the recording times); ``camcounter`` the second camera stamped by its own counter (2500 s at the first frame).
+the recording times); ``camcounter`` the second camera stamped by its own counter (2500 s at the first frame);
+``unstamped`` the second camera's and the IMU's drivers leave header.stamp at 0 (stamped by the recording time).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -175,7 +176,7 @@ def replay_rows(path: Path, rig, method: str, with_holds: bool = False, keep: li
                 pipe.measured_holds = []
             replay = BagReplay(bag, rig, pipe, imu_topic, inputs, warn=lambda m: None)
             ests = [e for es in replay.run() for e in es]
-            return pipe, ests, ref.as_read(replay.feeder.config), replay.feeder.config.imu_clock_offset_s
+            return pipe, ests, replay.feeder.as_read(ref), replay.feeder.config.imu_clock_offset_s
 
         run_pass = UnitsMeasuringPass(one_pass, FeederConfig(), lambda result: result[0],
                                       measure=imu_topic is not None)
@@ -315,6 +316,7 @@ def matrix_styles() -> dict:
         "imuhost": lambda M: ({**base, "imu_rate": 400.0}, {**bag, "imu_stamp_jitter_ms": 6.0}),
         "imucounter": lambda M: (base, {**bag, "imu_clock_start_s": 1000.0}),
         "camcounter": lambda M: (base, {**bag, "camera_clock_start_s": (None, 2500.0) + (None,) * (M - 2)}),
+        "unstamped": lambda M: (base, {**bag, "unstamped": ("1", "imu")}),
     }
 
 
@@ -336,7 +338,7 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("noimu", "ring3-soft"), ("imubar", "ring5-soft"), ("imudlpf", "ring6-stiff"), ("imucov", "cross4-soft"),
          ("imuclock2s", "ring3-soft"), ("imuswing", "cross4-soft"), ("imuraw", "ring3-stiff"),
          ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff"), ("imuhost", "ring5-soft"),
-         ("imucounter", "ring6-soft"), ("camcounter", "ring3-stiff")]
+         ("imucounter", "ring6-soft"), ("camcounter", "ring3-stiff"), ("unstamped", "cross4-soft")]
 
 
 def matrix_cells(full: bool) -> list:

@@ -15,7 +15,7 @@ from nrmpc_ros.core import load_rig
 from nrmpc_ros.errors import InputError
 from nrmpc_ros.frontend.droplog import DropLog
 from nrmpc_ros.frontend.drops import Drop
-from nrmpc_ros.frontend.feeder import Feeder, FeederConfig
+from nrmpc_ros.frontend.feeder import IMU, Feeder, FeederConfig
 from nrmpc_ros.frontend.imu_block import ImuBlock
 from nrmpc_ros.frontend.stamps import JumpPolicy
 from nrmpc_ros.frontend.work import WorkKind
@@ -536,3 +536,43 @@ def test_a_camera_on_its_own_clock_is_moved_onto_the_others_and_its_frames_group
     assert restarted == (first == "foreign camera")
     if late is None:
         assert tail(other_work, 0.0)[0] == tail(same_work, 0.0)[0], "held, not lost"
+
+
+@pytest.mark.parametrize("blocks", [False, True])
+def test_inputs_whose_stamps_do_not_advance_are_stamped_by_their_arrival(rig, blocks):
+    """A camera and an IMU whose drivers leave header.stamp at 0, each message arriving when it was taken: once
+    three messages in a row arrived over more than 0.1 s with one stamp, they are stamped by when they arrive,
+    said once each; the frame sets are complete and the work is that of inputs stamped when taken (the IMU's
+    first 0.1 s, read before, is dropped and counted)."""
+    t0 = 1_700_000_000.0
+    msgs = messages(t0=t0, seconds=2.0)
+    runs = []
+    for frozen in (False, True):
+        f, work, logs = feeder(rig)
+        feed_as_arrived(f, [(a, kind, i, 0.0 if frozen and (kind == "imu" or i == 2) else t)
+                            for a, kind, i, t in msgs], blocks)
+        f.end()
+        runs.append((f, work, logs))
+    (_, same, _), (f, work, logs) = runs
+    assert f.stamped_by_arrival(2) and f.stamped_by_arrival(IMU) and not f.stamped_by_arrival(0)
+    assert len([line for _, line in logs if "stamps do not advance" in line]) == 2 and not f.rebases
+    sets = [w.data[0] for w in work if w.kind is WorkKind.FRAMES]
+    assert len(sets) == 20 and all(all(img is not None for img in fs.images) for fs in sets)
+    after = [(k, t) for k, t in trace(work) if t is not None and t >= t0 + 0.2]
+    expected = [(k, t) for k, t in trace(same) if t is not None and t >= t0 + 0.2]
+    assert [k for k, _ in after] == [k for k, _ in expected]
+    assert [t for _, t in after] == pytest.approx([t for _, t in expected], abs=1e-6)
+    assert 0 < f.drops.counts()[("/imu/data", Drop.IMU_FROZEN_STAMP)] <= 25
+
+
+def test_samples_a_host_read_at_once_share_a_stamp_and_are_not_frozen(rig):
+    """A driver that stamps samples when the host reads them: batches of one stamp, each arriving at once. Not a
+    frozen stamp: the batches are spread over their intervals, nothing is stamped by arrival."""
+    f, work, _ = feeder(rig)
+    t = 100.0
+    for k in range(40):
+        read = t + 0.02 * k
+        for _ in range(4):
+            f.imu_msg(imu(read), now=read + 0.001)
+    f.end()
+    assert not f.stamped_by_arrival(IMU) and f.events["imu samples stamped alike"] == 40 * 3

@@ -717,7 +717,8 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--imu-clock-start-s", "-1"], "--imu-clock-start-s"), (["--imu-clock-start-s", "3e9"], "--imu-clock-start-s"),
     (["--camera-clock-start-s", "1,x"], "--camera-clock-start-s"),
     (["--camera-clock-start-s", ",-5"], "--camera-clock-start-s"),
-    (["--camera-clock-start-s", "1,2,3"], "--camera-clock-start-s"),
+    (["--camera-clock-start-s", "1,2,3"], "--camera-clock-start-s"), (["--unstamped", "cam9"], "--unstamped"),
+    (["--unstamped", "cam0,,imu"], "--unstamped"),
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
     rig_flags = ["--no-progress"] if "--rig" in args else TINY
@@ -849,7 +850,8 @@ def test_an_imu_stamped_when_the_host_reads_it_trails_its_samples_in_order(tmp_p
 def test_an_imu_or_a_camera_on_its_own_clock_is_stamped_by_it_and_recorded_when_taken(tmp_path):
     """--imu-clock-start-s S: the IMU's stamps come from its own clock, which reads S at the first frame (a counter
     since power-on); the recorder receives each sample when it was taken, on the cameras' clock. The same for a
-    camera (--camera-clock-start-s, one entry per camera, empty for the common clock)."""
+    camera (--camera-clock-start-s, one entry per camera, empty for the common clock). --unstamped: drivers
+    that leave header.stamp at 0."""
     args = ["--views", "2", "--hold-seconds", "0.4", "--rate", "5", "--resolution", "160x120", "--seed", "3"]
     right, _ = make(tmp_path, "right", *args)
     own, _ = make(tmp_path, "own", *args, "--imu-clock-start-s", "1000.5")
@@ -862,6 +864,10 @@ def test_an_imu_or_a_camera_on_its_own_clock_is_stamped_by_it_and_recorded_when_
     for topic, shift in (("/cam0/image_raw", 0), ("/cam1/image_raw", 2_500_000_000_000 - first_frame)):
         assert [stamp(m) - shift for _, m in cams[topic]] == [stamp(m) for _, m in right[topic]]
         assert [t for t, _ in cams[topic]] == [t for t, _ in right[topic]], "received on the common clock"
+    unstamped, _ = make(tmp_path, "unstamped", *args, "--unstamped", "1,imu")
+    for topic in ("/cam1/image_raw", "/cam1/camera_info", "/imu/data"):
+        assert {stamp(m) for _, m in unstamped[topic]} == {0} and len(unstamped[topic]) == len(right[topic])
+    assert [stamp(m) for _, m in unstamped["/cam0/image_raw"]] == [stamp(m) for _, m in right["/cam0/image_raw"]]
 
 
 def test_an_imu_topic_with_gravity_taken_out_reads_about_zero_at_rest(tmp_path):

@@ -14,3 +14,16 @@ def test_nearest_stamp_within_the_tolerance():
     assert nearest_stamp(ts, 2.0 + 2 * STAMP_TOLERANCE_S) is None
     assert nearest_stamp(np.array([5.0]), 5.01) == 0
     assert nearest_stamp(np.zeros(0), 1.0) is None
+
+
+def test_the_imu_as_read_is_shifted_scaled_or_stamped_by_its_recording_times():
+    from types import SimpleNamespace
+
+    from nrmpc_ros.frontend.reference import Reference
+
+    ref = Reference(imu_t=np.zeros(3), imu_a=np.ones((3, 3)), imu_w=np.ones((3, 3)),
+                    imu_arrival=np.array([10.0, 10.005, 10.01]))
+    inputs = SimpleNamespace(imu_clock_offset_s=2.0, imu_gyro_scale=0.5, imu_accel_scale=3.0)
+    shifted = ref.as_read(inputs)
+    assert np.array_equal(shifted.imu_t, [2.0, 2.0, 2.0]) and np.all(shifted.imu_w == 0.5) and np.all(shifted.imu_a == 3)
+    assert np.array_equal(ref.as_read(inputs, by_arrival=True).imu_t, ref.imu_arrival), "frozen stamps: arrival"

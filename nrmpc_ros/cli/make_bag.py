@@ -47,7 +47,7 @@ DEFAULTS = {
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
     "supersample": _B.supersample, "out": None, "no_progress": False,
     "imu_time_offset_ms": _B.imu_time_offset_ms, "imu_clock_start_s": _B.imu_clock_start_s,
-    "camera_clock_start_s": _B.camera_clock_start_s,
+    "camera_clock_start_s": _B.camera_clock_start_s, "unstamped": None,
     "camera_rates": None, "camera_phases_ms": None,
     "hold_seconds_range": None, "snapshot_delay": None, "exposure_drift": _B.exposure_drift,
     "exposure_period_s": _B.exposure_period_s, "creep_fraction": _M.creep_fraction,
@@ -96,6 +96,15 @@ def _clock_starts(text) -> tuple:
     if not values or not all(v is None or math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"expected comma-separated finite seconds, got {text!r}")
     return values
+
+
+def _names(text) -> tuple:
+    """'cam1,imu' (or a YAML list) -> ('cam1', 'imu')."""
+    items = text if isinstance(text, (list, tuple)) else str(text).split(",")
+    names = tuple(str(x).strip() for x in items)
+    if not names or not all(names) or any(isinstance(x, bool) for x in items):
+        raise argparse.ArgumentTypeError(f"expected comma-separated names such as cam1,imu, got {text!r}")
+    return names
 
 
 def _pair(text) -> tuple:
@@ -240,6 +249,9 @@ def register(sub):
                     help="cameras stamping with their own clocks: per camera what its clock reads at the first "
                          "frame, empty for one on the common clock (,2500,: the second camera's counter); received "
                          "on the common clock (default: every camera on it)")
+    se.add_argument("--unstamped", type=_names, metavar="NAME,...",
+                    help="inputs whose driver leaves header.stamp at 0: camera names (or indices) and/or imu (default: "
+                         "none)")
     se.add_argument("--exposure-drift", type=float, metavar="A",
                     help="auto-exposure drift: each camera's grey levels become gain I + offset, the gain drifting "
                          f"slowly within 1 +- A and the offset within +- {EXPOSURE_OFFSET_GREY:g} A grey levels, "
@@ -303,7 +315,7 @@ def _coerce(action, value, source: str, key: str):
             raise bad("needs a value")
         return None
     kind = action.type
-    if kind in (_floats, _pair, _clock_starts) and isinstance(value, (list, tuple)):
+    if kind in (_floats, _pair, _clock_starts, _names) and isinstance(value, (list, tuple)):
         try:
             return kind(list(value))
         except argparse.ArgumentTypeError as exc:
@@ -445,6 +457,7 @@ def bag_options(o: dict):
                       jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
                       imu_clock_start_s=o["imu_clock_start_s"], camera_clock_start_s=o["camera_clock_start_s"],
+                      unstamped=tuple(o["unstamped"] or ()),
                       exposure_drift=o["exposure_drift"], exposure_period_s=o["exposure_period_s"],
                       camera_latency_ms=o["camera_latency_ms"], camera_burst_s=o["camera_burst_s"],
                       camera_burst_stagger_ms=o["camera_burst_stagger_ms"], gyro_unit=o["gyro_unit"],

@@ -199,7 +199,7 @@ def _replay_pass(args, bag, rig, cfg, inputs: FeederConfig, image_topics, imu_to
             for poses in runner.pipeline.extrinsics.smoothed():  # the final bias from the first sample on
                 extrinsics.write(poses)
         ref = read_reference(bag, imu_topic, warn)
-        ref = ref.as_read(replay.feeder.config)  # the IMU's samples in the cameras' clock and in rad/s, as the
+        ref = replay.feeder.as_read(ref)  # the IMU's samples in the cameras' clock and in rad/s, as the
         # pipeline read them (an IMU on another clock moved onto the cameras' as it arrived)
         batch = []
         if args.batch:
@@ -306,6 +306,9 @@ def run(args) -> int:
     if alike:
         print(f"IMU samples stamped alike: {alike} (a driver that reads them in batches; each batch spread evenly "
               f"over the interval since the stamp before it)")
+    frozen = [replay.feeder.name_of(i) for i in [*range(rig.num_cameras), IMU] if replay.feeder.stamped_by_arrival(i)]
+    if frozen:
+        print(f"stamps that do not advance (header.stamp unset?): {', '.join(frozen)}; stamped by the recording time")
     for rebase in replay.feeder.rebases:
         print(f"{'IMU' if rebase.stream == IMU else 'camera'} clock: "
               f"{rebase.describe(replay.feeder.name_of(rebase.stream))}")

@@ -123,4 +123,35 @@ class ClockDomains:
         return out
 
 
-__all__ = ["FAR_CLOCK_S", "ClockDomains", "ClockRebase"]
+FROZEN_SPAN_S = 0.1
+"""s: a stamp that stays the same over messages arriving this far apart is frozen (a driver that leaves
+``header.stamp`` unset, or sets it once): samples a host read at once share a stamp but arrive together."""
+
+
+class FrozenStamps:
+    """Inputs whose stamps do not advance while their messages keep arriving: ``confirm`` messages in a row with
+    one stamp, arriving over more than :data:`FROZEN_SPAN_S`. Their messages are then stamped by when they
+    arrive (the feeder's policy; docs/INPUTS.md, "Topics of a bag")."""
+
+    def __init__(self, confirm: int):
+        self.confirm = int(confirm)
+        self._runs: dict = {}  # stream -> (stamp, first arrival, messages)
+
+    def seen(self, stream, stamps, now: float | None) -> bool:
+        """``stamps``: one stamp or an array of those that arrived at ``now`` (s). Whether the input's stamps are
+        frozen (its run of one stamp is long enough)."""
+        if now is None:
+            return False
+        for t in np.asarray(stamps, dtype=float).reshape(-1).tolist():
+            stamp, first, n = self._runs.get(stream, (None, now, 0))
+            self._runs[stream] = (stamp, first, n + 1) if t == stamp else (t, now, 1)
+        stamp, first, n = self._runs[stream]
+        return n >= self.confirm and now - first > FROZEN_SPAN_S
+
+    def repeating(self, stream) -> bool:
+        """Whether the input's latest stamp repeats the one before (frozen, or samples read at once): its lags
+        tell no clock."""
+        return self._runs.get(stream, (None, 0.0, 0))[2] > 1
+
+
+__all__ = ["FAR_CLOCK_S", "FROZEN_SPAN_S", "ClockDomains", "ClockRebase", "FrozenStamps"]

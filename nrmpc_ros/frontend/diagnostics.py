@@ -91,7 +91,9 @@ class ServiceDiagnostics:
             values[f"{topic}: state"] = "input ended" if s.watch.ended is not None else s.watch.state[i]
             values[f"{topic}: camera_info"] = s.camera_info.get(i, "none received")
             moved = s.feeder.camera_clock_offset_s(i)
-            if moved:
+            if s.feeder.stamped_by_arrival(i):
+                values[f"{topic}: clock"] = "stamped by arrival (its stamps do not advance: header.stamp unset?)"
+            elif moved:
                 values[f"{topic}: clock"] = f"{moved:+.3f} s added to its stamps (another clock; arrival times)"
         total, dropped = self._drops_of(set(s.camera_topics))
         values.update(dropped)
@@ -148,6 +150,8 @@ class ServiceDiagnostics:
             values["gaps"] = gaps
         shift = s.feeder.config.imu_clock_offset_s
         applied = s.counts["IMU clock offsets applied"]
+        if s.feeder.stamped_by_arrival(IMU):
+            values["stamps"] = "stamped by arrival (its stamps do not advance: header.stamp unset?)"
         rebased = sum(r.stream == IMU for r in s.feeder.rebases)
         if shift or applied or rebased:
             how = [f"{applied} measured off the cameras' and applied"] if applied else []

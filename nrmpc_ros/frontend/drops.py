@@ -59,6 +59,7 @@ class Drop(Enum):
     IMU_NOT_FINITE = "IMU sample with NaN or inf", Stage.INPUT
     IMU_ZERO_ACCEL = "IMU sample with zero acceleration", Stage.INPUT
     IMU_OUT_OF_ORDER = "IMU sample out of order", Stage.INPUT
+    IMU_FROZEN_STAMP = "IMU sample at a frozen stamp", Stage.INPUT  # before its stamps were found frozen
     INPUT_FAILED = "input failed", Stage.INPUT  # a bug while handling a message (the node goes on)
     # the stamp policy (stamps.py)
     STAMP_NOT_FINITE = "stamp not finite", Stage.INPUT

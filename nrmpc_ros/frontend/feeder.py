@@ -64,7 +64,7 @@ import numpy as np
 from ..config import check, option
 from ..core.rig import Rig
 from ..errors import InputError
-from .clock_domain import ClockDomains, ClockRebase
+from .clock_domain import FROZEN_SPAN_S, ClockDomains, ClockRebase, FrozenStamps
 from .delivery import BURST_MARGIN, DeliveryGaps
 from .droplog import DropLog
 from .drops import Drop
@@ -162,6 +162,8 @@ class Feeder:
         self._camera_offsets = [0.0] * rig.num_cameras  # s added to each camera's stamps (moved off its own clock)
         self._early: list | None = []  # the cameras' first frames, held while a camera's arrival lags are apart
         # from the other inputs' and its clock is not known yet (None from then on)
+        self._frozen = FrozenStamps(self.config.jump_confirm)
+        self._by_arrival: set = set()  # inputs stamped by their arrival (their own stamps froze)
         self._domains = ClockDomains(list(range(rig.num_cameras)) + ([IMU] if imu_topic is not None else []),
                                      self.config.jump_confirm)
         self._new_epoch()
@@ -232,7 +234,10 @@ class Feeder:
             img = resize_to(img, (w, h))
         st = msg.header.stamp
         sec, nsec = int(st.sec), int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
-        self._clock_seen(index, ros_seconds(sec, nsec) + self._camera_offsets[index], now)
+        if self._by_arrival_now(index, ros_seconds(sec, nsec), now):
+            self._clock_seen(index, now, now)
+        elif not self._frozen.repeating(index):
+            self._clock_seen(index, ros_seconds(sec, nsec) + self._camera_offsets[index], now)
         early = self._early
         if now is not None and early is not None:
             suspect = [i for i in range(self.rig.num_cameras)
@@ -248,7 +253,9 @@ class Feeder:
 
     def _frame(self, index: int, sec: int, nsec: int, img, now: float | None) -> None:
         stamp = ros_seconds(sec, nsec)
-        if self._camera_offsets[index]:
+        if index in self._by_arrival and now is not None:
+            stamp = now  # stamped when it arrived: its own stamps are frozen
+        elif self._camera_offsets[index]:
             stamp += self._camera_offsets[index]  # published with the stamp it was moved to
         else:
             self._stamps[stamp] = (sec, nsec)
@@ -273,7 +280,12 @@ class Feeder:
             if covariance is not None:
                 covariance = tuple(None if c is None else np.asarray(c, dtype=float) * f * f
                                    for c, f in zip(covariance, (m, k)))
-        self._clock_seen(IMU, stamp + self.config.imu_clock_offset_s, now)
+        if self._by_arrival_now(IMU, stamp, now):
+            self._clock_seen(IMU, now, now)
+            self._sample(now, accel, gyro, now, covariance)
+            return
+        if not self._frozen.repeating(IMU):
+            self._clock_seen(IMU, stamp + self.config.imu_clock_offset_s, now)
         self._sample(stamp + self.config.imu_clock_offset_s, accel, gyro, now, covariance)
 
     def imu_block(self, block: ImuBlock, now: float | None = None) -> None:
@@ -282,10 +294,12 @@ class Feeder:
         a block of good samples with increasing stamps that the stamp policy accepts as they are."""
         n = len(block)
         self.events["imu samples"] += n
-        if self.config.imu_clock_offset_s:
+        if n and self._by_arrival_now(IMU, block.stamps, now):
+            block = replace(block, stamps=np.full(n, float(now)))  # one arrival: spread as samples read at once
+        elif self.config.imu_clock_offset_s:
             block = replace(block, stamps=block.stamps + self.config.imu_clock_offset_s)
         before = self.config.imu_clock_offset_s
-        if n and IMU in self._clock_seen(IMU, block.stamps, now):
+        if n and not self._frozen.repeating(IMU) and IMU in self._clock_seen(IMU, block.stamps, now):
             block = replace(block, stamps=block.stamps + (self.config.imu_clock_offset_s - before))
         k, m = self.config.imu_gyro_scale, self.config.imu_accel_scale
         if k != 1.0 or m != 1.0:
@@ -341,6 +355,15 @@ class Feeder:
         return (int(sec) + ns // 1_000_000_000, ns % 1_000_000_000)
 
     # ------------------------------------------------------------------ stamps
+    def as_read(self, ref):
+        """A bag's :class:`~nrmpc_ros.frontend.reference.Reference` with the IMU's samples as this feeder read them:
+        the offsets and unit scales it ended with, stamped by their recording times if its stamps froze."""
+        return ref.as_read(self.config, self.stamped_by_arrival(IMU))
+
+    def stamped_by_arrival(self, stream) -> bool:
+        """Whether input ``stream``'s messages are stamped by when they arrive (its own stamps froze)."""
+        return stream in self._by_arrival
+
     def camera_clock_offset_s(self, index: int) -> float:
         """Seconds added to camera ``index``'s stamps (0 unless it was found on another clock)."""
         return self._camera_offsets[index]
@@ -373,6 +396,33 @@ class Feeder:
         self.config = replace(self.config, imu_clock_offset_s=self.config.imu_clock_offset_s + offset_s)
         self._start_afresh(why)
         self.guard = self._new_guard()
+
+    def _by_arrival_now(self, stream, stamps, now: float | None) -> bool:
+        """Whether the input's messages are stamped by when they arrive (``now``): its stamps froze
+        (:class:`~nrmpc_ros.frontend.clock_domain.FrozenStamps`), found now or before; said once, its clock
+        forgotten, the IMU samples of the frozen stamp waiting dropped."""
+        if now is None:
+            return False
+        if stream in self._by_arrival:
+            return True
+        if not self._frozen.seen(stream, stamps, now):
+            return False
+        self._by_arrival.add(stream)
+        self.events["inputs stamped by arrival"] += 1
+        self._domains.reset([stream])
+        if stream == IMU:
+            frozen = float(np.asarray(stamps, dtype=float).reshape(-1)[-1]) + self.config.imu_clock_offset_s
+            kept = deque(x for x in self._imu if x[0] > frozen)  # the samples read at it, spread before it
+            for _ in range(len(self._imu) - len(kept)):
+                self._drop(self.name_of(IMU), Drop.IMU_FROZEN_STAMP,
+                           f"{self.name_of(IMU)}: IMU sample at or before the frozen stamp {frozen:.6f} s")
+            self._imu = kept
+            self._imu_newest, self._imu_floor = max((x[0] for x in kept), default=-math.inf), -math.inf
+        self.log("warn", f"{self.name_of(stream)}: stamps do not advance ({self.config.jump_confirm} messages or more "
+                         f"in a row with one stamp, arriving over more than {FROZEN_SPAN_S:g} s: a driver that leaves "
+                         f"header.stamp unset?); stamped by when they arrive from now on (the node's clock; the "
+                         f"recording time in nrmpc replay), late by their delivery")
+        return True
 
     def _clock_seen(self, stream, stamps, now: float | None) -> set:
         """Hand the arrival lags of ``stamps`` (as read, offsets added) to the clock check

@@ -33,6 +33,7 @@ class Reference:
     grav_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     grav_g: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # gravity in the body frame
     imu_covariance: tuple | None = None  # the first IMU message's (linear_acceleration, angular_velocity) covariances
+    imu_arrival: np.ndarray = field(default_factory=lambda: np.zeros(0))  # each sample's recording time (s)
 
     @property
     def has_imu(self) -> bool:
@@ -46,11 +47,13 @@ class Reference:
     def has_gravity(self) -> bool:
         return len(self.grav_t) > 0
 
-    def as_read(self, inputs) -> Reference:
+    def as_read(self, inputs, by_arrival: bool = False) -> Reference:
         """The IMU's samples as a pipeline read them with the input settings ``inputs`` (a
-        :class:`~nrmpc_ros.frontend.feeder.FeederConfig`): in the cameras' clock (``imu_clock_offset_s`` added)
-        and in rad/s and m/s^2 (``imu_gyro_scale``, ``imu_accel_scale``)."""
-        return replace(self, imu_t=self.imu_t + inputs.imu_clock_offset_s, imu_w=self.imu_w * inputs.imu_gyro_scale,
+        :class:`~nrmpc_ros.frontend.feeder.FeederConfig`): in the cameras' clock (``imu_clock_offset_s`` added;
+        with ``by_arrival``, stamped by their recording times: their own stamps froze) and in rad/s and m/s^2
+        (``imu_gyro_scale``, ``imu_accel_scale``)."""
+        t = self.imu_arrival if by_arrival else self.imu_t + inputs.imu_clock_offset_s
+        return replace(self, imu_t=t, imu_w=self.imu_w * inputs.imu_gyro_scale,
                        imu_a=self.imu_a * inputs.imu_accel_scale)
 
 
@@ -77,10 +80,10 @@ def read_reference(bag, imu_topic: str | None = "/imu/data", warn=_warn) -> Refe
             warn(f"{bag.source}: ground truth {topic} carries {bag.topics[topic][0]}, not {expected}: ignored")
             topics.remove(topic)
     imu, pose, grav, imu_cov = [], [], [], None
-    for topic, _, msg in bag.messages(topics):
+    for topic, t_ns, msg in bag.messages(topics):
         st = stamp_seconds(msg)
         if topic == imu_topic:
-            imu.append([st, *_vec(msg.linear_acceleration), *_vec(msg.angular_velocity)])
+            imu.append([st, *_vec(msg.linear_acceleration), *_vec(msg.angular_velocity), t_ns * 1e-9])
             if imu_cov is None:
                 imu_cov = tuple(None if c is None else np.array(c, dtype=float) for c in (
                     getattr(msg, "linear_acceleration_covariance", None),
@@ -95,7 +98,7 @@ def read_reference(bag, imu_topic: str | None = "/imu/data", warn=_warn) -> Refe
         a = np.array(imu, dtype=float)
         a = a[np.argsort(a[:, 0], kind="stable")]
         ok = np.all(np.isfinite(a), axis=1)
-        ref.imu_t, ref.imu_a, ref.imu_w = a[ok, 0], a[ok, 1:4], a[ok, 4:7]
+        ref.imu_t, ref.imu_a, ref.imu_w, ref.imu_arrival = a[ok, 0], a[ok, 1:4], a[ok, 4:7], a[ok, 7]
     if pose:
         a = np.array(pose, dtype=float)
         a = a[np.argsort(a[:, 0], kind="stable")]

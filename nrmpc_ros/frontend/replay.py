@@ -178,7 +178,7 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
         runner = PipelineRunner.around(pipe, drops=DropLog(math.inf))
         replay = BagReplay(bag, rig, runner, topic, inputs, warn)
         ests = [e for es in replay.run(progress) for e in es]
-        return runner, ests, ref.as_read(replay.feeder.config), replay.feeder.config.imu_clock_offset_s
+        return runner, ests, replay.feeder.as_read(ref), replay.feeder.config.imu_clock_offset_s
 
     def units_said(units, result):
         warn(f"IMU units: {describe_units(units)}; replaying in rad/s and m/s^2")

@@ -19,7 +19,8 @@ rig's ``imu`` mount) plus white noise and a constant bias, and the body
 angular velocity; its stamps may be off the cameras' clock by a constant
 ``imu_time_offset_ms``, or come from its own clock (``imu_clock_start_s``:
 what that clock reads at the first frame); a camera may stamp with its own
-clock too (``camera_clock_start_s``). A camera driver may deliver its images late: each
+clock too (``camera_clock_start_s``), and a driver may leave its messages'
+stamps at 0 (``unstamped``). A camera driver may deliver its images late: each
 image's bag time (when the recorder received it) may trail its stamp by
 ``camera_latency_ms`` and, with ``camera_burst_s``, come in bursts (a driver
 or link that buffers, every image of a burst received together at the
@@ -119,6 +120,7 @@ class BagOptions:
     imu_clock_start_s: float | None = None  # the IMU stamps with its own clock, reading this at the first frame
     # (a device counter since power-on, another epoch); None: the cameras' clock
     camera_clock_start_s: tuple | None = None  # per camera: its own clock's reading at the first frame, or None
+    unstamped: tuple = ()  # inputs whose driver leaves header.stamp at 0: camera names, or "imu"
     # (the common clock); None: every camera on the common clock
     imu_stamp_jitter_ms: float = 0.0  # a driver that stamps each IMU sample when the host receives it: the
     # stamp trails the sample by U(0, this) ms, kept in arrival order (a serial or USB link; where this exceeds
@@ -378,6 +380,16 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     if len(clocks) != M:
         raise OptionError(_OWNER, "camera_clock_start_s", f"needs one entry per camera ({M}), got {len(clocks)}")
     camera_clock_ns = [0 if c is None else int(round(c * 1e9)) - traj.start_ns for c in clocks]
+    names = [c.name for c in rig.cameras]
+    unstamped = [False] * M
+    for name in opts.unstamped:
+        if name in names:
+            unstamped[names.index(name)] = True
+        elif name.isdigit() and int(name) < M:
+            unstamped[int(name)] = True
+        elif name != "imu":
+            raise OptionError(_OWNER, "unstamped", f"{name!r} is neither a camera of the rig ({', '.join(names)}, "
+                              f"or its index) nor imu")
     stagger_ns = int(round(opts.camera_burst_stagger_ms * 1e6))
 
     def received(stamp_ns: int, camera: int) -> int:
@@ -421,7 +433,8 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
 
             def push_imu(k):
                 """IMU sample k, received when stamped; its stamp carries the IMU clock's offset."""
-                msg = bag.imu_msg(int(imu_stamp[k]) + imu_offset_ns, IMU_FRAME, accel[k], gyro[k], *claimed)
+                stamp = 0 if "imu" in opts.unstamped else int(imu_stamp[k]) + imu_offset_ns
+                msg = bag.imu_msg(stamp, IMU_FRAME, accel[k], gyro[k], *claimed)
                 push(int(imu_stamp[k]), imu_topic, msg)
 
             def flush(until_ns):
@@ -454,7 +467,7 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                         img = gain * img + offset
                     u8 = np.clip(np.rint(img + noise), 0, 255).astype(np.uint8)
                     ts = t + int(jitter_ns[n, i])
-                    own = ts + camera_clock_ns[i]  # the stamp of the camera's own clock
+                    own = 0 if unstamped[i] else ts + camera_clock_ns[i]  # the stamp of the camera's own clock
                     push(received(ts, i), topics[i][0], bag.image_msg(u8, own, cam.name, opts.encoding, **quality))
                     push(received(ts, i), topics[i][1], bag.camera_info_msg(cam, own))
                     push(ts, EXTRINSICS_TOPIC.format(cam.name),
