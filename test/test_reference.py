@@ -25,5 +25,6 @@ def test_the_imu_as_read_is_shifted_scaled_or_stamped_by_its_recording_times():
                     imu_arrival=np.array([10.0, 10.005, 10.01]))
     inputs = SimpleNamespace(imu_clock_offset_s=2.0, imu_gyro_scale=0.5, imu_accel_scale=3.0)
     shifted = ref.as_read(inputs)
-    assert np.array_equal(shifted.imu_t, [2.0, 2.0, 2.0]) and np.all(shifted.imu_w == 0.5) and np.all(shifted.imu_a == 3)
+    assert np.array_equal(shifted.imu_t, [2.0, 2.0, 2.0])
+    assert np.all(shifted.imu_w == 0.5) and np.all(shifted.imu_a == 3)
     assert np.array_equal(ref.as_read(inputs, by_arrival=True).imu_t, ref.imu_arrival), "frozen stamps: arrival"
