@@ -242,16 +242,15 @@ def register(sub):
                     help="the IMU's stamps are its true sample times + MS (a constant clock offset to the cameras; "
                          "the bag receives each sample at its true time, as a recorder on the cameras' clock "
                          "would; default 0)")
-    se.add_argument("--imu-clock-start-s", type=float, metavar="S",
-                    help="the IMU stamps with its own clock, reading S s at the first frame (1000: a counter since "
-                         "power-on); received on the cameras' clock (default: stamped by it)")
-    se.add_argument("--camera-clock-start-s", type=_clock_starts, metavar="S0,S1,...",
-                    help="cameras stamping with their own clocks: per camera what its clock reads at the first "
-                         "frame, empty for one on the common clock (,2500,: the second camera's counter); received "
-                         "on the common clock (default: every camera on it)")
-    se.add_argument("--unstamped", type=_names, metavar="NAME,...",
-                    help="inputs whose driver leaves header.stamp at 0: camera names (or indices) and/or imu (default: "
-                         "none)")
+    for flag, kind, metavar, text in (  # drivers' stamps: other clocks, none
+            ("--imu-clock-start-s", float, "S", "the IMU stamps with its own clock, reading S s at the first frame "
+             "(1000: a counter since power-on); received on the cameras' clock (default: stamped by it)"),
+            ("--camera-clock-start-s", _clock_starts, "S0,S1,...", "cameras stamping with their own clocks: per "
+             "camera what its clock reads at the first frame, empty for one on the common clock (,2500,: the second "
+             "camera's counter); received on the common clock (default: every camera on it)"),
+            ("--unstamped", _names, "NAME,...", "inputs whose driver leaves header.stamp at 0: camera names (or "
+             "indices) and/or imu (default: none)")):
+        se.add_argument(flag, type=kind, metavar=metavar, help=text)
     se.add_argument("--exposure-drift", type=float, metavar="A",
                     help="auto-exposure drift: each camera's grey levels become gain I + offset, the gain drifting "
                          f"slowly within 1 +- A and the offset within +- {EXPOSURE_OFFSET_GREY:g} A grey levels, "
