@@ -401,9 +401,10 @@ class Pipeline:
         settling = self._settling(stamp)
         imu_moved = settling and lost and self.rig.imu is not None and len(self.imu) and \
             self.zupt.is_still(self.last_stamp, stamp) is False
-        if lost and settling and gap <= lone_gap and not imu_moved:
+        if lost and settling and gap <= lone_gap and not imu_moved and self._settled_s <= 0.0:
             self._reanchor(stamp, images, taken)  # the bars ring too far for the tracks: anchor again, keep the stop
-            self._note_period(gap)
+            self._note_period(gap)  # (once the hold has settled, the tracks lost end it: a move or a knock begins
+            # that the IMU's window has not shown yet, and anchoring again would throw its settled frames away)
         elif gap > lone_gap or lost:
             # a new stream, a snapshot, or a jump the tracks could not follow: what was open ends with the
             # previous frame, and this one may start a hold (the rig may be at rest here, its bars ringing)
