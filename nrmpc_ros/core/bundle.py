@@ -337,6 +337,8 @@ def robust_sigma(e: np.ndarray, num_points: int, num_params: int = 0, floor: flo
     3 P + num_params of the 2 N residual components: the result is scaled by sqrt(n_res / (n_res - n_params)).
     """
     n_res = e.size
+    if n_res == 0:
+        return math.nan  # no residual: nothing measures the noise
     dof = max(n_res - 3 * num_points - num_params, 1)
     s0 = max(MAD_TO_STD * float(np.median(np.abs(e))), floor)
     r2 = np.einsum("ni,ni->n", e, e) / (s0 * s0)

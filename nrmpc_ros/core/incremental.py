@@ -435,6 +435,11 @@ class IncrementalSequence:
         return self.seq.num_views
 
     @property
+    def has_measured_gravity(self) -> bool:
+        """Whether a view of the current sequence has a measured (IMU) gravity: its estimates rest on it."""
+        return self.seq.num_views > 0 and bool(np.isfinite(self.seq.measured()).all(axis=1).any())
+
+    @property
     def number(self) -> int:
         """The current sequence's number (a reset or a break starts the next)."""
         return self.seq.number

@@ -106,6 +106,8 @@ class Drop(Enum):
     HOLD_FORCED_WITHOUT_IMU = "hold without IMU gravity (4pt-bending forced)", Stage.PIPELINE
     HOLD_IMU_REFUTED = ("hold not published: the images refuted its IMU gravity, and its sequence rests on the "
                         "same IMU's"), Stage.PIPELINE
+    HOLD_IMU_DOUBTED = ("hold not published: the images refuted an earlier IMU gravity of its sequence, which rests "
+                        "on the same IMU's"), Stage.PIPELINE
     NO_IMU_GRAVITY_NO_BLOCK = f"hold without IMU gravity: {ImuRefusal.NO_IMU_BLOCK.value}", Stage.PIPELINE
     NO_IMU_GRAVITY_NO_SAMPLES = f"hold without IMU gravity: {ImuRefusal.NO_SAMPLES.value}", Stage.PIPELINE
     NO_IMU_GRAVITY_FEW_SAMPLES = f"hold without IMU gravity: {ImuRefusal.FEW_SAMPLES.value}", Stage.PIPELINE

@@ -225,12 +225,16 @@ class HoldEstimator:
                 self.on_turn((item.turn[0], hold.stamp, angle))
         if g is None and out.gravity is not None:  # the images' gravity of the hold
             self.imu_check.remember(obs.cam, obs.landmark, obs.f, out.gravity, out.gravity_sigma_rad, offset)
-        if verdict is Agreement.REFUTED:
+        withheld = Drop.HOLD_IMU_REFUTED if verdict is Agreement.REFUTED else Drop.HOLD_IMU_DOUBTED if (
+            verdict is Agreement.DOUBTED and self.sequence.has_measured_gravity) else None
+        if withheld is not None:
             # the sequence still holds the earlier holds' IMU gravities, one of which may be the wrong one of the
-            # pair, and its window solve placed this hold with them: nothing to promise (the next test decides)
-            st.dropped[Drop.HOLD_IMU_REFUTED] += 1
+            # refuted pair, and its window solve placed this hold with them: nothing to promise (the next test
+            # decides). An IMU mounted otherwise than the rig file says put a hold 111 deg off at a std of 1 deg
+            # so, a hold after a refutation that no test could reach.
+            st.dropped[withheld] += 1
             if attempt is not None:
-                attempt.why = Drop.HOLD_IMU_REFUTED.message
+                attempt.why = withheld.message
             return done
         est = self._hold_estimate(out, hold, imu, obs.links, time.perf_counter() - t0, scale)
         if attempt is not None:
@@ -246,8 +250,11 @@ class HoldEstimator:
                                        offset_rad)
         if verdict is Agreement.REFUTED:
             self.stats.dropped[Drop.no_imu_gravity(ImuRefusal.REFUTED)] += 1
-            if usable and not self.imu_check.usable and self.sequence.num_views:
-                self.sequence.reset()  # the sequence's earlier gravities are the same IMU's: in doubt
+            if self.sequence.has_measured_gravity or (usable and not self.imu_check.usable and self.sequence.num_views):
+                # the sequence's earlier gravities are the same IMU's: in doubt. A pair test is relative: an IMU
+                # mounted otherwise than the rig file says passes some pairs (both gravities turned alike), and
+                # a sequence kept on them published a hold 111 deg off at a std of 1 deg; it starts afresh here
+                self.sequence.reset()
                 self._hold_stamps, self._broken_stamps, self._origin = [], {}, None
             return None, verdict
         if verdict in _LEFT_OUT:
