@@ -576,3 +576,20 @@ def test_samples_a_host_read_at_once_share_a_stamp_and_are_not_frozen(rig):
             f.imu_msg(imu(read), now=read + 0.001)
     f.end()
     assert not f.stamped_by_arrival(IMU) and f.events["imu samples stamped alike"] == 40 * 3
+
+
+def test_a_camera_whose_stamps_froze_through_a_stall_uses_its_own_again_when_they_advance(rig):
+    """A driver that repeats its last stamp while the camera stalls (0.5 s), then goes on: stamped by arrival
+    through the stall, by its own stamps again once they advance, each change said."""
+    f, work, logs = feeder(rig)
+    t0 = 1_700_000_000.0
+    for k in range(30):
+        t = t0 + 0.1 * k
+        for i in range(4):
+            stamp = t0 + 0.9 if i == 3 and 10 <= k < 15 else t
+            f.image(i, image(stamp), now=t + 0.001)
+    f.end()
+    said = [line for _, line in logs if "stamps do not advance" in line or "advance again" in line]
+    assert len(said) == 2 and not f.stamped_by_arrival(3)
+    sets = [w.data[0] for w in work if w.kind is WorkKind.FRAMES]
+    assert sum(fs.images[3] is not None for fs in sets) >= 27

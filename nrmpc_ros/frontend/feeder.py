@@ -400,12 +400,19 @@ class Feeder:
     def _by_arrival_now(self, stream, stamps, now: float | None) -> bool:
         """Whether the input's messages are stamped by when they arrive (``now``): its stamps froze
         (:class:`~nrmpc_ros.frontend.clock_domain.FrozenStamps`), found now or before; said once, its clock
-        forgotten, the IMU samples of the frozen stamp waiting dropped."""
+        forgotten, the IMU samples of the frozen stamp waiting dropped. Where its stamps advance again (a driver
+        that repeated its last stamp through a stall), its own stamps are used again, said too."""
         if now is None:
             return False
+        frozen = self._frozen.seen(stream, stamps, now)
         if stream in self._by_arrival:
-            return True
-        if not self._frozen.seen(stream, stamps, now):
+            if frozen or self._frozen.repeating(stream):
+                return True
+            self._by_arrival.discard(stream)
+            self._domains.reset([stream])
+            self.log("warn", f"{self.name_of(stream)}: stamps advance again: its own from now on")
+            return False
+        if not frozen:
             return False
         self._by_arrival.add(stream)
         self.events["inputs stamped by arrival"] += 1
