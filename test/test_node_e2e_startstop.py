@@ -166,12 +166,13 @@ def test_auto_transport_finds_the_cameras_in_either_start_order(bag, replayed, t
         assert "subscribing to /cam0/image_raw/compressed instead (published)" in log
 
 
-@pytest.mark.parametrize("topic, first", [(IMU, "imu"), (IMU, "cameras"), (CAMERAS[1], "cameras")],
-                         ids=["IMU clock, IMU first", "IMU clock, cameras first", "camera clock, cameras first"])
+@pytest.mark.parametrize("topic, first", [(IMU, "imu"), (CAMERAS[1], "cameras")],
+                         ids=["IMU clock, IMU first", "camera clock, cameras first"])
 def test_an_input_on_its_own_clock_is_moved_onto_the_others_whichever_driver_starts_first(bag, replayed,  # noqa: F811
                                                                                           tmp_path, topic, first):
     """The IMU (or one camera) stamps with a counter since its power-on (1000 s when the recording starts), the
-    others with the host's clock; one driver starts 1.5 s (of stamps) before the other. The node moves it onto
+    others with the host's clock; one driver starts 1.5 s (of stamps) before the other (the other orders are
+    the feeder's tests'). The node moves it onto
     the others' clock by when its messages arrive, says so in its diagnostics, and publishes the replay's
     estimates of the bag stamped right (the holds the late driver saw whole), each within its std: played at
     2x, the arrival clock runs at half the stamps' rate, so the samples sit up to half a frame period off
