@@ -49,13 +49,11 @@ FAR_CLOCK_S = MAX_OFFSET_S
 @dataclass(frozen=True)
 class ClockRebase:
     """Input ``stream`` (a camera index, or the IMU's stream id) moved onto the others' clock: ``offset_s`` added
-    to its stamps; ``lag_s`` and ``reference_lag_s`` the lags (arrival - stamp, s) it came from; ``onto_arrival``:
-    onto the arrival clock another input stamps with (its samples now sit where they arrived)."""
+    to its stamps; ``onto_arrival``: onto the arrival clock another input stamps with (its samples now sit where
+    they arrived), else onto the first camera's."""
 
     stream: object
     offset_s: float
-    lag_s: float
-    reference_lag_s: float
     onto_arrival: bool
 
     def describe(self, name: str) -> str:
@@ -117,7 +115,7 @@ class ClockDomains:
         else:
             first = next(s for s in self.streams if s in known)  # the first camera with a lag (or the IMU alone)
             reference, onto_arrival = known[first], False
-        out = [ClockRebase(s, lag - reference, lag, reference, onto_arrival) for s, lag in known.items()
+        out = [ClockRebase(s, lag - reference, onto_arrival) for s, lag in known.items()
                if abs(lag - reference) > FAR_CLOCK_S]
         self.reset([r.stream for r in out])
         return out

@@ -169,7 +169,6 @@ class Feeder:
         self._new_epoch()
 
     def _new_epoch(self) -> None:
-        c = self.config
         self.sync = self._new_sync()
         self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
         self._imu: deque = deque()  # (stamp, accel, gyro, covariances or None)
@@ -178,8 +177,11 @@ class Feeder:
         self._domains.reset()
         self._imu_floor, self._imu_batch = -math.inf, 0  # the stamp before the newest; samples stamped newest
         self._cam_newest = [-math.inf] * self.rig.num_cameras  # newest frame accepted per camera
-        window = 2 * c.imu_max_lag_s  # each camera's deliveries in the IMU's stamps (.last: the IMU's newest
-        # when it last sent), the IMU's in the cameras' newest stamps (.last: theirs when its latest sample came)
+        self._new_delivery_records()
+
+    def _new_delivery_records(self) -> None:
+        window = 2 * self.config.imu_max_lag_s  # each camera's deliveries in the IMU's stamps (.last: the IMU's
+        # newest when it last sent), the IMU's in the cameras' newest stamps (.last: theirs when its latest came)
         self._cam_gaps = [DeliveryGaps(window) for _ in range(self.rig.num_cameras)]
         self._imu_gaps = DeliveryGaps(window)
 
@@ -234,10 +236,7 @@ class Feeder:
             img = resize_to(img, (w, h))
         st = msg.header.stamp
         sec, nsec = int(st.sec), int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
-        if self._by_arrival_now(index, ros_seconds(sec, nsec), now):
-            self._clock_seen(index, now, now)
-        elif not self._frozen.repeating(index):
-            self._clock_seen(index, ros_seconds(sec, nsec) + self._camera_offsets[index], now)
+        self._read_stamps(index, ros_seconds(sec, nsec), now)
         early = self._early
         if now is not None and early is not None:
             suspect = [i for i in range(self.rig.num_cameras)
@@ -280,13 +279,7 @@ class Feeder:
             if covariance is not None:
                 covariance = tuple(None if c is None else np.asarray(c, dtype=float) * f * f
                                    for c, f in zip(covariance, (m, k)))
-        if self._by_arrival_now(IMU, stamp, now):
-            self._clock_seen(IMU, now, now)
-            self._sample(now, accel, gyro, now, covariance)
-            return
-        if not self._frozen.repeating(IMU):
-            self._clock_seen(IMU, stamp + self.config.imu_clock_offset_s, now)
-        self._sample(stamp + self.config.imu_clock_offset_s, accel, gyro, now, covariance)
+        self._sample(float(self._read_stamps(IMU, stamp, now)), accel, gyro, now, covariance)
 
     def imu_block(self, block: ImuBlock, now: float | None = None) -> None:
         """IMU samples in arrival order (:class:`~nrmpc_ros.frontend.imu_block.ImuBlock`, the node's IMU callback
@@ -294,13 +287,8 @@ class Feeder:
         a block of good samples with increasing stamps that the stamp policy accepts as they are."""
         n = len(block)
         self.events["imu samples"] += n
-        if n and self._by_arrival_now(IMU, block.stamps, now):
-            block = replace(block, stamps=np.full(n, float(now)))  # one arrival: spread as samples read at once
-        elif self.config.imu_clock_offset_s:
-            block = replace(block, stamps=block.stamps + self.config.imu_clock_offset_s)
-        before = self.config.imu_clock_offset_s
-        if n and not self._frozen.repeating(IMU) and IMU in self._clock_seen(IMU, block.stamps, now):
-            block = replace(block, stamps=block.stamps + (self.config.imu_clock_offset_s - before))
+        if n:  # stamped by arrival: one arrival, spread as samples read at once
+            block = replace(block, stamps=self._read_stamps(IMU, block.stamps, now))
         k, m = self.config.imu_gyro_scale, self.config.imu_accel_scale
         if k != 1.0 or m != 1.0:
             block = replace(block, accel=block.accel * m, gyro=block.gyro * k, accel_cov=block.accel_cov * (m * m),
@@ -397,6 +385,21 @@ class Feeder:
         self._start_afresh(why)
         self.guard = self._new_guard()
 
+    def _offset_s(self, stream) -> float:
+        """Seconds added to the input's stamps: the IMU's clock offset, or a camera's move off its own clock."""
+        return self.config.imu_clock_offset_s if stream == IMU else self._camera_offsets[stream]
+
+    def _read_stamps(self, stream, stamps, now: float | None):
+        """The stamps of an input's message (one, or an array that arrived at ``now``) as everything after reads
+        them: by arrival where its own froze, else its own plus its clock's offset, after the clock check
+        (:mod:`~nrmpc_ros.frontend.clock_domain`), which may move its clock (or another input's) first."""
+        if self._by_arrival_now(stream, stamps, now):
+            self._clock_seen(stream, now, now)
+            return np.full_like(np.asarray(stamps, dtype=float), now)
+        if not self._frozen.repeating(stream):  # a repeated stamp tells no clock
+            self._clock_seen(stream, np.asarray(stamps, dtype=float) + self._offset_s(stream), now)
+        return np.asarray(stamps, dtype=float) + self._offset_s(stream)
+
     def _by_arrival_now(self, stream, stamps, now: float | None) -> bool:
         """Whether the input's messages are stamped by when they arrive (``now``): its stamps froze
         (:class:`~nrmpc_ros.frontend.clock_domain.FrozenStamps`), found now or before; said once, its clock
@@ -415,7 +418,6 @@ class Feeder:
         if not frozen:
             return False
         self._by_arrival.add(stream)
-        self.events["inputs stamped by arrival"] += 1
         self._domains.reset([stream])
         if stream == IMU:
             frozen = float(np.asarray(stamps, dtype=float).reshape(-1)[-1]) + self.config.imu_clock_offset_s
@@ -449,7 +451,6 @@ class Feeder:
         handed over already (the camera spoke first, or its clock changed on the way), what was taken goes out
         and the frame grouping, the IMU samples and the holds start afresh, as after a jump of the clock."""
         self.rebases.append(rebase)
-        self.events["camera clocks moved"] += 1
         why = rebase.describe(self.name_of(rebase.stream))
         self.log("warn", why)
         self._camera_offsets[rebase.stream] += rebase.offset_s
@@ -463,7 +464,6 @@ class Feeder:
         afresh (they hold the old clock's stamps), and the pipeline too where it was handed samples of the old
         clock; the frame grouping keeps its frames."""
         self.rebases.append(rebase)
-        self.events["imu clocks moved"] += 1
         why = rebase.describe(self.name_of(IMU))
         self.log("warn", why)
         d = rebase.offset_s
@@ -471,9 +471,7 @@ class Feeder:
         self._imu = deque((s + d, *data) for s, *data in self._imu)
         self._imu_newest += d
         self._imu_floor += d
-        window = 2 * self.config.imu_max_lag_s
-        self._cam_gaps = [DeliveryGaps(window) for _ in range(self.rig.num_cameras)]
-        self._imu_gaps = DeliveryGaps(window)
+        self._new_delivery_records()
         self.guard = self._new_guard()
         if self._imu_out:
             self._imu_out = 0
