@@ -33,7 +33,9 @@ RMS at 45 Hz, with its rocking on the gyro), which the Imu messages' covariances
 at 400 Hz stamped when the host reads it (up to 6 ms late, in batches of one stamp); ``imucounter`` an IMU stamped
 by its own counter (1000 s at the first frame; replayed as ``nrmpc replay`` does, moved onto the cameras' clock by
 the recording times); ``camcounter`` the second camera stamped by its own counter (2500 s at the first frame);
-``unstamped`` the second camera's and the IMU's drivers leave header.stamp at 0 (stamped by the recording time).
+``unstamped`` the second camera's and the IMU's drivers leave header.stamp at 0 (stamped by the recording time);
+``imuaxes`` a rig file whose IMU axes are turned 38 deg off the IMU's (the rotation vector (30, -20, 10) deg, as a
+rig file written by hand; replayed as ``nrmpc replay`` does: the axes measured from the turns between holds).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -80,13 +82,14 @@ from nrmpc_ros.core.bundle import GravityPriors, Observations, RotationPrior
 from nrmpc_ros.core.dynamics import bar_natural_frequencies, ringing_decay_time
 from nrmpc_ros.core.rig import Camera, Rig
 from nrmpc_ros.core.sequence_steps import CORRESPONDENCE_BIAS_FLOOR_PX
-from nrmpc_ros.core.so3 import angle_between
+from nrmpc_ros.core.so3 import angle_between, exp_so3
 from nrmpc_ros.experiments.crlb import observed_sequence_bound
 from nrmpc_ros.frontend.estimates_csv import batch_rows, row_from_estimate
 from nrmpc_ros.frontend.estimation import ringing_noise_rad
 from nrmpc_ros.frontend.evaluation import evaluate, static_holds
 from nrmpc_ros.frontend.feeder import FeederConfig
 from nrmpc_ros.frontend.imu_clock_check import clock_passes, measure_imu_clock
+from nrmpc_ros.frontend.imu_mount import AxesMeasuringPass
 from nrmpc_ros.frontend.imu_reference import ImuReference
 from nrmpc_ros.frontend.imu_units import UnitsMeasuringPass
 from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig
@@ -169,7 +172,7 @@ def replay_rows(path: Path, rig, method: str, with_holds: bool = False, keep: li
         imu_topic = resolve_imu_topic(bag, rig, warn=lambda m: None)
         ref = read_reference(bag, imu_topic)
 
-        def one_pass(inputs):  # as nrmpc replay: the gyro's unit and an IMU clock measured off the cameras' applied
+        def one_pass(inputs):  # as nrmpc replay: the gyro's unit, the IMU's axes and its clock measured and applied
             pipe = Pipeline(rig, config or PipelineConfig(), method=method)
             if keep is not None:
                 pipe.sequence.keep_history = True
@@ -178,8 +181,10 @@ def replay_rows(path: Path, rig, method: str, with_holds: bool = False, keep: li
             ests = [e for es in replay.run() for e in es]
             return pipe, ests, replay.feeder.as_read(ref), replay.feeder.config.imu_clock_offset_s
 
-        run_pass = UnitsMeasuringPass(one_pass, FeederConfig(), lambda result: result[0],
-                                      measure=imu_topic is not None)
+        run_pass = AxesMeasuringPass(UnitsMeasuringPass(one_pass, FeederConfig(), lambda result: result[0],
+                                                        measure=imu_topic is not None),
+                                     lambda result: result[0], rig.imu.rotation if rig.imu is not None else np.eye(3),
+                                     measure=imu_topic is not None)
 
         def measure(result):
             pipe, ests, shifted, _ = result
@@ -261,6 +266,7 @@ BAR_HZ = {"soft": 2.0, "stiff": 6.0}  # the project's bars span 1.5-8 Hz
 MASS, BAR_LENGTH = 0.1, 0.4
 SUPERSAMPLE = 1  # one ray per pixel: a quarter of the rendering time of 2 x 2 (as the test recordings)
 DAMPING = 0.05  # a lightly damped bar: ringing falls to 1e-3 after 22 s at 2 Hz, 7 s at 6 Hz
+IMU_AXES_TURN_DEG = (30.0, -20.0, 10.0)  # the imuaxes style's rig file: its IMU turned 38 deg off the IMU's axes
 LAYOUT = {2: "line", 3: "ring", 4: "cross", 5: "ring", 6: "ring"}
 CAMERA_RATES = (10.0, 15.0, 30.0, 20.0, 12.0, 25.0)
 # 6pt-bending's median: 0.3 deg on rigs of three to six cameras, 0.6 deg on two cameras on one bar
@@ -317,13 +323,18 @@ def matrix_styles() -> dict:
         "imucounter": lambda M: (base, {**bag, "imu_clock_start_s": 1000.0}),
         "camcounter": lambda M: (base, {**bag, "camera_clock_start_s": (None, 2500.0) + (None,) * (M - 2)}),
         "unstamped": lambda M: (base, {**bag, "unstamped": ("1", "imu")}),
+        "imuaxes": lambda M: (base, {**bag, "rig_imu_turn_deg": IMU_AXES_TURN_DEG}),
     }
 
 
 def style_rig(rig: Rig, bag: dict) -> tuple:
     """(rig, BagOptions kwargs, rig file suffix) of a style: without an IMU, or with the IMU inside camera
-    ``imu_camera`` (axes along the camera's: a camera module with an IMU, riding on that camera's bar)."""
+    ``imu_camera`` (axes along the camera's: a camera module with an IMU, riding on that camera's bar). A style's
+    ``rig_imu_turn_deg`` turns the rig file's IMU only (:func:`file_rig`): the bag is rendered with the true one."""
     bag = dict(bag)
+    if bag.pop("rig_imu_turn_deg", None) is not None:
+        rig, bag, suffix = style_rig(rig, bag)
+        return rig, bag, suffix + "-imu-turned"
     if not bag.get("imu", True):
         return replace(rig, imu=None), bag, ""
     if "imu_camera" in bag:
@@ -338,7 +349,17 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("noimu", "ring3-soft"), ("imubar", "ring5-soft"), ("imudlpf", "ring6-stiff"), ("imucov", "cross4-soft"),
          ("imuclock2s", "ring3-soft"), ("imuswing", "cross4-soft"), ("imuraw", "ring3-stiff"),
          ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff"), ("imuhost", "ring5-soft"),
-         ("imucounter", "ring6-soft"), ("camcounter", "ring3-stiff"), ("unstamped", "cross4-soft")]
+         ("imucounter", "ring6-soft"), ("camcounter", "ring3-stiff"), ("unstamped", "cross4-soft"),
+         ("imuaxes", "ring5-stiff")]
+
+
+def file_rig(rig: Rig, bag: dict) -> Rig:
+    """The rig the style's rig file carries: the rendered one, its IMU turned by ``rig_imu_turn_deg`` (a rotation
+    vector in deg, as ``nrmpc make-bag --rig-imu-turn-deg``) where the style gives one."""
+    turn = bag.get("rig_imu_turn_deg")
+    if turn is None:
+        return rig
+    return replace(rig, imu=replace(rig.imu, rotation=exp_so3(np.radians(turn)) @ rig.imu.rotation))
 
 
 def matrix_cells(full: bool) -> list:
@@ -351,11 +372,11 @@ def matrix_cells(full: bool) -> list:
 def render_cell(out: Path, style: str, rig_name: str, seed: int = 0) -> tuple:
     """(bag dir, rig file) of one cell, rendered if missing (written beside, then renamed: never half a bag)."""
     rig = matrix_rigs()[rig_name]
-    mo, bo = matrix_styles()[style](rig.num_cameras)
-    rig, bo, suffix = style_rig(rig, bo)
+    mo, style_bag = matrix_styles()[style](rig.num_cameras)
+    rig, bo, suffix = style_rig(rig, style_bag)
     rig_file = out / f"{rig_name}{suffix}.yaml"
     if not rig_file.exists():
-        save_rig(rig, rig_file, header="rig of scripts/bench_holds.py (matrix)")
+        save_rig(file_rig(rig, style_bag), rig_file, header="rig of scripts/bench_holds.py (matrix)")
     path = out / f"{style}-{rig_name}-{seed}"
     if not path.exists():
         tmp = out / (path.name + ".partial")

@@ -387,6 +387,50 @@ def test_unit_scales_multiply_every_sample_and_its_covariance(rig, blocks):
         assert np.allclose(ca, 0.5 * m * m * want_c, rtol=1e-12)
 
 
+@pytest.mark.parametrize("blocks", [False, True])
+def test_an_axes_turn_turns_every_sample_and_its_covariance(rig, blocks):
+    """input.imu_axes_turn_xyzw (the IMU's axes the rig file has wrong, measured or given): every rate and specific
+    force the pipeline gets is the sample turned by it (after the unit scales) and each covariance C S C^T; an
+    unknown covariance (-1 first) stays unknown; one sample at a time or in blocks alike."""
+    from nrmpc_ros.core.so3 import exp_so3, matrix_to_quat_xyzw
+
+    C = exp_so3(np.radians([30.0, -20.0, 100.0]))
+    stamps = 100.0 + np.arange(20) / 200.0
+    rates = np.outer(np.arange(1, 21), [0.1, -0.2, 0.3])
+    accels = np.tile([0.5, -1.0, 9.7], (20, 1))
+    cov = np.tile(np.diag([4.0, 1.0, 2.0]).reshape(-1), (20, 1))
+    cov[::2, 0] = -1.0
+    f, work, _ = feeder(rig, imu_axes_turn_xyzw=[float(x) for x in matrix_to_quat_xyzw(C)], imu_gyro_scale=2.0)
+    if blocks:
+        f.imu_block(ImuBlock(stamps, accels, rates, cov, cov))
+    else:
+        for t, a, w, c in zip(stamps, accels, rates, cov):
+            msg = imu(t, a)
+            msg.angular_velocity = SimpleNamespace(x=w[0], y=w[1], z=w[2])
+            msg.angular_velocity_covariance, msg.linear_acceleration_covariance = c, c
+            f.imu_msg(msg)
+    f.end()
+    got = [w.data for w in work if w.kind is WorkKind.IMU]
+    assert len(got) == 20
+    for k, ((a, w, (ca, cw)), want_a, want_w, c) in enumerate(zip(got, accels, rates, cov)):
+        assert np.allclose(a, C @ want_a, rtol=1e-12) and np.allclose(w, 2.0 * C @ want_w, rtol=1e-12)
+        if k % 2:
+            S = c.reshape(3, 3)
+            assert np.allclose(np.reshape(ca, (3, 3)), C @ S @ C.T) and np.allclose(np.reshape(cw, (3, 3)),
+                                                                                  4.0 * C @ S @ C.T)
+        else:
+            assert np.asarray(ca)[0] == -1.0 and np.asarray(cw)[0] == -1.0
+
+
+def test_an_axes_turn_that_is_no_quaternion_is_one_error_naming_it():
+    from nrmpc_ros.errors import InputError
+    from nrmpc_ros.frontend.feeder import FeederConfig
+
+    for bad in ([0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, float("nan"), 1.0], "0,0,0,1"):
+        with pytest.raises(InputError, match="imu_axes_turn_xyzw"):
+            FeederConfig(imu_axes_turn_xyzw=bad)
+
+
 def test_imu_samples_stamped_alike_in_batches_are_kept_and_spread_over_their_interval(rig):
     """A driver that stamps samples when the host reads them gets several in one read with one stamp: they are
     the samples taken since the read before, in order. Each batch is spread evenly over the interval since the

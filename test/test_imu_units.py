@@ -127,9 +127,9 @@ def test_a_gyro_noise_no_mems_gyro_has_is_said_as_deg_s(rate_hz, density_deg, in
 
 @pytest.mark.slow
 def test_replay_hints_at_a_gyro_in_deg_s_where_the_cameras_skip_the_moves(tmp_path, capsys):
-    """Cameras that record only the holds: no move on camera to measure the unit with, no hold estimated; the
-    summary says the gyro's noise is beyond any MEMS gyro's and what to set."""
-    said = [ln for ln in _replayed_holds(tmp_path, capsys, "--gyro-unit", "deg/s").splitlines()
+    """Cameras that record only three holds: no move on camera and two turns between holds, too few to measure the
+    unit with; the summary says the gyro's noise is beyond any MEMS gyro's and what to set."""
+    said = [ln for ln in _replayed_holds(tmp_path, capsys, "--gyro-unit", "deg/s", "--views", "3").splitlines()
             if ln.startswith("IMU gyro units:")]
     assert len(said) == 1 and "noise at rest" in said[0] and "--imu-gyro-scale 0.0174533" in said[0], said
 
@@ -165,9 +165,17 @@ def _turns(images_deg, read_deg, before_ok=True):
     """What a pipeline collected of the turns between holds: the images' angle and the gyro's as read (deg)."""
     from types import SimpleNamespace
 
-    images = [(k, k + 1, math.radians(a)) for k, a in enumerate(images_deg)]
-    gyro = {k + 1: (k if before_ok else k - 1, math.radians(r)) for k, r in enumerate(read_deg)}
-    return SimpleNamespace(images_turns=images, gyro_turns=gyro)
+    from nrmpc_ros.core.so3 import exp_so3
+    from nrmpc_ros.frontend.gyro import GyroRotation
+
+    images = [(k, k + 1, exp_so3(np.array([0.0, 0.0, math.radians(a)])), 0.0) for k, a in enumerate(images_deg)]
+    gyro = {k + 1: (k if before_ok else k - 1, GyroRotation(np.eye(3), 0.0, 2, math.radians(r)))
+            for k, r in enumerate(read_deg)}
+    from nrmpc_ros.frontend.pipeline import Pipeline
+
+    collected = SimpleNamespace(images_turns=images, gyro_turns=gyro)
+    collected.turns_between_holds = lambda: Pipeline.turns_between_holds(collected)
+    return collected
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -718,7 +718,8 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--camera-clock-start-s", "1,x"], "--camera-clock-start-s"),
     (["--camera-clock-start-s", ",-5"], "--camera-clock-start-s"),
     (["--camera-clock-start-s", "1,2,3"], "--camera-clock-start-s"), (["--unstamped", "cam9"], "--unstamped"),
-    (["--unstamped", "cam0,,imu"], "--unstamped"),
+    (["--unstamped", "cam0,,imu"], "--unstamped"), (["--rig-imu-turn-deg", "0,90"], "--rig-imu-turn-deg"),
+    (["--rig-imu-turn-deg", "0,0,90"], "--rig-imu-turn-deg"),  # no --save-rig to turn it in
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
     rig_flags = ["--no-progress"] if "--rig" in args else TINY
@@ -882,3 +883,27 @@ def test_an_imu_topic_with_gravity_taken_out_reads_about_zero_at_rest(tmp_path):
     assert np.allclose(np.linalg.norm(a - b, axis=1), 9.81)
     assert np.array_equal(vectors(raw, "/imu/data", "angular_velocity"),
                           vectors(linear, "/imu/data", "angular_velocity"))
+
+
+def test_a_rig_file_with_the_imu_axes_turned_keeps_the_bag_as_recorded(tmp_path):
+    """--rig-imu-turn-deg writes the rig file's IMU rotation turned (a hand-written rig file with the axes wrong);
+    the bag is the one recorded with the true axes."""
+    from nrmpc_ros.core import load_rig
+    from nrmpc_ros.core.so3 import exp_so3
+
+    args = [*TINY, "--views", "2", "--capture", "snapshot", "--seed", "4"]
+    assert main(["make-bag", *args, "--out", str(tmp_path / "a"), "--save-rig", str(tmp_path / "a.yaml")]) == 0
+    assert main(["make-bag", *args, "--out", str(tmp_path / "b"), "--save-rig", str(tmp_path / "b.yaml"),
+                 "--rig-imu-turn-deg", "180,0,0"]) == 0
+    right, turned = load_rig(tmp_path / "a.yaml"), load_rig(tmp_path / "b.yaml")
+    assert np.allclose(turned.imu.rotation, exp_so3(np.radians([180.0, 0.0, 0.0])) @ right.imu.rotation)
+    from nrmpc_ros.bag.reader import BagReader
+
+    def imu(path):
+        with BagReader(path) as bag:
+            return np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z,
+                              m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z]
+                             for _, _, m in bag.messages(["/imu/data"])])
+
+    recorded = imu(tmp_path / "a")
+    assert len(recorded) > 100 and np.array_equal(recorded, imu(tmp_path / "b"))

@@ -16,8 +16,11 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from ..bag.writer import ENCODINGS, STORAGES
 from ..core.rig import load_rig, save_rig
+from ..core.so3 import exp_so3
 from ..errors import InputError, OptionError
 from ..render.bagmaker import ACCEL_UNITS, EXPOSURE_OFFSET_GREY, GYRO_UNITS, BagOptions
 from ..render.sequence import CAPTURES, PROFILES, MotionOptions
@@ -54,7 +57,7 @@ DEFAULTS = {
     "creep_deg_per_s": _M.creep_deg_per_s, "bar_hz": None, "camera_latency_ms": _B.camera_latency_ms,
     "camera_burst_s": _B.camera_burst_s, "camera_burst_stagger_ms": _B.camera_burst_stagger_ms,
     "gyro_unit": _B.gyro_unit, "accel_unit": _B.accel_unit,
-    "imu_in_camera": None,
+    "imu_in_camera": None, "rig_imu_turn_deg": None,
 }
 _INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
 
@@ -79,6 +82,21 @@ def _floats(text) -> tuple:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers such as 10,15,30, got {text!r}") from None
     if not values or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, got {text!r}")
+    return values
+
+
+def _rotation_vector_deg(text) -> tuple:
+    """'0,0,90' (or a YAML list) -> (0.0, 0.0, 90.0): a rotation vector in degrees."""
+    items = text if isinstance(text, (list, tuple)) else str(text).split(",")
+    try:
+        if len(items) != 3 or any(isinstance(x, bool) for x in items):
+            raise ValueError
+        values = tuple(float(x) for x in items)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a rotation vector RX,RY,RZ in degrees such as 0,0,90, got "
+                                         f"{text!r}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers, got {text!r}")
     return values
 
 
@@ -263,6 +281,12 @@ def register(sub):
                     help="the IMU sits inside this camera (its name or index), axes along the camera's, as in a "
                          "camera module with an IMU: it rides on that camera's bar and reads its ringing too "
                          "(--save-rig writes the mount) (default: at the body centre)")
+    se.add_argument("--rig-imu-turn-deg", type=_rotation_vector_deg, metavar="RX,RY,RZ",
+                    help="--save-rig writes the IMU's rotation turned by this rotation vector (deg, in the frame "
+                         "the rig file gives the IMU's rotation in: the body's, or its camera's) from the one the bag "
+                         "was recorded with: a rig file whose IMU axes are wrong, as a hand-written one for a flight "
+                         "controller mounted sideways (0,0,90) or FRD axes taken for FLU (180,0,0) (default: the "
+                         "IMU's true rotation)")
     se.add_argument("--jitter-ms", type=float,
                     help="each camera's stamp is off the trigger by a uniform random amount within +-J ms (default 0)")
     se.add_argument("--drop-rate", type=float, help="probability that a camera loses a frame, in [0, 1) (default 0)")
@@ -472,6 +496,9 @@ def _check_outputs(o: dict, scenario) -> None:
         raise InputError("--out", f"{o['out']} already exists; remove it or choose another path")
     if o["save_rig"] and not Path(o["save_rig"]).resolve().parent.is_dir():
         raise InputError("--save-rig", f"no such directory {Path(o['save_rig']).resolve().parent}")
+    if o["rig_imu_turn_deg"] is not None and (not o["save_rig"] or o["no_imu"]):
+        raise InputError("--rig-imu-turn-deg", "turns the IMU of the rig file --save-rig writes: needs --save-rig "
+                                               "and an IMU (not --no-imu)")
 
 
 def run(args) -> int:
@@ -489,6 +516,9 @@ def run(args) -> int:
         if opts.damping is not None:  # the rig the bag was rendered with: every flexible bar rang with a damping
             rig = replace(rig, cameras=tuple(replace(c, damping=opts.damping) if c.damping is None and c.is_flexible
                                              else c for c in rig.cameras))
+        if o["rig_imu_turn_deg"] is not None:
+            turn = exp_so3(np.radians(o["rig_imu_turn_deg"]))
+            rig = replace(rig, imu=replace(rig.imu, rotation=turn @ rig.imu.rotation))
         save_rig(rig, o["save_rig"], header="rig written by nrmpc make-bag", flag="--save-rig")
     traj = summary["trajectory"]
     tilts = [math.degrees(math.acos(max(-1.0, min(1.0, float(R[2, 2]))))) for R in traj.R]

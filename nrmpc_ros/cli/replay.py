@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 import time
@@ -26,6 +27,7 @@ from ..frontend.imu import describe_gaps
 from ..frontend.imu_agreement import describe_check
 from ..frontend.imu_clock import SIGNIFICANT_STDS
 from ..frontend.imu_clock_check import clock_passes, describe_clock, measure_imu_clock
+from ..frontend.imu_mount import AxesMeasuringPass, describe_imu_axes
 from ..frontend.imu_units import UnitsMeasuringPass, describe_accel_scale, describe_gyro_noise, describe_units
 from ..frontend.pipeline import PIPELINE_METHODS, PipelineConfig
 from ..frontend.reference import read_reference
@@ -86,6 +88,10 @@ def register(sub):
     p.add_argument("--imu-accel-scale", type=number(float, lo=1e-6, hi=1e6), default=None, metavar="K",
                    help="multiply every IMU specific force by K as it is read: 9.80665 for a driver that writes g "
                    "(replay measures the unit from the still norm and replays with it when it reads g; default 1)")
+    p.add_argument("--imu-axes-turn", type=_quaternion, default=None, metavar="X,Y,Z,W",
+                   help="turn every IMU sample by this quaternion as it is read, before the rig file's imu rotation: "
+                   "an IMU whose axes the rig file has wrong (replay measures the turn from the turns between holds "
+                   "where the images refute the IMU's gravity, and replays with it; default: none)")
     p.add_argument("--seed", type=seed, default=0, help="RANSAC seed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", action="store_true", help="print only the statistics, not every estimate")
@@ -109,6 +115,17 @@ def load_config(path, seed: int) -> PipelineConfig:
     return from_mapping(PipelineConfig, d, str(path or "--seed"))
 
 
+def _quaternion(text) -> list:
+    """``X,Y,Z,W``: four finite numbers, not all zero (argparse's error names the flag)."""
+    try:
+        q = [float(x) for x in str(text).split(",")]
+    except ValueError:
+        q = []
+    if len(q) != 4 or not all(math.isfinite(x) for x in q) or math.hypot(*q) < 0.5:
+        raise argparse.ArgumentTypeError(f"must be a unit quaternion X,Y,Z,W, got {text!r}")
+    return q
+
+
 def input_config(args) -> FeederConfig:
     """The input settings: the node's defaults, the synchronizer's from the flags when given."""
     d = {}
@@ -121,9 +138,11 @@ def input_config(args) -> FeederConfig:
     for key in ("imu_gyro_scale", "imu_accel_scale"):
         if getattr(args, key, None) is not None:
             d[key] = getattr(args, key)
+    if getattr(args, "imu_axes_turn", None) is not None:
+        d["imu_axes_turn_xyzw"] = args.imu_axes_turn
     flags = {"sync_tolerance_s": "--sync-tolerance", "queue_size": "--queue-size",
              "imu_clock_offset_s": "--imu-clock-offset", "imu_gyro_scale": "--imu-gyro-scale",
-             "imu_accel_scale": "--imu-accel-scale"}
+             "imu_accel_scale": "--imu-accel-scale", "imu_axes_turn_xyzw": "--imu-axes-turn"}
     try:
         return from_mapping(FeederConfig, d, "flags")
     except InputError as exc:
@@ -243,15 +262,28 @@ def run(args) -> int:
         inputs = input_config(args)
 
         def units_said(units, before):
-            st, given = before.runner.stats, run_pass.inputs
+            st, given = before.runner.stats, units_pass.inputs
             print(f"IMU units: {describe_units(units)}; the pass gave {st.estimates} estimates of {st.holds} holds; "
                   f"replaying with --imu-gyro-scale {given.imu_gyro_scale:.7g} --imu-accel-scale "
                   f"{given.imu_accel_scale:.7g} (a scale of 1 keeps the samples as they are)")
 
-        run_pass = UnitsMeasuringPass(
+        units_pass = UnitsMeasuringPass(
             lambda given: _replay_pass(args, bag, rig, cfg, given, image_topics, imu_topic, warn), inputs,
             lambda p: p.runner.pipeline, units_said,
             measure=args.imu_gyro_scale is None and args.imu_accel_scale is None and imu_topic is not None)
+
+        def axes_said(axes, before):
+            said = f"IMU axes: {describe_imu_axes(axes, rig.imu.rotation)}"
+            if not axes.applies:
+                print(said)
+                return
+            st, q = before.runner.stats, run_pass.inner.inputs.imu_axes_turn_xyzw
+            print(f"{said}; the pass gave {st.estimates} estimates of {st.holds} holds; replaying with "
+                  f"--imu-axes-turn={','.join(f'{x:.6f}' for x in q)} (0,0,0,1 keeps the samples as they are)")
+
+        run_pass = AxesMeasuringPass(units_pass, lambda p: p.runner.pipeline,
+                                     rig.imu.rotation if rig.imu is not None else np.eye(3), axes_said,
+                                     measure=args.imu_axes_turn is None and imu_topic is not None)
 
         def said(measured, before, passes):
             total = before.replay.feeder.config.imu_clock_offset_s + measured.offset_s

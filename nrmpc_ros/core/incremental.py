@@ -70,7 +70,7 @@ from .sequence_steps import (
     resect_on_landmarks,
     triangulated,
 )
-from .so3 import angle_between, normalize, rotation_angle, tangent_basis
+from .so3 import angle_between, normalize, tangent_basis
 from .tracks import Tracks
 
 RECONSIDER_SIGMAS = 3.0  # a pair's gravity contradicts the joint one beyond this many of its own stds only
@@ -746,14 +746,15 @@ class IncrementalSequence:
         self._carry = carry
         self.seq.views.append(replace(last, inlier=None, R=np.eye(3), t=np.zeros(3)))
 
-    def images_turn_rad(self, key_before, key) -> float | None:
-        """The angle (rad) the current sequence's poses turn the body by between the views named ``key_before``
-        and ``key`` (what the images measured, against the gyro's turn); None unless both are posed there."""
+    def images_turn(self, key_before, key) -> np.ndarray | None:
+        """The rotation the current sequence's poses turn the body by between the views named ``key_before``
+        and ``key`` (p_before = R p_after, as the gyro's turn between them: what the images measured against it);
+        None unless both are posed there."""
         views = {v.key: v for v in self.seq.views if v.key is not None and v.R is not None}
         a, b = views.get(key_before), views.get(key)
         if a is None or b is None:
             return None
-        return float(rotation_angle(a.R.T @ b.R))
+        return a.R.T @ b.R
 
     # --------------------------------------------------------------- gravity
     def _priors(self, K: int) -> GravityPriors | None:

@@ -11,11 +11,13 @@ estimate published).
 
 from __future__ import annotations
 
+import math
 import statistics
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.so3 import rotation_angle
 from .accel_tilt import describe_tilt
 from .drops import Drop, sorted_counts
 from .feeder import IMU
@@ -163,6 +165,11 @@ class ServiceDiagnostics:
             values["units"] = (f"the gyro's rates multiplied by {scales[0]:.7g}, the specific force by "
                                f"{scales[1]:.7g}" + (" (measured and applied)" if s.counts["IMU units applied"]
                                                      else " (input.imu_gyro_scale, input.imu_accel_scale)"))
+        turn = s.feeder.config.imu_axes_turn
+        if turn is not None:
+            values["axes"] = (f"every sample turned by {math.degrees(float(rotation_angle(turn))):.1f} deg "
+                              f"(input.imu_axes_turn_xyzw {[round(x, 4) for x in s.feeder.config.imu_axes_turn_xyzw]}"
+                              + ("; measured and applied)" if s.counts["IMU axes applied"] else ")"))
         clock = s.runner.pipeline.imu_clock_off
         if clock is not None and s.runner.pipeline is not s.measured_from:
             values["clock check"] = (f"{describe_clock(clock)}: set input.imu_clock_offset_s to "

@@ -117,6 +117,8 @@ class Drop(Enum):
     NO_IMU_GRAVITY_PENDING = f"hold without IMU gravity: {ImuRefusal.PENDING.value}", Stage.PIPELINE
     NO_IMU_GRAVITY_DOUBTED = f"hold without IMU gravity: {ImuRefusal.DOUBTED.value}", Stage.PIPELINE
     NO_IMU_GRAVITY_UNUSABLE = f"hold without IMU gravity: {ImuRefusal.UNUSABLE.value}", Stage.PIPELINE
+    NO_IMU_GRAVITY_AXES_OFF = f"hold without IMU gravity: {ImuRefusal.AXES_OFF.value}", Stage.PIPELINE
+    NO_IMU_GRAVITY_TURN_REFUTED = f"hold without IMU gravity: {ImuRefusal.TURN_REFUTED.value}", Stage.PIPELINE
     NO_IMU_GRAVITY_NONE_AT_REST = f"hold without IMU gravity: {ImuRefusal.NO_GRAVITY.value}", Stage.PIPELINE
     NEW_SEQUENCE_NO_SHARED = f"hold starts a new sequence ({StartReason.NO_SHARED_LANDMARKS.value})", Stage.PIPELINE
     NEW_SEQUENCE_PAIR_FAILED = f"hold starts a new sequence ({StartReason.PAIR_FAILED.value})", Stage.PIPELINE
@@ -165,7 +167,8 @@ _NO_IMU_GRAVITY = {ImuRefusal.NO_IMU_BLOCK: Drop.NO_IMU_GRAVITY_NO_BLOCK,
                    ImuRefusal.STALE: Drop.NO_IMU_GRAVITY_STALE, ImuRefusal.BAD_MEAN: Drop.NO_IMU_GRAVITY_BAD_MEAN,
                    ImuRefusal.REFUTED: Drop.NO_IMU_GRAVITY_REFUTED, ImuRefusal.DOUBTED: Drop.NO_IMU_GRAVITY_DOUBTED,
                    ImuRefusal.PENDING: Drop.NO_IMU_GRAVITY_PENDING,
-                   ImuRefusal.UNUSABLE: Drop.NO_IMU_GRAVITY_UNUSABLE,
+                   ImuRefusal.UNUSABLE: Drop.NO_IMU_GRAVITY_UNUSABLE, ImuRefusal.AXES_OFF: Drop.NO_IMU_GRAVITY_AXES_OFF,
+                   ImuRefusal.TURN_REFUTED: Drop.NO_IMU_GRAVITY_TURN_REFUTED,
                    ImuRefusal.NO_GRAVITY: Drop.NO_IMU_GRAVITY_NONE_AT_REST}
 _NEW_SEQUENCE = {StartReason.NO_SHARED_LANDMARKS: Drop.NEW_SEQUENCE_NO_SHARED,
                  StartReason.PAIR_FAILED: Drop.NEW_SEQUENCE_PAIR_FAILED,

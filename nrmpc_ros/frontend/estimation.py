@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,9 +26,11 @@ import numpy as np
 from ..core.incremental import IncrementalSequence, NewSequence, StartReason, ViewEstimate
 from ..core.rig import Rig
 from .drops import Drop
+from .gyro import GyroRotation
 from .holds import Hold, RingingSource
 from .imu import ImuGravity, ImuRefusal
 from .imu_agreement import Agreement, ImuGravityCheck
+from .imu_mount import MIN_TURNS, imu_axes_from_turns, turn_refutes_axes
 from .linking import HoldLinker
 
 
@@ -114,8 +116,12 @@ class SequenceReset:
     """Start a new sequence here: the next measured hold is its origin."""
 
 
+IMAGES_GRAVITIES_KEPT = 200
+"""Holds whose images' gravity (beside their IMU's) the stage keeps: a recording's worth of holds."""
+
 # verdicts of the pair test that leave a hold's IMU gravity out without a refutation, and the rule counted
-_LEFT_OUT = {Agreement.UNUSABLE: ImuRefusal.UNUSABLE, Agreement.DOUBTED: ImuRefusal.DOUBTED,
+_LEFT_OUT = {Agreement.UNUSABLE: ImuRefusal.UNUSABLE, Agreement.AXES_OFF: ImuRefusal.AXES_OFF,
+             Agreement.DOUBTED: ImuRefusal.DOUBTED,
              Agreement.PENDING: ImuRefusal.PENDING}
 
 
@@ -129,8 +135,10 @@ class HoldEstimator:
     ``on_gravity((sequence, gravity, cov_gravity, turns))`` receives each estimate's gravity with the rotation
     [(stamp, R)] of every hold of its sequence into its frame (the accelerometer bias's evidence,
     :meth:`~nrmpc_ros.frontend.extrinsics.FrameExtrinsics.observe_sequence`). ``on_turn((stamp before, stamp,
-    angle rad))`` receives the angle the images turned the body by between a hold and the hold its gyro turn was
-    measured from (the gyro's unit: :func:`~nrmpc_ros.frontend.imu_units.gyro_units_from_turns`).
+    R, std rad))`` receives the rotation the images turned the body by between a hold and the hold its gyro turn
+    was measured from (p_before = R p_after; its std per axis, inf where unknown): the
+    gyro's unit (:func:`~nrmpc_ros.frontend.imu_units.gyro_units_from_turns`) and the IMU's axes
+    (:func:`~nrmpc_ros.frontend.imu_mount.imu_axes_from_turns`).
     """
 
     def __init__(self, rig: Rig, sequence: IncrementalSequence, linker: HoldLinker, stats,
@@ -143,6 +151,14 @@ class HoldEstimator:
         self.on_gravity = on_gravity
         self.on_turn = on_turn
         self.imu_check = ImuGravityCheck(sequence)  # does each hold's IMU gravity agree with the images?
+        # (IMU gravity, the images' gravity, its std rad) of the holds whose gravity the images measured without
+        # the IMU's: whether the IMU's axes, measured from the turns, read the body's gravity (.imu_mount)
+        self.images_gravities: dict = {}  # hold stamp -> ..., the latest estimate of each hold
+        # (R_images, its std, the gyro's GyroRotation) of the turns measured without the IMU: the pair test's (between
+        # a hold and its test's reference, the gyro's turns between composed) and sequences' without its gravity
+        self.axes_turns: deque = deque(maxlen=IMAGES_GRAVITIES_KEPT)
+        self._gyro_turns: dict = {}  # hold stamp -> (the hold before's stamp, R, std rad): the gyro's turns
+        self._turns_refuting = 0  # of them, those that refute the gyro's turn as the rig file reads it
         self.consumed = 0  # measured holds run so far (the intake counts those it made: the difference waits)
         self._hold_stamps: list = []  # stamp of every hold of the current sequence
         self._broken_stamps: dict = {}  # sequence number -> its holds' stamps, for the sequences a break ended
@@ -164,6 +180,10 @@ class HoldEstimator:
         self.sequence.reset()
         self.linker.reset()
         self.imu_check.reset()
+        self.axes_turns.clear()
+        self._gyro_turns.clear()
+        self._turns_refuting = 0
+        self.images_gravities.clear()
         self._hold_stamps = []
         self._broken_stamps = {}
         self._origin = None
@@ -173,7 +193,7 @@ class HoldEstimator:
         t0 = time.perf_counter()
         obs = self.linker.link(hold)
         offset = ringing_offset_rad(self.rig, hold)
-        g, verdict = (None, None) if imu is None else self._checked_gravity(obs, imu.gravity, offset)
+        g, verdict = (None, None) if imu is None else self._checked_gravity(obs, item, offset)
         if g is None and self.require_imu:  # forced: no silent fall back to 6pt-bending
             st.dropped[Drop.HOLD_FORCED_WITHOUT_IMU] += 1
             if attempt is not None:
@@ -219,12 +239,24 @@ class HoldEstimator:
                 done.append(est)
             self._origin = None
         self._hold_stamps.append(hold.stamp)
-        if self.on_turn is not None and item.turn is not None:
-            angle = self.sequence.images_turn_rad(item.turn[0], hold.stamp)
-            if angle is not None:
-                self.on_turn((item.turn[0], hold.stamp, angle))
+        if self.on_turn is not None and item.turn is not None and not self.sequence.has_measured_gravity:
+            # (a sequence with the IMU's gravities also has the gyro's turns as priors: its poses follow them)
+            turned = self.sequence.images_turn(item.turn[0], hold.stamp)
+            if turned is not None:  # its std: the hold's own rotation's (the origin's is fixed), both ways
+                cov = out.cov_pose
+                sigma = math.sqrt(2.0 * max(float(np.trace(cov[:3, :3])), 0.0) / 3.0) \
+                    if cov is not None and np.all(np.isfinite(cov[:3, :3])) else math.inf
+                self.on_turn((item.turn[0], hold.stamp, turned, sigma))
+                gyro = self._gyro_between(item.turn[0], hold.stamp)
+                if gyro is not None and math.isfinite(sigma):
+                    self.axes_turns.append((turned, sigma, gyro))
         if g is None and out.gravity is not None:  # the images' gravity of the hold
-            self.imu_check.remember(obs.cam, obs.landmark, obs.f, out.gravity, out.gravity_sigma_rad, offset)
+            self.imu_check.remember(obs.cam, obs.landmark, obs.f, out.gravity, out.gravity_sigma_rad, offset,
+                                    hold.stamp)
+            if imu is not None:
+                self.images_gravities[hold.stamp] = (imu.gravity, out.gravity, out.gravity_sigma_rad)
+                while len(self.images_gravities) > IMAGES_GRAVITIES_KEPT:
+                    self.images_gravities.pop(next(iter(self.images_gravities)))
         withheld = Drop.HOLD_IMU_REFUTED if verdict is Agreement.REFUTED else Drop.HOLD_IMU_DOUBTED if (
             verdict is Agreement.DOUBTED and self.sequence.has_measured_gravity) else None
         if withheld is not None:
@@ -241,26 +273,77 @@ class HoldEstimator:
             attempt.estimate = est
         return done + [est]
 
-    def _checked_gravity(self, obs, gravity, offset_rad: float) -> tuple:
+    def _checked_gravity(self, obs, item: MeasuredHold, offset_rad: float) -> tuple:
         """(the hold's IMU gravity, or None where it is not to be used, and the verdict of
         :mod:`.imu_agreement`); refusals are counted. When the IMU's gravity turns unusable the sequence restarts
-        without the earlier holds' gravities, which are the same IMU's."""
+        without the earlier holds' gravities, which are the same IMU's. The pair test's images-only estimate, where
+        it made one, measures the IMU's axes (:mod:`.imu_mount`): where they are off the rig file's, the IMU's
+        gravity is not used again."""
         usable = self.imu_check.usable
-        verdict = self.imu_check.check(obs.cam, obs.landmark, obs.f, gravity, self.sequence.num_views > 0,
-                                       offset_rad)
-        if verdict is Agreement.REFUTED:
-            self.stats.dropped[Drop.no_imu_gravity(ImuRefusal.REFUTED)] += 1
+        verdict = self.imu_check.check(obs.cam, obs.landmark, obs.f, item.imu.gravity, self.sequence.num_views > 0,
+                                       offset_rad, item.hold.stamp)
+        axes = self._axes_verdict(item, verdict is Agreement.AXES_OFF)
+        if verdict is Agreement.REFUTED or axes is not None:
+            rule = axes or ImuRefusal.REFUTED
+            self.stats.dropped[Drop.no_imu_gravity(rule)] += 1
             if self.sequence.has_measured_gravity or (usable and not self.imu_check.usable and self.sequence.num_views):
                 # the sequence's earlier gravities are the same IMU's: in doubt. A pair test is relative: an IMU
                 # mounted otherwise than the rig file says passes some pairs (both gravities turned alike), and
                 # a sequence kept on them published a hold 111 deg off at a std of 1 deg; it starts afresh here
                 self.sequence.reset()
                 self._hold_stamps, self._broken_stamps, self._origin = [], {}, None
-            return None, verdict
+            return None, Agreement.AXES_OFF if axes is ImuRefusal.AXES_OFF else \
+                Agreement.REFUTED if axes is ImuRefusal.TURN_REFUTED else verdict
         if verdict in _LEFT_OUT:
             self.stats.dropped[Drop.no_imu_gravity(_LEFT_OUT[verdict])] += 1
             return None, verdict
-        return gravity, verdict
+        return item.imu.gravity, verdict
+
+    def _axes_verdict(self, item: MeasuredHold, off: bool) -> ImuRefusal | None:
+        """What the turn (and the gravity) the pair test's images-only estimate just measured says of the IMU's
+        axes, with the earlier ones (:mod:`.imu_mount`): :attr:`ImuRefusal.AXES_OFF` where they put them off the
+        rig file's, or where this turn and an earlier one each refute the gyro's turn as the rig file reads it (the
+        IMU's gravity is not used again: :meth:`~.imu_agreement.ImuGravityCheck.refuse_axes`);
+        :attr:`ImuRefusal.TURN_REFUTED` where this turn alone does (this hold's is not used); else None. The turn
+        goes to ``on_turn`` too. A sequence resting on the IMU's gravity also takes the gyro's turns as priors: the
+        first refuted turn is the first hold that would have been published off. ``off``: the axes are off already
+        (the turn is only kept)."""
+        check = self.imu_check
+        if item.turn is not None:
+            self._gyro_turns[item.hold.stamp] = item.turn
+            while len(self._gyro_turns) > IMAGES_GRAVITIES_KEPT:
+                self._gyro_turns.pop(next(iter(self._gyro_turns)))
+        tested = check.images_turn
+        gyro = None if tested is None else self._gyro_between(tested[0], tested[1])
+        if gyro is None:
+            return None
+        if self.on_turn is not None and tested[0] == item.turn[0]:
+            self.on_turn(tested)
+        turn = (tested[2], tested[3], gyro)
+        self.axes_turns.append(turn)
+        if off:
+            return None
+        refutes = turn_refutes_axes(turn)
+        self._turns_refuting += refutes
+        sigma = math.hypot(item.imu_sigma_rad, item.tilt_sigma_rad or 0.0)
+        axes = imu_axes_from_turns(list(self.axes_turns), list(self.images_gravities.values()), sigma)
+        if (axes is not None and axes.off) or (refutes and self._turns_refuting >= MIN_TURNS):
+            check.refuse_axes()
+            return ImuRefusal.AXES_OFF
+        return ImuRefusal.TURN_REFUTED if refutes else None
+
+    def _gyro_between(self, key_before, key) -> GyroRotation | None:
+        """The gyro's turn from hold ``key`` into hold ``key_before`` (p_before = R p), the turns between the holds
+        in between composed (their variances added); None where one is missing."""
+        R, var, k = np.eye(3), 0.0, key
+        for _ in range(len(self._gyro_turns)):
+            if k == key_before:
+                return GyroRotation(R, math.sqrt(var), 0)
+            if k not in self._gyro_turns:
+                return None
+            before, Rk, sigma = self._gyro_turns[k]
+            R, var, k = Rk @ R, var + sigma ** 2, before
+        return GyroRotation(R, math.sqrt(var), 0) if k == key_before else None
 
     def _hold_estimate(self, v: ViewEstimate, hold: Hold, imu, links, elapsed_s: float,
                        noise_scale: float = 1.0) -> HoldEstimate:

@@ -63,6 +63,7 @@ import numpy as np
 
 from ..config import check, option
 from ..core.rig import Rig
+from ..core.so3 import matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from ..errors import InputError
 from .clock_domain import FROZEN_SPAN_S, ClockDomains, ClockRebase, FrozenStamps
 from .delivery import BURST_MARGIN, DeliveryGaps
@@ -124,9 +125,18 @@ class FeederConfig:
                                     "square) as it arrives: 9.80665 turns a driver's g into the m/s^2 of "
                                     "sensor_msgs/Imu (REP 103; nrmpc replay measures it from the still norm)",
                                     lo=1e-6, hi=1e6)
+    imu_axes_turn_xyzw: list = option([0.0, 0.0, 0.0, 1.0], "turns every IMU sample's angular rate and specific "
+                                      "force (their covariances alike) by this quaternion (x, y, z, w) as it arrives, "
+                                      "before the rig file's imu rotation reads them: the IMU's axes where the rig "
+                                      "file has them wrong (nrmpc replay measures it from the turns between holds "
+                                      "where the images refute the IMU's gravity)")
     imu_units_measured: bool = option(True, "the node multiplies the gyro's rates by pi/180 (the specific force by "
                                       "9.80665) from then on where the moves show deg/s (the still norm g), a new "
                                       "sequence starting (as nrmpc replay replays with it); false: it only warns")
+    imu_axes_measured: bool = option(True, "the node turns every IMU sample from then on where the turns between "
+                                     "holds measure the IMU's axes otherwise than the rig file's (once the images "
+                                     "refute its gravity, and where its gravity so turned agrees with theirs), a new "
+                                     "sequence starting (as nrmpc replay replays with it); false: it only warns")
     imu_clock_measured: bool = option(True, "the node adds an IMU clock offset the images measure (the moves "
                                       "against the gyro, once the images refute the IMU's gravity) to this one "
                                       "from then on, a new sequence starting (as nrmpc replay replays with it); "
@@ -134,6 +144,29 @@ class FeederConfig:
 
     def __post_init__(self):
         check(self, "input config")
+        q = self.imu_axes_turn_xyzw
+        if not (isinstance(q, (list, tuple)) and len(q) == 4 and
+                all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in q)
+                and math.hypot(*q) > 0.5):
+            raise InputError("input config", f"must be a unit quaternion [x, y, z, w], got {q!r}",
+                             "imu_axes_turn_xyzw")
+        self.imu_axes_turn_xyzw = [float(x) / math.hypot(*q) for x in q]
+
+    @property
+    def imu_axes_turn(self) -> np.ndarray | None:
+        """The rotation :attr:`imu_axes_turn_xyzw` turns each IMU sample by (None: none)."""
+        q = self.imu_axes_turn_xyzw
+        return None if q[:3] == [0.0, 0.0, 0.0] else quat_xyzw_to_matrix(q)
+
+    def imu_reading(self) -> tuple:
+        """(A, G): the 3x3 maps from an IMU sample's specific force and rate as the driver gives them to m/s^2
+        and rad/s in the axes the rig file's imu rotation reads (scales and axes turn); None each where it
+        keeps them as they are."""
+        C = self.imu_axes_turn
+        m, k = self.imu_accel_scale, self.imu_gyro_scale
+        if C is None:
+            return (None if m == 1.0 else m * np.eye(3)), (None if k == 1.0 else k * np.eye(3))
+        return m * C, k * C
 
     def jump_policy(self) -> JumpPolicy:
         """When held stamps are a jump of the clock: one policy for the stamp checks and the frame grouping."""
@@ -273,12 +306,12 @@ class Feeder:
         the message's (linear_acceleration_covariance, angular_velocity_covariance), which set the stillness
         test's noise (:meth:`~nrmpc_ros.frontend.pipeline.Pipeline.add_imu`)."""
         self.events["imu samples"] += 1
-        k, m = self.config.imu_gyro_scale, self.config.imu_accel_scale
-        if k != 1.0 or m != 1.0:
-            accel, gyro = np.asarray(accel, dtype=float) * m, np.asarray(gyro, dtype=float) * k
+        A, G = self.config.imu_reading()
+        if A is not None or G is not None:
+            accel, gyro = _mapped(accel, A), _mapped(gyro, G)
             if covariance is not None:
-                covariance = tuple(None if c is None else np.asarray(c, dtype=float) * f * f
-                                   for c, f in zip(covariance, (m, k)))
+                covariance = tuple(None if c is None else _mapped_cov(np.asarray(c, dtype=float), F)
+                                   for c, F in zip(covariance, (A, G)))
         self._sample(float(self._read_stamps(IMU, stamp, now)), accel, gyro, now, covariance)
 
     def imu_block(self, block: ImuBlock, now: float | None = None) -> None:
@@ -289,10 +322,10 @@ class Feeder:
         self.events["imu samples"] += n
         if n:  # stamped by arrival: one arrival, spread as samples read at once
             block = replace(block, stamps=self._read_stamps(IMU, block.stamps, now))
-        k, m = self.config.imu_gyro_scale, self.config.imu_accel_scale
-        if k != 1.0 or m != 1.0:
-            block = replace(block, accel=block.accel * m, gyro=block.gyro * k, accel_cov=block.accel_cov * (m * m),
-                            gyro_cov=block.gyro_cov * (k * k))
+        A, G = self.config.imu_reading()
+        if A is not None or G is not None:
+            block = replace(block, accel=_mapped(block.accel, A), gyro=_mapped(block.gyro, G),
+                            accel_cov=_mapped_cov(block.accel_cov, A), gyro_cov=_mapped_cov(block.gyro_cov, G))
         a, w, t = block.accel, block.gyro, block.stamps
         good = bool(n) and bool(np.isfinite(a).all() and np.isfinite(w).all() and a.any(axis=1).all())
         if good and t[0] > self._imu_newest and self.guard.accept_run(IMU, t, now):
@@ -486,6 +519,15 @@ class Feeder:
                               imu_accel_scale=self.config.imu_accel_scale * accel_factor)
         self._start_afresh(why)
 
+    def turn_imu_axes(self, C: np.ndarray, why: str) -> None:
+        """Turn every IMU sample by ``C`` after the turn already applied (the IMU's axes measured, :mod:`.
+        imu_mount`) from now on: what was taken goes out first, then the frame grouping, the IMU samples and the
+        holds start afresh (a new sequence)."""
+        before = self.config.imu_axes_turn
+        turned = C if before is None else C @ before
+        self.config = replace(self.config, imu_axes_turn_xyzw=[float(x) for x in matrix_to_quat_xyzw(turned)])
+        self._start_afresh(why)
+
     def _start_afresh(self, why: str) -> None:
         """What was taken goes out (the frame sets, the IMU samples, a flush), the pipeline restarts (``why``), and
         the frame grouping and the IMU samples start a new epoch."""
@@ -598,5 +640,23 @@ class Feeder:
         if line:
             self.log("warn", line)
 
+
+
+def _mapped(v, F: np.ndarray | None):
+    """Vectors (3,) or (n, 3) through the 3x3 map ``F`` (None: as they are)."""
+    return v if F is None else np.asarray(v, dtype=float) @ F.T
+
+
+def _mapped_cov(c: np.ndarray, F: np.ndarray | None) -> np.ndarray:
+    """Row-major 3x3 covariances (9,) or (n, 9) through ``F``: F S F^T (None: as they are; a message's unknown
+    covariance, -1 first, and zeros stay as they are)."""
+    if F is None:
+        return c
+    S = c.reshape(-1, 3, 3)
+    out = (F @ S @ F.T).reshape(c.shape)
+    unknown = S[:, 0, 0] < 0
+    if np.any(unknown):
+        out.reshape(-1, 9)[unknown] = c.reshape(-1, 9)[unknown]
+    return out
 
 __all__ = ["Feeder", "FeederConfig", "IMU", "Work"]

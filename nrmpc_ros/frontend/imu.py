@@ -86,6 +86,8 @@ class ImuRefusal(Enum):
     DOUBTED = "not testable while an earlier one stands refuted"
     PENDING = "the first after holds without one: waits for the next hold's test"
     UNUSABLE = "refuted on consecutive holds: the IMU's gravity is not used (its rotation or clock)"
+    AXES_OFF = "the turns between holds put the IMU's axes off the rig file's: its gravity is not used"
+    TURN_REFUTED = "the images' turn from the hold before refutes the gyro's (the IMU's axes?)"
     NO_GRAVITY = "the accelerometer reads no gravity at rest (taken out by a fused driver?)"
 
 

@@ -38,6 +38,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..core.so3 import rotation_angle
 from .imu_clock import CONFIDENCE, MIN_MOVES, RESAMPLES
 
 DEGREE = math.pi / 180.0
@@ -115,10 +116,10 @@ def gyro_units_from_turns(pipeline) -> GyroUnits | None:
     moves are off camera, but the holds' poses are not. None with fewer than
     :data:`~nrmpc_ros.frontend.imu_clock.MIN_MOVES` such turns."""
     ratios = []
-    for before, stamp, images in list(pipeline.images_turns):
-        gyro = pipeline.gyro_turns.get(stamp)
-        if gyro is not None and gyro[0] == before and images >= math.radians(MIN_TURN_DEG) and gyro[1] > 0:
-            ratios.append(images / gyro[1])
+    for R_images, _, gyro in pipeline.turns_between_holds():
+        images = rotation_angle(R_images)
+        if images >= math.radians(MIN_TURN_DEG) and gyro.read_angle_rad > 0:
+            ratios.append(images / gyro.read_angle_rad)
     ratios = np.array(ratios)
     return _verdict(ratios, float(np.median(ratios)) if len(ratios) else math.nan, 0,
                     GyroEvidence.TURNS_BETWEEN_HOLDS)

@@ -246,8 +246,9 @@ class Pipeline:
         # gravity reaches the accelerometer's bias through an inbox the intake empties before it next uses the
         # bars' state (the node runs the stage in another thread)
         self._gravity_inbox: deque = deque()
-        # the gyro's turn between consecutive holds as read (stamp -> (earlier hold's stamp, angle rad)) and the
-        # images' turn between them (the stage appends): the gyro's unit where the moves are off camera
+        # the gyro's turn between consecutive holds (stamp -> (earlier hold's stamp, GyroRotation)) and the
+        # images' turn between them (the stage appends (earlier stamp, stamp, R, std)): the gyro's unit where the
+        # moves are off camera, and the IMU's axes
         self.gyro_turns: dict = {}
         self.images_turns: deque = deque(maxlen=TURNS_KEPT)
         self.estimator = HoldEstimator(rig, self.sequence, self.linker, self.stats, method == "4pt-bending",
@@ -575,6 +576,19 @@ class Pipeline:
         self.stats.dropped[drop] += 1
         self._last_motion[drop] = why
 
+    def turns_between_holds(self) -> list:
+        """[(R_images, its std rad per axis, GyroRotation)]: the body's turn between a hold and the hold before it
+        as the images measured it without the IMU (a sequence without the IMU's gravity: std 0, what its poses
+        carry; the IMU gravity test's images-only estimate of the pair; the latest per hold) and as the gyro did,
+        for each hold both measured from the same hold: the gyro's unit and the IMU's axes."""
+        images = {stamp: (before, R, sigma) for before, stamp, R, sigma in list(self.images_turns)}
+        out = []
+        for stamp, (before, R, sigma) in images.items():
+            gyro = self.gyro_turns.get(stamp)
+            if gyro is not None and gyro[0] == before:
+                out.append((R, sigma, gyro[1]))
+        return out
+
     def no_hold_report(self) -> str:
         """Why no hold was found (empty once one was): what judged the frames moving, with the numbers."""
         st = self.stats
@@ -849,7 +863,7 @@ class Pipeline:
                                 self.config.imu.gyro_scale_error)
         if turn is None:
             return None
-        self.gyro_turns[after.stamp] = (before.stamp, turn.read_angle_rad)
+        self.gyro_turns[after.stamp] = (before.stamp, turn)
         while len(self.gyro_turns) > TURNS_KEPT:
             self.gyro_turns.pop(next(iter(self.gyro_turns)))
         return before.stamp, turn.R, turn.sigma_rad

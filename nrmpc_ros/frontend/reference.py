@@ -51,10 +51,12 @@ class Reference:
         """The IMU's samples as a pipeline read them with the input settings ``inputs`` (a
         :class:`~nrmpc_ros.frontend.feeder.FeederConfig`): in the cameras' clock (``imu_clock_offset_s`` added;
         with ``by_arrival``, stamped by their recording times: their own stamps froze) and in rad/s and m/s^2
-        (``imu_gyro_scale``, ``imu_accel_scale``)."""
+        (``imu_gyro_scale``, ``imu_accel_scale``), in the axes the rig file's imu rotation reads
+        (``imu_axes_turn_xyzw``)."""
         t = self.imu_arrival if by_arrival else self.imu_t + inputs.imu_clock_offset_s
-        return replace(self, imu_t=t, imu_w=self.imu_w * inputs.imu_gyro_scale,
-                       imu_a=self.imu_a * inputs.imu_accel_scale)
+        A, G = inputs.imu_reading()
+        return replace(self, imu_t=t, imu_w=self.imu_w if G is None else self.imu_w @ G.T,
+                       imu_a=self.imu_a if A is None else self.imu_a @ A.T)
 
 
 def _vec(v) -> list:

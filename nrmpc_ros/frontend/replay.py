@@ -25,6 +25,7 @@ from .droplog import DropLog
 from .drops import sorted_counts
 from .feeder import Feeder, FeederConfig
 from .imu_clock_check import clock_passes, describe_clock, measure_imu_clock
+from .imu_mount import AxesMeasuringPass, describe_imu_axes
 from .imu_units import UnitsMeasuringPass, describe_units
 from .pipeline import Pipeline, PipelineConfig
 from .reference import read_reference
@@ -171,7 +172,7 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
     topic = resolve_imu_topic(bag, rig, imu_topic, required=True, warn=warn)
     ref = read_reference(bag, topic, warn)
 
-    def one_pass(inputs):  # the gyro's unit and an IMU clock measured off the cameras' applied, as nrmpc replay does
+    def one_pass(inputs):  # the gyro's unit, the IMU's axes and its clock measured and applied, as nrmpc replay does
         pipe = Pipeline(rig, config, method="4pt-bending")
         pipe.sequence.keep_history = True
         pipe.measured_holds = [] if holds is not None else None
@@ -183,7 +184,13 @@ def collect_sequences(bag, rig: Rig, config: PipelineConfig | None = None, imu_t
     def units_said(units, result):
         warn(f"IMU units: {describe_units(units)}; replaying in rad/s and m/s^2")
 
-    run_pass = UnitsMeasuringPass(one_pass, FeederConfig(), lambda result: result[0].pipeline, units_said)
+    def axes_said(axes, result):
+        warn(f"IMU axes: {describe_imu_axes(axes, rig.imu.rotation)}"
+             + ("; replaying with the samples turned" if axes.applies else ""))
+
+    run_pass = AxesMeasuringPass(UnitsMeasuringPass(one_pass, FeederConfig(), lambda result: result[0].pipeline,
+                                                    units_said),
+                                 lambda result: result[0].pipeline, rig.imu.rotation, axes_said)
 
     def measure(result):
         runner, ests, shifted, _ = result

@@ -49,6 +49,7 @@ from .feeder import IMU, Feeder
 from .images import stamp_seconds
 from .imu_clock import MIN_MOVES
 from .imu_clock_check import CLOCK_PASSES, LAG_ASKS_GROWTH, describe_clock, lag_from_moves
+from .imu_mount import AxesVerdict, describe_imu_axes, imu_axes
 from .imu_units import describe_units, imu_units
 from .liveness import CameraWatch
 from .node_config import NodeConfig
@@ -496,6 +497,7 @@ class EstimatorService:
     def _apply_imu_measures(self) -> None:
         """What the frame stage measured of the IMU goes to the input, a new sequence starting: its units (deg/s,
         g: multiplied into rad/s and m/s^2 from the next sample on, once a run; ``input.imu_units_measured``),
+        the IMU's axes (:meth:`_apply_imu_axes`),
         an IMU clock offset (seconds off the cameras', from the moves; or a lag within a quarter second)
         added to the IMU's stamps (``input.imu_clock_measured``; at most ``CLOCK_PASSES - 1``
         times a run, as the replay's passes). Both are asked as holds end (:meth:`_asked`)."""
@@ -521,6 +523,8 @@ class EstimatorService:
                                  f"{self.feeder.config.imu_gyro_scale:.7g}, input.imu_accel_scale "
                                  f"{self.feeder.config.imu_accel_scale:.7g}): the holds start afresh (a new sequence)")
                 return
+        if asked and self._apply_imu_axes(pipeline):
+            return
         if not self.config.input.imu_clock_measured or self.counts["IMU clock offsets applied"] >= CLOCK_PASSES - 1:
             return
         measured = pipeline.imu_clock_off or (lag_from_moves(pipeline.imu_clock) if asked else None)
@@ -533,6 +537,31 @@ class EstimatorService:
             self.feeder.reclock_imu(measured.offset_s, "the IMU's clock measured off the cameras'")
         self.counts["IMU clock offsets applied"] += 1
         self.log("warn", f"{why}: the holds start afresh (a new sequence)")
+
+    def _apply_imu_axes(self, pipeline) -> bool:
+        """The IMU's axes the turns between holds measure (:func:`~nrmpc_ros.frontend.imu_mount.imu_axes`): where
+        the rig file's are wrong every sample is turned from the next on (``input.imu_axes_measured``), a new
+        sequence starting, once a run; a verdict that keeps them (the IMU's gravity so turned still off the
+        images') is said once. Returns whether the samples were turned."""
+        if self.rig.imu is None or self.counts["IMU axes applied"] or self.counts["IMU axes warned"]:
+            return False
+        axes = imu_axes(pipeline)
+        verdict = None if axes is None else axes.verdict
+        if verdict in (None, AxesVerdict.AGREE, AxesVerdict.NOT_MEASURABLE, AxesVerdict.UNCERTAIN):
+            return False  # later holds may measure it (the stage sets the IMU's gravity aside meanwhile)
+        said = describe_imu_axes(axes, self.rig.imu.rotation)
+        if not axes.applies or not self.config.input.imu_axes_measured:
+            self.counts["IMU axes warned"] += 1
+            self.log("warn", said + (" (input.imu_axes_measured is false: not applied)" if axes.applies else ""))
+            return False
+        self.measured_from = pipeline
+        with self._input_lock:
+            self.feeder.turn_imu_axes(axes.correction(self.rig.imu.rotation), "the IMU's axes measured")
+        self.counts["IMU axes applied"] += 1
+        self.log("warn", f"{said}: every IMU sample is turned from now on (input.imu_axes_turn_xyzw "
+                         f"{[round(x, 6) for x in self.feeder.config.imu_axes_turn_xyzw]}): the holds start afresh "
+                         "(a new sequence)")
+        return True
 
     def _asked(self, pipeline) -> bool:
         """Whether the moves are asked what they say of the IMU now (:func:`~nrmpc_ros.frontend.imu_clock_check.
