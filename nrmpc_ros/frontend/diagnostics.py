@@ -168,7 +168,7 @@ class ServiceDiagnostics:
         turn = s.feeder.config.imu_axes_turn
         if turn is not None:
             values["axes"] = (f"every sample turned by {math.degrees(float(rotation_angle(turn))):.1f} deg "
-                              f"(input.imu_axes_turn_xyzw {[round(x, 4) for x in s.feeder.config.imu_axes_turn_xyzw]}"
+                              f"(x, y, z, w {[round(x, 4) for x in s.feeder.config.imu_axes_turn_xyzw]}"
                               + ("; measured and applied)" if s.counts["IMU axes applied"] else ")"))
         clock = s.runner.pipeline.imu_clock_off
         if clock is not None and s.runner.pipeline is not s.measured_from:

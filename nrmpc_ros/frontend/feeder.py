@@ -128,15 +128,15 @@ class FeederConfig:
     imu_axes_turn_xyzw: list = option([0.0, 0.0, 0.0, 1.0], "turns every IMU sample's angular rate and specific "
                                       "force (their covariances alike) by this quaternion (x, y, z, w) as it arrives, "
                                       "before the rig file's imu rotation reads them: the IMU's axes where the rig "
-                                      "file has them wrong (nrmpc replay measures it from the turns between holds "
-                                      "where the images refute the IMU's gravity)")
+                                      "file has them wrong (nrmpc replay --imu-axes-turn; replay and the node measure "
+                                      "it from the turns between holds)")
     imu_units_measured: bool = option(True, "the node multiplies the gyro's rates by pi/180 (the specific force by "
                                       "9.80665) from then on where the moves show deg/s (the still norm g), a new "
                                       "sequence starting (as nrmpc replay replays with it); false: it only warns")
     imu_axes_measured: bool = option(True, "the node turns every IMU sample from then on where the turns between "
-                                     "holds measure the IMU's axes otherwise than the rig file's (once the images "
-                                     "refute its gravity, and where its gravity so turned agrees with theirs), a new "
-                                     "sequence starting (as nrmpc replay replays with it); false: it only warns")
+                                     "holds measure the IMU's axes tens of degrees off the rig file's (and its "
+                                     "gravity so turned agrees with the images'), a new sequence starting (as nrmpc "
+                                     "replay replays with it); false: it only warns")
     imu_clock_measured: bool = option(True, "the node adds an IMU clock offset the images measure (the moves "
                                       "against the gyro, once the images refute the IMU's gravity) to this one "
                                       "from then on, a new sequence starting (as nrmpc replay replays with it); "

@@ -46,7 +46,7 @@ its bar; the turns measure its mean axes, but its gravity is off by the
 bar's changing bend (1-3 deg on a soft bar) at every hold. Where turns about
 one axis leave D open about it, the holds' gravities fix it with them (and
 the test takes the fit's three degrees of freedom off). Replay then replays
-with every IMU sample turned by the correction (``input.imu_axes_turn_xyzw``,
+with every IMU sample turned by the correction (``FeederConfig.imu_axes_turn_xyzw``,
 ``--imu-axes-turn``); the node turns them from then on, a new sequence
 starting. Both say the rotation the rig file should carry. Gyro turns exist
 for an IMU the rig file puts at the body only (one inside a camera turns
@@ -363,7 +363,7 @@ def describe_imu_axes(axes: MeasuredImuAxes, mount_rotation: np.ndarray) -> str:
 
 
 def quat_of(C: np.ndarray) -> tuple:
-    """A rotation as the (x, y, z, w) of ``input.imu_axes_turn_xyzw``."""
+    """A rotation as the (x, y, z, w) of ``FeederConfig.imu_axes_turn_xyzw``."""
     return tuple(float(x) for x in matrix_to_quat_xyzw(C))
 
 

@@ -558,9 +558,8 @@ class EstimatorService:
         with self._input_lock:
             self.feeder.turn_imu_axes(axes.correction(self.rig.imu.rotation), "the IMU's axes measured")
         self.counts["IMU axes applied"] += 1
-        self.log("warn", f"{said}: every IMU sample is turned from now on (input.imu_axes_turn_xyzw "
-                         f"{[round(x, 6) for x in self.feeder.config.imu_axes_turn_xyzw]}): the holds start afresh "
-                         "(a new sequence)")
+        self.log("warn", f"{said}: every IMU sample is turned from now on (fix the rig file to keep it): the holds "
+                         "start afresh (a new sequence)")
         return True
 
     def _asked(self, pipeline) -> bool:
