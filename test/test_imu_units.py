@@ -168,7 +168,7 @@ def _turns(images_deg, read_deg, before_ok=True):
     from nrmpc_ros.core.so3 import exp_so3
     from nrmpc_ros.frontend.gyro import GyroRotation
 
-    images = [(k, k + 1, exp_so3(np.array([0.0, 0.0, math.radians(a)])), 0.0) for k, a in enumerate(images_deg)]
+    images = [(k, k + 1, exp_so3(np.array([0.0, 0.0, math.radians(a)]))) for k, a in enumerate(images_deg)]
     gyro = {k + 1: (k if before_ok else k - 1, GyroRotation(np.eye(3), 0.0, 2, math.radians(r)))
             for k, r in enumerate(read_deg)}
     from nrmpc_ros.frontend.pipeline import Pipeline

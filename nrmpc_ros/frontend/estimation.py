@@ -30,7 +30,7 @@ from .gyro import GyroRotation
 from .holds import Hold, RingingSource
 from .imu import ImuGravity, ImuRefusal
 from .imu_agreement import Agreement, ImuGravityCheck
-from .imu_mount import MIN_TURNS, imu_axes_from_turns, turn_refutes_axes
+from .imu_mount import MIN_TURNS, TURNS_KEPT, imu_axes_from_turns, turn_refutes_axes
 from .linking import HoldLinker
 
 
@@ -135,10 +135,9 @@ class HoldEstimator:
     ``on_gravity((sequence, gravity, cov_gravity, turns))`` receives each estimate's gravity with the rotation
     [(stamp, R)] of every hold of its sequence into its frame (the accelerometer bias's evidence,
     :meth:`~nrmpc_ros.frontend.extrinsics.FrameExtrinsics.observe_sequence`). ``on_turn((stamp before, stamp,
-    R, std rad))`` receives the rotation the images turned the body by between a hold and the hold its gyro turn
-    was measured from (p_before = R p_after; its std per axis, inf where unknown): the
-    gyro's unit (:func:`~nrmpc_ros.frontend.imu_units.gyro_units_from_turns`) and the IMU's axes
-    (:func:`~nrmpc_ros.frontend.imu_mount.imu_axes_from_turns`).
+    R))`` receives the rotation the images turned the body by between a hold and the hold its gyro turn was
+    measured from (p_before = R p_after): the gyro's unit (:func:`~nrmpc_ros.frontend.imu_units.
+    gyro_units_from_turns`). The IMU's axes take the turns with their stds from :attr:`axes_turns`.
     """
 
     def __init__(self, rig: Rig, sequence: IncrementalSequence, linker: HoldLinker, stats,
@@ -156,7 +155,7 @@ class HoldEstimator:
         self.images_gravities: dict = {}  # hold stamp -> ..., the latest estimate of each hold
         # (R_images, its std, the gyro's GyroRotation) of the turns measured without the IMU: the pair test's (between
         # a hold and its test's reference, the gyro's turns between composed) and sequences' without its gravity
-        self.axes_turns: deque = deque(maxlen=IMAGES_GRAVITIES_KEPT)
+        self.axes_turns: deque = deque(maxlen=TURNS_KEPT)
         self._gyro_turns: dict = {}  # hold stamp -> (the hold before's stamp, R, std rad): the gyro's turns
         self._turns_refuting = 0  # of them, those that refute the gyro's turn as the rig file reads it
         self.consumed = 0  # measured holds run so far (the intake counts those it made: the difference waits)
@@ -239,14 +238,15 @@ class HoldEstimator:
                 done.append(est)
             self._origin = None
         self._hold_stamps.append(hold.stamp)
-        if self.on_turn is not None and item.turn is not None and not self.sequence.has_measured_gravity:
+        if item.turn is not None and not self.sequence.has_measured_gravity:
             # (a sequence with the IMU's gravities also has the gyro's turns as priors: its poses follow them)
             turned = self.sequence.images_turn(item.turn[0], hold.stamp)
+            if turned is not None and self.on_turn is not None:
+                self.on_turn((item.turn[0], hold.stamp, turned))
             if turned is not None:  # its std: the hold's own rotation's (the origin's is fixed), both ways
                 cov = out.cov_pose
                 sigma = math.sqrt(2.0 * max(float(np.trace(cov[:3, :3])), 0.0) / 3.0) \
                     if cov is not None and np.all(np.isfinite(cov[:3, :3])) else math.inf
-                self.on_turn((item.turn[0], hold.stamp, turned, sigma))
                 gyro = self._gyro_between(item.turn[0], hold.stamp)
                 if gyro is not None and math.isfinite(sigma):
                     self.axes_turns.append((turned, sigma, gyro))
@@ -318,7 +318,7 @@ class HoldEstimator:
         if gyro is None:
             return None
         if self.on_turn is not None and tested[0] == item.turn[0]:
-            self.on_turn(tested)
+            self.on_turn(tested[:3])
         turn = (tested[2], tested[3], gyro)
         self.axes_turns.append(turn)
         if off:

@@ -158,6 +158,13 @@ class FeederConfig:
         q = self.imu_axes_turn_xyzw
         return None if q[:3] == [0.0, 0.0, 0.0] else quat_xyzw_to_matrix(q)
 
+    def turned_by(self, C: np.ndarray) -> FeederConfig:
+        """These settings with every IMU sample turned by ``C`` after the turn they already apply (the IMU's axes
+        measured, :mod:`.imu_mount`)."""
+        before = self.imu_axes_turn
+        turned = C if before is None else C @ before
+        return replace(self, imu_axes_turn_xyzw=[float(x) for x in matrix_to_quat_xyzw(turned)])
+
     def imu_reading(self) -> tuple:
         """(A, G): the 3x3 maps from an IMU sample's specific force and rate as the driver gives them to m/s^2
         and rad/s in the axes the rig file's imu rotation reads (scales and axes turn); None each where it
@@ -523,9 +530,7 @@ class Feeder:
         """Turn every IMU sample by ``C`` after the turn already applied (the IMU's axes measured, :mod:`.
         imu_mount`) from now on: what was taken goes out first, then the frame grouping, the IMU samples and the
         holds start afresh (a new sequence)."""
-        before = self.config.imu_axes_turn
-        turned = C if before is None else C @ before
-        self.config = replace(self.config, imu_axes_turn_xyzw=[float(x) for x in matrix_to_quat_xyzw(turned)])
+        self.config = self.config.turned_by(C)
         self._start_afresh(why)
 
     def _start_afresh(self, why: str) -> None:

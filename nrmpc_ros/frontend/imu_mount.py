@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -67,6 +67,10 @@ IMAGES_TURN_SIGMA_RAD = math.radians(0.05)
 """The least std of the images' turn between two holds, per axis, added to the gyro's: sequences of settled holds
 pose them to hundredths of a degree; a floor so the gyro's std alone does not set the weights of long, clean turns.
 A two-hold estimate's own is often far larger (snapshots that still ring: 4-15 deg)."""
+
+TURNS_KEPT = 40
+"""The latest turns that measure the axes: every pair of them is tried (780 at most, in one array operation), and
+older turns add little to forty."""
 
 MIN_TURNS = 2
 """Turns between holds that measure the axes: two about different axes fix them, and their six numbers leave three
@@ -230,7 +234,7 @@ def imu_axes_from_turns(turns, gravities=(), gravity_sigma_rad: float = 0.0) -> 
         return None
     r_i = np.array([log_so3(np.asarray(R, dtype=float)) for R, _, _ in turns])
     r_g = np.array([log_so3(g.R) for _, _, g in turns])
-    w = 1.0 / np.array([g.sigma_rad ** 2 + max(s, IMAGES_TURN_SIGMA_RAD) ** 2 for _, s, g in turns])
+    w = np.array([_turn_weight(s, g) for _, s, g in turns])
     keep = _consensus(r_i, r_g, w)
     r_i, r_g, w = r_i[keep], r_g[keep], w[keep]
     D, _, spread = _fit(r_i, r_g, w)
@@ -244,8 +248,7 @@ def imu_axes_from_turns(turns, gravities=(), gravity_sigma_rad: float = 0.0) -> 
         # the turns leave a direction open (their axes alike): the holds' gravities, which turn with D about
         # every axis but their own, fix it with them; the gravity test then checks a fit they took part in
         D = wahba(np.vstack([r_i, g_images]), np.vstack([r_g, g_imu]), np.concatenate([w, 1.0 / g_var]))
-        chi2_turns = w * np.sum((r_i - r_g @ D.T) ** 2, axis=1)
-        spread = float(np.sum(chi2_turns) / max(3 * len(w) - 3, 1))
+        spread = _spread(_turn_chi2(r_i, r_g, w, D))
         info = _information(r_g @ D.T, w) + _information(g_imu @ D.T, 1.0 / g_var)
     # the gravity test takes D's std from the stds alone: the residuals' spread widens it where the IMU turns
     # with something the rig file lacks (a bar it rides on), which is what that test is to catch
@@ -269,8 +272,23 @@ def turn_refutes_axes(turn) -> bool:
     R, s, g = turn
     residual = log_so3(np.asarray(R, dtype=float)) - log_so3(g.R)
     squared = float(residual @ residual)
-    return squared / (g.sigma_rad ** 2 + max(s, IMAGES_TURN_SIGMA_RAD) ** 2) > ONE_TURN_CHI2 and \
-        squared > math.radians(TURN_REFUTES_DEG) ** 2
+    return squared * _turn_weight(s, g) > ONE_TURN_CHI2 and squared > math.radians(TURN_REFUTES_DEG) ** 2
+
+
+def _turn_weight(sigma_images_rad: float, gyro) -> float:
+    """A turn's weight: one over the variance per axis of its rotation vectors' difference, the gyro's and the
+    images' (at least :data:`IMAGES_TURN_SIGMA_RAD`)."""
+    return 1.0 / (gyro.sigma_rad ** 2 + max(sigma_images_rad, IMAGES_TURN_SIGMA_RAD) ** 2)
+
+
+def _turn_chi2(r_i: np.ndarray, r_g: np.ndarray, w: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """Each turn's chi-square against r_i = D r_g; D (3, 3), or (P, 3, 3) for P rotations at once (P, n)."""
+    return w * np.sum((r_i - r_g @ np.swapaxes(D, -1, -2)) ** 2, axis=-1)
+
+
+def _spread(chi2_turns: np.ndarray) -> float:
+    """The turns' chi-square per degree of freedom (three per turn, three taken by the fit)."""
+    return float(np.sum(chi2_turns) / max(3 * len(chi2_turns) - 3, 1))
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -302,30 +320,37 @@ def _inverse(info: np.ndarray) -> np.ndarray:
 
 
 def _consensus(r_i: np.ndarray, r_g: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """The turns one rotation fits (mask): the rotation of every pair of turns, each turn within
+    """The turns one rotation fits (mask): the rotation of every pair of turns (at once), each turn within
     :data:`ONE_TURN_CHI2` of it counted, the largest such set (the smallest chi-square among equals) where it holds
     at least half of the turns, else all of them (the spread then tells). A two-hold estimate in another basin can
     be degrees off at a std of a tenth, and in a recording with the axes off, the gravity-bound estimate it is
     weighed against is no better: such turns are left out."""
     n = len(w)
-    best, best_key = np.ones(n, dtype=bool), None
-    for i in range(n):
-        for j in range(i + 1, n):
-            D = wahba(r_i[[i, j]], r_g[[i, j]], w[[i, j]])
-            chi2 = w * np.sum((r_i - r_g @ D.T) ** 2, axis=1)
-            inside = chi2 <= ONE_TURN_CHI2
-            key = (int(inside.sum()), -float(np.sum(chi2[inside])))
-            if 2 * key[0] >= n and key[0] >= MIN_TURNS and (best_key is None or key > best_key):
-                best, best_key = inside, key
-    return best
+    i, j = np.triu_indices(n, 1)
+    pairs = np.stack([i, j], axis=1)  # (P, 2)
+    a, b, pw = r_i[pairs], r_g[pairs], w[pairs]
+    U, _, Vt = np.linalg.svd(np.einsum("pk,pki,pkj->pij", pw, a, b))
+    flip = np.ones((len(pairs), 3))
+    flip[:, 2] = np.sign(np.linalg.det(U @ Vt))
+    D = (U * flip[:, None, :]) @ Vt  # (P, 3, 3): wahba of each pair
+    chi2 = _turn_chi2(r_i[None], r_g[None], w[None], D)  # (P, n)
+    inside = chi2 <= ONE_TURN_CHI2
+    count = inside.sum(axis=1)
+    usable = (2 * count >= n) & (count >= MIN_TURNS)
+    if not usable.any():
+        return np.ones(n, dtype=bool)
+    total = np.where(inside, chi2, 0.0).sum(axis=1)
+    best = np.lexsort((total, -count))
+    best = best[usable[best]][0]
+    return inside[best]
 
 
 def _fit(r_i: np.ndarray, r_g: np.ndarray, w: np.ndarray) -> tuple:
     """(D, each turn's chi-square, the residuals' chi-square per degree of freedom) of the turns' rotation vectors
     r_i = D r_g (weights ``w``, one per turn)."""
     D = wahba(r_i, r_g, w)
-    chi2_turns = w * np.sum((r_i - r_g @ D.T) ** 2, axis=1)
-    return D, chi2_turns, float(np.sum(chi2_turns) / (3 * len(w) - 3))
+    chi2_turns = _turn_chi2(r_i, r_g, w, D)
+    return D, chi2_turns, _spread(chi2_turns)
 
 
 def imu_axes(pipeline) -> MeasuredImuAxes | None:
@@ -362,11 +387,6 @@ def describe_imu_axes(axes: MeasuredImuAxes, mount_rotation: np.ndarray) -> str:
     return f"{seen}: the rig file's imu rotation_xyzw would be [{', '.join(f'{x:.4f}' for x in q)}]"
 
 
-def quat_of(C: np.ndarray) -> tuple:
-    """A rotation as the (x, y, z, w) of ``FeederConfig.imu_axes_turn_xyzw``."""
-    return tuple(float(x) for x in matrix_to_quat_xyzw(C))
-
-
 class AxesMeasuringPass:
     """A pass over a recording around ``inner`` (a :class:`~nrmpc_ros.frontend.imu_units.UnitsMeasuringPass`:
     called with the IMU clock offset, its ``inputs`` the input settings the passes share): the first pass measures
@@ -388,10 +408,7 @@ class AxesMeasuringPass:
             axes = imu_axes(self.pipeline_of(result))
             wrong = axes is not None and axes.applies
             if wrong:
-                before = self.inner.inputs.imu_axes_turn
-                C = axes.correction(self.mount_rotation)
-                self.inner.inputs = replace(self.inner.inputs,
-                                            imu_axes_turn_xyzw=list(quat_of(C if before is None else C @ before)))
+                self.inner.inputs = self.inner.inputs.turned_by(axes.correction(self.mount_rotation))
             if axes is not None and axes.verdict is not AxesVerdict.AGREE and self.said is not None:
                 self.said(axes, result)
             if wrong:
@@ -401,5 +418,5 @@ class AxesMeasuringPass:
 
 __all__ = ["AXES_PRECISION_DEG", "AXES_TOLERANCE_DEG", "AxesMeasuringPass", "AxesVerdict", "FIT_SPREAD",
            "GRAVITY_AGREEMENT_QUANTILE", "IMAGES_TURN_SIGMA_RAD", "MAX_AXES_SIGMA_DEG", "MIN_TURNS", "MeasuredImuAxes",
-           "ONE_TURN_CHI2", "TURN_REFUTES_DEG", "WRONG_AXES_CHI2", "describe_imu_axes", "imu_axes",
-           "imu_axes_from_turns", "quat_of", "turn_refutes_axes", "wahba"]
+           "ONE_TURN_CHI2", "TURNS_KEPT", "TURN_REFUTES_DEG", "WRONG_AXES_CHI2", "describe_imu_axes", "imu_axes",
+           "imu_axes_from_turns", "turn_refutes_axes", "wahba"]

@@ -116,7 +116,7 @@ def gyro_units_from_turns(pipeline) -> GyroUnits | None:
     moves are off camera, but the holds' poses are not. None with fewer than
     :data:`~nrmpc_ros.frontend.imu_clock.MIN_MOVES` such turns."""
     ratios = []
-    for R_images, _, gyro in pipeline.turns_between_holds():
+    for R_images, gyro in pipeline.turns_between_holds():
         images = rotation_angle(R_images)
         if images >= math.radians(MIN_TURN_DEG) and gyro.read_angle_rad > 0:
             ratios.append(images / gyro.read_angle_rad)

@@ -247,8 +247,8 @@ class Pipeline:
         # bars' state (the node runs the stage in another thread)
         self._gravity_inbox: deque = deque()
         # the gyro's turn between consecutive holds (stamp -> (earlier hold's stamp, GyroRotation)) and the
-        # images' turn between them (the stage appends (earlier stamp, stamp, R, std)): the gyro's unit where the
-        # moves are off camera, and the IMU's axes
+        # images' turn between them (the stage appends (earlier stamp, stamp, R)): the gyro's unit where the moves
+        # are off camera
         self.gyro_turns: dict = {}
         self.images_turns: deque = deque(maxlen=TURNS_KEPT)
         self.estimator = HoldEstimator(rig, self.sequence, self.linker, self.stats, method == "4pt-bending",
@@ -577,16 +577,16 @@ class Pipeline:
         self._last_motion[drop] = why
 
     def turns_between_holds(self) -> list:
-        """[(R_images, its std rad per axis, GyroRotation)]: the body's turn between a hold and the hold before it
-        as the images measured it without the IMU (a sequence without the IMU's gravity: std 0, what its poses
-        carry; the IMU gravity test's images-only estimate of the pair; the latest per hold) and as the gyro did,
-        for each hold both measured from the same hold: the gyro's unit and the IMU's axes."""
-        images = {stamp: (before, R, sigma) for before, stamp, R, sigma in list(self.images_turns)}
+        """[(R_images, GyroRotation)]: the body's turn between a hold and the hold before it as the images measured
+        it without the IMU (a sequence without the IMU's gravity, or the IMU gravity test's images-only estimate of
+        the pair; the latest per hold) and as the gyro did, for each hold both measured from the same hold: the
+        gyro's unit."""
+        images = {stamp: (before, R) for before, stamp, R in list(self.images_turns)}
         out = []
-        for stamp, (before, R, sigma) in images.items():
+        for stamp, (before, R) in images.items():
             gyro = self.gyro_turns.get(stamp)
             if gyro is not None and gyro[0] == before:
-                out.append((R, sigma, gyro[1]))
+                out.append((R, gyro[1]))
         return out
 
     def no_hold_report(self) -> str:
