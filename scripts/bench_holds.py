@@ -35,7 +35,10 @@ by its own counter (1000 s at the first frame; replayed as ``nrmpc replay`` does
 the recording times); ``camcounter`` the second camera stamped by its own counter (2500 s at the first frame);
 ``unstamped`` the second camera's and the IMU's drivers leave header.stamp at 0 (stamped by the recording time);
 ``imuaxes`` a rig file whose IMU axes are turned 38 deg off the IMU's (the rotation vector (30, -20, 10) deg, as a
-rig file written by hand; replayed as ``nrmpc replay`` does: the axes measured from the turns between holds).
+rig file written by hand; replayed as ``nrmpc replay`` does: the axes measured from the turns between holds);
+``imuloss`` a 1 kHz IMU whose link lost 5 % of its samples in runs of 30 ms on average, the cameras streaming
+through the moves; ``blur`` a 15 Hz stream whose images integrate 30 ms from their stamps (an indoor exposure:
+the moves smear by up to tens of pixels, the images' content is 15 ms later than their stamps).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -324,6 +327,9 @@ def matrix_styles() -> dict:
         "camcounter": lambda M: (base, {**bag, "camera_clock_start_s": (None, 2500.0) + (None,) * (M - 2)}),
         "unstamped": lambda M: (base, {**bag, "unstamped": ("1", "imu")}),
         "imuaxes": lambda M: (base, {**bag, "rig_imu_turn_deg": IMU_AXES_TURN_DEG}),
+        "imuloss": lambda M: ({**base, "capture": "stream", "imu_rate": 1000.0},
+                              {**bag, "imu_loss": 0.05, "imu_loss_burst_ms": 30.0}),
+        "blur": lambda M: ({**base, "capture": "stream", "rate": 15.0}, {**bag, "shutter_ms": 30.0}),
     }
 
 
@@ -350,7 +356,7 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("imuclock2s", "ring3-soft"), ("imuswing", "cross4-soft"), ("imuraw", "ring3-stiff"),
          ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff"), ("imuhost", "ring5-soft"),
          ("imucounter", "ring6-soft"), ("camcounter", "ring3-stiff"), ("unstamped", "cross4-soft"),
-         ("imuaxes", "ring5-stiff")]
+         ("imuaxes", "ring5-stiff"), ("imuloss", "ring6-stiff"), ("blur", "line2-soft")]
 
 
 def file_rig(rig: Rig, bag: dict) -> Rig:

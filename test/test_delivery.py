@@ -40,6 +40,26 @@ def test_the_delay_spread_does_not_see_clock_offsets_and_measures_bursts():
     assert DelaySpread(60.0).spread(0.0) == 0.0
 
 
+@pytest.mark.parametrize("rate", [0.5, 2.0, 5.0])
+def test_a_recording_played_at_another_speed_spreads_its_delays_by_its_bursts_only(rate):
+    """A bag played at ``rate`` times its speed: its stamps advance ``rate`` s per s of arrival, a trend of the
+    delays that is no burst. A steady camera keeps the spread of its jitter; a driver that buffered 2 s of stamps
+    at a time keeps its bursts (2 / rate s of arrivals); the first burst alone (its frames arriving together)
+    spreads by its stamps' span."""
+    rng = np.random.default_rng(1)
+    steady, bursty, first = DelaySpread(60.0), DelaySpread(60.0), DelaySpread(60.0)
+    for k in range(200):
+        stamp = 1.7e9 + 0.1 * k
+        steady.add(10.0 + 0.1 * k / rate + rng.uniform(0, 0.003), stamp)
+        bursty.add(10.0 + 2.0 * np.ceil(0.1 * k / 2.0) / rate + 0.05, stamp)
+        if k < 20:
+            first.add(10.0 + 2.0 / rate + 0.001 * k, stamp)
+    now = 10.0 + 20.0 / rate
+    assert steady.spread(now) < 0.004
+    assert bursty.spread(now) == pytest.approx(1.9 / rate, rel=0.1)
+    assert first.spread(now) == pytest.approx(1.9, abs=0.05)
+
+
 def test_stamp_lags_see_one_input_fall_behind_not_all_of_them():
     """One input delivering 2 s behind the others lags by 2 s; all of them late together lag by nothing."""
     lags, newest = StampLags(3, 60.0), [-math.inf] * 3

@@ -720,6 +720,8 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--camera-clock-start-s", "1,2,3"], "--camera-clock-start-s"), (["--unstamped", "cam9"], "--unstamped"),
     (["--unstamped", "cam0,,imu"], "--unstamped"), (["--rig-imu-turn-deg", "0,90"], "--rig-imu-turn-deg"),
     (["--rig-imu-turn-deg", "0,0,90"], "--rig-imu-turn-deg"),  # no --save-rig to turn it in
+    (["--imu-loss", "0.7"], "--imu-loss"), (["--imu-loss-burst-ms", "-1"], "--imu-loss-burst-ms"),
+    (["--shutter-ms", "200"], "--shutter-ms"),  # longer than the frame period
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
     rig_flags = ["--no-progress"] if "--rig" in args else TINY
@@ -907,3 +909,48 @@ def test_a_rig_file_with_the_imu_axes_turned_keeps_the_bag_as_recorded(tmp_path)
 
     recorded = imu(tmp_path / "a")
     assert len(recorded) > 100 and np.array_equal(recorded, imu(tmp_path / "b"))
+
+
+def test_an_imu_link_that_loses_samples_in_runs_keeps_the_others_as_recorded(tmp_path):
+    """--imu-loss P --imu-loss-burst-ms B: about P of the IMU's samples are missing, in runs B ms long on average;
+    every sample left is the one recorded without the loss (stamp and reading), and the images are untouched."""
+    args = ["--views", "3", "--hold-seconds", "1.0", "--rate", "5", "--resolution", "160x120", "--seed", "3",
+            "--imu-rate", "1000"]
+    whole, _ = make(tmp_path, "whole", *args)
+    lossy, _ = make(tmp_path, "lossy", *args, "--imu-loss", "0.1", "--imu-loss-burst-ms", "20")
+    t_whole = np.array([stamp(m) for _, m in whole["/imu/data"]])
+    t_lossy = np.array([stamp(m) for _, m in lossy["/imu/data"]])
+    kept = np.isin(t_whole, t_lossy)
+    assert kept.sum() == len(t_lossy) and 0.03 < 1.0 - kept.mean() < 0.25
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[1], kept.astype(int), [1]]))))[::2]  # lost runs
+    assert 5 < runs.mean() < 60, "runs of about 20 samples at 1 kHz"
+    for attr in ("linear_acceleration", "angular_velocity"):
+        assert np.array_equal(vectors(whole, "/imu/data", attr)[kept], vectors(lossy, "/imu/data", attr))
+    images = [topic for topic in whole if topic.endswith("image_raw")]
+    assert images and all(np.array_equal(a.data, b.data) for topic in images
+                          for (_, a), (_, b) in zip(whole[topic], lossy[topic]))
+
+
+def test_a_shutter_time_blurs_the_moving_images_only(tmp_path):
+    """--shutter-ms S: an image integrates the scene over S ms from its stamp; in a still hold it is the image an
+    instant shutter takes, during a move it is smoothed along the motion (less detail: a smaller mean gradient)."""
+    from nrmpc_ros.bag.reader import BagReader
+
+    args = ["--views", "2", "--hold-seconds", "0.6", "--move-seconds", "0.6", "--rate", "10", "--capture", "stream",
+            "--resolution", "160x120", "--seed", "2", "--image-noise", "0", "--imu-rate", "100"]
+    instant, _ = make(tmp_path, "instant", *args)
+    blurred, _ = make(tmp_path, "blurred", *args, "--shutter-ms", "40")
+    with BagReader(tmp_path / "instant") as bag:
+        moving = [float(np.linalg.norm([m.vector.x, m.vector.y, m.vector.z])) > 1e-6
+                  for _, _, m in bag.messages(["/ground_truth/angular_velocity"])]
+    still = [not (a or b) for a, b in zip(moving, moving[1:] + [False])]  # through the shutter (40 of 100 ms)
+    sharp, detail = 0, np.zeros(2)
+    for quiet, (_, a), (_, b) in zip(still, instant["/cam0/image_raw"], blurred["/cam0/image_raw"]):
+        ia = np.frombuffer(a.data, np.uint8).reshape(120, 160).astype(float)
+        ib = np.frombuffer(b.data, np.uint8).reshape(120, 160).astype(float)
+        if quiet:
+            assert np.abs(ia - ib).max() <= 1.0, "a still image is the instant's"
+            sharp += 1
+        else:
+            detail += [np.abs(np.diff(i, axis=1)).mean() + np.abs(np.diff(i, axis=0)).mean() for i in (ia, ib)]
+    assert sharp >= 8 and detail[1] < 0.95 * detail[0], detail

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 from rendered_bags import rig_file
-from test_feeder import TOPICS, image, imu
+from test_feeder import TOPICS, image, imu, messages
 
 from nrmpc_ros.core import load_rig
 from nrmpc_ros.frontend.drops import Drop
@@ -157,6 +157,32 @@ def test_the_end_of_the_input_flushes_and_the_diagnostics_say_so(rig):
     cams = s.diagnostics()[0]
     assert cams.level == OK and "the input ended" in cams.message
     assert cams.values["/cam0/image_raw: state"] == "input ended"
+
+
+@pytest.mark.parametrize("how", ["own clock", "unstamped"])
+def test_the_input_ends_on_time_after_a_cameras_stamps_are_read_another_way(rig, how):
+    """Camera 1 stamps with a counter since its power-on (2500 s at the others' 1.7e9 s), or leaves its stamps at
+    0, and speaks 0.5 s before the others: once its stamps are read another way (moved onto the others' clock,
+    or stamped by their arrival) the delays measured before are of another timeline, so when every camera falls
+    silent the input ends after the camera timeout, as for cameras on one clock (not once the window that
+    measures how cameras deliver has forgotten the old stamps, a minute later)."""
+    t0 = 1_700_000_000.0
+    msgs = [m for m in messages(t0=t0, seconds=3.0) if (m[1] == "image" and m[2] == 1) or m[3] >= t0 + 0.5]
+    clock = Clock()
+    s, _, logs = service(rig, clock=clock, camera_timeout_s=1.0)
+    for arrival, kind, i, t in msgs:
+        clock.t = arrival
+        if kind == "image":
+            stamp = (t - t0 + 2500.0 if how == "own clock" else 0.0) if i == 1 else t
+            s.on_image(i, image(stamp), arrival)
+        else:
+            s.on_imu(imu(t), arrival)
+    moved = s.feeder.rebases if how == "own clock" else [line for _, line in logs if "stamps do not advance" in line]
+    assert moved, logs
+    end = clock.t
+    clock.t = end + 2.0
+    s.tick()
+    assert any("the input ended" in line for _, line in logs), [line for _, line in logs]
 
 
 def test_a_silent_camera_and_bad_imu_samples_are_warnings_in_the_diagnostics(rig):

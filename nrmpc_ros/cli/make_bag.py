@@ -45,6 +45,7 @@ DEFAULTS = {
     "imu_covariance_scale": _B.imu_covariance_scale, "imu_lowpass_hz": _B.imu_lowpass_hz, "imu_bias": _B.imu_bias,
     "gyro_bias": _B.gyro_bias, "accel_scale_error": _B.accel_scale_error,
     "vibration": _B.vibration, "vibration_hz": _B.vibration_hz, "imu_stamp_jitter_ms": _B.imu_stamp_jitter_ms,
+    "shutter_ms": _B.shutter_ms, "imu_loss": _B.imu_loss, "imu_loss_burst_ms": _B.imu_loss_burst_ms,
     "imu_gravity_removed": _B.imu_gravity_removed,
     "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
@@ -250,6 +251,12 @@ def register(sub):
                     help="a driver that stamps each IMU sample when the host receives it: the stamp trails the "
                          "sample by up to MS ms (uniform), in arrival order; above the sample period samples come "
                          f"in batches (default {d['imu_stamp_jitter_ms']:g}: stamped when taken)")
+    se.add_argument("--imu-loss", type=float, metavar="P",
+                    help="share of the IMU's samples the recording lost, in [0, 0.5]: a USB or serial link, a busy "
+                         f"recorder (default {d['imu_loss']:g})")
+    se.add_argument("--imu-loss-burst-ms", type=float, metavar="MS",
+                    help="the lost samples come in runs this long on average (ms; at 1 kHz, 20 ms is 20 samples "
+                         f"in a row) (default {d['imu_loss_burst_ms']:g}: one by one)")
     se.add_argument("--gyro-unit", choices=sorted(GYRO_UNITS),
                     help="unit of the Imu messages' angular_velocity and its covariance: deg/s is a driver that "
                          f"breaks REP 103 (default {d['gyro_unit']})")
@@ -287,6 +294,10 @@ def register(sub):
                          "was recorded with: a rig file whose IMU axes are wrong, as a hand-written one for a flight "
                          "controller mounted sideways (0,0,90) or FRD axes taken for FLU (180,0,0) (default: the "
                          "IMU's true rotation)")
+    se.add_argument("--shutter-ms", type=float, metavar="MS",
+                    help="each image integrates the scene over MS ms from its trigger, its stamp (a camera's "
+                         "exposure time: 5-30 ms indoors): motion blur while the rig moves or its bars ring, up to "
+                         f"the frame period (default {d['shutter_ms']:g}: an instant)")
     se.add_argument("--jitter-ms", type=float,
                     help="each camera's stamp is off the trigger by a uniform random amount within +-J ms (default 0)")
     se.add_argument("--drop-rate", type=float, help="probability that a camera loses a frame, in [0, 1) (default 0)")
@@ -476,6 +487,7 @@ def bag_options(o: dict):
                       accel_scale_error=o["accel_scale_error"], vibration=o["vibration"],
                       vibration_hz=o["vibration_hz"],
                       imu_stamp_jitter_ms=o["imu_stamp_jitter_ms"], imu_gravity_removed=o["imu_gravity_removed"],
+                      shutter_ms=o["shutter_ms"], imu_loss=o["imu_loss"], imu_loss_burst_ms=o["imu_loss_burst_ms"],
                       imu=not o["no_imu"], damping=o["damping"],
                       jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
@@ -524,6 +536,8 @@ def run(args) -> int:
     tilts = [math.degrees(math.acos(max(-1.0, min(1.0, float(R[2, 2]))))) for R in traj.R]
     print(f"wrote {o['out']}: {summary['views']} holds, {summary['frames']} triggers ({opts.motion.capture}), "
           f"{summary['images']} images of {rig.num_cameras} cameras, {summary['dropped']} frames dropped, "
+          + (f"{summary['imu_lost']} IMU samples lost, " if summary["imu_lost"] else "")
+          + (f"{summary['blurred']} images blurred by the shutter, " if summary["blurred"] else "") +
           f"{summary['duration_s']:.1f} s, "
           f"tilts {min(tilts):.0f}-{max(tilts):.0f} deg", file=sys.stderr)
     if summary["holds"][0]["settled"] is not None:  # the bars ring (--damping or the rig file's bar.damping)

@@ -8,8 +8,10 @@ both measure it (README, "The ROS 2 node"; docs/ARCHITECTURE.md, "The node's two
   or the largest age of a message it delivered (the first burst shows its silence in the age of its oldest
   message, before a second burst shows it as a gap);
 - :class:`DelaySpread`: the spread of arrival minus stamp over an input's messages, on any two clocks (their
-  offset cancels): a few milliseconds for a steady driver, the burst interval for one that buffers; a stop
-  and a restart leave it as it was (fresh frames come as fresh as before);
+  offset cancels) running at any rate against each other (a bag played at twice its speed delivers a second of
+  stamps every half second: that trend is taken out, it is no burst): a few milliseconds for a steady driver,
+  the burst interval for one that buffers; a stop and a restart leave it as it was (fresh frames come as fresh
+  as before);
 - :class:`StampLags`: how far an input's messages came behind the other inputs' newest stamps (one camera
   that buffers, not a stall of the whole process).
 
@@ -22,8 +24,13 @@ from __future__ import annotations
 import math
 from collections import deque
 
+import numpy as np
+
 DELIVERY_WINDOW_S = 60.0  # how an input delivers is judged over this much of its latest messages: a recording
 # that changes its habits is judged by its recent ones
+PLAYBACK_RATES = (0.1, 10.0)  # arrival seconds per second of stamps a recording may be played at: a trend of the
+# delays inside this range is a playback rate, outside it a burst (a burst's frames arrive together: a rate near 0)
+RATE_MIN_MESSAGES = 8  # the trend is fitted over at least this many messages
 BURST_MARGIN = 1.5  # an input that delivers in bursts is waited for this many times its longest silence seen:
 # its next burst may come somewhat later than the longest one so far
 
@@ -103,19 +110,49 @@ class StampLags:
 
 
 class DelaySpread:
-    """The spread (s) of arrival minus stamp over one input's messages of the last ``window_s`` of arrivals."""
+    """The spread (s) of arrival minus stamp over one input's messages of the last ``window_s`` of arrivals, with
+    the rate of the stamps against the arrival clock taken out where they run at another (a bag played at
+    another speed: arrival = a0 + r stamp, r in :data:`PLAYBACK_RATES`, fitted by least squares). A fit counts
+    only where it explains the delays (its residuals spread less than half as much as the delays): a driver that
+    buffers delivers in a sawtooth that no line explains, and a burst's frames arriving together fit a rate near
+    0, outside the range. Computed when asked after a change (the messages of the window kept, a few thousand)."""
 
     def __init__(self, window_s: float):
-        self._high, self._low = SlidingMax(window_s), SlidingMax(window_s)
+        self.window_s = window_s
+        self._items: deque = deque()  # (arrival, stamp)
+        self._spread: float | None = None  # the spread of the messages kept; None: to compute
 
     def add(self, arrival: float, stamp: float) -> None:
-        delay = arrival - stamp
-        self._high.add(arrival, delay)
-        self._low.add(arrival, -delay)
+        self._items.append((arrival, stamp))
+        self._spread = None
 
     def spread(self, now: float) -> float:
-        """Largest minus smallest delay within the window of ``now``; 0 before a message."""
-        return max(0.0, self._high.largest(now) + self._low.largest(now))
+        """The spread of the delays within the window of ``now`` (the rate taken out); 0 before a message."""
+        while self._items and self._items[0][0] < now - self.window_s:
+            self._items.popleft()
+            self._spread = None
+        if self._spread is None:
+            self._spread = self._compute()
+        return self._spread
+
+    def _compute(self) -> float:
+        if len(self._items) < 2:
+            return 0.0
+        a, s = np.array(self._items).T
+        a, s = a - a[0], s - s[0]  # (stamps of 1.7e9 s: differences keep the precision)
+        d = a - s
+        raw = float(d.max() - d.min())
+        if len(a) >= RATE_MIN_MESSAGES and raw > 0:
+            sc = s - s.mean()
+            ss = float(sc @ sc)
+            rate = float(sc @ (a - a.mean())) / ss if ss > 0 else math.nan
+            if PLAYBACK_RATES[0] <= rate <= PLAYBACK_RATES[1]:
+                e = a - rate * s
+                fitted = float(e.max() - e.min())
+                if fitted < 0.5 * raw:
+                    return fitted
+        return raw
 
 
-__all__ = ["BURST_MARGIN", "DELIVERY_WINDOW_S", "DelaySpread", "DeliveryGaps", "SlidingMax", "StampLags"]
+__all__ = ["BURST_MARGIN", "DELIVERY_WINDOW_S", "PLAYBACK_RATES", "DelaySpread", "DeliveryGaps", "SlidingMax",
+           "StampLags"]

@@ -199,6 +199,8 @@ class Feeder:
         self._stamps: OrderedDict = OrderedDict()  # frame stamp (s) -> (sec, nanosec) as received
         self.resized = [0] * rig.num_cameras  # images per camera resized to the rig file's size
         self.rebases: list = []  # ClockRebase: inputs moved onto the others' clock
+        self.timeline = -1  # changes of how the cameras' stamps are read (a new epoch, a camera moved onto the
+        # others' clock or stamped by its arrival): what was measured of their delays before is of another timeline
         self._camera_offsets = [0.0] * rig.num_cameras  # s added to each camera's stamps (moved off its own clock)
         self._early: list | None = []  # the cameras' first frames, held while a camera's arrival lags are apart
         # from the other inputs' and its clock is not known yet (None from then on)
@@ -209,6 +211,7 @@ class Feeder:
         self._new_epoch()
 
     def _new_epoch(self) -> None:
+        self.timeline += 1
         self.sync = self._new_sync()
         self._frames: deque = deque()  # (FrameSet, arrival) waiting for the IMU
         self._imu: deque = deque()  # (stamp, accel, gyro, covariances or None)
@@ -452,12 +455,14 @@ class Feeder:
             if frozen or self._frozen.repeating(stream):
                 return True
             self._by_arrival.discard(stream)
+            self.timeline += stream != IMU
             self._domains.reset([stream])
             self.log("warn", f"{self.name_of(stream)}: stamps advance again: its own from now on")
             return False
         if not frozen:
             return False
         self._by_arrival.add(stream)
+        self.timeline += stream != IMU
         self._domains.reset([stream])
         if stream == IMU:
             frozen = float(np.asarray(stamps, dtype=float).reshape(-1)[-1]) + self.config.imu_clock_offset_s
@@ -494,6 +499,7 @@ class Feeder:
         why = rebase.describe(self.name_of(rebase.stream))
         self.log("warn", why)
         self._camera_offsets[rebase.stream] += rebase.offset_s
+        self.timeline += 1
         if self._cam_newest[rebase.stream] > -math.inf:
             self._start_afresh(why)
         self.guard = self._new_guard()

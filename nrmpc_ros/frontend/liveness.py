@@ -83,8 +83,10 @@ class CameraWatch:
 
     def seen(self, i: int, now: float, stamp: float | None = None, epoch: int = 0) -> list:
         """Camera ``i`` sent an image at ``now``; ``stamp``: its stamp (s) when the input accepted it (its
-        delay measures how the camera delivers), else None; ``epoch``: the input's count of jumps back in time
-        (the stamps of another epoch are on another timeline: the delays start afresh)."""
+        delay measures how the camera delivers), else None; ``epoch``: the input's count of changes in how it
+        reads the cameras' stamps (:attr:`~nrmpc_ros.frontend.feeder.Feeder.timeline`: a jump back in time, a
+        camera moved onto the others' clock or stamped by its arrival): the stamps of another epoch are on
+        another timeline, and the delays start afresh."""
         if epoch != self._epoch:
             self._epoch = epoch
             self._new_timeline()

@@ -277,7 +277,7 @@ class EstimatorService:
             self._guarded(self.camera_topics[index], self.feeder.image, index, msg, now)
             after = self.feeder.newest_frame(index)  # the stamp of an accepted frame tells how the camera delivers
             for level, line in self.watch.seen(index, self.clock(), after if after != before else None,
-                                               self.feeder.events["time jumps back"]):
+                                               self.feeder.timeline):
                 self.log(level, line)
 
     def on_imu(self, msg, now: float | None) -> None:

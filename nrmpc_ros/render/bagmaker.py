@@ -45,6 +45,7 @@ import itertools
 import math
 import numbers
 import shutil
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,6 +75,12 @@ IMU_FRAME = "imu"
 # A still camera is re-rendered only when its bar's load moved by more than this (m/s^2): for the bars of
 # this project (c_r <= 0.1 rad per m/s^2, f <= 1000 px) that shifts the image by less than 1e-4 px.
 CACHE_LOAD_TOLERANCE = 1e-6
+# A shutter's motion blur is rendered as the mean of instants this far apart along each pixel's path (px), at most
+# BLUR_MAX_INSTANTS of them (a longer smear is sampled more sparsely; at 2 x 2 rays per pixel the mean of instants
+# 1 px apart is the smear's integral within the noise)
+BLUR_STEP_PX = 1.0
+BLUR_MAX_INSTANTS = 24
+BLUR_DEPTH_M = 1.0  # the nearest depth at which a camera's translation during the shutter counts toward its blur
 
 
 def _real(x) -> bool:
@@ -125,6 +132,10 @@ class BagOptions:
     imu_stamp_jitter_ms: float = 0.0  # a driver that stamps each IMU sample when the host receives it: the
     # stamp trails the sample by U(0, this) ms, kept in arrival order (a serial or USB link; where this exceeds
     # the sample period, samples arrive in batches of nearly equal stamps)
+    shutter_ms: float = 0.0  # each image integrates the scene over this long from its trigger (its stamp): motion
+    # blur while the rig moves or its bars ring (0: an instant)
+    imu_loss: float = 0.0  # share of the IMU's samples the recording lost (a USB or serial link, a busy recorder)
+    imu_loss_burst_ms: float = 0.0  # mean length of a run of lost samples (ms; 0: samples lost one by one)
     exposure_drift: float = 0.0  # amplitude of each camera's slow gain change (0.2: gain 0.8-1.2)
     exposure_period_s: float = 20.0  # typical period of the exposure drift
     camera_latency_ms: float = 0.0  # each image is received (bag time) this long after its stamp
@@ -177,6 +188,15 @@ class BagOptions:
             value = getattr(self, name)
             if not (_real(value) and 0 <= value <= top):
                 raise OptionError(_OWNER, name, f"must be a finite number in [0, {top}], got {value!r}")
+        if not (_real(self.shutter_ms) and 0 <= self.shutter_ms <= 1e3 / max(self.motion.camera_rates
+                                                                             or (self.motion.rate,))):
+            raise OptionError(_OWNER, "shutter_ms", f"must be a finite number of ms from 0 to the frame period, "
+                              f"got {self.shutter_ms!r}")
+        if not (_real(self.imu_loss) and 0 <= self.imu_loss <= 0.5):
+            raise OptionError(_OWNER, "imu_loss", f"must be a share in [0, 0.5], got {self.imu_loss!r}")
+        if not (_real(self.imu_loss_burst_ms) and 0 <= self.imu_loss_burst_ms <= 10000):
+            raise OptionError(_OWNER, "imu_loss_burst_ms", f"must be a finite number in [0, 10000], "
+                              f"got {self.imu_loss_burst_ms!r}")
         if not (_real(self.drop_rate) and 0 <= self.drop_rate < 1):
             raise OptionError(_OWNER, "drop_rate", f"must be in [0, 1), got {self.drop_rate!r}")
         if self.damping is not None:
@@ -316,6 +336,39 @@ def hold_intervals(traj: Trajectory, loads: CameraLoads) -> list:
                                   settled if settled is not None else traj.hold_start, traj.creeping)]
 
 
+class ShutterRenderer:
+    """Images integrated over the shutter time from each trigger: the mean of renders at instants spread over
+    it, as many as the camera's image moves by (its turn and the shift of its centre during the shutter, in
+    pixels, :data:`BLUR_STEP_PX` apart); one render at the shutter's middle when it moves by less."""
+
+    def __init__(self, renderer, traj: Trajectory, loads: CameraLoads, shutter_ns: int):
+        self.renderer, self.traj, self.loads, self.shutter_ns = renderer, traj, loads, int(shutter_ns)
+        self.instants = Counter()  # renders per image: how many images took how many instants
+
+    def _poses(self, t_ns: np.ndarray) -> list:
+        R, p, _, _ = self.traj.state(t_ns)
+        cam_loads = self.loads.at(t_ns)
+        return [self.renderer.camera_poses(R[k], p[k], cam_loads[k]) for k in range(len(t_ns))]
+
+    def instant_count(self, i: int, t_ns: int) -> int:
+        """How many instants camera i's image at trigger t_ns needs."""
+        (Ra, ca), (Rb, cb) = self._poses(np.array([t_ns, t_ns + self.shutter_ns], dtype=np.int64))
+        turn = np.arccos(np.clip(0.5 * (np.trace(Ra[i].T @ Rb[i]) - 1.0), -1.0, 1.0))
+        focal = float(self.renderer.rig.cameras[i].intrinsics[0])
+        blur_px = focal * (turn + np.linalg.norm(cb[i] - ca[i]) / BLUR_DEPTH_M)
+        return int(min(BLUR_MAX_INSTANTS, max(1, math.ceil(blur_px / BLUR_STEP_PX))))
+
+    def render(self, i: int, t_ns: int, count: int) -> np.ndarray:
+        """Camera i's image exposed from t_ns for the shutter time, the mean of ``count`` instants."""
+        ts = t_ns + np.rint((np.arange(count) + 0.5) / count * self.shutter_ns).astype(np.int64)
+        img = None
+        for Rs, cs in self._poses(ts):
+            one = self.renderer.render_camera(i, Rs[i], cs[i])
+            img = one if img is None else img + one
+        self.instants[count] += 1
+        return img / count
+
+
 class _StillCache:
     """Images of still cameras, reused while the body stays in one hold and the camera's load is unchanged."""
 
@@ -348,6 +401,31 @@ class Exposure:
         return 1.0 + self.amplitude * float(s[0]), EXPOSURE_OFFSET_GREY * self.amplitude * float(s[1])
 
 
+def lost_samples(n: int, loss: float, burst_samples: float, rng: np.random.Generator) -> np.ndarray:
+    """Which of ``n`` samples a link lost (n,) bool: runs of kept and of lost samples alternate, each of a
+    geometric length, the lost ones ``burst_samples`` long on average (at least 1) and the kept ones as long as
+    makes ``loss`` the share lost (a two-state Gilbert channel, drawn run by run)."""
+    lost = np.zeros(n, dtype=bool)
+    if loss <= 0 or n == 0:
+        return lost
+    mean_lost = max(1.0, float(burst_samples))
+    mean_kept = mean_lost * (1.0 - loss) / loss
+    runs = max(8, int(4 * n / (mean_lost + mean_kept)) + 8)
+    while True:  # enough runs to cover n samples (almost always the first draw)
+        kept = rng.geometric(min(1.0, 1.0 / mean_kept), size=runs)
+        gone = rng.geometric(1.0 / mean_lost, size=runs)
+        ends = np.cumsum(np.stack([kept, gone], axis=1).ravel())
+        if ends[-1] >= n:
+            break
+        runs *= 2
+    starts, stops = ends[0::2], ends[1::2]  # lost runs [start, stop)
+    edges = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(edges, np.minimum(starts, n), 1)
+    np.add.at(edges, np.minimum(stops, n), -1)
+    lost[:] = np.cumsum(edges[:n]) > 0
+    return lost
+
+
 def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     """Render and write a bag into ``out`` (a new directory; nothing is written elsewhere).
 
@@ -360,13 +438,14 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     opts.validate()
     opts.motion.validate_cameras(rig.num_cameras)
     ss = np.random.SeedSequence(int(opts.seed))
-    rng_traj, rng_imu, rng_img, rng_jitter, rng_drop, rng_exposure, rng_stamp = (
-        np.random.default_rng(s) for s in ss.spawn(7))  # a seed's first six streams as before a seventh was added
+    rng_traj, rng_imu, rng_img, rng_jitter, rng_drop, rng_exposure, rng_stamp, rng_loss = (
+        np.random.default_rng(s) for s in ss.spawn(8))  # a seed's first streams as before later ones were added
     scene = make_scene(int(opts.seed))
     traj = make_trajectory(rng_traj, opts.motion, rig.gravity_magnitude)
     loads = CameraLoads(rig, traj, opts.damping)
     _check_inside(rig, traj, scene, loads)
     renderer = Renderer(rig, scene, opts.supersample)
+    shutter = ShutterRenderer(renderer, traj, loads, int(round(opts.shutter_ms * 1e6))) if opts.shutter_ms else None
     frame_t, frame_view, fires = traj.camera_triggers(opts.motion, rig.num_cameras)
     M = rig.num_cameras
     jitter_ns = np.rint(rng_jitter.uniform(-1.0, 1.0, size=(len(frame_t), M)) * opts.jitter_ms * 1e6).astype(np.int64)
@@ -410,6 +489,11 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     if opts.imu_stamp_jitter_ms:
         delay = rng_stamp.uniform(0.0, opts.imu_stamp_jitter_ms * 1e6, size=len(imu_t))
         imu_stamp = np.maximum.accumulate(imu_t + np.rint(delay).astype(np.int64))
+    # samples the link lost: taken out after the readings, so every other sample reads as without the loss
+    imu_lost = lost_samples(len(imu_t), opts.imu_loss, opts.imu_loss_burst_ms * 1e-3 * opts.motion.imu_rate, rng_loss)
+    if imu_lost.any():
+        kept = ~imu_lost
+        imu_t, imu_stamp, accel, gyro = imu_t[kept], imu_stamp[kept], accel[kept], gyro[kept]
     R, p, omega, _ = traj.state(frame_t)
     g_true = traj.gravity_body(R)
     cam_loads = loads.at(frame_t)  # (F, M, 3)
@@ -456,8 +540,12 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                     cam = rig.cameras[i]
                     img = cache.get(i, key, cam_loads[n, i])
                     if img is None and not dropped[n, i]:
-                        img = renderer.render_camera(i, Rs[i], cs[i])
-                        cache.put(i, key, cam_loads[n, i], img)
+                        if shutter is None:
+                            img = renderer.render_camera(i, Rs[i], cs[i])
+                        else:  # blurred where the image moves during the shutter
+                            count = shutter.instant_count(i, t)
+                            img = shutter.render(i, t, count)
+                        cache.put(i, key if shutter is None or count == 1 else -1, cam_loads[n, i], img)
                     h, w = cam.resolution[1], cam.resolution[0]
                     noise = rng_img.normal(scale=opts.image_noise, size=(h, w)) if opts.image_noise else 0.0
                     if dropped[n, i]:
@@ -494,5 +582,6 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
         "dropped": int((dropped & fires).sum()),
         "duration_s": (traj.end_ns - traj.start_ns) * 1e-9, "holds": hold_intervals(traj, loads),
         "bar_frequencies_hz": [float(f) for f in loads.frequencies], "trajectory": traj,
-        "images": int((fires & ~dropped).sum()),
+        "images": int((fires & ~dropped).sum()), "imu_lost": int(imu_lost.sum()),
+        "blurred": 0 if shutter is None else int(sum(v for k, v in shutter.instants.items() if k > 1)),
     }
