@@ -31,8 +31,8 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        "test": ["pytest>=7", "ruff>=0.5", "colcon-core", "colcon-ros", "dask[distributed]>=2024.1",
-                 "hypothesis>=6.100", "evo>=1.28"],
+        "test": ["pytest>=7", "pytest-xdist>=3.5", "ruff>=0.5", "colcon-core", "colcon-ros",
+                 "dask[distributed]>=2024.1", "hypothesis>=6.100", "evo>=1.28"],
         "dask": ["dask[distributed]>=2024.1"],
     },
     zip_safe=True,

@@ -7,7 +7,6 @@ import ast
 import importlib.metadata
 import importlib.util
 import os
-import random
 import shutil
 import signal
 import subprocess
@@ -17,6 +16,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+from dds import domain_id
 
 from nrmpc_ros.core.rig import load_rig
 from nrmpc_ros.errors import InputError
@@ -333,7 +333,7 @@ def test_installed_estimator_runs_with_the_installed_params_and_rig_from_another
 
     from nrmpc_ros.ros_play import BackgroundNode
 
-    domain = random.randint(1, 100)
+    domain = domain_id(1, 100)
     env = {**_run_env(workspace), "ROS_DOMAIN_ID": str(domain), "ROS_LOG_DIR": str(tmp_path / "ros_log"),
            "PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0"}
     share = _share(workspace)

@@ -4,7 +4,6 @@ descriptors, start-up errors naming what is wrong, transports, the published mes
 
 from __future__ import annotations
 
-import random
 import threading
 import time
 from collections import Counter
@@ -13,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from dds import domain_id
 
 from nrmpc_ros.errors import InputError
 
@@ -42,7 +42,7 @@ RIG = str(REPO / "config" / "sample_cross4.yaml")
 @pytest.fixture
 def ctx():
     context = Context()
-    rclpy.init(context=context, domain_id=random.randint(101, 200))
+    rclpy.init(context=context, domain_id=domain_id(101, 200))
     yield context
     rclpy.try_shutdown(context=context)
 

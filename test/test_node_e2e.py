@@ -10,7 +10,6 @@ import copy
 import csv
 import math
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -19,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from dds import domain_id
 from rendered_bags import CAMERAS, IMU, stream_bag
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: install the ros extra (pip install -e .[ros])")
@@ -191,7 +191,7 @@ class Session:
     """A node started with ``args`` and a listener, in a domain of their own; ``start`` adds players."""
 
     def __init__(self, tmp: Path, rig: Path, *args, ns: str = ""):
-        self.tmp, self.domain = tmp, random.randint(1, 100)
+        self.tmp, self.domain = tmp, domain_id(1, 100)
         self.env = env_for(self.domain, tmp)
         self.listener = Listener(self.domain, ns)
         self.procs = [start(estimator(rig, *args), self.env, tmp / "node.log")]
@@ -321,7 +321,7 @@ def test_a_typo_in_a_parameter_stops_the_start_with_its_name(tmp_path):
     params.write_text("/**:\n  ros__parameters:\n    rig_file: config/sample_cross4.yaml\n"
                       "    pipeline.holds.mesure_s: 2.0\n")
     proc = subprocess.run([str(BIN / "estimator"), "--ros-args", "--params-file", str(params)], cwd=REPO,
-                          env=env_for(random.randint(1, 100), tmp_path), capture_output=True, text=True, timeout=120)
+                          env=env_for(domain_id(1, 100), tmp_path), capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert "parameter pipeline.holds.mesure_s: unknown parameter(s) pipeline.holds.mesure_s" in proc.stderr
     assert "Traceback" not in proc.stderr + proc.stdout

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import math
 import os
-import random
 import signal
 import threading
 import time
 
 import numpy as np
 import pytest
+from dds import domain_id
 from rendered_bags import CAMERAS, IMU, restamped, rewrite, stamp_ns
 from test_node_e2e import (
     CpuHog,
@@ -34,6 +34,7 @@ from test_node_e2e import (
 )
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: install the ros extra (pip install -e .[ros])")
+
 
 from nrmpc_ros.frontend.service import SHUTDOWN_S  # noqa: E402
 
@@ -67,7 +68,7 @@ def test_a_signal_ends_the_node_within_its_budget_at_full_load(bag, tmp_path, si
     sets and a hold open or in estimation when the signal comes. The exit is timed from the signal to the
     process's end, and must not exceed ``SHUTDOWN_S`` (+ the poll period of this test)."""
     path, rig, _ = bag
-    domain = random.randint(1, 100)
+    domain = domain_id(1, 100)
     env = env_for(domain, tmp_path)
     listener = Listener(domain)
     node = start(estimator(rig, "-p", "work_queue_size:=30"), env, tmp_path / "node.log")
@@ -129,7 +130,7 @@ def test_auto_transport_finds_the_cameras_in_either_start_order(bag, replayed, t
     before they play, as ``nrmpc play --wait-for-subscribers`` does: the node subscribes to a compressed camera
     once it has seen its publisher."""
     path, rig, _ = bag
-    domain = random.randint(1, 100)
+    domain = domain_id(1, 100)
     env = env_for(domain, tmp_path)
     listener = Listener(domain)
     node_up = threading.Event()

@@ -3,10 +3,10 @@ database, a missing bag (no traceback); a good bag plays."""
 
 from __future__ import annotations
 
-import random
 import shutil
 
 import pytest
+from dds import domain_id
 
 from nrmpc_ros.bag.writer import BagWriter
 from nrmpc_ros.cli.main import main
@@ -70,6 +70,6 @@ def test_bad_bags_are_one_clear_error_each(small_bag, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_good_bag_plays(small_bag, capsys, monkeypatch):
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(101, 200)))
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain_id(101, 200)))
     code, err = play([small_bag, "--rate", "100"], capsys)
     assert code == 0 and "published 12 messages on 4 topics" in err
