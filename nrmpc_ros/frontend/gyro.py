@@ -18,6 +18,9 @@ from ..core.rig import ImuMount
 from ..core.so3 import exp_so3, rotation_angle
 from .imu import ImuBuffer
 
+ACCELERATION_SPAN_S = 0.05  # the angular acceleration that bounds a gap's unknown turn is read over this span (s):
+# long enough that the gyro's noise (0.002 rad/s per sample) adds little (0.06 rad/s^2), short against a move
+
 
 @dataclass(frozen=True)
 class GyroRotation:
@@ -47,13 +50,17 @@ def rotation_between(buffer: ImuBuffer, mount: ImuMount, still: tuple, move: tup
     """The body's rotation over ``move`` = (t0, t1) (from the end of one hold to the next), bias-corrected
     with the mean rate over ``still`` = (t0, t1) (the earlier hold's still part). None with an IMU inside a
     camera (it turns with its bar), fewer than two samples in either span, no gyro (every rate exactly 0:
-    a message without angular velocity), the move's samples more than ``max_age_s`` from its ends, or a gap in
-    them (:attr:`~.imu.ImuBuffer.gaps`: what the body turned while no sample came is unknown).
+    a message without angular velocity), or the move's samples more than ``max_age_s`` from its ends.
 
     The std adds the samples' angle random walk (their rate noise while still), the bias's own std over the
     move and ``scale_error`` (the gyro's scale-factor error, a share) of the angle travelled (the integral of
     the rate's magnitude: a move that turns one way and back, or about several axes, travels more than its net
     rotation, and the scale error of each part need not cancel).
+
+    A gap in the samples (:attr:`~.imu.ImuBuffer.gaps`: a link that lost them) is bridged by the mean of the
+    rates either side, with what the rate may have done meanwhile as extra noise (:func:`_gap_variance`: the
+    rates either side, and the largest angular acceleration the samples show). A short gap in a slow move costs
+    nothing; a long one in a fast move leaves a turn whose std says how little is known.
     """
     if mount.mount != "body":
         return None
@@ -61,23 +68,55 @@ def rotation_between(buffer: ImuBuffer, mount: ImuMount, still: tuple, move: tup
     t, _, w = buffer.window(*move)
     if len(ts) < 2 or len(t) < 2 or not np.any(w) or t[0] - move[0] > max_age_s or move[1] - t[-1] > max_age_s:
         return None
-    if any(after > t[0] and before < t[-1] for before, after in buffer.gaps):
-        return None
     bias = ws.mean(axis=0)
     sigma_w = float(np.sqrt(np.mean(np.var(ws, axis=0))))  # one sample's rate noise (rad/s) while still
     dt = np.diff(t)
-    steps = (w[:-1] - bias) * dt[:, None]
+    rates = w[:-1] - bias
+    gap = _gap_steps(t, buffer.gaps)
+    rates[gap] = 0.5 * (w[:-1][gap] + w[1:][gap]) - bias  # across a gap: the mean of the rates either side
+    steps = rates * dt[:, None]
     R_imu = ordered_product(exp_so3(steps))
     T = float(t[-1] - t[0])
+    regular = dt[~gap]
     travelled = float(np.sum(np.linalg.norm(steps, axis=1)))
-    sigma = math.sqrt(sigma_w ** 2 * T * float(np.mean(dt)) + (sigma_w / math.sqrt(len(ws)) * T) ** 2
-                      + (scale_error * travelled) ** 2)
+    sigma = math.sqrt(sigma_w ** 2 * float(np.sum(regular)) * (float(np.mean(regular)) if len(regular) else 0.0)
+                      + (sigma_w / math.sqrt(len(ws)) * T) ** 2 + (scale_error * travelled) ** 2
+                      + _gap_variance(t, w, gap))
     M = mount.rotation  # IMU -> body
     degree = math.radians(1.0)
     read = float(rotation_angle(ordered_product(exp_so3(steps * degree)))) / degree
     return GyroRotation(M @ R_imu @ M.T, sigma, len(t), read)
 
 
+
+
+def _gap_steps(t: np.ndarray, gaps: list) -> np.ndarray:
+    """Per step between consecutive samples t (n,): whether it spans one of the buffer's gaps (n - 1,)."""
+    out = np.zeros(max(len(t) - 1, 0), dtype=bool)
+    for before, after in gaps:
+        k = int(np.searchsorted(t, before))
+        if k + 1 < len(t) and t[k] == before and t[k + 1] == after:
+            out[k] = True
+    return out
+
+
+def _gap_variance(t: np.ndarray, w: np.ndarray, gap: np.ndarray) -> float:
+    """The variance (rad^2) of the turn over the gaps among the steps of samples (t, w), bridged by the mean of
+    the rates either side. Per gap of tau s: the rate may have gone anywhere between those two rates (tau dw)^2
+    / 12, and away from both and back at the largest angular acceleration alpha the samples show (over
+    :data:`ACCELERATION_SPAN_S`, or 5 sample periods if longer), a turn of up to alpha tau^2 / 4 taken as two
+    stds: (alpha tau^2 / 8)^2."""
+    if not gap.any():
+        return 0.0
+    h = max(ACCELERATION_SPAN_S, 5.0 * float(np.median(np.diff(t))))
+    j = np.searchsorted(t, t + h, side="right") - 1  # the latest sample within h of each (itself before a gap)
+    alpha = float(np.max(np.linalg.norm(w[j] - w, axis=1))) / h
+    total = 0.0
+    for k in np.flatnonzero(gap):
+        tau = float(t[k + 1] - t[k])
+        across = float(np.linalg.norm(w[k + 1] - w[k]))
+        total += (tau * across) ** 2 / 12.0 + (alpha * tau * tau / 8.0) ** 2
+    return total
 
 
 def gyro_turn(buffer: ImuBuffer, mount: ImuMount, t0: float, t1: float, time_offset_s: float = 0.0,
