@@ -9,7 +9,9 @@ body's acceleration, body frame), or, when the bars ring, its damped
 response. Like software-synchronised USB cameras, each camera's header stamp
 (and bag time) may be off the trigger by a random jitter, and each camera may
 drop frames; the image content and the ground truth stay at the trigger
-time. Each camera may run at its own rate and phase (:mod:`.sequence`);
+time, or, with a shutter time (``shutter_ms``), the image integrates the
+scene from the trigger over it (motion blur: :class:`ShutterRenderer`).
+Each camera may run at its own rate and phase (:mod:`.sequence`);
 auto-exposure may drift: each camera's grey levels become gain(t) I + offset(t)
 with a slow sinusoidal gain (1 +- ``exposure_drift``) and offset
 (+- ``EXPOSURE_OFFSET_GREY`` x ``exposure_drift`` grey levels), each camera with its own periods near
@@ -26,16 +28,17 @@ image's bag time (when the recorder received it) may trail its stamp by
 or link that buffers, every image of a burst received together at the
 burst's end; with ``camera_burst_stagger_ms`` topic by topic, camera i's
 images i x that later), while the IMU's samples are received when taken (an
-IMU stamped by another clock too: the recorder's clock is the cameras').
-Ground truth ``/ground_truth/pose`` (body in world,
+IMU stamped by another clock too: the recorder's clock is the cameras'). A
+link may lose IMU samples in runs (``imu_loss``, ``imu_loss_burst_ms``:
+:func:`lost_samples`). Ground truth ``/ground_truth/pose`` (body in world,
 world z up), ``/ground_truth/gravity`` (gravity in the body frame) and
 ``/ground_truth/angular_velocity`` (body rate, rad/s, body frame: zero exactly
 while the body is still, non-zero in a creeping hold or a move) is written at
 every trigger instant, and ``/ground_truth/extrinsics/<camera>`` (the camera's bent pose
 in the body frame at the trigger, stamped like the camera's image) with every image
 (docs/CONVENTIONS.md, "The rig in motion"). Deterministic for a seed, with separate random streams
-for the trajectory, the IMU, the image noise, the jitter, the drops and the
-exposure.
+for the trajectory, the IMU, the image noise, the jitter, the drops, the
+exposure, the IMU's stamps and its lost samples.
 """
 
 from __future__ import annotations
