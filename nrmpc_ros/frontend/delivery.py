@@ -31,6 +31,8 @@ DELIVERY_WINDOW_S = 60.0  # how an input delivers is judged over this much of it
 PLAYBACK_RATES = (0.1, 10.0)  # arrival seconds per second of stamps a recording may be played at: a trend of the
 # delays inside this range is a playback rate, outside it a burst (a burst's frames arrive together: a rate near 0)
 RATE_MIN_MESSAGES = 8  # the trend is fitted over at least this many messages
+RATE_REFIT_S = 1.0  # the playback rate is fitted again after this much arrival time (s): a pass over the window's
+# messages once a second, not at every message
 BURST_MARGIN = 1.5  # an input that delivers in bursts is waited for this many times its longest silence seen:
 # its next burst may come somewhat later than the longest one so far
 
@@ -113,45 +115,63 @@ class DelaySpread:
     """The spread (s) of arrival minus stamp over one input's messages of the last ``window_s`` of arrivals, with
     the rate of the stamps against the arrival clock taken out where they run at another (a bag played at
     another speed: arrival = a0 + r stamp, r in :data:`PLAYBACK_RATES`, fitted by least squares). A fit counts
-    only where it explains the delays (its residuals spread less than half as much as the delays): a driver that
-    buffers delivers in a sawtooth that no line explains, and a burst's frames arriving together fit a rate near
-    0, outside the range. Computed when asked after a change (the messages of the window kept, a few thousand)."""
+    only where it explains the delays (its residuals spread less than half as much): a driver that buffers
+    delivers in a sawtooth that no line explains, and a burst's frames arriving together fit a rate near 0,
+    outside the range. The rate is fitted again every :data:`RATE_REFIT_S` of arrivals (a pass over the window's
+    messages); between fits both spreads are sliding extremes, O(1) per message, so a burst shows in the spread
+    with its first frames."""
 
     def __init__(self, window_s: float):
         self.window_s = window_s
-        self._items: deque = deque()  # (arrival, stamp)
-        self._spread: float | None = None  # the spread of the messages kept; None: to compute
+        self._items: deque = deque()  # (arrival, a, s): arrival and stamp from the first message's
+        self._origin: tuple | None = None  # (arrival, stamp) of the first message: differences keep the precision
+        self._high, self._low = SlidingMax(window_s), SlidingMax(window_s)  # of a - s and of s - a
+        self._rate = 1.0  # the playback rate in use (1: none found)
+        self._fit_high, self._fit_low = SlidingMax(window_s), SlidingMax(window_s)  # of a - rate s, and minus
+        self._fitted_at = -math.inf  # the arrival of the last fit
 
     def add(self, arrival: float, stamp: float) -> None:
-        self._items.append((arrival, stamp))
-        self._spread = None
+        if self._origin is None:
+            self._origin = (arrival, stamp)
+        a, s = arrival - self._origin[0], stamp - self._origin[1]
+        self._items.append((arrival, a, s))
+        self._high.add(arrival, a - s)
+        self._low.add(arrival, s - a)
+        e = a - self._rate * s
+        self._fit_high.add(arrival, e)
+        self._fit_low.add(arrival, -e)
+        if arrival - self._fitted_at >= RATE_REFIT_S:
+            self._fit(arrival)
+
+    def _fit(self, now: float) -> None:
+        """Fit the rate over the window's messages and rebuild the fitted extremes with it."""
+        while self._items and self._items[0][0] < now - self.window_s:
+            self._items.popleft()
+        self._fitted_at = now
+        rate = 1.0
+        if len(self._items) >= RATE_MIN_MESSAGES:
+            _, a, s = np.array(self._items).T
+            sc = s - s.mean()
+            ss = float(sc @ sc)
+            fitted = float(sc @ (a - a.mean())) / ss if ss > 0 else math.nan
+            if PLAYBACK_RATES[0] <= fitted <= PLAYBACK_RATES[1]:
+                rate = fitted
+        if rate == self._rate:
+            return
+        self._rate = rate
+        self._fit_high, self._fit_low = SlidingMax(self.window_s), SlidingMax(self.window_s)
+        for arrival, a, s in self._items:
+            e = a - rate * s
+            self._fit_high.add(arrival, e)
+            self._fit_low.add(arrival, -e)
 
     def spread(self, now: float) -> float:
         """The spread of the delays within the window of ``now`` (the rate taken out); 0 before a message."""
-        while self._items and self._items[0][0] < now - self.window_s:
-            self._items.popleft()
-            self._spread = None
-        if self._spread is None:
-            self._spread = self._compute()
-        return self._spread
-
-    def _compute(self) -> float:
-        if len(self._items) < 2:
-            return 0.0
-        a, s = np.array(self._items).T
-        a, s = a - a[0], s - s[0]  # (stamps of 1.7e9 s: differences keep the precision)
-        d = a - s
-        raw = float(d.max() - d.min())
-        if len(a) >= RATE_MIN_MESSAGES and raw > 0:
-            sc = s - s.mean()
-            ss = float(sc @ sc)
-            rate = float(sc @ (a - a.mean())) / ss if ss > 0 else math.nan
-            if PLAYBACK_RATES[0] <= rate <= PLAYBACK_RATES[1]:
-                e = a - rate * s
-                fitted = float(e.max() - e.min())
-                if fitted < 0.5 * raw:
-                    return fitted
-        return raw
+        raw = max(0.0, self._high.largest(now) + self._low.largest(now))
+        if self._rate == 1.0:
+            return raw
+        fitted = max(0.0, self._fit_high.largest(now) + self._fit_low.largest(now))
+        return fitted if fitted < 0.5 * raw else raw
 
 
 __all__ = ["BURST_MARGIN", "DELIVERY_WINDOW_S", "PLAYBACK_RATES", "DelaySpread", "DeliveryGaps", "SlidingMax",
