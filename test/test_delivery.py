@@ -55,9 +55,10 @@ def test_a_recording_played_at_another_speed_spreads_its_delays_by_its_bursts_on
         if k < 20:
             first.add(10.0 + 2.0 / rate + 0.001 * k, stamp)
     now = 10.0 + 20.0 / rate
-    assert steady.spread(now) < 0.004
-    assert bursty.spread(now) == pytest.approx(2.0 / rate, rel=0.1)
-    assert first.spread(now) == pytest.approx(1.9, abs=0.05)
+    assert steady.spread_about_rate(now) < 0.004
+    assert bursty.spread_about_rate(now) == pytest.approx(2.0 / rate, rel=0.1)
+    assert first.spread_about_rate(now) == pytest.approx(1.9, abs=0.05)
+    assert steady.spread(now) == pytest.approx(abs(20.0 / rate - 20.0), abs=0.2), "as they are: the trend included"
 
 
 def test_stamp_lags_see_one_input_fall_behind_not_all_of_them():

@@ -8,10 +8,10 @@ both measure it (README, "The ROS 2 node"; docs/ARCHITECTURE.md, "The node's two
   or the largest age of a message it delivered (the first burst shows its silence in the age of its oldest
   message, before a second burst shows it as a gap);
 - :class:`DelaySpread`: the spread of arrival minus stamp over an input's messages, on any two clocks (their
-  offset cancels) running at any rate against each other (a bag played at twice its speed delivers a second of
-  stamps every half second: that trend is taken out, it is no burst): a few milliseconds for a steady driver,
-  the burst interval for one that buffers; a stop and a restart leave it as it was (fresh frames come as fresh
-  as before);
+  offset cancels): a few milliseconds for a steady driver, the burst interval for one that buffers; a stop and a
+  restart leave it as it was (fresh frames come as fresh as before); also about the rate the clocks run at
+  against each other (a bag played at twice its speed delivers a second of stamps every half second: a trend,
+  no burst), which the end of the input is judged by;
 - :class:`StampLags`: how far an input's messages came behind the other inputs' newest stamps (one camera
   that buffers, not a stall of the whole process).
 
@@ -166,8 +166,15 @@ class DelaySpread:
             self._fit_low.add(arrival, -e)
 
     def spread(self, now: float) -> float:
-        """The spread of the delays within the window of ``now`` (the rate taken out); 0 before a message."""
-        raw = max(0.0, self._high.largest(now) + self._low.largest(now))
+        """The spread of the delays within the window of ``now``, as they are (a trend included); 0 before a
+        message. The frame grouping waits for a missing camera by it: a generous wait costs latency, never a set."""
+        return max(0.0, self._high.largest(now) + self._low.largest(now))
+
+    def spread_about_rate(self, now: float) -> float:
+        """The spread of the delays within the window of ``now`` about the playback rate fitted (the class
+        docstring): the silences of a driver that buffers, not the drift of a recording played faster or slower;
+        what the end of the input is judged by. 0 before a message."""
+        raw = self.spread(now)
         if self._rate == 1.0:
             return raw
         fitted = max(0.0, self._fit_high.largest(now) + self._fit_low.largest(now))

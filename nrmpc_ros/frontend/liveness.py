@@ -13,8 +13,10 @@ delivers in bursts (measured over the last ``DELIVERY_WINDOW_S``,
   as it was: a camera that stops on a busy machine is still found;
 - its **end timeout**, against the clock: ``BURST_MARGIN`` times the
   spread of its delays (arrival minus the stamps of the frames the feeder
-  accepted): a few milliseconds for a steady camera, the burst interval for
-  cameras that all buffer together, and, on a busy machine, its stalls.
+  accepted) about the rate the stamps advance at against the arrivals (a bag
+  played at another speed: :meth:`~.delivery.DelaySpread.spread_about_rate`):
+  a few milliseconds for a steady camera, the burst interval for cameras that
+  all buffer together, and, on a busy machine, its stalls.
 
 With those timeouts:
 
@@ -79,7 +81,7 @@ class CameraWatch:
     def end_timeout(self, i: int, now: float) -> float:
         """Camera ``i``'s end timeout (s): ``timeout_s``, or longer for a camera whose delays spread (module
         docstring)."""
-        return max(self.timeout_s, BURST_MARGIN * self._delays[i].spread(now))
+        return max(self.timeout_s, BURST_MARGIN * self._delays[i].spread_about_rate(now))
 
     def seen(self, i: int, now: float, stamp: float | None = None, epoch: int = 0) -> list:
         """Camera ``i`` sent an image at ``now``; ``stamp``: its stamp (s) when the input accepted it (its
