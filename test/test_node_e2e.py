@@ -479,7 +479,11 @@ def faults_run(bag, replayed, tmp_path, saturated: bool = False):
     assert int(est[2]["dropped: worker: frame set dropped while the estimator is busy"]) > 0
     assert log.count("camera /cam3/image_raw stopped publishing") == 1
     assert log.count("camera /cam3/image_raw is publishing again") == 1
-    assert log.count("detected jump back in time") == 1 and est[2]["time jumps back"] == "1"
+    # the second pass's earlier stamps: a jump back, or, where the input ended in the silence between the passes
+    # (a camera timeout) and the frame grouping's periods were spoilt by the burst, a new input; said either way
+    jumps = log.count("detected jump back in time")
+    assert jumps <= 1 and est[2]["time jumps back"] == str(jumps)
+    assert jumps == 1 or "the input resumed after" in log
     # estimates resume: the second pass, clean, gives the replay's estimates (every hold, at its stamp)
     second = listener.got["gravity"][first_estimates:]
     stamps = [stamp_key(msg_stamp(m.header)) for m in second]
