@@ -128,6 +128,7 @@ class DelaySpread:
         self._high, self._low = SlidingMax(window_s), SlidingMax(window_s)  # of a - s and of s - a
         self._rate = 1.0  # the playback rate in use (1: none found)
         self._fit_high, self._fit_low = SlidingMax(window_s), SlidingMax(window_s)  # of a - rate s, and minus
+        # (kept only while the rate is not 1)
         self._fitted_at = -math.inf  # the arrival of the last fit
 
     def add(self, arrival: float, stamp: float) -> None:
@@ -137,9 +138,10 @@ class DelaySpread:
         self._items.append((arrival, a, s))
         self._high.add(arrival, a - s)
         self._low.add(arrival, s - a)
-        e = a - self._rate * s
-        self._fit_high.add(arrival, e)
-        self._fit_low.add(arrival, -e)
+        if self._rate != 1.0:  # (at rate 1 the fitted extremes are the raw ones: not kept twice)
+            e = a - self._rate * s
+            self._fit_high.add(arrival, e)
+            self._fit_low.add(arrival, -e)
         if arrival - self._fitted_at >= RATE_REFIT_S:
             self._fit(arrival)
 
@@ -160,6 +162,8 @@ class DelaySpread:
             return
         self._rate = rate
         self._fit_high, self._fit_low = SlidingMax(self.window_s), SlidingMax(self.window_s)
+        if rate == 1.0:
+            return
         for arrival, a, s in self._items:
             e = a - rate * s
             self._fit_high.add(arrival, e)

@@ -58,7 +58,7 @@ from ..core.bar_state import bent_extrinsics_at_loads
 from ..core.deformation import bend_rotation_vectors
 from ..core.dynamics import check_damping
 from ..core.rig import ImuMount, Rig
-from ..core.so3 import cross, exp_and_left_jacobian, normalize
+from ..core.so3 import cross, exp_and_left_jacobian, normalize, rotation_angle
 from ..errors import InputError, OptionError
 from ..frontend.topics import bag_topic
 from .bars import CameraLoads, bent_extrinsics
@@ -356,7 +356,7 @@ class ShutterRenderer:
     def instant_count(self, i: int, t_ns: int) -> int:
         """How many instants camera i's image at trigger t_ns needs."""
         (Ra, ca), (Rb, cb) = self._poses(np.array([t_ns, t_ns + self.shutter_ns], dtype=np.int64))
-        turn = np.arccos(np.clip(0.5 * (np.trace(Ra[i].T @ Rb[i]) - 1.0), -1.0, 1.0))
+        turn = rotation_angle(Ra[i].T @ Rb[i])
         focal = float(self.renderer.rig.cameras[i].intrinsics[0])
         blur_px = focal * (turn + np.linalg.norm(cb[i] - ca[i]) / BLUR_DEPTH_M)
         return int(min(BLUR_MAX_INSTANTS, max(1, math.ceil(blur_px / BLUR_STEP_PX))))
