@@ -376,3 +376,20 @@ def test_a_camera_with_a_longer_steady_latency_is_waited_for(rng):
     sets = run(sync, [m[1:] for m in msgs])
     assert check_triggered(sets, 3, 60, set()) > 0
     assert all(s.complete for s in sets if s.stamp > 101.0) and 0.6 <= sync.backlog_s(2) < 1.0
+
+
+def test_a_burst_of_stamps_microseconds_apart_leaves_the_period_and_the_tolerance_as_they_were(rng):
+    """A driver glitch stamps 300 frames of every camera 2 us apart; the jittered frames after it still group
+    whole (a period of zero would give a tolerance of zero: every set of jittered stamps split)."""
+    rate, n = 30.0, 60
+    before, _ = triggered(rng, 3, rate, n, jitter=0.004, max_delay=0.0)
+    t_burst = 100.0 + n / rate
+    burst = [(c, t_burst + 2e-6 * k, ("burst", k)) for k in range(300) for c in range(3)]
+    after, _ = triggered(rng, 3, rate, n, jitter=0.004, t0=t_burst + 0.1, max_delay=0.0)
+    after = [(s, t, (c, k + 1000)) for s, t, (c, k) in after]
+    sync = StampSynchronizer(3)
+    sets = run(sync, before + burst + after)
+    assert sync.periods == pytest.approx([1.0 / rate] * 3, rel=0.05)
+    assert sync.tolerance == pytest.approx(0.45 / rate, rel=0.05)
+    later = [s for s in sets if any(it is not None and it[0] != "burst" and it[1] >= 1000 for it in s.items)]
+    assert len(later) == n and all(s.complete for s in later)

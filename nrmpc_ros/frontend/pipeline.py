@@ -50,6 +50,7 @@ from .patch_align import PatchAlignConfig
 from .ringing_watch import RingingWatch
 from .snapshot_ringing import correct_pixels, correction_rotations, predict, residual_px, uncertainty
 from .steady_turn import creep_span, steady_turn
+from .sync import MIN_FRAME_PERIOD_S
 from .tracking import HoldThinning, KltTracker, TrackingConfig
 from .zupt import (
     IMAGES_STILL_WINDOWS,
@@ -352,7 +353,10 @@ class Pipeline:
                                   lambda: self.zupt.is_still(self.last_stamp, stamp) is True)
 
     def _note_period(self, gap: float) -> None:
-        """One more interval between consecutive frame sets of a stream (s)."""
+        """One more interval between consecutive frame sets of a stream (s); one shorter than any camera's frame
+        period (a burst of glitched stamps) is no period."""
+        if gap < MIN_FRAME_PERIOD_S:
+            return
         self._periods = (self._periods + [gap])[-RECENT_PERIODS:]
 
     def _lone_gap(self) -> float:

@@ -24,7 +24,10 @@ Policy:
   ``period_window`` inter-frame intervals (their median, refined by their mean
   with an interval of k periods -- a dropped frame -- counted k times;
   intervals longer than ``gap_periods`` periods -- pauses between snapshots --
-  are left out) and the tolerance is
+  are left out, and so are intervals shorter than :data:`MIN_FRAME_PERIOD_S`,
+  which no camera takes: a burst of stamps microseconds apart from a broken
+  driver would otherwise make the period, and the tolerance, zero until the
+  window refills) and the tolerance is
   ``period_fraction`` (0.45) of the smallest period, capped by
   ``max_tolerance_s``. Below half a period, a window of +-tolerance holds at
   most one frame of a regular stream. Until a period is known (4 frames of one
@@ -90,6 +93,10 @@ from ..errors import OptionError
 from .delivery import BURST_MARGIN, DELIVERY_WINDOW_S, DelaySpread, StampLags
 from .drops import Drop
 from .stamps import HeldJump, JumpPolicy
+
+# No camera of a rig takes frames faster than 1 kHz (users' cameras run at 5-60 Hz): a shorter interval between two
+# of a stream's stamps is a glitch of its stamps (a burst stamped microseconds apart), not a frame period.
+MIN_FRAME_PERIOD_S = 1e-3
 
 
 @dataclass
@@ -407,9 +414,10 @@ class StampSynchronizer:
         return self._match(final=False)
 
     def _add_interval(self, i: int, dt: float) -> None:
-        """Record one inter-frame interval; gaps (drops, pauses) longer than gap_periods periods are left out."""
+        """Record one inter-frame interval; gaps (drops, pauses) longer than gap_periods periods and glitches
+        shorter than any camera's frame period are left out."""
         p = self._period[i]
-        if p > 0 and dt > self.gap_periods * p:
+        if dt < MIN_FRAME_PERIOD_S or (p > 0 and dt > self.gap_periods * p):
             return
         iv = self._intervals[i]
         iv.append(dt)
