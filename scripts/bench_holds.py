@@ -8,9 +8,10 @@
 Matrix (the default, docs/RESULTS.md): small bags (320x240, f = 235 px, one ray per pixel, six holds, bars
 ringing with damping ratio 0.05) rendered once into --out with :func:`nrmpc_ros.render.bagmaker.make_bag`
 (reused when they exist; delete the folder to re-render). Rigs: 2 to 6 cameras (``line2`` two cameras on one
-bar, ``ring3``, ``cross4``, ``ring5``, ``ring6``), each with soft (2 Hz) or stiff (6 Hz) bars. Styles (holds
-at 10 Hz, IMU at 200 Hz unless said): ``imu100`` / ``imu200`` / ``imu500`` the IMU rate; ``snap0.5`` one image
-per camera 0.5 s after each stop; ``snap0.15`` one 0.15 s after each stop, IMU at 50 Hz (its stillness window,
+bar, ``ring3``, ``cross4``, ``ring5``, ``ring6``), each with soft (2 Hz) or stiff (6 Hz) bars, and ``ring3-mixed``
+and ``cross4-mixed``: soft (1.5 Hz) and stiff (8 Hz) bars in turn on one body. Styles (holds at 10 Hz, IMU at
+200 Hz unless said): ``imu100`` / ``imu200`` / ``imu500`` the IMU rate; ``snap0.5`` one image per camera 0.5 s
+after each stop; ``snap0.15`` one 0.15 s after each stop, IMU at 50 Hz (its stillness window,
 0.18 s, is longer than that); ``camrates`` each camera its own rate (10, 15, 30, 20, 12, 25 Hz) and phase;
 ``exposure`` auto-exposure drift (gain 1 +- 0.3, 10 s periods); ``creep`` random 2-4 s holds of which a third
 creep at 0.5 deg/s (not still); ``imuclock`` random 1.5-3.5 s holds and an IMU clock 15 ms off the cameras';
@@ -267,6 +268,8 @@ SMALL = (320, 240)
 SMALL_FOCAL = 235.0
 BAR_HZ = {"soft": 2.0, "stiff": 6.0}  # the project's bars span 1.5-8 Hz
 MASS, BAR_LENGTH = 0.1, 0.4
+MIXED_BAR_HZ = (1.5, 8.0)  # the mixed rigs' bars in turn: both ends of the project's range
+MIXED_CAMERAS = (3, 4)
 SUPERSAMPLE = 1  # one ray per pixel: a quarter of the rendering time of 2 x 2 (as the test recordings)
 DAMPING = 0.05  # a lightly damped bar: ringing falls to 1e-3 after 22 s at 2 Hz, 7 s at 6 Hz
 IMU_AXES_TURN_DEG = (30.0, -20.0, 10.0)  # the imuaxes style's rig file: its IMU turned 38 deg off the IMU's axes
@@ -277,14 +280,25 @@ TARGETS = {"coverage": 0.9, "bad": 0, "ratio_4pt": 0.75, "median_6pt_deg": 0.3, 
            "within3": 0.95}
 
 
+def _bar_EI(hz: float) -> float:
+    """Flexural rigidity (N m^2) of the matrix's bars for a natural frequency hz: f = sqrt(3 EI / (m L^3)) / 2 pi."""
+    return (2.0 * math.pi * hz) ** 2 * MASS * BAR_LENGTH**3 / 3.0
+
+
 def matrix_rigs() -> dict:
-    """'<layout><M>-<soft|stiff>' -> Rig: 2 to 6 cameras, soft and stiff bars, an IMU at the body centre."""
+    """'<layout><M>-<soft|stiff|mixed>' -> Rig: 2 to 6 cameras, soft and stiff bars, an IMU at the body centre;
+    the ``mixed`` rigs (3 and 4 cameras) carry both ends of the bars' range on one body, soft and stiff bars in
+    turn (a wing and a fuselage mast)."""
     out = {}
     for M, layout in LAYOUT.items():
         for bar, hz in BAR_HZ.items():
-            EI = (2.0 * math.pi * hz) ** 2 * MASS * BAR_LENGTH**3 / 3.0  # f = sqrt(3 EI / (m L^3)) / (2 pi)
             out[f"{layout}{M}-{bar}"] = make_rig(RigSpec(num_cameras=M, layout=layout, focal=SMALL_FOCAL,
-                                                         resolution=SMALL, EI=EI, mass=MASS, bar_length=BAR_LENGTH))
+                                                         resolution=SMALL, EI=_bar_EI(hz), mass=MASS,
+                                                         bar_length=BAR_LENGTH))
+        if M in MIXED_CAMERAS:
+            rig = out[f"{layout}{M}-soft"]
+            cams = tuple(replace(c, EI=_bar_EI(MIXED_BAR_HZ[i % 2])) for i, c in enumerate(rig.cameras))
+            out[f"{layout}{M}-mixed"] = replace(rig, cameras=cams, source=f"<{M} cameras, soft and stiff bars>")
     return out
 
 

@@ -633,6 +633,31 @@ def test_a_swing_about_a_soft_bars_static_bend_finds_every_hold_whole(rng, rate)
     assert not still[(t > h0) & (t < h1)].any()
 
 
+@pytest.mark.parametrize("rate", [50.0, 100.0, 1000.0])
+def test_a_snapshot_before_a_ringing_mounts_first_window_ends_is_still_by_that_window(rng, rate):
+    """On a 1.5 Hz bar the test's windows last a period (0.67 s), so a still run begins a third of a second after
+    the stop and a snapshot 0.3 s after it lies before the run: its instant is still because the run's first
+    window, which fits rest and the swing over all of its samples, covers it. An instant in the move, and one
+    in a hold that creeps under the same swing, are not."""
+    frequency_hz = 1.5
+    cfg = ZuptConfig(mount_ringing_hz=frequency_hz, mount_bar=SOFT_BAR)
+    t, a, w, holds = bent_swinging_trace(rng, rate, frequency_hz, 0.16)
+    det = ZuptDetector(cfg, noise=estimate_noise(t, a, w, cfg))
+    for k in range(len(t)):
+        det.add(t[k], a[k], w[k])
+    for h0, h1 in holds[1:]:
+        snap = h0 + 0.3
+        assert det.still_run(snap) is None  # the windowed run alone starts after the snapshot
+        first, last = det.leading_run(snap)
+        assert h0 - 1.0 / rate <= first <= snap and abs(last - h1) <= 0.4
+        assert det.leading_run(h0 - 0.3) is None
+    t, a, w, holds = bent_swinging_trace(rng, rate, frequency_hz, 0.16, creep_deg_s=2.0)
+    det = ZuptDetector(cfg, noise=estimate_noise(t, a, w, cfg))
+    for k in range(len(t)):
+        det.add(t[k], a[k], w[k])
+    assert det.leading_run(holds[1][0] + 0.3) is None
+
+
 def test_the_mount_bar_follows_the_rig_file(cross_rig):
     """The damping and static bend of the bar the rig file mounts the IMU on; none for an IMU on the body. The
     static bend is the bar's bend under the load the IMU reads: K f turns the IMU's reading of gravity into the

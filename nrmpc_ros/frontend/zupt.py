@@ -876,20 +876,27 @@ class ZuptDetector:
         reads still on its own (its rate within the test's significance of the bias and its specific force of
         the run's mean: chi-square with 6 degrees of freedom per sample); the stop is the first of the quiet
         samples that lead into the run. At 50 Hz half a window is 0.09 s: without this, a snapshot 0.05 s after
-        every stop was taken for a move. None otherwise, and on an IMU that rides a ringing bar (its samples
-        ring after a stop)."""
+        every stop was taken for a move. On an IMU that rides a ringing bar its samples ring after a stop, and no
+        sample alone reads still: there the run's first window answers, which spans half a window before the
+        run's first stamp and fits rest and the mount's ringing over all of it. An instant it covers (or one
+        with no sample between it and that window) is still, and the window's start is the stop as the test
+        resolves it. Its window lasts a period of the ringing at least: on a 1.5 Hz bar the run begins 0.33 s
+        after the stop, and a snapshot 0.3 s after each stop was taken for a move. None otherwise."""
         run = self.still_run(t)
         if run is not None:
             return run
         noise = self.noise
-        if noise is None or _ringing_hz(self.config) > 0.0:
+        if noise is None:
             return None
         period = noise.period_s if math.isfinite(noise.period_s) else _period(self.buffer.window(-math.inf,
                                                                                                   math.inf)[0])
-        lead = 0.5 * window_length(self.config, period) + period
+        half = 0.5 * window_length(self.config, period)
+        lead = half + period
         run = self.still_run(t + lead)
         if run is None or not t < run[0] <= t + lead:
             return None
+        if _ringing_hz(self.config) > 0.0:
+            return min(run[0] - half, t), run[1]
         ts, a, w = self.buffer.window(t - lead, run[1])
         in_run = ts >= run[0]
         s_w = max(float(noise.gyro_sigma), self.config.gyro_floor_rad_s)
