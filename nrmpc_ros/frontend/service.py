@@ -55,6 +55,7 @@ from .liveness import CameraWatch
 from .node_config import NodeConfig
 from .outputs import FrameNames, FramePosesOutput, HoldOutput, hold_output
 from .pipeline import PIPELINE_METHODS, PipelineConfig, RigState
+from .preload import ESTIMATION, INTAKE, preload
 from .runner import PipelineRunner
 from .taken import stamp_order
 from .work import Work, WorkKind
@@ -451,10 +452,12 @@ class EstimatorService:
             self.work_once()
 
     def _work_loop(self) -> None:
+        preload(INTAKE)
         while not self._stop.is_set():
             self.work_once(WORK_POLL_S)
 
     def _estimate_loop(self) -> None:
+        preload(ESTIMATION)
         while not self._halt.is_set():
             if self.estimate_once(ESTIMATE_POLL_S) is None and self._drain.is_set() and not len(self.holds):
                 return
