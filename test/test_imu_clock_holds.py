@@ -72,3 +72,38 @@ def test_stamps_that_agree_give_an_interval_holding_zero_and_too_little_gives_no
     assert offset_from_turns(t, w, inside, pairs_of(spans, attitude)) is None  # an IMU on a bar turns with it
     wrong = [(a, b, R.T) for a, b, R in pairs_of(spans, attitude)]  # images that tell another motion
     assert offset_from_turns(t, w, ImuMount(), wrong) is None
+
+
+def back_and_forth(holds=10, rate=200.0, hold_s=2.5, move_s=1.0, angle_deg=20.0, snapshot_after_s=0.5):
+    """Gyro samples of a rig turning back and forth between two attitudes (20 deg about one axis), and per hold
+    the stamp of a snapshot 0.5 s after its stop and the body's orientation."""
+    t, w, spans, attitude = [], [], [], [np.eye(3)]
+    now, R = 0.0, np.eye(3)
+    axis = np.array([0.0, 0.6, 0.8])
+    for k in range(holds):
+        n = int(hold_s * rate)
+        t.append(now + np.arange(n) / rate)
+        w.append(np.zeros((n, 3)))
+        spans.append((now + snapshot_after_s, now + snapshot_after_s))
+        now += n / rate
+        if k == holds - 1:
+            break
+        angle = np.radians(angle_deg) * (1.0 if k % 2 == 0 else -1.0)
+        m = int(move_s * rate)
+        tau = (np.arange(m) + 0.5) / m
+        t.append(now + np.arange(m) / rate)
+        w.append((angle / move_s * 2 * np.sin(np.pi * tau) ** 2)[:, None] * axis)
+        R = R @ exp_so3(angle * axis)
+        attitude.append(R)
+        now += m / rate
+    return np.concatenate(t), np.concatenate(w), spans, attitude
+
+
+def test_a_rig_turning_back_and_forth_agrees_as_stamped_and_no_offset_is_found():
+    """Between two attitudes in turn, the pairs of the middle holds agree as stamped and again at a shift of two
+    holds (7 s) either way, over as wide a run of lags: the stamps as they are win (an interval holding zero),
+    not the first of the equal runs (an offset of 6 s whose interval excludes zero)."""
+    t, w, spans, attitude = back_and_forth()
+    found = offset_from_turns(t, w, ImuMount(), pairs_of(spans, attitude)[3:6])
+    assert found is not None and found.as_stamped_deg < 0.1
+    assert abs(found.offset_s) <= found.half_width_s < 1.5

@@ -98,12 +98,14 @@ def offset_from_turns(t: np.ndarray, w: np.ndarray, mount: ImuMount, pairs: list
     plateau = np.flatnonzero(agreeing == best)
     if best < MIN_PAIRS or 2 * best <= counted[plateau].min():
         return None
-    # the widest run of lags at the best agreement: the holds' slack around the right one
+    # the widest run of lags at the best agreement: the holds' slack around the right one; where the stamps as
+    # they are agree as well as any shift, the run that holds zero (a rig turning back and forth between two
+    # attitudes agrees again at a shift of two holds, as widely: no evidence of an offset)
     runs = np.split(plateau, np.flatnonzero(np.diff(plateau) > 1) + 1)
-    run = max(runs, key=len)
+    zero = int(np.argmin(np.abs(lags)))
+    run = next((r for r in runs if zero in r), max(runs, key=len))
     lo, hi = float(lags[run[0]]), float(lags[run[-1]])
     centre = int(run[len(run) // 2])
-    zero = int(np.argmin(np.abs(lags)))
     finite = np.isfinite(angle[zero])
     return HoldsClockOffset(offset_s=-0.5 * (lo + hi), half_width_s=0.5 * (hi - lo) + STEP_S / 2,
                             pairs=int(inside[centre].sum()),

@@ -894,14 +894,19 @@ class Pipeline:
             # the still run's samples before the image, at most measure_s; a snapshot taken less than pad_s into
             # its run takes that run's samples after it too (the rig stood there until it moved again). An IMU
             # on a ringing bar takes the run after it up to measure_s: the longer the span, the better its mean
-            # tells the decaying ringing from the constant (docs/PIPELINE.md, "IMU gravity"). So does a stream
+            # tells the decaying ringing from the constant (docs/PIPELINE.md, "IMU gravity"); so does an IMU that
+            # vibrates, whose sine averages out only over many of its periods (a snapshot 0.05 s after the stop
+            # averaged 4 periods of a motor's 80 Hz where its run held 160: its mean was 1 deg off). So does a stream
             # hold whose frames span less than a period of that ringing (images ringing by tens of pixels split a
             # hold the IMU holds still; over 0.33 s of a 1.5 Hz bar the mean was 5.7 deg off); its run is found
             # from either end of its frames (the test's window ends a run up to half a window before the move)
             run = self.zupt.leading_run(t1) if hold.snapshot else self.zupt.still_run(t1) or self.zupt.still_run(t0)
             if run is not None:
                 t0 = min(t0, max(run[0], t1 - self.config.holds.measure_s))
-                after = self.config.holds.measure_s if ringing else self.imu.pad_s
+                noise = self.zupt.noise_in_use
+                vibrates = noise is not None and (periodic(noise.accel_correlation) or
+                                                  periodic(noise.gyro_correlation))
+                after = self.config.holds.measure_s if ringing or vibrates else self.imu.pad_s
                 t1 = max(t1, min(run[1], t0 + after))
             elif hold.snapshot:
                 t0 = t1 - self.imu.pad_s
