@@ -55,3 +55,18 @@ def test_ground_truth_repeated_at_one_stamp_is_one_pose():
     ref.pose_t, ref.pose_R, ref.pose_p = ref.pose_t[twice], ref.pose_R[twice], ref.pose_p[twice]
     ref.pose_t[1::2] += 1e-9  # one trigger's stamp as two cameras' rates round it
     assert static_holds(ref) == static_holds(_reference())
+
+
+def test_estimates_on_another_clock_than_the_ground_truth_are_said_so_not_counted_outside_the_holds():
+    """Cameras stamping by a counter from 0 s beside ground truth on the recording's clock: no estimate lies in
+    the ground truth's time, which the report says instead of calling every estimate one outside the holds."""
+    from nrmpc_ros.frontend.evaluation_report import format_report
+
+    ref = _reference()
+    R = ref.pose_R[0].T @ ref.pose_R[7]
+    rows = [EstimateRow(1000.7, 1000.1, "6pt-bending", R, np.zeros(3), None, 10, 1.0)]
+    ev = evaluate(rows, ref)
+    assert ev.truth_apart and ev.truth_span == (0.0, 1.0)
+    assert "on another clock" in format_report(ev) and "holds in the ground truth" not in format_report(ev)
+    near = evaluate([EstimateRow(0.7, 0.1, "6pt-bending", R, np.zeros(3), None, 10, 1.0)], ref)
+    assert not near.truth_apart and "holds in the ground truth: 2" in format_report(near)

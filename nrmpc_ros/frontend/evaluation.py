@@ -40,6 +40,17 @@ class Evaluation:
     holds: int = 0  # holds (still intervals) found in the ground truth
     holds_with_estimate: int = 0
     outside_holds: int = 0  # estimates stamped outside every ground-truth hold
+    truth_span: tuple | None = None  # (first, last) stamp of the ground truth (s); None without any
+
+    @property
+    def truth_apart(self) -> bool:
+        """Whether the estimates and the ground truth share no time at all (each stamp outside the other's span):
+        the ground truth is on another clock than the cameras (a recording whose cameras stamp by a counter),
+        and nothing here compares them."""
+        if self.truth_span is None or not self.rows:
+            return False
+        lo, hi = self.truth_span
+        return not any(lo - STAMP_TOLERANCE_S <= r.stamp <= hi + STAMP_TOLERANCE_S for r in self.rows)
 
     def stats(self, metric: str, method: str | None = None) -> dict:
         """n, median, mean, p90 of one metric (optionally for one method), ignoring NaN."""
@@ -113,7 +124,8 @@ def evaluate(rows: list, ref: Reference, rig: Rig | None = None, imu_window_s: f
             err["rotation_deg"][k] = math.degrees(pe["rotation"])
             err["translation_deg"][k] = math.degrees(pe["translation"])
             err["translation_m"][k] = pe["translation_m"]
-    ev = Evaluation(rows, err)
+    truth = np.concatenate([ref.grav_t, ref.pose_t])
+    ev = Evaluation(rows, err, truth_span=(float(truth.min()), float(truth.max())) if len(truth) else None)
     holds = static_holds(ref)
     ev.holds = len(holds)
     stamps = np.array([r.stamp for r in rows])

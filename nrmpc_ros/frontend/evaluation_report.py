@@ -29,7 +29,12 @@ def format_report(ev: Evaluation, per_estimate: bool = True) -> str:
             if s["n"]:
                 lines.append(f"  {label:<45} median {s['median']:.3f}  mean {s['mean']:.3f}  p90 {s['p90']:.3f}"
                              f"  (n={s['n']})")
-    if ev.holds:
+    if ev.truth_apart:
+        stamps = [r.stamp for r in ev.rows]
+        lines.append(f"the ground truth ({ev.truth_span[0]:.3f}-{ev.truth_span[1]:.3f} s) and the estimates "
+                     f"({min(stamps):.3f}-{max(stamps):.3f} s) share no time (is the ground truth on another clock "
+                     "than the cameras'?): the estimates are not compared with it")
+    elif ev.holds:
         lines.append(f"holds in the ground truth: {ev.holds}; with an estimate (after the first): "
                      f"{ev.holds_with_estimate}/{max(ev.holds - 1, 0)}; estimates outside every hold: "
                      f"{ev.outside_holds}")
