@@ -131,7 +131,17 @@ def gyro_turn(buffer: ImuBuffer, mount: ImuMount, t0: float, t1: float, time_off
     No bias is subtracted: a MEMS gyro's bias (below 0.01 rad/s) turns a camera by less than 0.2 px over a
     frame interval of 1/30 s at 500 px focal length, a fraction of Lucas-Kanade's reach of a quarter window
     (docs/PIPELINE.md, "Performance notes")."""
-    if mount.mount != "body" or not t1 > t0:
+    if mount.mount != "body":
+        return None
+    return mount_turn(buffer, mount, t0, t1, time_offset_s, max_gap_s)
+
+
+def mount_turn(buffer: ImuBuffer, mount: ImuMount, t0: float, t1: float, time_offset_s: float = 0.0,
+               max_gap_s: float | None = None) -> np.ndarray | None:
+    """The rotation of the frame the IMU is mounted in (the body, or the camera it sits in) from frame time
+    ``t1`` into ``t0`` (p_t0 = R p_t1, in that frame), as :func:`gyro_turn` integrates it; None where that
+    returns None for want of samples or of a gyro."""
+    if not t1 > t0:
         return None
     gap = max(buffer.period_s if buffer.period_s == buffer.period_s else 0.0, 0.005) \
         if max_gap_s is None else max_gap_s
@@ -142,7 +152,7 @@ def gyro_turn(buffer: ImuBuffer, mount: ImuMount, t0: float, t1: float, time_off
     # the time each sample's rate holds within [a, b]
     dt = np.clip(np.r_[t[1:], b], a, b) - np.clip(t, a, b)
     R_imu = ordered_product(exp_so3(w * dt[:, None]))
-    M = mount.rotation  # IMU -> body
+    M = mount.rotation  # IMU -> its mount's frame
     return M @ R_imu @ M.T
 
 
@@ -167,8 +177,12 @@ class CameraTurns:
     does not mislead it). The bars' state here is its own, driven by the samples alone: not the one whose
     accelerometer bias the estimation stage corrects, so the tracks (and every estimate) do not depend on when
     that stage ran, and the node gives the replay's estimates (the bias moves the static bending, which
-    cancels in the change). None for every camera without an IMU on the body, for a camera's first image, or
-    while the gyro's samples do not cover the interval: the trackers then predict from the images alone."""
+    cancels in the change). An IMU inside a camera turns with that camera: its gyro gives that camera's turn, and
+    the body's is that turn taken through the camera's rotation at its two images (canonical, or bent as the
+    bars' state has it: the IMU's own bar ringing is then taken out; a camera module with an IMU on a bar that
+    rings by tens of pixels a frame lost its tracks at every frame of a hold without any prediction). None for
+    every camera without an IMU, for a camera's first image, or while the gyro's samples do not cover the
+    interval: the trackers then predict from the images alone."""
 
     def __init__(self, buffer: ImuBuffer, mount: ImuMount | None, extrinsics, num_cameras: int,
                  time_offset_s: float = 0.0, bars=None):
@@ -187,33 +201,43 @@ class CameraTurns:
         or snapshots the tracks are not followed but linked by descriptors (a whole move's translation leaves
         the turn's prediction far off, and a wrong KLT link is worse than none)."""
         out = [None] * self.num_cameras
-        if self.mount is None or self.mount.mount != "body" or self.extrinsics is None:
+        if self.mount is None or self.extrinsics is None:
             return out
         cams = np.arange(self.num_cameras) if present is None else np.flatnonzero(np.asarray(present, bool))
         now = np.array([float(stamp) if taken is None or taken[i] is None else float(taken[i])
                         for i in range(self.num_cameras)])
         W = self.extrinsics.rig.rotations
-        body = {}  # the body's turn since each distinct previous stamp
+        j = None if self.mount.mount == "body" else self.extrinsics.rig.camera_index(self.mount.mount)
+        turn = {}  # the IMU mount's turn since each distinct previous stamp
         use = []
         for i in cams:
             t0 = float(self._stamp[i])
             if not stamp - t0 <= max_interval_s:  # (NaN: the camera's first image)
                 continue
-            if t0 not in body:
-                body[t0] = gyro_turn(self.buffer, self.mount, t0, stamp, self.time_offset_s)
-            if body.get(t0) is not None:
+            if t0 not in turn:
+                turn[t0] = mount_turn(self.buffer, self.mount, t0, stamp, self.time_offset_s)
+            if turn.get(t0) is not None:
                 use.append(i)
-        bent = None
+        bent = bent_mount = None
         if use and self.bars is not None and self.bars.ready:
             idx = np.asarray(use)
             q = np.concatenate([self._taken[idx], now[idx]])
             got = self.bars.extrinsics_at(q, np.concatenate([idx, idx]))
             if got is not None:
                 bent = dict(zip(use, zip(got[1][: len(idx)], got[1][len(idx):])))
+            if got is not None and j is not None:  # the IMU's camera bent at the ends of the gyro's intervals
+                ends = np.array([*(self._stamp[i] for i in use), stamp])
+                at = self.bars.extrinsics_at(ends, np.full(len(ends), j))
+                bent_mount = None if at is None else {float(self._stamp[i]): (at[1][k], at[1][-1])
+                                                      for k, i in enumerate(use)}
         for i in use:
-            R = body[float(self._stamp[i])]  # the gyro's turn through the camera's canonical rotation
+            t0 = float(self._stamp[i])
+            R = turn[t0] if j is None else W[j] @ turn[t0] @ W[j].T  # the body's turn, canonically
             turns = [camera_turns(R, W[i], W[i])]
-            if self.bars is not None:  # and through its bent rotations (the canonical again until the bars know)
+            if self.bars is not None:  # and through the bent rotations (the canonical again until the bars know)
+                if bent_mount is not None:
+                    Wj0, Wj1 = bent_mount[t0]
+                    R = Wj0 @ turn[t0] @ Wj1.T  # the IMU camera's turn taken through its bent rotations
                 turns.append(camera_turns(R, *bent[i]) if bent is not None else turns[0])
             out[i] = np.stack(turns)
         self._stamp[cams] = stamp
@@ -221,5 +245,5 @@ class CameraTurns:
         return out
 
 
-__all__ = ["CameraTurns", "GyroRotation", "camera_turns", "gyro_turn", "ordered_product",
+__all__ = ["CameraTurns", "GyroRotation", "camera_turns", "gyro_turn", "mount_turn", "ordered_product",
            "rotation_between"]
