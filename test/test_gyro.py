@@ -142,7 +142,9 @@ def test_gyro_turn_between_frames_integrates_the_rate_over_the_interval(rng):
     assert last - t_last < 1.0 / RATE_HZ
     R = gyro_turn(ImuBufferUpTo(buf, t_last), ImuMount(), last - 1.0 / 30.0, last)
     assert R is not None and rotation_angle(exp_so3((angle(last) - angle(last - 1.0 / 30.0)) * AXIS).T @ R) < 1e-3
-    assert gyro_turn(buf, ImuMount(mount="cam0"), 1.3, 1.4) is None
+    # an IMU inside a camera: the turn of that camera's frame, the same integral through the mount's rotation
+    in_camera = gyro_turn(buf, ImuMount(mount="cam0"), 1.3, 1.4)
+    assert in_camera is not None and rotation_angle(gyro_turn(buf, ImuMount(), 1.3, 1.4).T @ in_camera) < 1e-12
     M = exp_so3(np.array([0.0, 0.0, math.pi / 2]))  # IMU -> body
     R = gyro_turn(buf, ImuMount(rotation=M), 1.3, 1.4)
     assert rotation_angle((M @ gyro_turn(buf, ImuMount(), 1.3, 1.4) @ M.T).T @ R) < 1e-12

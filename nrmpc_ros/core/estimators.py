@@ -504,18 +504,24 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
     if info.cameras_with_rotation < 2:
         starts = _starts_from_rigid_fit(rig, m, opts, rng, loose, info, gravity_hint)
         info.camera_inliers = None  # of fewer than two cameras: no yardstick for the starts
-    best = best_score = None
+    best = best_score = best_idx = best_inliers = None
     info.gravity_starts = 0
     candidates = []  # (MSAC score, refined start): the basins this pair leaves open
     accepted = camera_inl if info.cameras_with_rotation >= 2 else None
     min_starts = 1 if axis is None else WEAK_MIN_STARTS
-    explained = False
-    for R0, t0, g0, idx in starts:
+
+    def refine(start) -> None:  # one start refined: a candidate, and the best so far where it scores lowest
+        nonlocal best, best_score, best_idx, best_inliers
+        R0, t0, g0, idx = start
         res, score, inliers = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
         info.gravity_starts += 1
         candidates.append((score, res))
         if best is None or score < best_score:
             best, best_score, best_idx, best_inliers = res, score, idx, inliers
+
+    explained = False
+    for start in starts:
+        refine(start)
         if opts.stop_at_explaining_start and accepted is not None and info.gravity_starts >= min_starts \
                 and _explains(rig, opts, best_inliers, accepted):
             explained = True
@@ -527,12 +533,8 @@ def _six_point_bending(rig, m, opts, rng, gravity_hint=None):
         # route, one rigid fit over every camera's matches, gives further starts, and the score decides (three
         # cameras with 8-19 links each: the cameras' starts explained 36 of 44 links 124 deg off; a rigid start
         # 43, and the adjustment all 44).
-        for R0, t0, g0, idx in _starts_from_rigid_fit(rig, m, opts, rng, loose, EstimateInfo()):
-            res, score, inliers = _start_refinement(rig, m, idx, R0, t0, g0, tight, opts)
-            info.gravity_starts += 1
-            candidates.append((score, res))
-            if score < best_score:
-                best, best_score, best_idx, best_inliers = res, score, idx, inliers
+        for start in _starts_from_rigid_fit(rig, m, opts, rng, loose, EstimateInfo()):
+            refine(start)
     if best is None:
         return None
     if axis is not None:

@@ -121,26 +121,17 @@ def _gap_variance(t: np.ndarray, w: np.ndarray, gap: np.ndarray) -> float:
 
 def gyro_turn(buffer: ImuBuffer, mount: ImuMount, t0: float, t1: float, time_offset_s: float = 0.0,
               max_gap_s: float | None = None) -> np.ndarray | None:
-    """The body's rotation from frame time ``t1`` into frame time ``t0`` (p_t0 = R p_t1) from the gyro's rate,
-    integrated piecewise-constant over [t0, t1] (each sample's rate held until the next, the newest one's up to
-    ``t1``: a frame set reaches the pipeline once the samples before its stamp are in); the IMU's stamps plus
-    ``time_offset_s`` are the cameras' clock. None with an IMU inside a camera (it turns with its bar), no
-    gyro (every rate exactly 0), or without a sample at or before ``t0`` and one within ``max_gap_s``
-    (default one sample period, at least 5 ms) of ``t1``: the samples do not cover the interval.
+    """The rotation of the frame the IMU is mounted in (the body, or the camera it sits in: it turns with that
+    camera's bar) from frame time ``t1`` into frame time ``t0`` (p_t0 = R p_t1, in that frame) from the gyro's
+    rate, integrated piecewise-constant over [t0, t1] (each sample's rate held until the next, the newest one's
+    up to ``t1``: a frame set reaches the pipeline once the samples before its stamp are in); the IMU's stamps
+    plus ``time_offset_s`` are the cameras' clock. None with no gyro (every rate exactly 0), or without a sample
+    at or before ``t0`` and one within ``max_gap_s`` (default one sample period, at least 5 ms) of ``t1``: the
+    samples do not cover the interval.
 
     No bias is subtracted: a MEMS gyro's bias (below 0.01 rad/s) turns a camera by less than 0.2 px over a
     frame interval of 1/30 s at 500 px focal length, a fraction of Lucas-Kanade's reach of a quarter window
     (docs/PIPELINE.md, "Performance notes")."""
-    if mount.mount != "body":
-        return None
-    return mount_turn(buffer, mount, t0, t1, time_offset_s, max_gap_s)
-
-
-def mount_turn(buffer: ImuBuffer, mount: ImuMount, t0: float, t1: float, time_offset_s: float = 0.0,
-               max_gap_s: float | None = None) -> np.ndarray | None:
-    """The rotation of the frame the IMU is mounted in (the body, or the camera it sits in) from frame time
-    ``t1`` into ``t0`` (p_t0 = R p_t1, in that frame), as :func:`gyro_turn` integrates it; None where that
-    returns None for want of samples or of a gyro."""
     if not t1 > t0:
         return None
     gap = max(buffer.period_s if buffer.period_s == buffer.period_s else 0.0, 0.005) \
@@ -215,7 +206,7 @@ class CameraTurns:
             if not stamp - t0 <= max_interval_s:  # (NaN: the camera's first image)
                 continue
             if t0 not in turn:
-                turn[t0] = mount_turn(self.buffer, self.mount, t0, stamp, self.time_offset_s)
+                turn[t0] = gyro_turn(self.buffer, self.mount, t0, stamp, self.time_offset_s)
             if turn.get(t0) is not None:
                 use.append(i)
         bent = bent_mount = None
@@ -245,5 +236,5 @@ class CameraTurns:
         return out
 
 
-__all__ = ["CameraTurns", "GyroRotation", "camera_turns", "gyro_turn", "mount_turn", "ordered_product",
+__all__ = ["CameraTurns", "GyroRotation", "camera_turns", "gyro_turn", "ordered_product",
            "rotation_between"]
