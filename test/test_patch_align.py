@@ -181,3 +181,37 @@ def test_a_landmark_keeps_the_patch_of_the_hold_that_first_saw_it(texture):
     err = np.median(np.linalg.norm(uv_c - truth, axis=1))
     moved = np.median(np.linalg.norm(uv_ref[kept] - truth, axis=1))
     assert err < min(BIAS_PX / 2, moved / 4), (err, moved)
+
+
+def test_alignments_made_ahead_are_what_the_linking_takes(texture, monkeypatch):
+    """Patches aligned in a settled hold's anchor frame before it is measured (``align_ahead``) are the ones its
+    linking keeps: the same links and positions as aligning at the linking, and no patch aligned twice; a
+    link whose anchor pixel moved since, or a hold with another anchor image, is aligned at the linking."""
+    import nrmpc_ros.frontend.linking as linking
+
+    R = exp_so3(np.array([0.2, 1.0, 0.0]) / np.linalg.norm([0.2, 1.0, 0.0]) * math.radians(15))
+    img0, img1, uv_ref, uv_trk = _tracked_pair(texture, R)
+    ids = np.arange(len(uv_ref))
+    aligned = []
+    real = linking.align
+    monkeypatch.setattr(linking, "align", lambda cam, image, ref, uv0, *a: aligned.append(len(uv0)) or
+                        real(cam, image, ref, uv0, *a))
+    rig = Rig(cameras=(CAM,))
+    direct = HoldLinker(rig, TrackingConfig())
+    direct.link(_hold(img0, ids, uv_ref))
+    want = direct.link(_hold(img1, ids, uv_trk))
+    moved = uv_trk.copy()
+    moved[:5] += 0.2
+    for anchor_uv, image, realigned in ((uv_trk, img1, 0), (moved, img1, 5), (uv_trk, img1.copy(), None)):
+        linker = HoldLinker(rig, TrackingConfig())
+        linker.link(_hold(img0, ids, uv_ref))
+        aligned.clear()
+        assert linker.align_ahead([(ids, uv_trk)], [img1]) == len(ids) == sum(aligned)
+        aligned.clear()
+        got = linker.link(_hold(image, ids, anchor_uv))
+        assert sum(aligned) == (got.links["aligned"] + got.links["alignment failed"] if realigned is None
+                                else realigned)
+        if realigned == 0:
+            assert got.links == want.links and np.array_equal(got.landmark, want.landmark)
+            err = np.linalg.norm(bearings_to_pixels(CAM, got.f) - bearings_to_pixels(CAM, want.f), axis=1)
+            assert err.max() < 0.01  # both converged to the alignment's tolerance, from starts a little apart

@@ -111,6 +111,16 @@ class MeasuredHold:
     tilt_sigma_rad: float | None = None
 
 
+@dataclass
+class SettledAnchors:
+    """The anchor frames of a hold that has settled and is not measured yet: per camera (tracker ids, pixels)
+    of its anchor frame or None, and the anchor images. The stage aligns the landmarks' reference patches with
+    them ahead of the hold's measurement (:meth:`~nrmpc_ros.frontend.linking.HoldLinker.align_ahead`)."""
+
+    anchors: list
+    images: list
+
+
 @dataclass(frozen=True)
 class SequenceReset:
     """Start a new sequence here: the next measured hold is its origin."""
@@ -165,10 +175,13 @@ class HoldEstimator:
         self._origin: tuple | None = None
 
     def run(self, item) -> list:
-        """Run one item of the intake (a :class:`MeasuredHold` or a :class:`SequenceReset`); returns the hold
-        estimates it gave (0 or 1)."""
+        """Run one item of the intake (a :class:`MeasuredHold`, :class:`SettledAnchors` or
+        :class:`SequenceReset`); returns the hold estimates it gave (0 or more)."""
         if isinstance(item, SequenceReset):
             self.reset()
+            return []
+        if isinstance(item, SettledAnchors):  # work ahead, not a hold: the intake does not count it
+            self.linker.align_ahead(item.anchors, item.images)
             return []
         try:
             return self._estimate(item)

@@ -293,6 +293,7 @@ class HoldRecorder:
         self.taken: list = []  # per frame: each camera's image stamp (s), None for a camera without an image
         self.positions: list = []  # per frame: list of (ids, uv) or None per camera
         self.measured = False  # estimated already (a long hold is measured once, before it ends)
+        self.aligned_ahead = False  # its anchor frames went to the estimation stage once it had settled
         self.prediction = None  # a snapshot's ringing predicted from the IMU (.snapshot_ringing.RingingPrediction)
         self.prediction_at = None  # (stamp, cameras, their image stamps) of a snapshot whose ringing is yet to be
         # predicted: once the IMU's stillness test has decided that instant, at the latest when the hold is measured

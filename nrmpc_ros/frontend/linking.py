@@ -26,6 +26,11 @@ reference patch (taken in the first hold that saw it) aligns with the hold's
 anchor frame (:mod:`.patch_align`), plus the track's settled offset from the
 anchor; a link whose alignment fails starts a new landmark, referenced here
 (docs/PIPELINE.md, "Patch alignment").
+
+Aligning is most of a hold's linking, and it needs only the anchor frame: once a hold has settled, the
+intake hands its anchor frames over (:meth:`HoldLinker.align_ahead`) and the landmarks its tracks continue
+by KLT identity are aligned then, while the hold goes on; its linking takes those alignments where the link
+and the anchor position are the ones they were made for (docs/PIPELINE.md, "Aligning ahead").
 """
 
 from __future__ import annotations
@@ -38,7 +43,15 @@ import numpy as np
 from ..cameras import pixels_to_bearings
 from ..core.rig import Rig
 from .holds import Hold
-from .patch_align import PatchAlignConfig, ReferencePatches, align, neighbour_affine, reference_patches, tangent_frames
+from .patch_align import (
+    Alignment,
+    PatchAlignConfig,
+    ReferencePatches,
+    align,
+    neighbour_affine,
+    reference_patches,
+    tangent_frames,
+)
 from .tracking import Features, TrackingConfig, describe, match_features, verify_correspondences
 
 
@@ -58,6 +71,17 @@ class _CameraHistory:
     ref: ReferencePatches | None = None
     image: np.ndarray | None = None  # the anchor image (float32) the unsampled reference patches come from
     unsampled: np.ndarray | None = None  # (N,) bool: reference patch not sampled yet
+
+
+@dataclass
+class _AlignedAhead:
+    """A camera's alignments made before its hold was measured: the anchor image they were made in, the
+    landmark and anchor pixel of each, and the alignment (in that order)."""
+
+    image: object
+    landmark: np.ndarray
+    anchor_uv: np.ndarray
+    result: Alignment
 
 
 @dataclass
@@ -84,6 +108,7 @@ class HoldLinker:
         self._history: list = [None] * self.rig.num_cameras
         # per camera: the holds before the previous one, oldest first (only those with descriptors)
         self._older = [deque(maxlen=max(self.cfg.link_store_holds, 1)) for _ in self.rig.cameras]
+        self._ahead: list = [None] * self.rig.num_cameras  # per camera: _AlignedAhead of the hold to link next
         self._next = 0
 
     def _new_ids(self, n: int) -> np.ndarray:
@@ -115,13 +140,16 @@ class HoldLinker:
             uv, anchor_uv, ref, image, unsampled = ch.uv, ch.anchor_uv, None, None, None
             if img is not None and self.align_cfg.enabled:
                 image = np.asarray(img, np.float32)
-                lm, uv, anchor_uv, ref, unsampled = self._align(prev, cam, image, lm, ch.uv, ch.anchor_uv, links)
+                ahead = self._ahead[i] if self._ahead[i] is not None and self._ahead[i].image is img else None
+                lm, uv, anchor_uv, ref, unsampled = self._align(prev, cam, image, lm, ch.uv, ch.anchor_uv, links,
+                                                                 ahead)
                 f = pixels_to_bearings(cam, uv)
             alias.update(zip(ch.ids.tolist(), lm.tolist()))
             if prev is not None and prev.desc is not None and self.cfg.link_store_holds > 0:
                 # the store matches descriptors only
                 self._older[i].append(replace(prev, ref=None, image=None, unsampled=None))
             self._history[i] = _CameraHistory(lm, uv, f, desc, valid, anchor_uv, ref, image, unsampled)
+            self._ahead[i] = None
             cams.append(np.full(len(lm), i, np.int64))
             lms.append(lm)
             fs.append(f)
@@ -129,7 +157,47 @@ class HoldLinker:
             return HoldObservations(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), links)
         return HoldObservations(np.concatenate(cams), np.concatenate(lms), np.concatenate(fs), links)
 
-    def _align(self, prev: _CameraHistory | None, cam, image, lm, uv, anchor_uv, links: Counter) -> tuple:
+    def align_ahead(self, anchors: list, images: list) -> int:
+        """Align, in each camera's anchor frame of a hold not measured yet, the reference patches of the
+        landmarks its tracks continue by KLT identity from the previous hold (``anchors``: per camera (tracker
+        ids, pixels) of the anchor frame or None; ``images``: the anchor frames). :meth:`link` of that hold
+        takes them for the links it keeps at those anchor pixels, and aligns the others itself. Returns the
+        number of patches aligned."""
+        done = 0
+        for i, (anchor, img) in enumerate(zip(anchors, images)):
+            self._ahead[i] = None
+            prev = self._history[i]
+            if anchor is None or img is None or prev is None or prev.ref is None or not self.align_cfg.enabled \
+                    or self.cfg.mode == "descriptors":
+                continue
+            ids, uv = anchor
+            alias = self._alias[i]
+            lm = np.array([alias.get(int(k), -1) for k in ids], dtype=np.int64)
+            _, ip, ic = np.intersect1d(prev.landmark, lm, return_indices=True)
+            if not len(ic):
+                continue
+            cam = self.rig.cameras[i]
+            res = self._aligned(prev, cam, np.asarray(img, np.float32), ip, uv[ic], np.ones(len(ip), bool))
+            self._ahead[i] = _AlignedAhead(img, lm[ic], np.asarray(uv[ic], np.float64), res)
+            done += len(ic)
+        return done
+
+    def _aligned(self, prev: _CameraHistory, cam, image, ip, uv0, which) -> Alignment:
+        """Alignment in ``image`` (float32) of the reference patches of the previous hold's landmarks ``ip`` that
+        ``which`` selects, near anchor pixels uv0 (len(ip), 2); the starting warps come from all of them."""
+        acfg = self.align_cfg
+        todo = ip[which][prev.unsampled[ip[which]]]
+        if len(todo):  # reference patches of landmarks first linked now, from their first hold's image
+            new = reference_patches(cam, prev.image, prev.anchor_uv[todo], acfg)
+            prev.ref.values[todo] = new.values
+            prev.ref.valid[todo] = new.valid
+            prev.unsampled[todo] = False
+        tf_prev, tf_cur = tangent_frames(cam, prev.anchor_uv[ip]), tangent_frames(cam, uv0)
+        start = neighbour_affine(tf_prev.f, tf_cur.f, tf_prev, tf_cur, acfg.neighbours) @ prev.ref.affine[ip]
+        return align(cam, image, prev.ref.take(ip[which]), uv0[which], start[which], acfg)
+
+    def _align(self, prev: _CameraHistory | None, cam, image, lm, uv, anchor_uv, links: Counter,
+               ahead: _AlignedAhead | None = None) -> tuple:
         """(landmark ids, positions, anchor-frame positions, reference patches, which of those are still to be
         sampled from ``image``) of a camera's hold once every linked landmark's reference patch is aligned with
         the anchor frame ``image`` (float32); a failed alignment breaks the link (new landmark). Landmarks first
@@ -145,15 +213,7 @@ class HoldLinker:
             _, ip, ic = np.intersect1d(prev.landmark, lm, assume_unique=True, return_indices=True)
         fresh = np.ones(n, bool)  # the landmarks that take their reference patch from this hold
         if len(ic):
-            todo = ip[prev.unsampled[ip]]
-            if len(todo):  # reference patches of landmarks first linked now, from their first hold's image
-                new = reference_patches(cam, prev.image, prev.anchor_uv[todo], acfg)
-                prev.ref.values[todo] = new.values
-                prev.ref.valid[todo] = new.valid
-                prev.unsampled[todo] = False
-            tf_prev, tf_cur = tangent_frames(cam, prev.anchor_uv[ip]), tangent_frames(cam, anchor_uv[ic])
-            start = neighbour_affine(tf_prev.f, tf_cur.f, tf_prev, tf_cur, acfg.neighbours) @ prev.ref.affine[ip]
-            res = align(cam, image, prev.ref.take(ip), anchor_uv[ic], start, acfg)
+            res = self._with_ahead(prev, cam, image, ip, lm[ic], anchor_uv[ic], ahead)
             good, bad = ic[res.ok], ic[~res.ok]
             settled = uv[good] - anchor_uv[good]  # the track's settled offset from the anchor frame
             anchor_uv[good] = res.uv[res.ok]
@@ -166,6 +226,32 @@ class HoldLinker:
             links["aligned"] += len(good)
             links["alignment failed"] += len(bad)
         return lm, uv, anchor_uv, ref, fresh
+
+    def _with_ahead(self, prev: _CameraHistory, cam, image, ip, lm, uv0, ahead: _AlignedAhead | None) -> Alignment:
+        """Alignments of the links (previous hold's landmarks ``ip``, now ``lm`` at anchor pixels uv0): those made
+        ahead for the same landmark at the same anchor pixel taken, the others made here."""
+        n = len(ip)
+        found = np.full(n, -1)
+        if ahead is not None and len(ahead.landmark):
+            order = np.argsort(ahead.landmark)
+            pos = np.clip(np.searchsorted(ahead.landmark, lm, sorter=order), 0, len(order) - 1)
+            k = order[pos]
+            same = (ahead.landmark[k] == lm) & np.all(ahead.anchor_uv[k] == uv0, axis=1)
+            found[same] = k[same]
+        miss = found < 0
+        if not miss.any():
+            r = ahead.result
+            return Alignment(r.uv[found], r.affine[found], r.ok[found], r.correlation[found], 0, r.std_px[found])
+        res = self._aligned(prev, cam, image, ip, uv0, miss)
+        if not (~miss).any():
+            return res
+        r, k = ahead.result, found[~miss]
+        uv, affine = np.empty((n, 2)), np.empty((n, 2, 2))
+        ok, corr, std = np.empty(n, bool), np.empty(n), np.empty(n)
+        for out, mine, theirs in ((uv, res.uv, r.uv), (affine, res.affine, r.affine), (ok, res.ok, r.ok),
+                                  (corr, res.correlation, r.correlation), (std, res.std_px, r.std_px)):
+            out[miss], out[~miss] = mine, theirs[k]
+        return Alignment(uv, affine, ok, corr, res.iterations, std)
 
     def _link_to(self, prev: _CameraHistory, cam, lm, f, uv, desc, valid, links: Counter) -> np.ndarray:
         """Landmark ids of this hold's tracks after verifying and completing the links to the previous hold."""

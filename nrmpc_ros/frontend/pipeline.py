@@ -35,7 +35,7 @@ from ..core.sequence_steps import CORRESPONDENCE_BIAS_FLOOR_PX, SequenceOptions
 from ..errors import InputError
 from .accel_tilt import UNCALIBRATED_TILT_DEG, AccelTiltEvidence
 from .drops import Drop, sorted_counts
-from .estimation import HoldEstimate, HoldEstimator, MeasuredHold, SequenceReset
+from .estimation import HoldEstimate, HoldEstimator, MeasuredHold, SequenceReset, SettledAnchors
 from .extrinsics import CameraPoses, FrameExtrinsics
 from .gyro import CameraTurns, rotation_between
 from .holds import BarRinging, Hold, HoldConfig, HoldRecorder, HoldRefusal, Refusal, RingingSource, slowest_bar_period
@@ -690,6 +690,9 @@ class Pipeline:
             return []
         self._last_check = stamp
         self._settled_s = h.settled_duration(cfg, self.bar_period_s, self._imu_still_since(h), self.bars)
+        if self._settled_s > 0.0 and not h.aligned_ahead:  # its anchors are final: their patches can be aligned
+            h.aligned_ahead = True  # (docs/PIPELINE.md, "Aligning ahead")
+            self._hand_over(SettledAnchors(list(h.anchors), list(h.anchor_images)))
         if self._settled_s < cfg.measure_s:
             return []
         out = self._estimate_hold(h)
