@@ -237,6 +237,35 @@ def test_a_later_view_linking_both_sequences_merges_them(noisy):
     assert seq.num_views == 10 and seq.number == 0
 
 
+def test_a_view_after_a_break_that_links_to_an_earlier_sequence_continues_it(noisy):
+    """A break ends sequence 0 at view 5 (every landmark renamed); view 6 shares nothing with view 5 but enough
+    with view 4: it is placed in sequence 0, which goes on (no sequence of its own, no hold without an
+    estimate), and later views follow it there."""
+    p = noisy
+    tr = p.tracks
+    off = 10**6
+    seen4 = set(tr.track[tr.view == 4].tolist())
+    seq = IncrementalSequence(p.rig, "6pt-bending")
+    outs = []
+    for k, (c, t, f, g) in enumerate(views(p)):
+        if k == 5:
+            t = t + off
+        elif k == 6:
+            t = np.where(np.isin(t, list(seen4)), t, t + 2 * off)
+        outs.append(seq.add_view(c, t, f, g))
+        if k == 8:
+            break
+    assert isinstance(outs[5], NewSequence) and outs[5].reason is StartReason.NO_SHARED_LANDMARKS
+    m = outs[6]
+    assert isinstance(m, ViewEstimate) and m.continued and (m.merged, m.merged_views) == (0, 5)
+    assert m.merged_origin is None and m.reference == 4
+    for k, v in zip((6, 7, 8), outs[6:]):
+        assert isinstance(v, ViewEstimate) and v.sequence == 0 and v.view == k - 1
+        assert rotation_angle(p.R[k].T @ v.R) < math.radians(0.5) and np.linalg.norm(v.t - p.t[k]) < 0.03
+        assert float(angle_between(v.gravity, p.gravity[k])) < 4 * v.gravity_sigma_rad + math.radians(0.05)
+    assert not outs[7].continued and outs[7].merged is None
+
+
 def test_a_bridged_break_carries_gravity_into_the_new_sequence():
     """Vision only on one bar: after a break the new sequence would publish no gravity while young; bridged by
     the rotation between the holds (the gyro's), its gravity starts from the old one's and is published

@@ -180,6 +180,10 @@ class ViewEstimate:
     # the first estimate of this sequence's origin view, now view merged_views (it started the sequence, so it
     # had none), from the same solve; None without a merge or when the solve's window left it out
     merged_origin: ViewEstimate | None = None
+    # the view linked to no view of the sequence before it but to an earlier sequence a break ended, which it
+    # continues: that sequence (``merged``) is current again, the one it could not join was broken (a sequence
+    # of its own it never had)
+    continued: bool = False
 
 
 @dataclass
@@ -521,7 +525,25 @@ class IncrementalSequence:
             out = self._place_and_solve(k, None, before, t0)
         if out is None:
             self._restart_from_last()
-            return NewSequence(self.seq.number, StartReason.FEW_INLIERS)
+            out = NewSequence(self.seq.number, StartReason.FEW_INLIERS)
+        if isinstance(out, NewSequence):
+            return self._continue_broken(t0) or out
+        return out
+
+    def _continue_broken(self, t0: float) -> ViewEstimate | None:
+        """The view a break just made an origin, placed in an earlier sequence a break ended where it shares
+        enough landmarks with one of its views (:meth:`_merge`): that sequence goes on with it (docs/PIPELINE.md,
+        "Merging sequences"); None where none links it."""
+        broke = self._broken[-1] if self._broken and self._broken[-1].number == self.seq.number - 1 else None
+        merged = self._merge(0, skip=broke)  # (not the sequence it just failed to join)
+        if merged is None:
+            return None
+        number, n, j, pm = merged
+        self._carry = None  # (for a sequence of its own, which it is not)
+        res, first = self._solve_window(n, False)
+        self._retire(first + 1)
+        out = self._estimate(n, j, pm, res, first, time.perf_counter() - t0)
+        out.merged, out.merged_views, out.continued = number, n, True
         return out
 
     def _place_and_solve(self, k: int, placed, before: tuple, t0: float):
@@ -565,21 +587,24 @@ class IncrementalSequence:
             origin = self._estimate(merged[1], merged[1] - 1, pm, res, first, time.perf_counter() - t0)
         out = self._estimate(k, j, pm, res, first, time.perf_counter() - t0)
         if merged is not None:
-            out.merged, out.merged_views, out.merged_origin = *merged, origin
+            out.merged, out.merged_views, out.merged_origin = merged[0], merged[1], origin
         return out
 
     # ----------------------------------------------------------------- merges
-    def _merge(self, k: int):
+    def _merge(self, k: int, skip=None):
         """Merge the current sequence into an earlier one that a break ended, where view k shares enough
         landmarks with one of its views (docs/PIPELINE.md, "Merging sequences"): the current sequence's views
         are re-expressed in that sequence's origin from the two-view estimate of the pair, the two gravities
         (and rival basins) compete by the joint cost, condensed gravity information is rotated and summed.
-        Returns (the earlier sequence's number, its number of views) or None."""
+        Returns (the earlier sequence's number, its number of views, the view of it the pair linked, the pair's
+        method) or None."""
         s = self.seq
         opts = self.options
         vk = s.views[k]
         key = vk.keys()
         for p in reversed(self._broken):
+            if p is skip:
+                continue
             view, cam, track = p.view_index(), p.column("cam"), p.column("track")
             hit = np.isin(_landmark_keys(cam, track), key)
             ncam = self.rig.num_cameras
@@ -600,7 +625,7 @@ class IncrementalSequence:
                 if est.success:
                     n = p.num_views
                     self._join(p, int(j), k, est)
-                    return p.number, n
+                    return p.number, n, int(j), pm
         return None
 
     def _join(self, p: _Sequence, j: int, k: int, est) -> None:

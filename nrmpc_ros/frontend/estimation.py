@@ -222,10 +222,8 @@ class HoldEstimator:
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):
-            if out.reason is not StartReason.FIRST_VIEW and len(self._hold_stamps) >= 2:
-                self._broken_stamps[number] = self._hold_stamps  # a later hold may merge it back
-                keep = self.sequence.options.merge_sequences
-                self._broken_stamps = dict(list(self._broken_stamps.items())[-keep:]) if keep else {}
+            if out.reason is not StartReason.FIRST_VIEW:
+                self._broke(number)
             if out.reason is not StartReason.FIRST_VIEW and item.turn is not None and \
                     self.sequence.bridge(*item.turn[1:]):
                 st.bridges += 1
@@ -237,6 +235,9 @@ class HoldEstimator:
                 self._origin = (item, out.reason, scale)
             return []
         done = []
+        if out.continued:  # no sequence of its own: the one it broke is kept for a later merge, as a break keeps it
+            self._broke(number)
+            self._hold_stamps, self._origin = [], None
         if out.merged is not None:  # this sequence's holds now follow those of the earlier one, in its origin
             st.merges += 1
             self._hold_stamps = self._broken_stamps.pop(out.merged, [math.nan] * out.merged_views) + \
@@ -285,6 +286,13 @@ class HoldEstimator:
         if attempt is not None:
             attempt.estimate = est
         return done + [est]
+
+    def _broke(self, number: int) -> None:
+        """A break ended sequence ``number``: its holds' stamps are kept where a later hold may merge it back."""
+        if len(self._hold_stamps) >= 2:
+            self._broken_stamps[number] = self._hold_stamps
+            keep = self.sequence.options.merge_sequences
+            self._broken_stamps = dict(list(self._broken_stamps.items())[-keep:]) if keep else {}
 
     def _checked_gravity(self, obs, item: MeasuredHold, offset_rad: float) -> tuple:
         """(the hold's IMU gravity, or None where it is not to be used, and the verdict of
