@@ -391,6 +391,7 @@ class IncrementalSequence:
         self._broken: list = []  # the latest sequences a break ended: a later view may link and merge them
         self._last_gravity = None  # (view, its gravity in its body frame, its std) as last published
         self._carry = None  # what the sequence a break ended passes to the next one (see bridge)
+        self._ended = None  # the sequence the latest break ended
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -534,8 +535,7 @@ class IncrementalSequence:
         """The view a break just made an origin, placed in an earlier sequence a break ended where it shares
         enough landmarks with one of its views (:meth:`_merge`): that sequence goes on with it (docs/PIPELINE.md,
         "Merging sequences"); None where none links it."""
-        broke = self._broken[-1] if self._broken and self._broken[-1].number == self.seq.number - 1 else None
-        merged = self._merge(0, skip=broke)  # (not the sequence it just failed to join)
+        merged = self._merge(0, skip=self._ended)  # (not the sequence it just failed to join)
         if merged is None:
             return None
         number, n, j, pm = merged
@@ -761,6 +761,7 @@ class IncrementalSequence:
     def _restart_from_last(self) -> None:
         """The newest view cannot be linked: it becomes the origin of a new sequence."""
         s = self.seq
+        self._ended = s
         last = s.views.pop()
         if s.num_views >= 2 and s.posed() and self.options.merge_sequences > 0:
             self._broken = (self._broken + [s])[-self.options.merge_sequences:]
