@@ -135,6 +135,20 @@ def test_replay_hints_at_a_gyro_in_deg_s_where_the_cameras_skip_the_moves(tmp_pa
 
 
 @pytest.mark.slow
+def test_replay_reads_a_gyro_in_deg_s_on_a_ringing_mount_from_its_noise_and_the_holds_it_gives(tmp_path, capsys):
+    """The IMU inside a camera on a ringing bar, its gyro in deg/s and its accelerometer in g, cameras that record
+    only the holds: the ringing read 57 times too large keeps every hold from reading still, so no turn between
+    holds measures the unit and no move is on camera. The gyro's noise at rest is beyond any MEMS gyro's and,
+    read as deg/s, the recording gives its holds: replay says so and keeps that pass."""
+    text = _replayed_holds(tmp_path, capsys, "--gyro-unit", "deg/s", "--accel-unit", "g", "--imu-in-camera", "cam1",
+                           "--damping", "0.04", "--bar-hz", "2.5", "--imu-rate", "1000", "--views", "5")
+    said = [ln for ln in text.splitlines() if ln.startswith("IMU units:") and "deg/s" in ln]
+    assert len(said) == 1 and "times the noisiest MEMS gyro's" in said[0], text
+    assert "--imu-gyro-scale 0.01745329 --imu-accel-scale 9.80665" in said[0]
+    assert "with an estimate (after the first): 4/4" in text and "IMU gyro units:" not in text, text
+
+
+@pytest.mark.slow
 def test_replay_measures_an_accelerometer_in_g_and_replays_with_its_scale(tmp_path, capsys):
     """An accelerometer in g reads 1 at rest: the holds stand (directions) but the bars' loads are a tenth of
     their size. Replay says so and replays with --imu-accel-scale 9.80665: the same holds, and the still norm

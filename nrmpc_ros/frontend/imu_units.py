@@ -65,6 +65,9 @@ class GyroEvidence(enum.Enum):
 
     MOVES_ON_CAMERA = "moves on camera"  # the images' rate over the gyro's, frame by frame in the moves
     TURNS_BETWEEN_HOLDS = "turns between holds"  # the images' rotation between holds over the gyro's
+    # no move on camera and no turn measured (a gyro in deg/s on a ringing mount reads no hold still): its noise
+    # at rest beyond any MEMS gyro's, and read as deg/s the recording gave more estimates than as written
+    NOISE_AND_ESTIMATES = "noise and estimates"
 
 
 MIN_TURN_DEG = 2.0
@@ -83,6 +86,7 @@ class GyroUnits:
     frames: int
     moves: int
     evidence: GyroEvidence = GyroEvidence.MOVES_ON_CAMERA
+    estimates: tuple = ()  # NOISE_AND_ESTIMATES: (the pass's estimates with the rates as written, read as deg/s)
 
     @property
     def in_degrees(self) -> bool:
@@ -239,7 +243,30 @@ class UnitsMeasuringPass:
                 if self.said is not None:
                     self.said(units, result)
                 result = self.run_pass(replace(self.inputs, imu_clock_offset_s=offset_s))
+            if units.gyro is None:
+                result = self._try_degrees(result, offset_s, units)
         return result
+
+    def _try_degrees(self, result, offset_s: float, units: ImuUnits):
+        """Where nothing measured the gyro's unit but its noise at rest is beyond any MEMS gyro's (a gyro in deg/s
+        on a ringing mount reads no hold still, so no turn between holds measures it, and cameras that record
+        only the holds show no move): a pass with the gyro read as deg/s, kept where it gives more estimates than
+        the pass as it was (a gyro 57 times too large keeps the holds from reading still); else that pass."""
+        before = self.pipeline_of(result)
+        noise = before.zupt.noise_in_use
+        beyond = None if noise is None else gyro_noise_beyond_mems(noise)
+        if beyond is None:
+            return result
+        trial = replace(self.inputs, imu_gyro_scale=self.inputs.imu_gyro_scale * DEGREE)
+        tried = self.run_pass(replace(trial, imu_clock_offset_s=offset_s))
+        counts = (before.stats.estimates, self.pipeline_of(tried).stats.estimates)
+        if counts[1] <= counts[0]:
+            return result
+        self.inputs = trial
+        if self.said is not None:
+            self.said(replace(units, gyro=GyroUnits(beyond[0] / beyond[1], 1.0, 0, 0,
+                                                    GyroEvidence.NOISE_AND_ESTIMATES, counts)), result)
+        return tried
 
 
 NOISIEST_GYRO_DENSITY = 0.1 * DEGREE
@@ -247,16 +274,25 @@ NOISIEST_GYRO_DENSITY = 0.1 * DEGREE
 sample rate r its noise per sample is at most this times sqrt(r / 2); a gyro in deg/s reads 57 times its own."""
 
 
-def describe_gyro_noise(noise) -> str | None:
-    """A sentence where the gyro's white noise at rest (the samples' own, of an
-    :class:`~nrmpc_ros.frontend.zupt.ImuNoise`: not what the covariances claim) is above the noisiest MEMS gyro's
-    at the IMU's rate (:data:`NOISIEST_GYRO_DENSITY`), else None: the hint left where the moves cannot measure the
-    unit (cameras that record only the holds, snapshots)."""
+def gyro_noise_beyond_mems(noise) -> tuple:
+    """(the gyro's white noise at rest per sample, the noisiest MEMS gyro's at the IMU's rate, the rate Hz) of an
+    :class:`~nrmpc_ros.frontend.zupt.ImuNoise` (the samples' own noise, not what the covariances claim) where the
+    first is above the second (:data:`NOISIEST_GYRO_DENSITY`), else None: the hint that the gyro reads deg/s."""
     rate_hz = 1.0 / noise.period_s if noise.period_s > 0 else math.nan
     sigma = noise.white[1] if noise.white is not None else noise.gyro_sigma
     limit = NOISIEST_GYRO_DENSITY * math.sqrt(rate_hz / 2.0)
     if not (math.isfinite(limit) and math.isfinite(sigma)) or sigma <= limit:
         return None
+    return sigma, limit, rate_hz
+
+
+def describe_gyro_noise(noise) -> str | None:
+    """A sentence where the gyro's noise at rest is beyond any MEMS gyro's (:func:`gyro_noise_beyond_mems`), else
+    None: the hint left where nothing measures the unit (cameras that record only the holds, snapshots)."""
+    beyond = gyro_noise_beyond_mems(noise)
+    if beyond is None:
+        return None
+    sigma, limit, rate_hz = beyond
     return (f"the gyro's noise at rest, {sigma:.3g} per sample, is {sigma / limit:.3g} times the noisiest MEMS "
             f"gyro's at {rate_hz:.0f} Hz ({limit:.2g} rad/s): is it in deg/s? sensor_msgs/Imu carries rad/s (REP "
             f"103): --imu-gyro-scale {DEGREE:.7f} (the node: input.imu_gyro_scale), or fix the driver")
@@ -265,6 +301,10 @@ def describe_gyro_noise(noise) -> str | None:
 def describe_gyro_units(units: GyroUnits) -> str:
     """The measurement as the replay summary and the node's warning say it."""
     verdict = "the gyro reads deg/s" if units.in_degrees else "the gyro reads rad/s"
+    if units.evidence is GyroEvidence.NOISE_AND_ESTIMATES:
+        return (f"{verdict}: no move on camera or turn between holds measures it, but its noise at rest is "
+                f"{units.ratio:.3g} times the noisiest MEMS gyro's at its rate, and read as deg/s the recording "
+                f"gave {units.estimates[1]} estimates where the rates as written gave {units.estimates[0]}")
     seen = f"the images move {units.ratio:.3g} times as fast as it says over {units.frames} moving frames in " \
         f"{units.moves} moves" if units.evidence is GyroEvidence.MOVES_ON_CAMERA else \
         f"the images turn the rig {units.ratio:.3g} times as far between holds as it says over {units.moves} moves"
@@ -274,5 +314,5 @@ def describe_gyro_units(units: GyroUnits) -> str:
 
 __all__ = ["ACCEL_SCALE_TOLERANCE", "DEGREE", "DEGREES_BELOW", "MIN_TURN_DEG", "NO_GRAVITY_SHARE", "GyroEvidence",
            "GyroUnits", "ImuUnits", "NOISIEST_GYRO_DENSITY", "STANDARD_GRAVITY", "UnitsMeasuringPass", "accel_in_g",
-           "describe_accel_scale", "describe_gyro_noise", "describe_gyro_units", "describe_units", "gyro_units",
-           "gyro_units_from_turns", "imu_units", "reads_no_gravity"]
+           "describe_accel_scale", "describe_gyro_noise", "describe_gyro_units", "describe_units",
+           "gyro_noise_beyond_mems", "gyro_units", "gyro_units_from_turns", "imu_units", "reads_no_gravity"]
