@@ -248,14 +248,15 @@ class UnitsMeasuringPass:
         return result
 
     def _try_degrees(self, result, offset_s: float, units: ImuUnits):
-        """Where nothing measured the gyro's unit but its noise at rest is beyond any MEMS gyro's (a gyro in deg/s
+        """Where nothing measured the gyro's unit but its noise at rest is beyond any MEMS gyro's by
+        :data:`DEGREES_NOISE_RATIO` (a gyro in deg/s
         on a ringing mount reads no hold still, so no turn between holds measures it, and cameras that record
         only the holds show no move): a pass with the gyro read as deg/s, kept where it gives more estimates than
         the pass as it was (a gyro 57 times too large keeps the holds from reading still); else that pass."""
         before = self.pipeline_of(result)
         noise = before.zupt.noise_in_use
         beyond = None if noise is None else gyro_noise_beyond_mems(noise)
-        if beyond is None:
+        if beyond is None or beyond[0] < DEGREES_NOISE_RATIO * beyond[1]:
             return result
         trial = replace(self.inputs, imu_gyro_scale=self.inputs.imu_gyro_scale * DEGREE)
         tried = self.run_pass(replace(trial, imu_clock_offset_s=offset_s))
@@ -272,6 +273,16 @@ class UnitsMeasuringPass:
 NOISIEST_GYRO_DENSITY = 0.1 * DEGREE
 """rad/s/sqrt(Hz): the noisiest MEMS gyros' rate noise density (datasheets give 0.003-0.1 deg/s/sqrt(Hz)). At a
 sample rate r its noise per sample is at most this times sqrt(r / 2); a gyro in deg/s reads 57 times its own."""
+
+
+QUIETEST_GYRO_DENSITY = 0.003 * DEGREE
+"""rad/s/sqrt(Hz): the quietest MEMS gyros' rate noise density. In deg/s such a gyro reads
+QUIETEST_GYRO_DENSITY / DEGREE / NOISIEST_GYRO_DENSITY = 1.7 times the noisiest one's noise in rad/s."""
+
+DEGREES_NOISE_RATIO = math.sqrt(QUIETEST_GYRO_DENSITY / DEGREE / NOISIEST_GYRO_DENSITY)
+"""The gyro's noise at rest over the noisiest MEMS gyro's above which the noise alone stands for deg/s (the
+geometric mean of 1, the noisiest gyro in rad/s, and the quietest's 1.7 in deg/s: 1.3); a vibrating mount's
+rad/s gyro reads about 1 (the matrix's 80 Hz motor: 1.01)."""
 
 
 def gyro_noise_beyond_mems(noise) -> tuple:
@@ -312,7 +323,8 @@ def describe_gyro_units(units: GyroUnits) -> str:
             "of resamples of the moves read deg/s)")
 
 
-__all__ = ["ACCEL_SCALE_TOLERANCE", "DEGREE", "DEGREES_BELOW", "MIN_TURN_DEG", "NO_GRAVITY_SHARE", "GyroEvidence",
-           "GyroUnits", "ImuUnits", "NOISIEST_GYRO_DENSITY", "STANDARD_GRAVITY", "UnitsMeasuringPass", "accel_in_g",
-           "describe_accel_scale", "describe_gyro_noise", "describe_gyro_units", "describe_units",
-           "gyro_noise_beyond_mems", "gyro_units", "gyro_units_from_turns", "imu_units", "reads_no_gravity"]
+__all__ = ["ACCEL_SCALE_TOLERANCE", "DEGREE", "DEGREES_BELOW", "DEGREES_NOISE_RATIO", "MIN_TURN_DEG",
+           "NOISIEST_GYRO_DENSITY", "NO_GRAVITY_SHARE", "QUIETEST_GYRO_DENSITY", "STANDARD_GRAVITY", "GyroEvidence",
+           "GyroUnits", "ImuUnits", "UnitsMeasuringPass", "accel_in_g", "describe_accel_scale", "describe_gyro_noise",
+           "describe_gyro_units", "describe_units", "gyro_noise_beyond_mems", "gyro_units", "gyro_units_from_turns",
+           "imu_units", "reads_no_gravity"]
