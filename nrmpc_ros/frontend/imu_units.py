@@ -248,15 +248,15 @@ class UnitsMeasuringPass:
         return result
 
     def _try_degrees(self, result, offset_s: float, units: ImuUnits):
-        """Where nothing measured the gyro's unit but its noise at rest is beyond any MEMS gyro's by
-        :data:`DEGREES_NOISE_RATIO` (a gyro in deg/s
+        """Where nothing measured the gyro's unit but its noise at rest is beyond any MEMS gyro's
+        (:func:`gyro_noise_beyond_mems`; a gyro in deg/s
         on a ringing mount reads no hold still, so no turn between holds measures it, and cameras that record
         only the holds show no move): a pass with the gyro read as deg/s, kept where it gives more estimates than
         the pass as it was (a gyro 57 times too large keeps the holds from reading still); else that pass."""
         before = self.pipeline_of(result)
         noise = before.zupt.noise_in_use
         beyond = None if noise is None else gyro_noise_beyond_mems(noise)
-        if beyond is None or beyond[0] < DEGREES_NOISE_RATIO * beyond[1]:
+        if beyond is None:
             return result
         trial = replace(self.inputs, imu_gyro_scale=self.inputs.imu_gyro_scale * DEGREE)
         tried = self.run_pass(replace(trial, imu_clock_offset_s=offset_s))
@@ -288,11 +288,13 @@ rad/s gyro reads about 1 (the matrix's 80 Hz motor: 1.01)."""
 def gyro_noise_beyond_mems(noise) -> tuple:
     """(the gyro's white noise at rest per sample, the noisiest MEMS gyro's at the IMU's rate, the rate Hz) of an
     :class:`~nrmpc_ros.frontend.zupt.ImuNoise` (the samples' own noise, not what the covariances claim) where the
-    first is above the second (:data:`NOISIEST_GYRO_DENSITY`), else None: the hint that the gyro reads deg/s."""
+    first is above the second (:data:`NOISIEST_GYRO_DENSITY`) by :data:`DEGREES_NOISE_RATIO`, else None: the hint
+    that the gyro reads deg/s (no MEMS gyro in deg/s reads less; a noisy one in rad/s on a vibrating mount reads
+    about the noisiest's)."""
     rate_hz = 1.0 / noise.period_s if noise.period_s > 0 else math.nan
     sigma = noise.white[1] if noise.white is not None else noise.gyro_sigma
     limit = NOISIEST_GYRO_DENSITY * math.sqrt(rate_hz / 2.0)
-    if not (math.isfinite(limit) and math.isfinite(sigma)) or sigma <= limit:
+    if not (math.isfinite(limit) and math.isfinite(sigma)) or sigma < DEGREES_NOISE_RATIO * limit:
         return None
     return sigma, limit, rate_hz
 
