@@ -124,8 +124,7 @@ class HoldLinker:
                 continue
             cam = self.rig.cameras[i]
             alias = self._alias[i]
-            use_klt = self.cfg.mode != "descriptors"
-            lm = np.array([alias.get(int(k), -1) if use_klt else -1 for k in ch.ids], dtype=np.int64)
+            lm = self._klt_landmarks(i, ch.ids)
             fresh = lm < 0
             lm[fresh] = self._new_ids(int(fresh.sum()))
             f = pixels_to_bearings(cam, ch.uv)
@@ -157,6 +156,13 @@ class HoldLinker:
             return HoldObservations(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), links)
         return HoldObservations(np.concatenate(cams), np.concatenate(lms), np.concatenate(fs), links)
 
+    def _klt_landmarks(self, i: int, ids) -> np.ndarray:
+        """Camera i's landmark of each tracker id by KLT identity (-1: none, or descriptors only)."""
+        if self.cfg.mode == "descriptors":
+            return np.full(len(ids), -1, np.int64)
+        alias = self._alias[i]
+        return np.array([alias.get(int(k), -1) for k in ids], dtype=np.int64)
+
     def align_ahead(self, anchors: list, images: list) -> int:
         """Align, in each camera's anchor frame of a hold not measured yet, the reference patches of the
         landmarks its tracks continue by KLT identity from the previous hold (``anchors``: per camera (tracker
@@ -167,12 +173,10 @@ class HoldLinker:
         for i, (anchor, img) in enumerate(zip(anchors, images)):
             self._ahead[i] = None
             prev = self._history[i]
-            if anchor is None or img is None or prev is None or prev.ref is None or not self.align_cfg.enabled \
-                    or self.cfg.mode == "descriptors":
+            if anchor is None or img is None or prev is None or prev.ref is None or not self.align_cfg.enabled:
                 continue
             ids, uv = anchor
-            alias = self._alias[i]
-            lm = np.array([alias.get(int(k), -1) for k in ids], dtype=np.int64)
+            lm = self._klt_landmarks(i, ids)
             _, ip, ic = np.intersect1d(prev.landmark, lm, return_indices=True)
             if not len(ic):
                 continue
