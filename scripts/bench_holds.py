@@ -355,8 +355,8 @@ def style_rig(rig: Rig, bag: dict) -> tuple:
     if bag.pop("rig_imu_turn_deg", None) is not None:
         rig, bag, suffix = style_rig(rig, bag)
         return rig, bag, suffix + "-imu-turned"
-    if not bag.get("imu", True):
-        return replace(rig, imu=None), bag, ""
+    if not bag.get("imu", True):  # its own rig file: another style on this rig reads the IMU from its file
+        return replace(rig, imu=None), bag, "-no-imu"
     if "imu_camera" in bag:
         name = rig.cameras[bag.pop("imu_camera")].name
         return rig.with_imu_in(name), bag, f"-imu-in-{name}"

@@ -563,17 +563,23 @@ def _explains(fit: RingingFit, offsets: np.ndarray, noise: float) -> bool:
 def _camera_fit(tau: np.ndarray, offsets: np.ndarray, after: np.ndarray, freq_hz: float, noise: float,
                 late_end: bool) -> RingingFit | None:
     """The damped response of one camera's offsets (F, 2) at times tau (F,) that explains them (:func:`_explains`)
-    over the frames ``after`` the stop, or None. A fit that does not is tried again without the frames far off it
-    (beyond OUTLIER_FACTOR times the median frame's distance, at least 3 noise stds): a hold may be seen to end a
-    frame or two after the next move began, and that frame alone can spoil the fit of the rest. ``late_end``
-    (without an IMU, where the images see a move start only once it outgrows the ringing, a few tenths of a
-    second in): then also without the hold's last TRIMMED_SHARES of its frames, the first that explains, where the
-    first fit's misfit sits in the frames left out (TAIL_MISFIT): a move starting, not a creep all along."""
+    over the frames ``after`` the stop, or None. A fit with frames far off it (beyond OUTLIER_FACTOR times the
+    median frame's distance, at least 3 noise stds) is tried again without them, and so is a fit that does not
+    explain: a hold may be seen to end a frame or two after the next move began, and that frame alone spoils the
+    fit of the rest -- of a large ringing too, whose spread lets the spoiled fit pass as explaining and biases
+    the rest it gives by a share of the frame's offset. ``late_end`` (without an IMU, where the images see a move
+    start only once it outgrows the ringing, a few tenths of a second in): then also without the hold's last
+    TRIMMED_SHARES of its frames, the first that explains, where the first fit's misfit sits in the frames left
+    out (TAIL_MISFIT): a move starting, not a creep all along."""
     fit = fit_damped_response([(tau, offsets)], freq_hz, None)
-    if fit is None or _explains(fit, offsets[after], noise):
-        return fit
+    if fit is None:
+        return None
     r = np.linalg.norm(offsets - fit.rest[0] - fit.oscillation(0, tau), axis=1)
-    tries = [after & (r <= max(OUTLIER_FACTOR * float(np.nanmedian(r[after])), EXPLAINED_NOISE_SIGMAS * noise))]
+    near = after & (r <= max(OUTLIER_FACTOR * float(np.nanmedian(r[after])), EXPLAINED_NOISE_SIGMAS * noise))
+    explained = _explains(fit, offsets[after], noise)
+    if explained and near.sum() == after.sum():
+        return fit
+    tries = [near]
     if late_end:  # only where the misfit sits in the frames left out (a move starting), not all along (a creep)
         F = len(tau)
         for share in TRIMMED_SHARES:
@@ -585,10 +591,10 @@ def _camera_fit(tau: np.ndarray, offsets: np.ndarray, after: np.ndarray, freq_hz
     for keep in tries:
         if keep.sum() < MIN_FIT_FRAMES or keep.sum() == after.sum():
             continue
-        fit = fit_damped_response([(tau[keep], offsets[keep])], freq_hz, None)
-        if fit is not None and _explains(fit, offsets[keep], noise):
-            return fit
-    return None
+        refit = fit_damped_response([(tau[keep], offsets[keep])], freq_hz, None)
+        if refit is not None and _explains(refit, offsets[keep], noise):
+            return refit
+    return fit if explained else None
 
 
 def _creep_px(fits: list, cams: list, tau: np.ndarray, offsets: np.ndarray, settled: np.ndarray) -> tuple | None:
