@@ -197,6 +197,27 @@ def test_one_frame_of_the_next_move_does_not_spoil_the_fit_of_a_large_ringing(se
         assert hold.settled_end <= t[-1] + 1e-9 and hold.residual_px < 0.05
 
 
+def test_frames_stamped_late_in_the_middle_of_a_ringing_hold_stay_in_its_fit():
+    """A software-synchronised camera stamps most frames within 2 ms of their exposure and now and then one 8 ms
+    late: under a 4 px ringing at 2 Hz that frame lies far off the fit (a fifth of a pixel) between frames the
+    fit explains. It is a glitch, not the next move: it is left out of the fit and of the average, but it does
+    not cut the settled run (cut there, a quarter of the frames of these twelve holds were lost: the longest
+    run on one side of the glitch)."""
+    settled = 0
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        true_t = np.arange(23) / RATE + rng.normal(scale=0.002, size=23)
+        true_t[[6, 15]] += 0.008
+        env = 4.0 * np.exp(-0.03 * 2 * math.pi * 2.0 * true_t)
+        offsets = np.stack([env * np.cos(2 * math.pi * 2.0 * true_t + 0.4 + seed),
+                            0.6 * env * np.sin(2 * math.pi * 2.0 * true_t + seed)], 1)
+        hold, why = record(offsets, noise=0.01, seed=seed)[0].measure(HoldConfig(), bar_period_s=0.5,
+                                                                      imu_still_since=0.0)
+        assert hold is not None and hold.ringing_source is RingingSource.FIT, why
+        settled += hold.settled_frames
+    assert settled >= 0.85 * 12 * 23
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_without_an_imu_a_hold_whose_ringing_creeps_is_refused(seed):
     """Bars ringing through a 4 s hold while the rig turns slowly (0.3 px/s, 0.1 deg/s at 235 px): every frame

@@ -54,6 +54,7 @@ CREEP_SIGMAS = 3.0  # without an IMU a hold whose ringing's rest moves beyond th
 TRIMMED_SHARES = (0.125, 0.25, 0.375)  # without an IMU, a fit is tried again without this share of the last frames
 TAIL_MISFIT = 3.0  # ... where the first fit's residual RMS in those frames is at least this many times the rest's
 OUTLIER_FACTOR = 5.0  # a frame further off a camera's fit than this many times its median frame is left out
+GLITCH_SHARE = 0.1  # lone frames off the fits (stamp glitches) are bridged in a settled run while at most this share
 MIN_FIT_FRAMES = 8  # the damped response has 8 parameters per camera (rest, cos, sin per axis; frequency, damping)
 # for 2 numbers per frame: 8 frames leave as many degrees of freedom for its noise as it has parameters
 
@@ -433,7 +434,16 @@ class HoldRecorder:
                                 max(thr, EXPLAINED_NOISE_SIGMAS * math.sqrt(2.0) * fits[i].residual_rms)
                                 for i in cams])
                 dev_model = np.nanmax(per_cam, axis=1)
-                settled = _longest_run(after & np.all(~(per_cam > tol[None]), axis=1))
+                off = per_cam > tol[None]  # (F, cams)
+                explained = after & ~off.any(axis=1)
+                # a lone frame off a camera's fit between two frames the fits explain is a stamp's glitch (a
+                # software-synchronised camera's frame stamped late), not a move: left out, it does not cut the
+                # run -- while such frames are rare; a camera without a fit judges its frames as before
+                unfitted = np.array([fits[i] is None for i in cams])
+                glitch = _lone_gaps(explained) & ~(off & unfitted[None]).any(axis=1)
+                if glitch.sum() > GLITCH_SHARE * explained.sum():
+                    glitch[:] = False
+                settled = _longest_run(explained | glitch) & explained
                 if settled.sum() < need:
                     return None, HoldRefusal(Refusal.NOT_STILL, (
                         f"the damped response explains no {need} frames in a row within {thr:.3f} px"))
@@ -631,6 +641,14 @@ def _offset_noise(shifts: list, offsets: np.ndarray) -> float:
             spread = MAD_TO_STD * np.nanmedian(r[ok], axis=1) / math.sqrt(2.0)  # per axis, per frame
             out.append(float(np.median(1.2533 * spread / np.sqrt(n[ok]))))
     return max(out) if out else 0.0
+
+
+def _lone_gaps(mask: np.ndarray) -> np.ndarray:
+    """The single False entries of mask with True on both sides."""
+    out = np.zeros(len(mask), bool)
+    if len(mask) >= 3:
+        out[1:-1] = ~mask[1:-1] & mask[:-2] & mask[2:]
+    return out
 
 
 def _longest_run(mask: np.ndarray) -> np.ndarray:
