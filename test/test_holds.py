@@ -215,7 +215,7 @@ def test_frames_stamped_late_in_the_middle_of_a_ringing_hold_stay_in_its_fit():
                                                                       imu_still_since=0.0)
         assert hold is not None and hold.ringing_source is RingingSource.FIT, why
         settled += hold.settled_frames
-    assert settled >= 0.85 * 12 * 23
+    assert settled >= 0.93 * 12 * 23  # 0.97 (the frames off the fits left out); cut at them: 0.87
 
 
 @pytest.mark.parametrize("seed", [0, 1])
