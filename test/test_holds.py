@@ -218,6 +218,23 @@ def test_frames_stamped_late_in_the_middle_of_a_ringing_hold_stay_in_its_fit():
     assert settled >= 0.93 * 12 * 23  # 0.97 (the frames off the fits left out); cut at them: 0.87
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_without_an_imu_frames_enough_to_fit_that_no_ringing_explains_are_not_a_hold(seed):
+    """A 6 px ringing over a creep of 1 px/s, 2 s of frames: enough to fit a damped response, and none explains
+    them. Without an IMU nothing vouches for their stillness: they are refused, not taken at their spread's
+    penalty as frames too few to fit are (the old code published such a hold, stamped inside the creep). With
+    an IMU that read the rig still the spread's penalty stands; the ringing alone is fitted."""
+    t, _, ring = decaying(2.0, 0.03, 6.0, 20, 0.4 + seed)
+    creeping = ring + np.stack([1.0 * t, 0.5 * t], 1)
+    hold, why = record(creeping, noise=0.02, seed=seed)[0].measure(HoldConfig(), bar_period_s=0.5)
+    assert hold is None and why.rule is Refusal.NOT_STILL
+    vouched, why = record(creeping, noise=0.02, seed=seed)[0].measure(HoldConfig(), bar_period_s=0.5,
+                                                                      imu_still_since=0.0)
+    assert vouched is not None, why
+    ringing, why = record(ring, noise=0.02, seed=seed)[0].measure(HoldConfig(), bar_period_s=0.5)
+    assert ringing is not None and ringing.ringing_source is RingingSource.FIT, why
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_without_an_imu_a_hold_whose_ringing_creeps_is_refused(seed):
     """Bars ringing through a 4 s hold while the rig turns slowly (0.3 px/s, 0.1 deg/s at 235 px): every frame

@@ -393,7 +393,8 @@ class HoldRecorder:
             rest = np.nanmedian(offsets[after][len(offsets[after]) // 2:], axis=0)  # (cams, 2): the later half
             fitted = False
             span = float(tau[after][-1] - tau[after][0]) if after.sum() > 1 else 0.0
-            if bars.period_s and after.sum() >= MIN_FIT_FRAMES and span >= bars.period_s:  # a period pins the rest
+            fit_tried = bool(bars.period_s) and after.sum() >= MIN_FIT_FRAMES and span >= bars.period_s
+            if fit_tried:  # a period pins the rest
                 for k, i in enumerate(cams):
                     tau_i = own_tau[:, i]
                     fit = _camera_fit(tau_i, offsets[:, k], after, bars.camera_freq(i), noise, imu_still_since is None)
@@ -474,9 +475,12 @@ class HoldRecorder:
                 rest_std = {i: turn_std.get(i, fits[i].rest_std[0]) for i in cams if fits[i] is not None}
                 dev = dev_model
             elif bars.period_s and np.nanmax(dev[after], initial=0.0) <= _radius_px(cfg, bars, stop_amplitude_px) \
-                    and (imu_still_since is not None or _oscillates(tau[after], offsets[after], bars.period_s)):
+                    and (imu_still_since is not None or
+                         (not fit_tried and _oscillates(tau[after], offsets[after], bars.period_s))):
                 # too few frames (or less than a period) to fit the ringing: all of them, trusted as far as their
-                # own spread allows
+                # own spread allows. Without an IMU only where no fit could be tried: frames enough to fit that
+                # no damped response explains show something else than ringing (a creep under it), and nothing
+                # vouches for their stillness
                 settled = after.copy()
                 ringing, source = True, RingingSource.SPREAD
                 ringing_px = float(np.sqrt(np.nanmean(dev[settled] ** 2)))
