@@ -197,7 +197,7 @@ def test_one_frame_of_the_next_move_does_not_spoil_the_fit_of_a_large_ringing(se
         assert hold.settled_end <= t[-1] + 1e-9 and hold.residual_px < 0.05
 
 
-def test_frames_stamped_late_in_the_middle_of_a_ringing_hold_stay_in_its_fit():
+def test_frames_stamped_late_in_the_middle_of_a_ringing_hold_do_not_cut_its_settled_run():
     """A software-synchronised camera stamps most frames within 2 ms of their exposure and now and then one 8 ms
     late: under a 4 px ringing at 2 Hz that frame lies far off the fit (a fifth of a pixel) between frames the
     fit explains. It is a glitch, not the next move: it is left out of the fit and of the average, but it does
