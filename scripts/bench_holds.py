@@ -39,7 +39,9 @@ the recording times); ``camcounter`` the second camera stamped by its own counte
 rig file written by hand; replayed as ``nrmpc replay`` does: the axes measured from the turns between holds);
 ``imuloss`` a 1 kHz IMU whose link lost 5 % of its samples in runs of 30 ms on average, the cameras streaming
 through the moves; ``blur`` a 15 Hz stream whose images integrate 30 ms from their stamps (an indoor exposure:
-the moves smear by up to tens of pixels, the images' content is 15 ms later than their stamps).
+the moves smear by up to tens of pixels, the images' content is 15 ms later than their stamps); ``slow`` holds
+at 5 Hz with the IMU at 50 Hz and ``fast`` a 60 Hz stream through the moves with the IMU at 1 kHz (the ends of
+the camera and IMU rates users record at).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -344,6 +346,8 @@ def matrix_styles() -> dict:
         "imuloss": lambda M: ({**base, "capture": "stream", "imu_rate": 1000.0},
                               {**bag, "imu_loss": 0.05, "imu_loss_burst_ms": 30.0}),
         "blur": lambda M: ({**base, "capture": "stream", "rate": 15.0}, {**bag, "shutter_ms": 30.0}),
+        "slow": lambda M: ({**base, "rate": 5.0, "imu_rate": 50.0}, bag),
+        "fast": lambda M: ({**base, "capture": "stream", "rate": 60.0, "imu_rate": 1000.0}, bag),
     }
 
 
@@ -370,7 +374,8 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("imuclock2s", "ring3-soft"), ("imuswing", "cross4-soft"), ("imuraw", "ring3-stiff"),
          ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff"), ("imuhost", "ring5-soft"),
          ("imucounter", "ring6-soft"), ("camcounter", "ring3-stiff"), ("unstamped", "cross4-soft"),
-         ("imuaxes", "ring5-stiff"), ("imuloss", "ring6-stiff"), ("blur", "line2-soft")]
+         ("imuaxes", "ring5-stiff"), ("imuloss", "ring6-stiff"), ("blur", "line2-soft"), ("slow", "line2-soft"),
+         ("fast", "ring3-stiff")]
 
 
 def file_rig(rig: Rig, bag: dict) -> Rig:
@@ -389,15 +394,16 @@ def matrix_cells(full: bool) -> list:
     return [(s, r) for r in matrix_rigs() for s in matrix_styles()]
 
 
-def render_cell(out: Path, style: str, rig_name: str, seed: int = 0) -> tuple:
-    """(bag dir, rig file) of one cell, rendered if missing (written beside, then renamed: never half a bag)."""
+def render_cell(out: Path, style: str, rig_name: str, seed: int = 0, supersample: int = SUPERSAMPLE) -> tuple:
+    """(bag dir, rig file) of one cell, rendered if missing (written beside, then renamed: never half a bag);
+    ``supersample`` rays per pixel side (a bag of another than the default is named for it)."""
     rig = matrix_rigs()[rig_name]
     mo, style_bag = matrix_styles()[style](rig.num_cameras)
     rig, bo, suffix = style_rig(rig, style_bag)
     rig_file = out / f"{rig_name}{suffix}.yaml"
     if not rig_file.exists():
         save_rig(file_rig(rig, style_bag), rig_file, header="rig of scripts/bench_holds.py (matrix)")
-    path = out / f"{style}-{rig_name}-{seed}"
+    path = out / (f"{style}-{rig_name}-{seed}" + ("" if supersample == SUPERSAMPLE else f"-ss{supersample}"))
     if not path.exists():
         tmp = out / (path.name + ".partial")
         if tmp.exists():
@@ -405,7 +411,7 @@ def render_cell(out: Path, style: str, rig_name: str, seed: int = 0) -> tuple:
 
             shutil.rmtree(tmp)
         t0 = time.perf_counter()
-        make_bag(rig, tmp, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=SUPERSAMPLE, **bo),
+        make_bag(rig, tmp, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=supersample, **bo),
                  progress=False)
         tmp.rename(path)
         print(f"rendered {path.name} in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
@@ -618,10 +624,10 @@ def score_cell(path: Path, rig_file: Path, method: str, bound: bool = True,
 
 
 def run_cell(job) -> list:
-    """Render (if missing) and score one (out, style, rig, methods, pipeline settings file or None) cell; one
-    result dict per method."""
-    out, style, rig_name, methods, config = job
-    path, rig_file = render_cell(out, style, rig_name)
+    """Render (if missing) and score one (out, style, rig, methods, pipeline settings file or None, rays per
+    pixel side) cell; one result dict per method."""
+    out, style, rig_name, methods, config, supersample = job
+    path, rig_file = render_cell(out, style, rig_name, supersample=supersample)
     cfg = None if config is None else from_mapping(PipelineConfig, load_mapping(config, "--config"), config)
     results = []
     with_imu = matrix_styles()[style](1)[1].get("imu", True)
@@ -688,11 +694,14 @@ def main(argv=None) -> int:
     p.add_argument("--cells", help="comma-separated style:rig cells instead of --quick/--full")
     p.add_argument("--json", help="also write the results as JSON")
     p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig, as for nrmpc replay)")
+    p.add_argument("--supersample", type=int, default=SUPERSAMPLE, choices=range(1, 9), metavar="{1..8}",
+                   help=f"rays per pixel side of the rendered bags (default {SUPERSAMPLE}: point sampling, "
+                        "aliased; 2 or more integrate each pixel's area as a lens and sensor do)")
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cells = [tuple(c.split(":")) for c in args.cells.split(",")] if args.cells else matrix_cells(args.full)
-    jobs = [(out, s, r, args.methods.split(","), args.config) for s, r in cells]
+    jobs = [(out, s, r, args.methods.split(","), args.config, args.supersample) for s, r in cells]
     t0 = time.perf_counter()
     if args.workers > 1:
         from multiprocessing import Pool
