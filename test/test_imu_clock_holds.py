@@ -61,12 +61,13 @@ def test_an_imu_clock_seconds_off_is_found(rng, offset_s):
     assert found is not None and found.pairs == 7
     assert abs(found.offset_s + offset_s) <= found.half_width_s < 0.5
     assert found.residual_deg < 1.0 < found.as_stamped_deg
+    assert found.refutes_stamps
 
 
 def test_stamps_that_agree_give_an_interval_holding_zero_and_too_little_gives_nothing(rng):
     t, w, spans, attitude = recording(rng)
     found = offset_from_turns(t, w, ImuMount(), pairs_of(spans, attitude))
-    assert found is not None and abs(found.offset_s) <= found.half_width_s
+    assert found is not None and abs(found.offset_s) <= found.half_width_s and not found.refutes_stamps
     assert offset_from_turns(t, w, ImuMount(), pairs_of(spans, attitude)[:2]) is None  # two pairs
     inside = ImuMount(mount="cam0")
     assert offset_from_turns(t, w, inside, pairs_of(spans, attitude)) is None  # an IMU on a bar turns with it
@@ -107,3 +108,21 @@ def test_a_rig_turning_back_and_forth_agrees_as_stamped_and_no_offset_is_found()
     found = offset_from_turns(t, w, ImuMount(), pairs_of(spans, attitude)[3:6])
     assert found is not None and found.as_stamped_deg < 0.1
     assert abs(found.offset_s) <= found.half_width_s < 1.5
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_snapshots_whose_turns_the_images_give_a_degree_off_do_not_refute_the_stamps(seed):
+    """Snapshots 0.5 s after each stop, stamped right, and images whose turns between them are 0.4-1.3 deg off
+    (vision alone on two cameras of one bar): a shift that ends a gyro's interval in the tail of a move can
+    bring one more pair within the agreement tolerance, at the same median disagreement. Taken as an offset
+    (the plateau alone decided: 3 of these 20 recordings), it moved every snapshot's IMU window into a move and
+    refused every hold of a recording. No such lag refutes the stamps."""
+    rng = np.random.default_rng(seed)
+    t, w, spans, attitude = recording(rng, holds=6, hold_s=(2.5, 2.5))
+    snapshots = [(a + 0.2, a + 0.2) for a, _ in spans]  # the still spans start 0.3 s after the stop
+    pairs = []
+    for a, b, R in pairs_of(snapshots, attitude):
+        axis = rng.normal(size=3)
+        pairs.append((a, b, R @ exp_so3(np.radians(rng.uniform(0.4, 1.3)) * axis / np.linalg.norm(axis))))
+    found = offset_from_turns(t, w, ImuMount(), pairs)
+    assert found is None or not found.refutes_stamps

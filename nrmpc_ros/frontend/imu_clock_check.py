@@ -13,7 +13,9 @@ cannot:
   when the recording's moves single the lag out;
 - holds without moves on camera: the rotations between holds, gyro against
   images (:func:`~nrmpc_ros.frontend.imu_clock_holds.offset_from_turns`),
-  taken when their plateau of agreeing lags excludes zero.
+  taken when their plateau of agreeing lags excludes zero and the stamps as
+  read disagree with the images clearly more than the offset does
+  (:attr:`~nrmpc_ros.frontend.imu_clock_holds.HoldsClockOffset.refutes_stamps`).
 
 A lag within ``MAX_LAG_S`` (a stamping or transport delay, a low-pass
 filter's group delay) is the near search's to read, against the bent
@@ -68,7 +70,7 @@ def measure_imu_clock(pipeline, ref, rig, estimates: list) -> MeasuredClockOffse
         return None  # the moves single out no offset: the holds are not asked
     turns = _turns_between_holds(estimates, bool(pipeline.estimator.imu_check.refuted))
     found = offset_from_turns(ref.imu_t, ref.imu_w, rig.imu, turns)
-    if found is not None and abs(found.offset_s) > found.half_width_s:
+    if found is not None and found.refutes_stamps:
         return MeasuredClockOffset(found.offset_s, ClockEvidence.HOLDS, found)
     return None
 

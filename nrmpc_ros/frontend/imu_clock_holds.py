@@ -37,6 +37,13 @@ AGREE_DEG = 1.0
 """A pair agrees at a lag when the gyro's rotation is within this of the images' (deg): the gyro's bias over a
 few seconds and the images' error are a few tenths."""
 
+EVIDENCE_RATIO = 2.0
+"""An offset refutes the stamps as read only where they disagree with the images (median over the pairs) at
+least this many times as much as the offset does: a lag is chosen as the one where most pairs agree, and where
+the images' turns are a degree off (vision alone on two cameras of one bar, snapshots) a shift that catches the
+end of a move can bring one more pair within ``AGREE_DEG`` by chance, at the same median disagreement; an IMU
+clock really off puts the gyro's instants in other holds or in the moves, degrees to tens of degrees away."""
+
 
 @dataclass(frozen=True)
 class HoldsClockOffset:
@@ -48,6 +55,13 @@ class HoldsClockOffset:
     pairs: int
     residual_deg: float
     as_stamped_deg: float
+
+    @property
+    def refutes_stamps(self) -> bool:
+        """Whether the pairs show the IMU's stamps off: zero lies outside the offset's interval, and the stamps as
+        read disagree with the images beyond ``AGREE_DEG`` and ``EVIDENCE_RATIO`` times the offset's residual."""
+        return abs(self.offset_s) > self.half_width_s and \
+            self.as_stamped_deg > max(AGREE_DEG, EVIDENCE_RATIO * self.residual_deg)
 
 
 def orientations(t: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -113,5 +127,5 @@ def offset_from_turns(t: np.ndarray, w: np.ndarray, mount: ImuMount, pairs: list
                             as_stamped_deg=float(np.median(angle[zero][finite])) if finite.any() else math.nan)
 
 
-__all__ = ["AGREE_DEG", "HoldsClockOffset", "MAX_OFFSET_S", "MIN_PAIRS", "STEP_S", "offset_from_turns",
-           "orientations"]
+__all__ = ["AGREE_DEG", "EVIDENCE_RATIO", "HoldsClockOffset", "MAX_OFFSET_S", "MIN_PAIRS", "STEP_S",
+           "offset_from_turns", "orientations"]
