@@ -187,6 +187,28 @@ def test_a_noisier_view_weighs_less_and_its_std_grows():
         assert rot[1] > 4.0 * rot[0], (options, rot)
 
 
+def test_observations_that_carry_a_corners_bias_weigh_less():
+    """A view's observations may each carry their own extra noise (``obs_scale``: links at a corner found in
+    that hold, not aligned to the landmark's reference patch): scales of 1 change nothing, and scaling every
+    observation of the view weighs it as a noisier view does (its pose's std grows by most of the scale), and
+    scaling a share of them weighs the view in between."""
+    p = make_sequence(SequenceScenario(rig=RING3, num_views=5, pixel_noise=0.3), seed=3)
+    last = {}
+    for name in ("plain", "ones", "half", "all", "view"):
+        seq = IncrementalSequence(p.rig, "6pt-bending")
+        for k, (c, t, f, g) in enumerate(views(p)):
+            scale = {"ones": np.ones(len(c)), "half": np.where(np.arange(len(c)) % 2 == 0, 10.0, 1.0),
+                     "all": np.full(len(c), 10.0)}.get(name) if k == 4 else None
+            out = seq.add_view(c, t, f, g, None, noise_scale=10.0 if name == "view" and k == 4 else 1.0,
+                               obs_scale=scale)
+        assert isinstance(out, ViewEstimate)
+        last[name] = (math.sqrt(np.trace(out.cov_pose[:3, :3])), out.gravity)
+    assert last["ones"][0] == pytest.approx(last["plain"][0], rel=1e-9)
+    np.testing.assert_allclose(last["ones"][1], last["plain"][1], atol=1e-12)
+    assert last["all"][0] == pytest.approx(last["view"][0], rel=0.05)
+    assert last["plain"][0] < last["half"][0] < last["all"][0] and last["all"][0] > 4.0 * last["plain"][0]
+
+
 def test_a_view_back_at_an_old_place_continues_the_sequence(noisy):
     """A view that shares landmarks only with views older than the last few (the rig came back) is placed on
     them instead of starting a new sequence."""

@@ -102,7 +102,9 @@ def test_ids_follow_the_tracker_into_the_next_hold(texture):
 
 def test_a_hold_back_at_an_older_view_links_to_that_hold(texture):
     """The previous hold saw another scene: the tracks of a hold back near an older view take over that older
-    hold's landmarks (descriptor store, verified per camera); without the store they start new landmarks."""
+    hold's landmarks (descriptor store, verified per camera); without the store they start new landmarks. The
+    store keeps no reference patches: those links stay at this hold's corners and are marked so (the estimate
+    weighs them with the corner's bias); nothing else is."""
     other = make_texture(11)
     R2 = exp_so3(np.array([0.3, 1.0, 0.1]) / np.linalg.norm([0.3, 1.0, 0.1]) * math.radians(12))
     img0, ids0, uv0 = tracked(texture, np.eye(3))
@@ -115,10 +117,13 @@ def test_a_hold_back_at_an_older_view_links_to_that_hold(texture):
         c = linker.link(hold_of(img2, ids2 + 20000, uv2))
         assert not np.isin(b.landmark, a.landmark).any()
         linked = np.isin(c.landmark, a.landmark)
+        assert a.corner is None and b.corner is None
         if store == 0:
-            assert c.links["older"] == 0 and not linked.any()
+            assert c.links["older"] == 0 and not linked.any() and c.corner is None
             continue
         assert c.links["older"] >= 25 and linked.sum() == c.links["older"]
+        np.testing.assert_array_equal(c.corner, linked)
+        assert c.links["corner"] == c.links["older"]
         pos_a = dict(zip(a.landmark.tolist(), uv0))
         err = [np.linalg.norm(project(np.eye(3), R2, pos_a[lm][None])[0] - uv)
                for lm, uv in zip(c.landmark[linked], uv2[linked])]

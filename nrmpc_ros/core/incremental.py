@@ -199,6 +199,15 @@ class SequenceRecord:
     noise_scale: np.ndarray | None = None  # (K,) each view's bearing noise over the nominal one (None: all 1)
 
 
+def _observation_scales(scale, n: int) -> np.ndarray | None:
+    """Each observation's own noise scale (n,), at least 1 (a non-finite one counts as 1), or None where all are 1."""
+    if scale is None:
+        return None
+    out = np.broadcast_to(np.asarray(scale, float), (n,)).copy()
+    out = np.where(np.isfinite(out), np.maximum(out, 1.0), 1.0)
+    return None if np.all(out == 1.0) else out
+
+
 def _landmark_keys(cam: np.ndarray, track: np.ndarray) -> np.ndarray:
     """One key per observation for its (camera, landmark) pair: views share a landmark when one camera sees it."""
     return cam * (1 << 40) + track
@@ -225,6 +234,7 @@ class _View:
     key: object = None  # what names the view (the hold's stamp), for the turns of later views
     turn: tuple | None = None  # (key of the view before it, R: p_before = R p_this, std rad) from the gyro
     tilt_sigma: float | None = None  # prior std (rad) of the measured gravity's tilt known at this view
+    obs_scale: np.ndarray | None = None  # (n,) each observation's noise over the view's (None: all 1)
 
     def __post_init__(self):
         if self.inlier is None:
@@ -310,10 +320,12 @@ class _Sequence:
         return np.array([v.noise_scale for v in self.views], dtype=float)
 
     def scales(self) -> np.ndarray | None:
-        """Per observation (in the order of :meth:`arrays`): its view's noise scale; None when all are 1."""
-        if all(v.noise_scale == 1.0 for v in self.views):
+        """Per observation (in the order of :meth:`arrays`): its view's noise scale times its own; None when all
+        are 1."""
+        if all(v.noise_scale == 1.0 and v.obs_scale is None for v in self.views):
             return None
-        return np.repeat(self.noise_scales(), [len(v.cam) for v in self.views])
+        return np.concatenate([v.noise_scale * (np.ones(len(v.cam)) if v.obs_scale is None else v.obs_scale)
+                               for v in self.views])
 
     def column(self, name: str, upto: int | None = None) -> np.ndarray:
         """One per-observation field of views [0, upto) concatenated (``cam``, ``track``, ``f``, ``inlier``)."""
@@ -483,7 +495,7 @@ class IncrementalSequence:
     def add_view(self, cam, track, f, measured_gravity=None, measured_sigma_rad: float | None = None,
                  noise_scale: float = 1.0, key=None, turn: tuple | None = None,
                  offset_rad: float = 0.0, unknown_turn_rad=None,
-                 tilt_sigma_rad: float | None = None) -> ViewEstimate | NewSequence:
+                 tilt_sigma_rad: float | None = None, obs_scale=None) -> ViewEstimate | NewSequence:
         """Add the next view's observations; returns its :class:`ViewEstimate`, or :class:`NewSequence` for a
         view that is the origin of a sequence (the first one, or one no earlier view links to).
         ``noise_scale`` (>= 1): the view's bearing noise std over the nominal one (a hold measured while
@@ -496,7 +508,10 @@ class IncrementalSequence:
         measured (a snapshot's ringing without an IMU): the estimate is unchanged, its covariance carries it
         (:func:`~.bundle.cluster_robust_covariance`). ``tilt_sigma_rad``: the prior std of the measured gravity's
         constant tilt known at this view (what the accelerometer's norms show); the newest view's is the
-        sequence's from then on (None: ``options.gravity_bias_sigma``; no tilt where that is None)."""
+        sequence's from then on (None: ``options.gravity_bias_sigma``; no tilt where that is None). ``obs_scale``
+        (n,), each >= 1: an observation's own noise over the view's (a link whose position is a corner found in
+        this hold, not the landmark's reference patch aligned: it carries the corner's viewpoint bias).
+        """
         t0 = time.perf_counter()
         cam = np.asarray(cam, dtype=np.int64)
         track = np.asarray(track, dtype=np.int64)
@@ -512,7 +527,8 @@ class IncrementalSequence:
         new = _View(cam, track, f, g, sg, max(float(noise_scale), 1.0) if math.isfinite(noise_scale) else 1.0,
                     float(offset_rad) if offset_rad > 0 and math.isfinite(offset_rad) else 0.0,
                     unknown_turn_rad=turned, key=key, turn=turn,
-                    tilt_sigma=float(tilt_sigma_rad) if tilt_sigma_rad is not None and tilt_sigma_rad > 0 else None)
+                    tilt_sigma=float(tilt_sigma_rad) if tilt_sigma_rad is not None and tilt_sigma_rad > 0 else None,
+                    obs_scale=_observation_scales(obs_scale, len(cam)))
         s.views.append(new)
         if k == 0:
             new.R, new.t = np.eye(3), np.zeros(3)

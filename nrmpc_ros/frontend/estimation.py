@@ -31,7 +31,7 @@ from .holds import Hold, RingingSource
 from .imu import ImuGravity, ImuRefusal
 from .imu_agreement import Agreement, ImuGravityCheck
 from .imu_mount import MIN_TURNS, TURNS_KEPT, imu_axes_from_turns, turn_refutes_axes
-from .linking import HoldLinker
+from .linking import CORNER_BIAS_PX, HoldLinker
 
 
 def _focal_px(rig: Rig) -> float:
@@ -218,7 +218,7 @@ class HoldEstimator:
             hold.unknown_ringing_px / np.array([c.focal_px for c in self.rig.cameras])
         out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale,
                                      key=hold.stamp, turn=item.turn, offset_rad=offset, unknown_turn_rad=unknown,
-                                     tilt_sigma_rad=item.tilt_sigma_rad)
+                                     tilt_sigma_rad=item.tilt_sigma_rad, obs_scale=self._corner_scales(obs))
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):
@@ -286,6 +286,15 @@ class HoldEstimator:
         if attempt is not None:
             attempt.estimate = est
         return done + [est]
+
+    def _corner_scales(self, obs) -> np.ndarray | None:
+        """Each observation's noise over the nominal one (None: all nominal): a link at a corner found in this
+        hold carries the corner's viewpoint bias (:data:`~.linking.CORNER_BIAS_PX`) on top."""
+        if obs.corner is None:
+            return None
+        focal = np.array([c.focal_px for c in self.rig.cameras])
+        extra = CORNER_BIAS_PX / focal[obs.cam]
+        return np.where(obs.corner, np.hypot(1.0, extra / max(self.sequence.noise_rad, 1e-12)), 1.0)
 
     def _broke(self, number: int) -> None:
         """A break ended sequence ``number``: its holds' stamps are kept where a later hold may merge it back."""

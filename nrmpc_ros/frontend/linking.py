@@ -25,7 +25,11 @@ hold. So a landmark's position in every hold after its first is where its
 reference patch (taken in the first hold that saw it) aligns with the hold's
 anchor frame (:mod:`.patch_align`), plus the track's settled offset from the
 anchor; a link whose alignment fails starts a new landmark, referenced here
-(docs/PIPELINE.md, "Patch alignment").
+(docs/PIPELINE.md, "Patch alignment"). The store of older holds keeps no
+patches (a few hundred holds of every camera), so a link to an older hold
+stays at the corner found in this hold, and says so
+(:attr:`HoldObservations.corner`): it enters the estimate with the corner's
+viewpoint bias as extra noise (:data:`CORNER_BIAS_PX`).
 
 Aligning is most of a hold's linking, and it needs only the anchor frame: once a hold has settled, the
 intake hands its anchor frames over (:meth:`HoldLinker.align_ahead`) and the landmarks its tracks continue
@@ -53,6 +57,13 @@ from .patch_align import (
     tangent_frames,
 )
 from .tracking import Features, TrackingConfig, describe, match_features, verify_correspondences
+
+CORNER_BIAS_PX = 0.3
+"""A corner found afresh in each hold marks its landmark up to a bias that depends on the viewpoint (px per axis):
+0.18-0.41 px median at 5-15 deg of viewpoint change and about 1 px at 30 deg (docs/RESULTS.md, "Correspondence
+error between two holds"); links to older holds on the rendered bags, against the landmark's point ray-cast
+from its first hold: 0.18 px median, 0.65 px at the 90th percentile. The std of the extra noise such a link
+carries, against the aligned links' few hundredths of a pixel."""
 
 
 @dataclass
@@ -86,12 +97,15 @@ class _AlignedAhead:
 
 @dataclass
 class HoldObservations:
-    """The observations a hold adds to the sequence: camera, landmark id and bearing of each."""
+    """The observations a hold adds to the sequence: camera, landmark id and bearing of each, and which of them
+    link an earlier hold's landmark at a corner found in this hold (a link to an older hold, which the patch
+    alignment does not reach: its position carries the corner's viewpoint bias, :data:`CORNER_BIAS_PX`)."""
 
     cam: np.ndarray
     landmark: np.ndarray
     f: np.ndarray
     links: Counter  # per kind: klt, descriptor, rejected (failed the essential-matrix check)
+    corner: np.ndarray | None = None  # (N,) bool; None: none
 
 
 class HoldLinker:
@@ -117,7 +131,7 @@ class HoldLinker:
         return out
 
     def link(self, hold: Hold) -> HoldObservations:
-        cams, lms, fs = [], [], []
+        cams, lms, fs, corners = [], [], [], []
         links = Counter()
         for i, ch in enumerate(hold.cameras):
             if ch is None:
@@ -131,11 +145,16 @@ class HoldLinker:
             img = hold.anchor_images[i] if i < len(hold.anchor_images) else None
             desc, valid = describe(img, ch.anchor_uv, self.cfg) if img is not None else (None, np.zeros(len(lm), bool))
             prev = self._history[i]
+            older = np.zeros(len(lm), bool)
             if prev is not None:
                 lm = self._link_to(prev, cam, lm, f, ch.uv, desc, valid, links)
                 if self.cfg.mode != "klt" and desc is not None and self._older[i]:
-                    lm = self._link_older(self._older[i], prev, cam, lm, f, ch.uv, desc, valid, links)
-            lm = _unique_per_hold(lm, self._new_ids)
+                    linked = self._link_older(self._older[i], prev, cam, lm, f, ch.uv, desc, valid, links)
+                    older = linked != lm
+                    lm = linked
+            unique = _unique_per_hold(lm, self._new_ids)
+            older &= unique == lm  # a duplicate given a new id links nothing
+            lm = unique
             uv, anchor_uv, ref, image, unsampled = ch.uv, ch.anchor_uv, None, None, None
             if img is not None and self.align_cfg.enabled:
                 image = np.asarray(img, np.float32)
@@ -143,6 +162,9 @@ class HoldLinker:
                 lm, uv, anchor_uv, ref, unsampled = self._align(prev, cam, image, lm, ch.uv, ch.anchor_uv, links,
                                                                  ahead)
                 f = pixels_to_bearings(cam, uv)
+                older &= unsampled  # (an older link the previous hold also saw is aligned: no corner)
+            else:
+                older[:] = False  # without alignment every link is a corner: the nominal noise covers them alike
             alias.update(zip(ch.ids.tolist(), lm.tolist()))
             if prev is not None and prev.desc is not None and self.cfg.link_store_holds > 0:
                 # the store matches descriptors only
@@ -152,9 +174,13 @@ class HoldLinker:
             cams.append(np.full(len(lm), i, np.int64))
             lms.append(lm)
             fs.append(f)
+            corners.append(older)
         if not cams:
             return HoldObservations(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), links)
-        return HoldObservations(np.concatenate(cams), np.concatenate(lms), np.concatenate(fs), links)
+        corner = np.concatenate(corners)
+        links["corner"] += int(np.count_nonzero(corner))
+        return HoldObservations(np.concatenate(cams), np.concatenate(lms), np.concatenate(fs), links,
+                                corner if corner.any() else None)
 
     def _klt_landmarks(self, i: int, ids) -> np.ndarray:
         """Camera i's landmark of each tracker id by KLT identity (-1: none, or descriptors only)."""
@@ -334,4 +360,4 @@ def _unique_per_hold(lm: np.ndarray, new_ids) -> np.ndarray:
     return lm
 
 
-__all__ = ["HoldLinker", "HoldObservations"]
+__all__ = ["CORNER_BIAS_PX", "HoldLinker", "HoldObservations"]
