@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 from texture_views import CAM, make_texture, project, view
 
+from nrmpc_ros.cameras import bearings_to_pixels
 from nrmpc_ros.core.rig import Rig
 from nrmpc_ros.core.so3 import exp_so3
 from nrmpc_ros.frontend.holds import CameraHold, Hold
 from nrmpc_ros.frontend.linking import HoldLinker
+from nrmpc_ros.frontend.patch_align import PatchAlignConfig
 from nrmpc_ros.frontend.tracking import KltTracker, TrackingConfig
 
 RIG = Rig(cameras=(CAM,))
@@ -103,15 +105,17 @@ def test_ids_follow_the_tracker_into_the_next_hold(texture):
 def test_a_hold_back_at_an_older_view_links_to_that_hold(texture):
     """The previous hold saw another scene: the tracks of a hold back near an older view take over that older
     hold's landmarks (descriptor store, verified per camera); without the store they start new landmarks. The
-    store keeps no reference patches: those links stay at this hold's corners and are marked so (the estimate
-    weighs them with the corner's bias); nothing else is."""
+    older hold kept its reference patches (``patch_align.older_holds``), so those links are aligned like the
+    previous hold's, nearer the true points than the corners found in this hold; a store that keeps none leaves
+    them at those corners, marked so (the estimate weighs them with the corner's bias), and nothing else is."""
     other = make_texture(11)
     R2 = exp_so3(np.array([0.3, 1.0, 0.1]) / np.linalg.norm([0.3, 1.0, 0.1]) * math.radians(12))
     img0, ids0, uv0 = tracked(texture, np.eye(3))
     img1, ids1, uv1 = tracked(other, np.eye(3))
     img2, ids2, uv2 = tracked(texture, R2)
-    for store in (200, 0):
-        linker = HoldLinker(RIG, TrackingConfig(link_store_holds=store))
+    median_error = {}
+    for store, patches in ((200, 20), (200, 0), (0, 20)):
+        linker = HoldLinker(RIG, TrackingConfig(link_store_holds=store), PatchAlignConfig(older_holds=patches))
         a = linker.link(hold_of(img0, ids0, uv0))
         b = linker.link(hold_of(img1, ids1 + 10000, uv1))
         c = linker.link(hold_of(img2, ids2 + 20000, uv2))
@@ -121,10 +125,15 @@ def test_a_hold_back_at_an_older_view_links_to_that_hold(texture):
         if store == 0:
             assert c.links["older"] == 0 and not linked.any() and c.corner is None
             continue
-        assert c.links["older"] >= 25 and linked.sum() == c.links["older"]
-        np.testing.assert_array_equal(c.corner, linked)
-        assert c.links["corner"] == c.links["older"]
+        assert linked.sum() >= 25 and linked.sum() == c.links["older"] - c.links["alignment failed"]
+        if patches:
+            assert c.corner is None and c.links["aligned"] == linked.sum()
+        else:
+            np.testing.assert_array_equal(c.corner, linked)
+            assert c.links["corner"] == c.links["older"] and c.links["aligned"] == 0
         pos_a = dict(zip(a.landmark.tolist(), uv0))
-        err = [np.linalg.norm(project(np.eye(3), R2, pos_a[lm][None])[0] - uv)
-               for lm, uv in zip(c.landmark[linked], uv2[linked])]
+        truth = np.array([project(np.eye(3), R2, pos_a[lm][None])[0] for lm in c.landmark[linked]])
+        err = np.linalg.norm(bearings_to_pixels(CAM, c.f[linked]) - truth, axis=1)
         assert np.median(err) < 1.0 and np.percentile(err, 90) < 3.0  # the same points
+        median_error[patches] = np.median(err)
+    assert median_error[20] < 0.5 * median_error[0]

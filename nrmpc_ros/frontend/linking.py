@@ -25,9 +25,10 @@ hold. So a landmark's position in every hold after its first is where its
 reference patch (taken in the first hold that saw it) aligns with the hold's
 anchor frame (:mod:`.patch_align`), plus the track's settled offset from the
 anchor; a link whose alignment fails starts a new landmark, referenced here
-(docs/PIPELINE.md, "Patch alignment"). The store of older holds keeps no
-patches (a few hundred holds of every camera), so a link to an older hold
-stays at the corner found in this hold, and says so
+(docs/PIPELINE.md, "Patch alignment"). A link to an older hold is aligned
+with the reference patches that hold kept (the latest
+``patch_align.older_holds`` of the store keep them, sampled as they enter
+it); beyond those a link stays at the corner found in this hold, and says so
 (:attr:`HoldObservations.corner`): it enters the estimate with the corner's
 viewpoint bias as extra noise (:data:`CORNER_BIAS_PX`).
 
@@ -159,16 +160,16 @@ class HoldLinker:
             if img is not None and self.align_cfg.enabled:
                 image = np.asarray(img, np.float32)
                 ahead = self._ahead[i] if self._ahead[i] is not None and self._ahead[i].image is img else None
+                linked = lm
                 lm, uv, anchor_uv, ref, unsampled = self._align(prev, cam, image, lm, ch.uv, ch.anchor_uv, links,
-                                                                 ahead)
+                                                                 ahead, self._older[i])
                 f = pixels_to_bearings(cam, uv)
-                older &= unsampled  # (an older link the previous hold also saw is aligned: no corner)
+                older &= unsampled & (lm == linked)  # older links no kept patch aligned (a failed one links nothing)
             else:
                 older[:] = False  # without alignment every link is a corner: the nominal noise covers them alike
             alias.update(zip(ch.ids.tolist(), lm.tolist()))
             if prev is not None and prev.desc is not None and self.cfg.link_store_holds > 0:
-                # the store matches descriptors only
-                self._older[i].append(replace(prev, ref=None, image=None, unsampled=None))
+                self._store(i, cam, prev)
             self._history[i] = _CameraHistory(lm, uv, f, desc, valid, anchor_uv, ref, image, unsampled)
             self._ahead[i] = None
             cams.append(np.full(len(lm), i, np.int64))
@@ -212,6 +213,24 @@ class HoldLinker:
             done += len(ic)
         return done
 
+    def _store(self, i: int, cam, prev: _CameraHistory) -> None:
+        """Camera ``i``'s previous hold into the store of older holds: its descriptors for matching, and while it
+        is among the latest ``patch_align.older_holds`` its reference patches too (those not sampled yet sampled
+        now from its anchor image, which is not kept), so that a link to it can be aligned."""
+        keep = self.align_cfg.older_holds
+        ref = None
+        if keep > 0 and prev.ref is not None and prev.image is not None:
+            todo = np.flatnonzero(prev.unsampled)
+            if len(todo):
+                new = reference_patches(cam, prev.image, prev.anchor_uv[todo], self.align_cfg)
+                prev.ref.values[todo] = new.values
+                prev.ref.valid[todo] = new.valid
+            ref = prev.ref
+        store = self._older[i]
+        store.append(replace(prev, ref=ref, image=None, unsampled=np.zeros(len(prev.landmark), bool)))
+        if len(store) > keep:
+            store[-keep - 1].ref = None  # beyond the kept patches: descriptors only
+
     def _aligned(self, prev: _CameraHistory, cam, image, ip, uv0, which) -> Alignment:
         """Alignment in ``image`` (float32) of the reference patches of the previous hold's landmarks ``ip`` that
         ``which`` selects, near anchor pixels uv0 (len(ip), 2); the starting warps come from all of them."""
@@ -227,29 +246,36 @@ class HoldLinker:
         return align(cam, image, prev.ref.take(ip[which]), uv0[which], start[which], acfg)
 
     def _align(self, prev: _CameraHistory | None, cam, image, lm, uv, anchor_uv, links: Counter,
-               ahead: _AlignedAhead | None = None) -> tuple:
+               ahead: _AlignedAhead | None = None, older=()) -> tuple:
         """(landmark ids, positions, anchor-frame positions, reference patches, which of those are still to be
         sampled from ``image``) of a camera's hold once every linked landmark's reference patch is aligned with
         the anchor frame ``image`` (float32); a failed alignment breaks the link (new landmark). Landmarks first
-        seen here take their reference patch from here (sampled when a later hold links them)."""
+        seen here take their reference patch from here (sampled when a later hold links them). The previous
+        hold's landmarks are aligned from its patches, the others linked to an older hold from the patches of
+        the newest hold of ``older`` (the store, oldest first) that kept them."""
         acfg = self.align_cfg
         uv, anchor_uv, lm = uv.copy(), anchor_uv.copy(), lm.copy()
         n = len(lm)
         ref = ReferencePatches(np.zeros((n, (2 * acfg.half_size_px + 1) ** 2), np.float32),
                                np.zeros((n, (2 * acfg.half_size_px + 1) ** 2), bool),
                                np.broadcast_to(np.eye(2), (n, 2, 2)).copy())
-        ic = np.zeros(0, np.int64)
-        if prev is not None and prev.ref is not None:
-            _, ip, ic = np.intersect1d(prev.landmark, lm, assume_unique=True, return_indices=True)
         fresh = np.ones(n, bool)  # the landmarks that take their reference patch from this hold
-        if len(ic):
-            res = self._with_ahead(prev, cam, image, ip, lm[ic], anchor_uv[ic], ahead)
+        sources = ([prev] if prev is not None else []) + [h for h in reversed(older) if h.ref is not None]
+        for k, src in enumerate(sources):
+            if src.ref is None:
+                continue
+            mine = np.flatnonzero(fresh)
+            _, ip, ic = np.intersect1d(src.landmark, lm[mine], assume_unique=True, return_indices=True)
+            if not len(ic):
+                continue
+            ic = mine[ic]
+            res = self._with_ahead(src, cam, image, ip, lm[ic], anchor_uv[ic], ahead if k == 0 else None)
             good, bad = ic[res.ok], ic[~res.ok]
             settled = uv[good] - anchor_uv[good]  # the track's settled offset from the anchor frame
             anchor_uv[good] = res.uv[res.ok]
             uv[good] = anchor_uv[good] + settled
-            ref.values[good] = prev.ref.values[ip[res.ok]]
-            ref.valid[good] = prev.ref.valid[ip[res.ok]]
+            ref.values[good] = src.ref.values[ip[res.ok]]
+            ref.valid[good] = src.ref.valid[ip[res.ok]]
             ref.affine[good] = res.affine[res.ok]
             fresh[good] = False
             lm[bad] = self._new_ids(len(bad))  # a failed alignment starts a landmark referenced here

@@ -58,6 +58,9 @@ class PatchAlignConfig:
     min_coverage: float = option(0.6, "share of a patch's weight that must lie inside both images (patches "
                                  "near the image border use the part inside)", lo=0.0, hi=1.0, lo_open=True)
     neighbours: int = option(8, "neighbouring links whose positions give the starting affine warp", lo=3, hi=100)
+    older_holds: int = option(20, "older holds per camera whose reference patches are kept, so that a link to "
+                              "one of them is aligned too (beyond them such a link stays at the corner found in "
+                              "its hold, weighed as one); about 2.2 kB per landmark of each", lo=0, hi=10000)
 
     def __post_init__(self):
         check(self, "patch alignment config")
