@@ -99,8 +99,9 @@ class _AlignedAhead:
 @dataclass
 class HoldObservations:
     """The observations a hold adds to the sequence: camera, landmark id and bearing of each, and which of them
-    link an earlier hold's landmark at a corner found in this hold (a link to an older hold, which the patch
-    alignment does not reach: its position carries the corner's viewpoint bias, :data:`CORNER_BIAS_PX`)."""
+    link an earlier hold's landmark at a corner found in this hold (a link to an older hold beyond those that
+    keep their reference patches, which no alignment reaches: its position carries the corner's viewpoint
+    bias, :data:`CORNER_BIAS_PX`)."""
 
     cam: np.ndarray
     landmark: np.ndarray
