@@ -292,9 +292,8 @@ class HoldEstimator:
         hold carries the corner's viewpoint bias (:data:`~.linking.CORNER_BIAS_PX`) on top."""
         if obs.corner is None:
             return None
-        focal = np.array([c.focal_px for c in self.rig.cameras])
-        extra = CORNER_BIAS_PX / focal[obs.cam]
-        return np.where(obs.corner, np.hypot(1.0, extra / max(self.sequence.noise_rad, 1e-12)), 1.0)
+        per_camera = np.array([self.sequence.noise_scale(CORNER_BIAS_PX / c.focal_px) for c in self.rig.cameras])
+        return np.where(obs.corner, per_camera[obs.cam], 1.0)
 
     def _broke(self, number: int) -> None:
         """A break ended sequence ``number``: its holds' stamps are kept where a later hold may merge it back."""
