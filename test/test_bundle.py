@@ -386,3 +386,41 @@ def test_jackknife_widening_follows_the_clusters_that_carry_it(rng):
     big = jackknife_widening(a, G, np.array([100.0, 100.0, 100.0]))
     assert np.all(big > jackknife_widening(a, G, np.array([2.0, 2.0, 2.0])))
     assert np.allclose(big, jackknife_widening(a, G), rtol=0.05)
+
+
+def test_rays_that_meet_at_a_cameras_centre_do_not_place_a_landmark_there(rng):
+    """Two rays of a wrong correspondence that meet a millimetre in front of a camera fit exactly there, and a
+    landmark there would pin the poses and the bending (its bearings' derivatives grow as one over its depth):
+    triangulation sends such landmarks far along their anchor's ray, where their rays disagree and the robust
+    loss bounds them, so they add no information the images do not hold."""
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=1.0, focal=500.0))
+    obs, R, t, g0, X = _sequence(rig, 2, rng, points_per_camera=30, noise_rad=1e-4)
+    w0, W0 = deformed_extrinsics(rig, g0)
+    w1, W1 = deformed_extrinsics(rig, R[1].T @ g0)
+    n_bad = 6
+    view, cam, track, f = [], [], [], []
+    for i in range(n_bad):
+        c = i % 3
+        near = w0[c] + W0[c] @ normalize(np.array([0.1 * i - 0.2, 0.1, 1.0])) * 1e-3  # 1 mm in front of cam c
+        y = (near - t[1]) @ R[1]  # in view 1's body frame
+        other = (c + 1) % 3
+        view += [0, 1]
+        cam += [c, other]
+        track += [1000 + i] * 2
+        f += [normalize(W0[c].T @ (near - w0[c])), normalize(W1[other].T @ (y - w1[other]))]
+    both, _ = Observations.from_arrays(np.concatenate([obs.view, view]), np.concatenate([obs.cam, cam]),
+                                       np.concatenate([obs.point, track]), np.concatenate([obs.f, f]), 2)
+    layout = ParameterLayout(2, [1], True)
+    from nrmpc_ros.core.bundle import BundleState
+
+    prob = SequenceBundleProblem(rig, both, layout, 1e-4)
+    P = prob.triangulate(BundleState(R, t, g0, np.zeros((both.num_points, 3))))
+    centres = np.array([w0[c] for c in range(3)])
+    assert np.min(np.linalg.norm(P[-n_bad:, None, :] - centres[None], axis=2)) > 0.05
+    # the robust adjustment the sequences use: such landmarks' observations end as outliers, not as information
+    from nrmpc_ros.core.sequence_steps import refine_sequence
+
+    (clean, _), (fooled, inl) = (refine_sequence(rig, o, R, t, g0, 4e-3) for o in (obs, both))
+    assert not inl[-2 * n_bad:].any()
+    assert fooled.gravity_sigma_rad(0) == pytest.approx(clean.gravity_sigma_rad(0), rel=0.1)
+    assert np.trace(fooled.pose_covariance(1)) == pytest.approx(np.trace(clean.pose_covariance(1)), rel=0.1)

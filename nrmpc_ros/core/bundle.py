@@ -290,6 +290,15 @@ class BundleState:
 # The problem
 # ---------------------------------------------------------------------------
 
+# No landmark lies nearer to a camera that sees it than this (m): nearer than any lens of such a rig focuses,
+# inside the rig's own bars. Two rays of a wrong correspondence (or of a pose the solve has not found yet) can
+# meet at a camera's centre, and a landmark's inverse depth can grow without end while its anchor's residual
+# stays exactly zero; there its other bearings' derivatives with respect to the cameras' centres grow as one
+# over its depth, so a handful of such landmarks would pin the poses and the bending (gravity) with
+# information no image holds (docs/PIPELINE.md, "Landmarks at a camera's centre").
+NEAR_LIMIT_M = 0.05
+
+
 class InverseDepthChart:
     """Local coordinates q = (a, b, rho) of each landmark in its anchor camera, frozen at the linearisation
     point: P = c + Q (a, b, 1) / rho (c, Q: the anchor camera's centre and camera -> view-0 rotation).
@@ -317,9 +326,9 @@ class InverseDepthChart:
 
     def retract(self, dq):
         """Landmarks after a step dq in the chart; rho may shrink at most 100-fold per step (no jump through
-        infinity)."""
+        infinity) and grows no further than the anchor's near limit (:data:`NEAR_LIMIT_M`)."""
         q = self.q + dq
-        rho = np.maximum(q[:, 2], 1e-2 * self.q[:, 2])
+        rho = np.clip(q[:, 2], 1e-2 * self.q[:, 2], np.maximum(1.0 / NEAR_LIMIT_M, self.q[:, 2]))
         X = np.stack([q[:, 0], q[:, 1], np.ones(len(q))], axis=1) / rho[:, None]
         P_chart = self.c + np.einsum("nij,nj->ni", self.Q, X)
         return np.where(self.front[:, None], P_chart, self.P + dq)
@@ -714,8 +723,9 @@ class SequenceBundleProblem:
 
     # -- points alone ------------------------------------------------------
     def triangulate(self, state: BundleState, rig: Rig | None = None) -> np.ndarray:
-        """Landmarks closest (least squares) to all rays that observe them; landmarks behind a camera or seen
-        along (nearly) parallel rays go far along their anchor's ray."""
+        """Landmarks closest (least squares) to all rays that observe them; landmarks behind a camera (or
+        nearer than :data:`NEAR_LIMIT_M` in front of one) or seen along (nearly) parallel rays go far along their
+        anchor's ray."""
         rig = rig or self.model_rig(state)
         o = self.obs
         vm = self._views(state, rig)
@@ -727,7 +737,7 @@ class SequenceBundleProblem:
         X = np.einsum("pij,pj->pi", inv3(A, 1e-12), b)
         ev_min = _smallest_eigenvalue(A)
         depth = np.einsum("ni,ni->n", X[o.point] - origin, d)
-        behind = np.bincount(o.point, weights=(depth <= 0).astype(float), minlength=o.num_points) > 0
+        behind = np.bincount(o.point, weights=(depth <= NEAR_LIMIT_M).astype(float), minlength=o.num_points) > 0
         bad = behind | (ev_min < 1e-10) | ~np.all(np.isfinite(X), axis=1)
         a = self._anchor
         far = np.empty_like(X)
