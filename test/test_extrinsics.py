@@ -347,6 +347,28 @@ def test_holds_of_one_sequence_share_their_gravity_error_and_the_std_says_so():
     assert np.median(err_norm) < 0.5 * vision
 
 
+def test_a_sequence_that_has_not_found_gravity_tells_the_bias_nothing():
+    """Vision alone on a young sequence may publish a gravity with a std of thousands of degrees (a finite
+    covariance of 1e13 (m/s^2)^2): the bias stays where the still holds and the prior put it, with no error."""
+    from nrmpc_ros.core.so3 import exp_so3
+    from nrmpc_ros.frontend.extrinsics import FrameExtrinsics
+
+    rng = np.random.default_rng(5)
+    rig = _rig()
+    G = rig.gravity_magnitude
+    Q = [exp_so3(rng.normal(scale=0.35, size=3)) for _ in range(3)]
+    g = [q.T @ np.array([0.0, 0.0, -G]) for q in Q]
+    fx = FrameExtrinsics(rig, bias_prior_ms2=0.05, floor_ms2=0.0)
+    for k, gk in enumerate(g):
+        fx.observe_still(k, -rig.imu.rotation.T @ gk + rng.normal(scale=1e-3, size=3), 0.02, 1000)
+    before = fx.bias_estimate
+    P = np.eye(3) - np.outer(g[-1], g[-1]) / G ** 2
+    fx.observe_sequence(0, g[-1], 1e13 * P, [(k, Q[k].T @ Q[-1]) for k in range(3)])
+    after = fx.bias_estimate
+    np.testing.assert_allclose(after.bias_ms2, before.bias_ms2)
+    assert after.with_gravity == before.with_gravity == 0
+
+
 def test_the_smoothed_poses_are_the_recording_again_with_the_final_bias_from_the_start():
     """Offline: every answered frame set once more, the bars driven by all samples minus the final bias; the
     causal answers before the bias was known differ from them, those after agree."""

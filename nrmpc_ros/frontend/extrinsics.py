@@ -121,10 +121,12 @@ class AccelBias:
     def observe_group(self, group, gravity, cov_gravity, members) -> None:
         """Vision's gravity (m/s^2) in one frame with its covariance ((3, 3), across gravity) for the holds
         ``members`` [(key, M (3, 3))], M turning that frame into the hold's IMU frame (a_k = -M g + b); holds
-        that :meth:`observe_still` did not give are left out. A covariance that is not finite tells nothing."""
+        that :meth:`observe_still` did not give are left out. A covariance that is not finite tells nothing, nor
+        does one whose angular std exceeds a radian (vision that has not found gravity's direction yet: the
+        linearisation about its estimate means nothing there, and the group's information would be rounding)."""
         g = np.asarray(gravity, dtype=float).reshape(3)
         cov = np.asarray(cov_gravity, dtype=float).reshape(3, 3)
-        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(cov))):
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(cov))) or np.trace(cov) > float(g @ g):
             return
         members = [(k, np.asarray(M, dtype=float).reshape(3, 3)) for k, M in members]
         self._groups.pop(group, None)
