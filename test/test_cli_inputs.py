@@ -323,7 +323,7 @@ def bag_cases(f: dict) -> list:
         replay("info_topic names a PoseStamped topic", f["bag"], (str(info_pose), "info_topic"), info_pose),
         replay("ground truth as std_msgs/String (ignored)", gt_string, (), stdout="wrote",
                stderr="/ground_truth/gravity carries std_msgs/msg/String"),
-        replay("a storage file as the bag", next(f["bag"].glob("*.db3")), (), stdout="wrote 2 estimates"),
+        replay("a storage file as the bag", next(f["bag"].glob("*.db3")), (), stdout="wrote 3 estimates"),
         Case("bag", "calibrate-bars without an IMU", ["calibrate-bars", f["bag"], "--rig", no_imu, "--out",
                                                       out / "cal.yaml"], (str(no_imu), "imu"),
              inputs=(f["bag"], no_imu), absent=(out / "cal.yaml",)),

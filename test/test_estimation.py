@@ -40,7 +40,7 @@ def test_holds_estimated_later_give_the_estimates_of_holds_estimated_at_once(tmp
     assert _replay(path, rig, deferred) == []
     work = deferred.take_stage_work()
     holds = [w for w in work if w.is_hold]
-    assert len(holds) == deferred.stats.holds == len(want) + 1, "the origin and one per estimate"
+    assert len(holds) == deferred.stats.holds == len(want), "one estimate per hold, the origin's too"
     assert all(isinstance(w.item, MeasuredHold) and w.item.imu is not None for w in holds)
     status = deferred.pipeline.status()
     assert status.state is not RigState.WAITING

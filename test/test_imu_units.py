@@ -133,7 +133,7 @@ def test_replay_reads_a_gyro_in_deg_s_where_the_cameras_skip_the_moves_from_its_
     replay says both and keeps that pass (every hold estimated; as written one of two)."""
     text = _replayed_holds(tmp_path, capsys, "--gyro-unit", "deg/s", "--views", "3")
     said = [ln for ln in text.splitlines() if ln.startswith("IMU units:")]
-    assert len(said) == 1 and "noise at rest is" in said[0] and "gave 2 estimates where the rates as written gave 1" \
+    assert len(said) == 1 and "noise at rest is" in said[0] and "gave 3 estimates where the rates as written gave 2" \
         in said[0] and "--imu-gyro-scale 0.01745329" in said[0], text
     assert "IMU gyro units:" not in text and "with an estimate (after the first): 2/2" in text, text
 

@@ -226,6 +226,20 @@ def test_a_view_back_at_an_old_place_continues_the_sequence(noisy):
     assert float(angle_between(out.gravity, p.gravity[1])) < 4 * out.gravity_sigma_rad + math.radians(0.05)
 
 
+def test_the_origins_gravity_comes_with_the_second_view(noisy):
+    """The origin has no pair of its own, but the solve that places view 1 estimates the origin's gravity too:
+    view 1's estimate carries the origin's (paired with view 1, the origin's pose the identity with a zero
+    covariance), its gravity within its std of the truth; no later view carries one."""
+    p = noisy
+    seq = IncrementalSequence(p.rig, "6pt-bending")
+    outs = [seq.add_view(c, t, f, g) for _, (c, t, f, g) in zip(range(4), views(p))]
+    origin = outs[1].origin
+    assert isinstance(origin, ViewEstimate) and (origin.sequence, origin.view, origin.reference) == (0, 0, 1)
+    assert rotation_angle(origin.R) == 0.0 and not np.any(origin.t) and not np.any(origin.cov_pose)
+    assert float(angle_between(origin.gravity, p.gravity[0])) < 3 * origin.gravity_sigma_rad
+    assert all(v.origin is None for v in outs[2:])
+
+
 def test_a_later_view_linking_both_sequences_merges_them(noisy):
     """A break starts sequence 1 at view 5 (its landmarks renamed: nothing links); view 6 links to view 5 and,
     through some landmarks it shares with view 4, to sequence 0: sequence 1 is merged into sequence 0, its
@@ -249,9 +263,9 @@ def test_a_later_view_linking_both_sequences_merges_them(noisy):
     assert isinstance(outs[5], NewSequence) and outs[5].reason is StartReason.NO_SHARED_LANDMARKS
     m = outs[6]
     assert isinstance(m, ViewEstimate) and (m.merged, m.merged_views) == (0, 5)
-    origin = m.merged_origin
+    origin = m.origin
     assert isinstance(origin, ViewEstimate) and (origin.sequence, origin.view, origin.reference) == (0, 5, 4)
-    assert all(v.merged_origin is None for v in outs[7:] if isinstance(v, ViewEstimate))
+    assert all(v.origin is None for v in outs[7:] if isinstance(v, ViewEstimate))
     for k, v in enumerate([origin] + outs[6:], start=5):
         assert v.sequence == 0 and v.view == k
         assert rotation_angle(p.R[k].T @ v.R) < math.radians(0.5) and np.linalg.norm(v.t - p.t[k]) < 0.03
@@ -280,7 +294,7 @@ def test_a_view_after_a_break_that_links_to_an_earlier_sequence_continues_it(noi
     assert isinstance(outs[5], NewSequence) and outs[5].reason is StartReason.NO_SHARED_LANDMARKS
     m = outs[6]
     assert isinstance(m, ViewEstimate) and m.continued and (m.merged, m.merged_views) == (0, 5)
-    assert m.merged_origin is None and m.reference == 4
+    assert m.origin is None and m.reference == 4
     for k, v in zip((6, 7, 8), outs[6:]):
         assert isinstance(v, ViewEstimate) and v.sequence == 0 and v.view == k - 1
         assert rotation_angle(p.R[k].T @ v.R) < math.radians(0.5) and np.linalg.norm(v.t - p.t[k]) < 0.03

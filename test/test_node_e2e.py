@@ -250,7 +250,7 @@ def test_the_node_publishes_the_replays_estimates_in_their_frames(bag, replayed,
             assert np.allclose([p.position.x, p.position.y, p.position.z], w[i], atol=1e-9, rtol=0)
             q = p.orientation
             assert np.allclose(quat_xyzw_to_matrix([q.x, q.y, q.z, q.w]), W[i], atol=1e-9, rtol=0)
-    # frames: the relative pose in the reference hold's frame, whose stamp comes just before it
+    # frames: the relative pose in the reference hold's frame (the origin's estimate refers to the second hold)
     for rel, ref in zip(listener.got["rel"], listener.got["ref"]):
         assert rel.header.frame_id == ref.frame_id and rel.header.frame_id.startswith("base_link_s0_h")
         assert stamp_key(msg_stamp(ref)) == stamp_key(float(replayed[stamp_key(msg_stamp(rel.header))]["ref_stamp"]))

@@ -121,7 +121,7 @@ def test_holds_of_a_stream_with_imu_use_4pt(rig3, stream):
     frames, imu = stream
     pipe, ests = run(rig3, frames, imu)
     assert pipe.stats.holds == len(ATTITUDES)
-    assert len(ests) == len(ATTITUDES) - 1
+    assert len(ests) == len(ATTITUDES)  # the origin's with the second hold's (docs/PIPELINE.md)
     assert {e.method for e in ests} == {"4pt-bending"}
     assert len({e.hold_index for e in ests}) == len(ests) and all(e.sequence == 0 for e in ests)
     for e in ests:
@@ -134,7 +134,7 @@ def test_holds_of_a_stream_with_imu_use_4pt(rig3, stream):
 def test_without_imu_auto_runs_6pt_bending(rig3, stream):
     frames, _ = stream
     pipe, ests = run(rig3, frames)
-    assert len(ests) == len(ATTITUDES) - 1 and {e.method for e in ests} == {"6pt-bending"}
+    assert len(ests) == len(ATTITUDES) and {e.method for e in ests} == {"6pt-bending"}
     for e in ests:
         rot, grav, _ = errors(frames, e)
         assert rot < 0.5 and grav < max(3.0 * e.gravity_sigma_deg, 0.5), (rot, grav, e.gravity_sigma_deg)
@@ -166,7 +166,7 @@ def test_a_camera_missing_from_some_frame_sets(rig3, stream):
         return [None if (i == 1 and st in gone) else im for i, im in enumerate(imgs)]
 
     _, ests = run(rig3, frames, imu, drop=drop)
-    assert len(ests) == len(ATTITUDES) - 1
+    assert len(ests) == len(ATTITUDES)
     for e in ests:
         rot, grav, _ = errors(frames, e)
         assert rot < 0.3 and grav < 0.5
@@ -254,7 +254,8 @@ def test_the_hold_log_keeps_every_closed_hold_with_its_estimate(rig3, stream):
     assert len(log) == pipe.stats.holds + sum(pipe.stats.dropped[Drop.hold_refused(r)] for r in Refusal)
     assert [a.estimate for a in log if a.estimate is not None] == ests  # the same objects, in order
     origin = log[0]
-    assert origin.index == 0 and origin.sequence == 0 and origin.estimate is None and origin.hold is not None
+    assert origin.index == 0 and origin.sequence == 0 and origin.hold is not None
+    assert origin.estimate is ests[0] and ests[0].ref_stamp == ests[1].stamp  # given with the second hold's
     assert [a.index for a in log] == list(range(len(log)))
     for a in log:
         assert a.start <= a.hold.settled_start <= a.hold.settled_end <= a.end and a.hold.settling is not None
@@ -323,7 +324,7 @@ def test_vision_only_holds_on_bars_that_ring_through_them(tmp_path, rate):
         ref = read_reference(bag, None)
     ev = evaluate([row_from_estimate(e) for e in ests], ref, rig)
     assert ev.holds == 4 and ev.holds_with_estimate == 3 and ev.outside_holds == 0, pipe.stats.dropped
-    assert all(e.hold.ringing for e in ests)
+    assert all(e.hold.ringing for e in ests[1:])  # (the first hold's rig was still from the start)
     for e in ests:
         g = ref.grav_g[int(np.argmin(np.abs(ref.grav_t - e.stamp)))]
         err = math.degrees(angle_between(e.gravity, g))
@@ -383,7 +384,7 @@ def test_a_settled_hold_whose_last_frame_jumps_is_estimated_not_anchored_again(t
     with BagReader(path) as bag:
         ests = [e for es in replay_bag(bag, rig, pipe, rig.imu.topic, warn=lambda m: None) for e in es]
     assert pipe.stats.dropped[Drop.HOLD_NOT_STILL] == 0, pipe.stats.dropped
-    assert len(ests) == 5
+    assert len(ests) == 6  # every hold: the first one's with the second's
 
 
 @pytest.mark.slow
@@ -506,8 +507,8 @@ def test_snapshots_taken_moments_after_the_stop_are_used_with_their_ringing_pred
     with BagReader(path) as bag:
         ests = [e for es in replay_bag(bag, rig, pipe, rig.imu.topic, warn=lambda m: None) for e in es]
         ref = read_reference(bag, rig.imu.topic)
-    assert len(ests) == 4, pipe.stats.dropped
-    assert all(e.hold.ringing_source is RingingSource.PREDICTED for e in ests)
+    assert len(ests) == 5, pipe.stats.dropped
+    assert all(e.hold.ringing_source is RingingSource.PREDICTED for e in ests[1:])  # (no stop before the first)
     for e in ests:
         g = ref.grav_g[int(np.argmin(np.abs(ref.grav_t - e.stamp)))]
         assert math.degrees(angle_between(e.gravity, g)) <= 3.0 * e.gravity_sigma_deg
@@ -536,8 +537,9 @@ def test_the_gyros_turns_reach_the_joint_estimate_at_any_imu_rate(tmp_path, imu_
         ests = [e for es in replay_bag(bag, rig, pipe, rig.imu.topic, warn=lambda m: None) for e in es]
         ref = read_reference(bag, rig.imu.topic)
     turns = pipe.sequence.seq.turns()
-    assert len(ests) == 5 and [(t.first, t.second) for t in turns] == [(k, k + 1) for k in range(5)]
-    stamps = [ests[0].origin_stamp] + [e.stamp for e in ests]
+    assert len(ests) == 6 and [(t.first, t.second) for t in turns] == [(k, k + 1) for k in range(5)]
+    assert ests[0].stamp == ests[0].origin_stamp  # the origin's estimate, with the second hold's
+    stamps = [e.stamp for e in ests]
     truth = [ref.pose_R[int(np.argmin(np.abs(ref.pose_t - t)))] for t in stamps]
     for t in turns:  # the body's rotation between the two holds (p_first = R p_second)
         err = rotation_angle((truth[t.first].T @ truth[t.second]).T @ t.rotation)
@@ -600,7 +602,7 @@ def test_vision_only_holds_stay_apart_when_the_moves_frames_are_missing(rig3, st
     pipe.flush()
     measured = [a for a in pipe.hold_log if a.hold is not None]
     assert len(measured) == len(ATTITUDES)
-    assert pipe.stats.sequences == 1 and pipe.stats.estimates == len(ATTITUDES) - 1
+    assert pipe.stats.sequences == 1 and pipe.stats.estimates == len(ATTITUDES)
 
 
 def test_vision_only_frames_between_jumps_are_no_snapshots(rig3, stream):
@@ -621,7 +623,8 @@ def test_vision_only_frames_between_jumps_are_no_snapshots(rig3, stream):
     ests += pipe.flush()
     first_jump, after_jumps = 100.0 + 0.1 * len(holds[0]), 100.0 + 0.1 * (len(holds[0]) + len(jumps))
     assert not [e.stamp for e in ests if first_jump - 0.05 < e.stamp < after_jumps - 0.05]
-    assert len(ests) == 1 and ests[0].stamp > after_jumps, pipe.stats.dropped
+    # the hold after them, and the first hold's with it (the origin's estimate comes with the second hold's)
+    assert len(ests) == 2 and ests[0].stamp < first_jump and ests[1].stamp > after_jumps, pipe.stats.dropped
     assert pipe.stats.dropped[Drop.NOT_AT_REST_TRACKS_LOST] >= 1
 
 
@@ -634,7 +637,7 @@ def test_klt_starts_from_the_imu_turn_through_the_moves(rig3, stream):
     work = {}
     for cfg in (PipelineConfig(), off):
         pipe, ests = run(rig3, frames, imu, config=cfg)
-        assert pipe.stats.holds == len(ATTITUDES) and len(ests) == len(ATTITUDES) - 1
+        assert pipe.stats.holds == len(ATTITUDES) and len(ests) == len(ATTITUDES)
         for e in ests:
             rot, grav, _ = errors(frames, e)
             assert rot < 0.3 and grav < 0.5, (rot, grav)

@@ -96,7 +96,7 @@ def test_ground_truth_of_another_type_is_ignored_with_a_warning(bag, tmp_path, c
                           capsys)
     assert code == 0, err
     assert "/ground_truth/gravity carries std_msgs/msg/String" in err and "ignored" in err
-    assert len(read_csv(tmp_path / "x.csv")) == 2 and "gravity vs IMU" in out and "gravity vs ground truth" not in out
+    assert len(read_csv(tmp_path / "x.csv")) == 3 and "gravity vs IMU" in out and "gravity vs ground truth" not in out
 
 
 @pytest.mark.slow

@@ -177,9 +177,11 @@ class ViewEstimate:
     time_s: float
     merged: int | None = None  # an earlier sequence this view linked to, merged into this one (its origin kept)
     merged_views: int = 0  # views that sequence brought: this sequence's earlier views moved up by as many
-    # the first estimate of this sequence's origin view, now view merged_views (it started the sequence, so it
-    # had none), from the same solve; None without a merge or when the solve's window left it out
-    merged_origin: ViewEstimate | None = None
+    # the first estimate of a sequence's origin view (it started the sequence, so it had none), from the same
+    # solve as this view's: the sequence's own origin with its second view (where the solve gives it a gravity),
+    # or, with a merge, the merged sequence's origin, now view merged_views (where the solve's window holds it);
+    # None otherwise
+    origin: ViewEstimate | None = None
     # the view linked to no view of the sequence before it but to an earlier sequence a break ended, which it
     # continues: that sequence (``merged``) is current again, the one it could not join was broken (a sequence
     # of its own it never had)
@@ -601,9 +603,15 @@ class IncrementalSequence:
         origin = None
         if merged is not None and first <= merged[1] < k:  # the previous view in time is the earlier sequence's last
             origin = self._estimate(merged[1], merged[1] - 1, pm, res, first, time.perf_counter() - t0)
+        elif merged is None and k == 1 and self.with_gravity:
+            # the origin's gravity comes from the same solve as view 1's (its pose is the origin's by definition):
+            # its estimate, paired with view 1, so that every hold of a sequence of two or more has one
+            origin = self._estimate(0, 1, pm, res, first, time.perf_counter() - t0)
+            origin = origin if origin.gravity is not None else None
         out = self._estimate(k, j, pm, res, first, time.perf_counter() - t0)
+        out.origin = origin
         if merged is not None:
-            out.merged, out.merged_views, out.merged_origin = merged[0], merged[1], origin
+            out.merged, out.merged_views = merged[0], merged[1]
         return out
 
     # ----------------------------------------------------------------- merges

@@ -92,6 +92,7 @@ class HoldEstimate:
     links: Counter = field(default_factory=Counter)
     window: int = 0
     noise_scale: float = 1.0  # the hold's bearing noise over the nominal one: its residual ringing's penalty
+    ref_hold_index: int | None = None  # the reference hold's index in the sequence (its TF frame's name)
 
 
 @dataclass
@@ -229,12 +230,10 @@ class HoldEstimator:
                 st.bridges += 1
             self._hold_stamps = [hold.stamp]
             st.sequences = max(st.sequences, out.sequence + 1)
-            self._origin = None
+            self._origin = (item, out.reason, scale)  # its estimate comes with the sequence's next hold
             if out.reason is not StartReason.FIRST_VIEW:
                 st.dropped[Drop.new_sequence(out.reason)] += 1
-                self._origin = (item, out.reason, scale)
             return []
-        done = []
         if out.continued:  # no sequence of its own: the one it broke is kept for a later merge, as a break keeps it
             self._broke(number)
             self._hold_stamps, self._origin = [], None
@@ -242,16 +241,15 @@ class HoldEstimator:
             st.merges += 1
             self._hold_stamps = self._broken_stamps.pop(out.merged, [math.nan] * out.merged_views) + \
                 self._hold_stamps
-            if out.merged_origin is not None and self._origin is not None:
-                # the hold that started this sequence is linked at last: its first estimate, late by a hold
-                first, reason, first_scale = self._origin
-                st.dropped[Drop.new_sequence(reason)] -= 1
-                est = self._hold_estimate(out.merged_origin, first.hold, first.imu, Counter(), 0.0, first_scale)
-                if first.attempt is not None:
-                    first.attempt.estimate = est
-                done.append(est)
-            self._origin = None
         self._hold_stamps.append(hold.stamp)
+        # the hold that started this sequence gets its first estimate from the solve of the sequence's next hold,
+        # or of the merge that links it where that solve has no gravity for it (docs/PIPELINE.md, "The origin's
+        # estimate"), late by the holds between them
+        origin = None
+        if out.origin is not None and self._origin is not None:
+            origin, self._origin = (out.origin, self._origin), None
+        elif out.merged is not None:
+            self._origin = None
         if item.turn is not None and not self.sequence.has_measured_gravity:
             # (a sequence with the IMU's gravities also has the gyro's turns as priors: its poses follow them)
             turned = self.sequence.images_turn(item.turn[0], hold.stamp)
@@ -281,11 +279,23 @@ class HoldEstimator:
             st.dropped[withheld] += 1
             if attempt is not None:
                 attempt.why = withheld.message
-            return done
+            return []  # (the origin's estimate from the same solve likewise)
+        done = [] if origin is None else [self._origin_estimate(*origin)]
         est = self._hold_estimate(out, hold, imu, obs.links, time.perf_counter() - t0, scale)
         if attempt is not None:
             attempt.estimate = est
         return done + [est]
+
+    def _origin_estimate(self, v: ViewEstimate, started: tuple) -> HoldEstimate:
+        """The first estimate of the hold that started the current sequence (``started``: its measured hold,
+        why it started one and its noise scale), from the solve that placed a later hold."""
+        first, reason, first_scale = started
+        if reason is not StartReason.FIRST_VIEW:
+            self.stats.dropped[Drop.new_sequence(reason)] -= 1
+        est = self._hold_estimate(v, first.hold, first.imu, Counter(), 0.0, first_scale)
+        if first.attempt is not None:
+            first.attempt.estimate = est
+        return est
 
     def _corner_scales(self, obs) -> np.ndarray | None:
         """Each observation's noise over the nominal one (None: all nominal): a link at a corner found in this
@@ -390,7 +400,7 @@ class HoldEstimator:
             num_inliers=v.num_inliers, num_observations=v.num_observations, time_ms=1000.0 * elapsed_s,
             origin_stamp=self._hold_stamps[0], R_origin=v.R, t_origin=v.t, cov_pose=v.cov_pose,
             sequence=v.sequence, hold_index=v.view, hold=hold, imu_gravity=None if imu is None else imu.gravity,
-            links=links, window=v.window, noise_scale=noise_scale)
+            links=links, window=v.window, noise_scale=noise_scale, ref_hold_index=v.reference)
 
     def batch(self) -> list:
         """Every hold of the current sequence estimated jointly at once: (stamp, R_origin, t_origin, gravity,

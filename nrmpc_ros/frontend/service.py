@@ -650,7 +650,8 @@ class EstimatorService:
         holds[est.stamp] = est.hold_index
         while len(self._holds) > 4:  # only recent sequences are referred to
             del self._holds[min(self._holds)]
-        return hold_output(est, self.rig, self.frames, holds.get(est.ref_stamp))
+        ref = est.ref_hold_index if est.ref_hold_index is not None else holds.get(est.ref_stamp)
+        return hold_output(est, self.rig, self.frames, ref)
 
     # ------------------------------------------------------------------ reports (frontend/diagnostics.py)
     def diagnostics(self) -> list:
