@@ -41,7 +41,9 @@ rig file written by hand; replayed as ``nrmpc replay`` does: the axes measured f
 through the moves; ``blur`` a 15 Hz stream whose images integrate 30 ms from their stamps (an indoor exposure:
 the moves smear by up to tens of pixels, the images' content is 15 ms later than their stamps); ``slow`` holds
 at 5 Hz with the IMU at 50 Hz and ``fast`` a 60 Hz stream through the moves with the IMU at 1 kHz (the ends of
-the camera and IMU rates users record at).
+the camera and IMU rates users record at); ``far`` ten snapshots with moves of up to a metre and more across the
+rendered room (positions drawn from a cube of 1.6 m), so that some holds share too few landmarks with any other
+and start sequences of their own (the breaks a rig carried from place to place makes).
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -348,6 +350,7 @@ def matrix_styles() -> dict:
         "blur": lambda M: ({**base, "capture": "stream", "rate": 15.0}, {**bag, "shutter_ms": 30.0}),
         "slow": lambda M: ({**base, "rate": 5.0, "imu_rate": 50.0}, bag),
         "fast": lambda M: ({**base, "capture": "stream", "rate": 60.0, "imu_rate": 1000.0}, bag),
+        "far": lambda M: ({**base, "views": 10, "capture": "snapshot", "max_translation": 0.8}, bag),
     }
 
 
@@ -375,7 +378,7 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff"), ("imuhost", "ring5-soft"),
          ("imucounter", "ring6-soft"), ("camcounter", "ring3-stiff"), ("unstamped", "cross4-soft"),
          ("imuaxes", "ring5-stiff"), ("imuloss", "ring6-stiff"), ("blur", "line2-soft"), ("slow", "line2-soft"),
-         ("fast", "ring3-stiff")]
+         ("fast", "ring3-stiff"), ("far", "cross4-soft")]
 
 
 def file_rig(rig: Rig, bag: dict) -> Rig:
