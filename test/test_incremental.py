@@ -209,6 +209,27 @@ def test_observations_that_carry_a_corners_bias_weigh_less():
     assert last["plain"][0] < last["half"][0] < last["all"][0] and last["all"][0] > 4.0 * last["plain"][0]
 
 
+@pytest.mark.parametrize("method", ["4pt-bending", "6pt-bending"])
+def test_a_young_sequences_view_linked_by_one_camera_is_placed_on_its_landmarks(noisy, method):
+    """View 3 of a young sequence keeps its links to the earlier views from one camera only (the other cameras'
+    landmarks renamed: after a large turn, the overlap of one camera's view): no pair places it (a generalized
+    relative pose from one camera leaves the scale free), but the landmarks the earlier views triangulate do,
+    so it continues the sequence instead of starting one of its own."""
+    p = noisy
+    seq = IncrementalSequence(p.rig, method)
+    outs = []
+    for k, (c, t, f, g) in enumerate(views(p)):
+        if k == 3:
+            t = np.where(c == 0, t, t + 10**6)
+        outs.append(seq.add_view(c, t, f, g if method == "4pt-bending" else None))
+        if k == 4:
+            break
+    v = outs[3]
+    assert isinstance(v, ViewEstimate) and v.sequence == 0 and v.view == 3
+    assert rotation_angle(p.R[3].T @ v.R) < math.radians(0.5) and np.linalg.norm(v.t - p.t[3]) < 0.03
+    assert isinstance(outs[4], ViewEstimate) and outs[4].sequence == 0
+
+
 def test_a_view_back_at_an_old_place_continues_the_sequence(noisy):
     """A view that shares landmarks only with views older than the last few (the rig came back) is placed on
     them instead of starting a new sequence."""

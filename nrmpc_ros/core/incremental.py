@@ -575,14 +575,21 @@ class IncrementalSequence:
             j, pm, (new.R, new.t) = placed
         else:
             paired = self._pair(k)
-            if paired.estimate is None:
+            # a young sequence's view that no pair places (its links from one camera only: a generalized relative
+            # pose leaves the scale free) is placed on the landmarks known in 3D, as an older sequence's would be
+            placed = self._resect(k, young=True) if paired.estimate is None and k < self.young_views else None
+            if placed is not None:
+                warm = True
+                j, pm, (new.R, new.t) = placed
+            elif paired.estimate is None:
                 self._restart_from_last()
                 return NewSequence(self.seq.number, paired.reason, paired.tried)
-            j, pm, est = paired.reference, paired.method, paired.estimate
-            ref = s.views[j]
-            new.R, new.t = ref.R @ est.R, ref.R @ est.t + ref.t
-            if self.with_gravity:
-                self._update_gravity(k, j, est)
+            else:
+                j, pm, est = paired.reference, paired.method, paired.estimate
+                ref = s.views[j]
+                new.R, new.t = ref.R @ est.R, ref.R @ est.t + ref.t
+                if self.with_gravity:
+                    self._update_gravity(k, j, est)
         merged = self._merge(k)
         if merged is not None:
             k, j = k + merged[1], j + merged[1]
@@ -711,14 +718,14 @@ class IncrementalSequence:
         best = np.argsort(-shared, kind="stable")[:3]
         return [], tuple(PairAttempt(int(j), int(shared[j]), int(cams[j])) for j in best)
 
-    def _resect(self, k: int):
+    def _resect(self, k: int, young: bool = False):
         """(reference view, method, (R, t)) of view k placed by resection on the landmarks the earlier views
         of the window triangulate (docs/PIPELINE.md, "The joint estimate over the sequence"), or None where
-        the two-view estimate is to place it: a young sequence (its gravity still competes with each pair's),
-        no link, or too few landmarks that fit one pose."""
+        the two-view estimate is to place it: a young sequence (its gravity still competes with each pair's;
+        ``young``: also then, for a view no pair places), no link, or too few landmarks that fit one pose."""
         s = self.seq
         opts = self.options
-        if not opts.resect_views or k < self.young_views or (self.with_gravity and s.gravity is None):
+        if not opts.resect_views or (k < self.young_views and not young) or (self.with_gravity and s.gravity is None):
             return None
         if s.rivals:
             return None  # gravity still ambiguous: each new pair's candidates compete (_update_gravity)
