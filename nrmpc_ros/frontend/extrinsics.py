@@ -126,7 +126,7 @@ class AccelBias:
         linearisation about its estimate means nothing there, and the group's information would be rounding)."""
         g = np.asarray(gravity, dtype=float).reshape(3)
         cov = np.asarray(cov_gravity, dtype=float).reshape(3, 3)
-        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(cov))) or np.trace(cov) > float(g @ g):
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(cov))) or np.linalg.eigvalsh(cov)[-1] > float(g @ g):
             return
         members = [(k, np.asarray(M, dtype=float).reshape(3, 3)) for k, M in members]
         self._groups.pop(group, None)

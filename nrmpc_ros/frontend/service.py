@@ -252,7 +252,6 @@ class EstimatorService:
         self.set_latency_ms: deque = deque(maxlen=2 * RECENT_TIMINGS)  # arrival of a frame set to the end of its intake
         self.hold_ms: deque = deque(maxlen=RECENT_HOLD_TIMINGS)  # the estimation stage's time per hold estimated
         self.last: HoldOutput | None = None
-        self._holds: dict = {}  # sequence -> {stamp: hold index} (reference frame names)
         self._lock = threading.Lock()
         self._input_lock = threading.RLock()  # the inputs, the liveness timer, resets and method changes come from
         # the node's executor and its thread that takes the inputs: one at a time into the feeder
@@ -646,12 +645,7 @@ class EstimatorService:
                 raise
 
     def _output(self, est) -> HoldOutput:
-        holds = self._holds.setdefault(est.sequence, {est.origin_stamp: 0})
-        holds[est.stamp] = est.hold_index
-        while len(self._holds) > 4:  # only recent sequences are referred to
-            del self._holds[min(self._holds)]
-        ref = est.ref_hold_index if est.ref_hold_index is not None else holds.get(est.ref_stamp)
-        return hold_output(est, self.rig, self.frames, ref)
+        return hold_output(est, self.rig, self.frames, est.ref_hold_index)
 
     # ------------------------------------------------------------------ reports (frontend/diagnostics.py)
     def diagnostics(self) -> list:
