@@ -70,6 +70,24 @@ def test_a_check_after_a_stall_of_the_process_judges_nothing():
     assert stalled.check(2.0) == [] and [lvl for lvl, _ in stalled.check(4.0)] == ["ended"]
 
 
+def test_a_camera_that_stops_on_a_machine_busy_for_good_is_found():
+    """Every check comes two periods late (the timer of a process that gets a share of a core): each judges
+    the silences its predecessor saw, so a camera silent for 2.5 s is found, once, and the others' brief
+    waits never read as a stop or an end."""
+    w = CameraWatch(NAMES, timeout_s=1.0, check_period_s=0.5)
+    events = []
+    for k in range(1, 11):
+        t = float(k)
+        for i in range(3):
+            if not (i == 2 and 3.0 < t < 6.0):  # camera 2 silent from 3 s to 6 s
+                events += w.seen(i, t - 0.01)
+        events += w.check(t)
+    stops = [e for e in events if "stopped" in e[1]]
+    assert w.stalls == 9 and len(stops) == 1 and "/cam2" in stops[0][1]
+    assert "nothing for 1.0 s" in stops[0][1]  # its silence at the check before the one that found it
+    assert [e for e in events if "publishing again" in e[1]] and not [e for e in events if e[0] == "ended"]
+
+
 def in_bursts(watch, cams, t0, t1, burst_s, epoch=0, rate=10.0):
     """Frames stamped at ``rate`` from t0 to t1, received at the end of each ``burst_s`` interval; the watch
     checked every 0.1 s in between. Returns the events."""

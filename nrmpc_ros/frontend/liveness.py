@@ -36,9 +36,14 @@ With those timeouts:
 
 With ``check_period_s`` (the period of the timer that calls
 :meth:`CameraWatch.check`), a check that comes more than 1.5 periods after
-the previous one judges nothing: the process itself was stalled (a busy
+the previous one came late: the process itself was stalled (a busy
 machine), and the images that arrived meanwhile wait in its subscriptions'
-queues, unseen; the next check on time judges the silence.
+queues, unseen. Such a check judges only what the stall cannot have hidden:
+a camera already silent for its stop timeout at the previous check, while
+another camera published for as long after its last image. No end and no
+missing camera is judged late; the next check on time judges the rest. On a
+machine busy for good, where every check comes late, a camera that stops is
+still found.
 """
 
 from __future__ import annotations
@@ -58,7 +63,7 @@ class CameraWatch:
         self.timeout_s = float(timeout_s)
         self.late_check_s = math.inf if check_period_s is None else STALL_PERIODS * float(check_period_s)
         self.last_check: float | None = None  # when check() last ran
-        self.stalls = 0  # checks that judged nothing: they came late
+        self.stalls = 0  # checks that came late: they judged only silences older than the previous check
         self.last = [None] * len(self.names)  # arrival of the newest image
         self.first_any: float | None = None  # arrival of the first image of any camera
         self.state = ["waiting"] * len(self.names)  # waiting | live | stopped | missing
@@ -115,13 +120,14 @@ class CameraWatch:
 
     def check(self, now: float) -> list:
         """Events of the states that changed by ``now``; ("ended", ...) when the input ended."""
-        late = self.last_check is not None and now - self.last_check > self.late_check_s
-        self.last_check = now
+        previous, self.last_check = self.last_check, now
+        late = previous is not None and now - previous > self.late_check_s
         if late:
             self.stalls += 1
-            return []
         if self.first_any is None or self.ended is not None:
             return []
+        if late:
+            return self._stops(previous)
         newest = max(t for t in self.last if t is not None)
         ends = [self.end_timeout(i, now) for i in range(len(self.names))]
         if all(t is None or now - t > limit for t, limit in zip(self.last, ends)):
@@ -131,15 +137,22 @@ class CameraWatch:
                               "is estimated now)")]
         events = []
         for i, name in enumerate(self.names):
+            if self.last[i] is None and self.state[i] != "missing" and newest - self.first_any > self.timeout_s:
+                self.state[i] = "missing"
+                events.append(("warn", f"camera {name}: no image yet while the other cameras publish for "
+                                       f"{newest - self.first_any:.1f} s (wrong topic or transport?)"))
+        return events + self._stops(now)
+
+    def _stops(self, at: float) -> list:
+        """Events of the live cameras silent at ``at`` for their stop timeouts while another camera published
+        for as long after their last images."""
+        newest = max(t for t in self.last if t is not None)
+        events = []
+        for i, name in enumerate(self.names):
             t, limit = self.last[i], self.stop_timeout(i)
-            if t is None:
-                if self.state[i] != "missing" and newest - self.first_any > self.timeout_s:
-                    self.state[i] = "missing"
-                    events.append(("warn", f"camera {name}: no image yet while the other cameras publish for "
-                                           f"{newest - self.first_any:.1f} s (wrong topic or transport?)"))
-            elif self.state[i] == "live" and now - t > limit and newest - t > limit:
+            if t is not None and self.state[i] == "live" and at - t > limit and newest - t > limit:
                 self.state[i] = "stopped"
-                events.append(("warn", f"camera {name} stopped publishing (nothing for {now - t:.1f} s while the "
+                events.append(("warn", f"camera {name} stopped publishing (nothing for {at - t:.1f} s while the "
                                        "other cameras publish)"))
         return events
 
