@@ -43,7 +43,11 @@ the moves smear by up to tens of pixels, the images' content is 15 ms later than
 at 5 Hz with the IMU at 50 Hz and ``fast`` a 60 Hz stream through the moves with the IMU at 1 kHz (the ends of
 the camera and IMU rates users record at); ``far`` ten snapshots with moves of up to a metre and more across the
 rendered room (positions drawn from a cube of 1.6 m), so that some holds share too few landmarks with any other
-and start sequences of their own (the breaks a rig carried from place to place makes).
+and start sequences of their own (the breaks a rig carried from place to place makes); ``walker`` someone walking
+back and forth through the room at 1.2 m/s, through the holds (its corners move while the rig holds still);
+``calib`` a rig file whose cameras' rest rotations are off by a calibration's error, 0.05 deg per axis, and
+say so (``rotation_std_deg``), as a real rig's calibration is (gravity rests on the bends those rotations
+measure: docs/PIPELINE.md, "The rig file's calibration").
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
 both bar stiffnesses among them.
 
@@ -277,6 +281,7 @@ MIXED_CAMERAS = (3, 4)
 SUPERSAMPLE = 1  # one ray per pixel: a quarter of the rendering time of 2 x 2 (as the test recordings)
 DAMPING = 0.05  # a lightly damped bar: ringing falls to 1e-3 after 22 s at 2 Hz, 7 s at 6 Hz
 IMU_AXES_TURN_DEG = (30.0, -20.0, 10.0)  # the imuaxes style's rig file: its IMU turned 38 deg off the IMU's axes
+CALIBRATION_ERROR_DEG = 0.05  # the calib style: each camera's rest rotation off by a random turn of this std per axis
 LAYOUT = {2: "line", 3: "ring", 4: "cross", 5: "ring", 6: "ring"}
 CAMERA_RATES = (10.0, 15.0, 30.0, 20.0, 12.0, 25.0)
 # 6pt-bending's median: 0.3 deg on rigs of three to six cameras, 0.6 deg on two cameras on one bar
@@ -351,6 +356,8 @@ def matrix_styles() -> dict:
         "slow": lambda M: ({**base, "rate": 5.0, "imu_rate": 50.0}, bag),
         "fast": lambda M: ({**base, "capture": "stream", "rate": 60.0, "imu_rate": 1000.0}, bag),
         "far": lambda M: ({**base, "views": 10, "capture": "snapshot", "max_translation": 0.8}, bag),
+        "walker": lambda M: (base, {**bag, "walker_speed": 1.2}),
+        "calib": lambda M: (base, {**bag, "rig_rotation_error_deg": CALIBRATION_ERROR_DEG}),
     }
 
 
@@ -362,6 +369,10 @@ def style_rig(rig: Rig, bag: dict) -> tuple:
     if bag.pop("rig_imu_turn_deg", None) is not None:
         rig, bag, suffix = style_rig(rig, bag)
         return rig, bag, suffix + "-imu-turned"
+    error = bag.pop("rig_rotation_error_deg", None)
+    if error is not None:
+        rig, bag, suffix = style_rig(rig, bag)
+        return rig, bag, suffix + f"-calib{error:g}"
     if not bag.get("imu", True):  # its own rig file: another style on this rig reads the IMU from its file
         return replace(rig, imu=None), bag, "-no-imu"
     if "imu_camera" in bag:
@@ -378,16 +389,21 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("gyrodeg", "line2-soft"), ("vibration", "cross4-stiff"), ("imuhost", "ring5-soft"),
          ("imucounter", "ring6-soft"), ("camcounter", "ring3-stiff"), ("unstamped", "cross4-soft"),
          ("imuaxes", "ring5-stiff"), ("imuloss", "ring6-stiff"), ("blur", "line2-soft"), ("slow", "line2-soft"),
-         ("fast", "ring3-stiff"), ("far", "cross4-soft")]
+         ("fast", "ring3-stiff"), ("far", "cross4-soft"), ("walker", "cross4-soft"),
+         ("calib", "ring3-soft"), ("calib", "cross4-stiff")]
 
 
 def file_rig(rig: Rig, bag: dict) -> Rig:
     """The rig the style's rig file carries: the rendered one, its IMU turned by ``rig_imu_turn_deg`` (a rotation
-    vector in deg, as ``nrmpc make-bag --rig-imu-turn-deg``) where the style gives one."""
+    vector in deg, as ``nrmpc make-bag --rig-imu-turn-deg``) and its cameras' rest rotations calibrated to
+    ``rig_rotation_error_deg`` (``nrmpc make-bag --rig-rotation-error-deg``) where the style gives them."""
     turn = bag.get("rig_imu_turn_deg")
-    if turn is None:
-        return rig
-    return replace(rig, imu=replace(rig.imu, rotation=exp_so3(np.radians(turn)) @ rig.imu.rotation))
+    if turn is not None:
+        rig = replace(rig, imu=replace(rig.imu, rotation=exp_so3(np.radians(turn)) @ rig.imu.rotation))
+    error = bag.get("rig_rotation_error_deg")
+    if error is not None:  # drawn as nrmpc make-bag --rig-rotation-error-deg draws it for seed 0
+        rig = rig.with_rotation_errors(error, np.random.default_rng(np.random.SeedSequence([0, 0xCA1])))
+    return rig
 
 
 def matrix_cells(full: bool) -> list:

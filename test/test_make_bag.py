@@ -722,6 +722,8 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--rig-imu-turn-deg", "0,0,90"], "--rig-imu-turn-deg"),  # no --save-rig to turn it in
     (["--imu-loss", "0.7"], "--imu-loss"), (["--imu-loss-burst-ms", "-1"], "--imu-loss-burst-ms"),
     (["--shutter-ms", "200"], "--shutter-ms"),  # longer than the frame period
+    (["--walker-speed", "-1"], "--walker-speed"), (["--walker-speed", "5"], "--walker-speed"),
+    (["--rig-rotation-error-deg", "0.1"], "--rig-rotation-error-deg"),  # no --save-rig to turn it in
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
     rig_flags = ["--no-progress"] if "--rig" in args else TINY
@@ -911,6 +913,27 @@ def test_a_rig_file_with_the_imu_axes_turned_keeps_the_bag_as_recorded(tmp_path)
     assert len(recorded) > 100 and np.array_equal(recorded, imu(tmp_path / "b"))
 
 
+def test_a_rig_file_calibrated_to_a_std_keeps_the_bag_as_recorded(tmp_path):
+    """--rig-rotation-error-deg S writes each camera's rest rotation turned by a random turn of S deg per axis and
+    says so (rotation_std_deg: S), the same turns for the same seed; the images are those of the true rig."""
+    from nrmpc_ros.core import load_rig
+    from nrmpc_ros.core.so3 import rotation_angle
+
+    args = [*TINY, "--views", "2", "--capture", "snapshot", "--seed", "4"]
+    for name, extra in (("a", []), ("b", ["--rig-rotation-error-deg", "0.2"]), ("c", ["--rig-rotation-error-deg",
+                                                                                     "0.2"])):
+        assert main(["make-bag", *args, "--out", str(tmp_path / name), "--save-rig", str(tmp_path / f"{name}.yaml"),
+                     *extra]) == 0
+    true, off, again = (load_rig(tmp_path / f"{n}.yaml") for n in "abc")
+    turns = [math.degrees(rotation_angle(a.rotation.T @ b.rotation)) for a, b in zip(true.cameras, off.cameras)]
+    assert all(0.0 < t < 1.0 for t in turns) and [c.rotation_std_deg for c in off.cameras] == [0.2, 0.2]
+    assert all(np.array_equal(b.rotation, c.rotation) for b, c in zip(off.cameras, again.cameras))
+    assert np.array_equal(true.positions, off.positions) and true.cameras[0].rotation_std_deg == 0.0
+    a, b = read_bag(tmp_path / "a")[0], read_bag(tmp_path / "b")[0]
+    assert all(x.data.tobytes() == y.data.tobytes()
+               for (_, x), (_, y) in zip(a["/cam0/image_raw"], b["/cam0/image_raw"]))
+
+
 def test_an_imu_link_that_loses_samples_in_runs_keeps_the_others_as_recorded(tmp_path):
     """--imu-loss P --imu-loss-burst-ms B: about P of the IMU's samples are missing, in runs B ms long on average;
     every sample left is the one recorded without the loss (stamp and reading), and the images are untouched."""
@@ -954,3 +977,31 @@ def test_a_shutter_time_blurs_the_moving_images_only(tmp_path):
         else:
             detail += [np.abs(np.diff(i, axis=1)).mean() + np.abs(np.diff(i, axis=0)).mean() for i in (ia, ib)]
     assert sharp >= 8 and detail[1] < 0.95 * detail[0], detail
+
+
+def test_someone_walking_changes_the_still_images_only_where_they_are_seen(tmp_path):
+    """--walker-speed V: a person-sized box walks through the room; in a still hold the images change from frame
+    to frame only where a camera sees the walker, and the rig's ground truth and IMU are those of the same recording
+    without it."""
+    args = ["--cameras", "4", "--layout", "cross", "--views", "2", "--hold-seconds", "1", "--rate", "10", "--seed",
+            "0", *QUIET]
+    nobody, _ = make(tmp_path, "nobody", *args)
+    walking, _ = make(tmp_path, "walking", *args, "--walker-speed", "1.2")
+    for topic in ("/ground_truth/pose", "/ground_truth/gravity", "/imu/data", "/cam0/image_raw"):
+        assert [t for t, _ in nobody[topic]] == [t for t, _ in walking[topic]], topic
+    assert np.array_equal(vectors(nobody, "/ground_truth/gravity", "vector"),
+                          vectors(walking, "/ground_truth/gravity", "vector"))
+    assert np.array_equal(vectors(nobody, "/imu/data", "linear_acceleration"),
+                          vectors(walking, "/imu/data", "linear_acceleration"))
+    changed = {}
+    for c in range(4):
+        frames = [np.frombuffer(m.data, np.uint8).reshape(120, 160).astype(float)
+                  for _, m in walking[f"/cam{c}/image_raw"]]
+        still = [np.frombuffer(m.data, np.uint8).reshape(120, 160).astype(float)
+                 for _, m in nobody[f"/cam{c}/image_raw"]]
+        hold = frames[:10]  # the first hold's ten frames: the rig does not move
+        assert all(np.array_equal(still[0], s) for s in still[1:10]), "without the walker still images repeat"
+        changed[c] = max(float(np.mean(np.abs(a - b) > 10)) for a, b in zip(hold, hold[1:]))
+    seen = [c for c, share in changed.items() if share > 0.01]
+    assert seen and len(seen) < 4, changed  # some camera sees the walker move, not every camera
+

@@ -14,6 +14,7 @@ from nrmpc_ros.core.rig import Camera, Rig
 from nrmpc_ros.core.so3 import exp_so3, log_so3
 from nrmpc_ros.render import Renderer, cast_rays, contains, make_scene, shade
 from nrmpc_ros.render.bars import CameraLoads, bent_extrinsics
+from nrmpc_ros.render.scene import BOXES, WALKER, WALKER_LANE_X, walker_offset, with_box_moved
 from nrmpc_ros.render.sequence import PROFILES, MotionOptions, make_trajectory, move_profile
 from nrmpc_ros.sim.synthetic import RigSpec, make_rig
 
@@ -136,6 +137,25 @@ def test_scene_is_deterministic_per_seed():
     a, b, c = make_scene(seed=5), make_scene(seed=5), make_scene(seed=6)
     assert np.array_equal(a.atlas, b.atlas)
     assert not np.array_equal(a.atlas, c.atlas)
+
+
+def test_the_walker_walks_its_lane_at_its_speed_and_carries_its_texture():
+    """A person walks back and forth along the lane at the speed, from its middle; the moved box's faces carry
+    their texture with it, and nothing else moves."""
+    t = np.linspace(0.0, 20.0, 20001)
+    x = walker_offset(t, 1.5)
+    assert np.allclose(x[:, 1:], 0.0) and x[0, 0] == pytest.approx(0.5 * sum(WALKER_LANE_X))
+    assert x[:, 0].min() == pytest.approx(WALKER_LANE_X[0], abs=2e-3)
+    assert x[:, 0].max() == pytest.approx(WALKER_LANE_X[1], abs=2e-3)
+    speed = np.abs(np.diff(x[:, 0])) / np.diff(t)
+    assert np.median(speed) == pytest.approx(1.5) and speed.max() <= 1.5 + 1e-9
+    scene = make_scene(seed=1, boxes=BOXES + (WALKER,))
+    moved = with_box_moved(scene, scene.num_boxes - 1, [0.7, 0.0, 0.0])
+    face = 6 * (scene.num_boxes - 1) + 2 * 1 + 0  # the walker's face towards -y, which the rig sees
+    pts = np.stack([np.linspace(-0.2, 0.2, 50), np.full(50, WALKER[0][1]), np.linspace(-1.2, 0.4, 50)], axis=1)
+    assert np.allclose(shade(moved, pts + [0.7, 0.0, 0.0], np.full(50, face)),
+                       shade(scene, pts, np.full(50, face)), atol=1e-3)
+    assert np.array_equal(moved.lo[:-1], scene.lo[:-1]), "only the walker moves"
 
 
 # -- trajectories: move profiles, capture modes ---------------------------------------------------------------

@@ -258,6 +258,38 @@ def test_bar_dynamics_stds_are_read_checked_and_written(tmp_path):
             load_rig(write(tmp_path, bad, "bad.yaml"))
 
 
+def test_a_cameras_calibration_std_is_read_checked_and_written(tmp_path):
+    """docs/CONVENTIONS.md (Files): ``rotation_std_deg``, optional (0: the rotation is taken as exact), how well
+    the camera's rest rotation is calibrated; negative or beyond 10 deg is refused, naming the key."""
+    d = _mutate(lambda d: d["cameras"][0].update(rotation_std_deg=0.03))
+    rig = load_rig(write(tmp_path, d))
+    assert rig.cameras[0].rotation_std_deg == 0.03 and rig.cameras[1].rotation_std_deg == 0.0
+    save_rig(rig, tmp_path / "out.yaml")
+    assert [c.rotation_std_deg for c in load_rig(tmp_path / "out.yaml").cameras] == [0.03, 0.0]
+    assert "rotation_std_deg" not in yaml.safe_load((tmp_path / "out.yaml").read_text())["cameras"][1]
+    for value in (-0.01, 11.0, "a lot"):
+        bad = _mutate(lambda d, v=value: d["cameras"][0].update(rotation_std_deg=v))
+        with pytest.raises(InputError, match=r"cameras\[0\].rotation_std_deg"):
+            load_rig(write(tmp_path, bad, "bad.yaml"))
+
+
+def test_a_rig_with_rotation_errors_is_a_calibration_good_to_its_std():
+    """Each camera's rest rotation turned about its own axes by a random rotation of the std per axis (the angles
+    of many draws spread as a 3-D Gaussian's norm does), its position kept, and the std stated."""
+    from nrmpc_ros.core.so3 import rotation_angle
+    from nrmpc_ros.sim.synthetic import RigSpec, make_rig
+
+    rig = make_rig(RigSpec(num_cameras=6, layout="ring", EI=0.5))
+    rng = np.random.default_rng(4)
+    angles = []
+    for _ in range(50):
+        off = rig.with_rotation_errors(0.1, rng)
+        assert all(c.rotation_std_deg == 0.1 for c in off.cameras)
+        assert np.array_equal(off.positions, rig.positions)
+        angles += [math.degrees(rotation_angle(a.rotation.T @ b.rotation)) for a, b in zip(rig.cameras, off.cameras)]
+    assert np.sqrt(np.mean(np.square(angles))) == pytest.approx(0.1 * math.sqrt(3), rel=0.1)
+
+
 def test_with_bar_ei_sets_every_bar_with_a_tip_mass():
     from dataclasses import replace
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..bag.writer import ENCODINGS, STORAGES
-from ..core.rig import load_rig, save_rig
+from ..core.rig import MAX_ROTATION_STD_DEG, load_rig, save_rig
 from ..core.so3 import exp_so3
 from ..errors import InputError, OptionError
 from ..render.bagmaker import ACCEL_UNITS, EXPOSURE_OFFSET_GREY, GYRO_UNITS, BagOptions
@@ -45,7 +45,8 @@ DEFAULTS = {
     "imu_covariance_scale": _B.imu_covariance_scale, "imu_lowpass_hz": _B.imu_lowpass_hz, "imu_bias": _B.imu_bias,
     "gyro_bias": _B.gyro_bias, "accel_scale_error": _B.accel_scale_error,
     "vibration": _B.vibration, "vibration_hz": _B.vibration_hz, "imu_stamp_jitter_ms": _B.imu_stamp_jitter_ms,
-    "shutter_ms": _B.shutter_ms, "imu_loss": _B.imu_loss, "imu_loss_burst_ms": _B.imu_loss_burst_ms,
+    "shutter_ms": _B.shutter_ms, "walker_speed": _B.walker_speed, "imu_loss": _B.imu_loss,
+    "imu_loss_burst_ms": _B.imu_loss_burst_ms,
     "imu_gravity_removed": _B.imu_gravity_removed,
     "no_imu": not _B.imu, "jitter_ms": _B.jitter_ms,
     "drop_rate": _B.drop_rate, "encoding": _B.encoding, "jpeg_quality": _B.jpeg_quality, "storage": _B.storage,
@@ -58,7 +59,7 @@ DEFAULTS = {
     "creep_deg_per_s": _M.creep_deg_per_s, "bar_hz": None, "camera_latency_ms": _B.camera_latency_ms,
     "camera_burst_s": _B.camera_burst_s, "camera_burst_stagger_ms": _B.camera_burst_stagger_ms,
     "gyro_unit": _B.gyro_unit, "accel_unit": _B.accel_unit,
-    "imu_in_camera": None, "rig_imu_turn_deg": None,
+    "imu_in_camera": None, "rig_imu_turn_deg": None, "rig_rotation_error_deg": None,
 }
 _INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
 
@@ -294,10 +295,18 @@ def register(sub):
                          "was recorded with: a rig file whose IMU axes are wrong, as a hand-written one for a flight "
                          "controller mounted sideways (0,0,90) or FRD axes taken for FLU (180,0,0) (default: the "
                          "IMU's true rotation)")
+    se.add_argument("--rig-rotation-error-deg", type=float, metavar="S",
+                    help="--save-rig writes every camera's rest rotation turned by a random rotation of S deg per "
+                         "axis (about the camera's own axes, drawn from --seed) and rotation_std_deg: S: the rig "
+                         "file of a calibration good to S deg, as a real rig's is (default: the true rotations)")
     se.add_argument("--shutter-ms", type=float, metavar="MS",
                     help="each image integrates the scene over MS ms from its trigger, its stamp (a camera's "
                          "exposure time: 5-30 ms indoors): motion blur while the rig moves or its bars ring, up to "
                          f"the frame period (default {d['shutter_ms']:g}: an instant)")
+    se.add_argument("--walker-speed", type=float, metavar="M_PER_S",
+                    help="someone walks back and forth through the room at this speed (m/s, up to 3), through holds "
+                         "and moves alike: a person-sized textured box on a lane 1.2-1.5 m beside the rig's start, "
+                         f"whose corners move while the rig holds still (default {d['walker_speed']:g}: nobody)")
     se.add_argument("--jitter-ms", type=float,
                     help="each camera's stamp is off the trigger by a uniform random amount within +-J ms (default 0)")
     se.add_argument("--drop-rate", type=float, help="probability that a camera loses a frame, in [0, 1) (default 0)")
@@ -487,7 +496,8 @@ def bag_options(o: dict):
                       accel_scale_error=o["accel_scale_error"], vibration=o["vibration"],
                       vibration_hz=o["vibration_hz"],
                       imu_stamp_jitter_ms=o["imu_stamp_jitter_ms"], imu_gravity_removed=o["imu_gravity_removed"],
-                      shutter_ms=o["shutter_ms"], imu_loss=o["imu_loss"], imu_loss_burst_ms=o["imu_loss_burst_ms"],
+                      shutter_ms=o["shutter_ms"], walker_speed=o["walker_speed"], imu_loss=o["imu_loss"],
+                      imu_loss_burst_ms=o["imu_loss_burst_ms"],
                       imu=not o["no_imu"], damping=o["damping"],
                       jitter_ms=o["jitter_ms"], drop_rate=o["drop_rate"],
                       supersample=o["supersample"], imu_time_offset_ms=o["imu_time_offset_ms"],
@@ -508,6 +518,14 @@ def _check_outputs(o: dict, scenario) -> None:
         raise InputError("--out", f"{o['out']} already exists; remove it or choose another path")
     if o["save_rig"] and not Path(o["save_rig"]).resolve().parent.is_dir():
         raise InputError("--save-rig", f"no such directory {Path(o['save_rig']).resolve().parent}")
+    if o["rig_rotation_error_deg"] is not None:
+        if not o["save_rig"]:
+            raise InputError("--rig-rotation-error-deg", "turns the cameras of the rig file --save-rig writes: "
+                                                         "needs --save-rig")
+        error = o["rig_rotation_error_deg"]
+        if not (math.isfinite(error) and 0 <= error <= MAX_ROTATION_STD_DEG):
+            raise InputError("--rig-rotation-error-deg", f"must be a finite number of deg in [0, "
+                                                         f"{MAX_ROTATION_STD_DEG:g}], got {error!r}")
     if o["rig_imu_turn_deg"] is not None and (not o["save_rig"] or o["no_imu"]):
         raise InputError("--rig-imu-turn-deg", "turns the IMU of the rig file --save-rig writes: needs --save-rig "
                                                "and an IMU (not --no-imu)")
@@ -531,6 +549,9 @@ def run(args) -> int:
         if o["rig_imu_turn_deg"] is not None:
             turn = exp_so3(np.radians(o["rig_imu_turn_deg"]))
             rig = replace(rig, imu=replace(rig.imu, rotation=turn @ rig.imu.rotation))
+        if o["rig_rotation_error_deg"] is not None:  # its own random stream: the bag is the same without it
+            rig = rig.with_rotation_errors(o["rig_rotation_error_deg"],
+                                           np.random.default_rng(np.random.SeedSequence([o["seed"], 0xCA1])))
         save_rig(rig, o["save_rig"], header="rig written by nrmpc make-bag", flag="--save-rig")
     traj = summary["trajectory"]
     tilts = [math.degrees(math.acos(max(-1.0, min(1.0, float(R[2, 2]))))) for R in traj.R]

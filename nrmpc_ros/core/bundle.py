@@ -1083,6 +1083,7 @@ class _Reduced(NamedTuple):
     e: np.ndarray
     Jr: np.ndarray
     D: np.ndarray
+    Dc: np.ndarray  # D for a turn about the camera's own axes
 
 
 def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: float,
@@ -1096,11 +1097,15 @@ def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: 
     Jp = dX @ prob.chart(state, mrig).M[obs.point]
     # a turn of the camera about its centre c moves the landmark's ray d = X - c in the camera like the
     # opposite turn of d: de/d(turn) = de/dX [d]_x, rows a^T [d]_x
-    D = cross(dX, (state.points[obs.point] - prob._views(state, mrig).c[prob._vc])[:, None, :])
+    vm = prob._views(state, mrig)
+    D = cross(dX, (state.points[obs.point] - vm.c[prob._vc])[:, None, :])
+    # the same turn in the camera's own axes (a calibration error of its rest rotation): world turn = Q turn
+    Dc = np.einsum("nrk,nkl->nrl", D, vm.Q[prob._vc])
     e = e / prob._noise()
     _, wts = prob._robust(e)
     sw = np.sqrt(wts)[:, None] / prob._noise()
-    Jc, Jp, e, D = Jc * sw[:, :, None], Jp * sw[:, :, None], e * np.sqrt(wts)[:, None], D * sw[:, :, None]
+    Jc, Jp, e, D, Dc = (Jc * sw[:, :, None], Jp * sw[:, :, None], e * np.sqrt(wts)[:, None], D * sw[:, :, None],
+                        Dc * sw[:, :, None])
     N = len(Jc)
     cols = prob.structure.cols
     # every observation's Jacobian on the whole camera block (N, 2, nc), the spare column collecting none
@@ -1114,13 +1119,13 @@ def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: 
     Hpp += 1e-12 * np.eye(3) * np.maximum(np.trace(Hpp, axis1=1, axis2=2), 1e-300)[:, None, None]
     Hpc = group_sum(obs.point, JpT @ Jfull, P)
     # with the landmark eliminated, an observation also moves the camera block through its landmark
-    return _Reduced(e, Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point], D)
+    return _Reduced(e, Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point], D, Dc)
 
 
-def _turn_covariance(red: _Reduced, C: np.ndarray, cl: np.ndarray, s2: np.ndarray) -> np.ndarray:
+def _turn_covariance(Jr: np.ndarray, D: np.ndarray, C: np.ndarray, cl: np.ndarray, s2: np.ndarray) -> np.ndarray:
     """C (sum_c s2_c A_c A_c^T) C: what random turns of the clusters' cameras (variance ``s2`` (G,) per axis,
     ``cl`` (N,) each observation's cluster 0..G-1) move the solution by; A_c = sum over the cluster of Jr^T D."""
-    A = group_sum(cl, np.einsum("nrc,nrk->nck", red.Jr, red.D), len(s2))  # (G, nc, 3)
+    A = group_sum(cl, np.einsum("nrc,nrk->nck", Jr, D), len(s2))  # (G, nc, 3)
     return C @ np.einsum("g,gck,gdk->cd", s2, A, A) @ C
 
 
@@ -1159,8 +1164,10 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     centre (a residual ringing nothing measured; 0: none). A turn delta_c moves the residuals by D delta_c and
     the solution by -C A_c delta_c, A_c the sum over the cluster of Jr^T D (landmarks eliminated, as the solve's
     last step weighed them); where a camera's landmarks are seen in two holds only it leaves no residual, and no
-    jackknife sees it. The covariance is then in every direction at least the model's plus
-    C (sum_c sigma_c^2 A_c A_c^T) C."""
+    jackknife sees it. Each camera's ``rotation_std_deg`` (the rig file's word on how well its rest rotation is
+    calibrated) is such a turn too, about the camera's own axes and the same in every hold: A_i sums over
+    every observation of camera i (docs/PIPELINE.md, "The rig file's calibration"). The covariance is then in
+    every direction at least the model's plus C (sum_c sigma_c^2 A_c A_c^T) C over both kinds."""
     C = res.covariance
     nc = C.shape[0]
     cluster = np.asarray(cluster, np.int64)
@@ -1169,12 +1176,16 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     ids, cl = np.unique(cluster, return_inverse=True)
     G = len(ids)
     s2 = np.zeros(G) if turn_sigma is None else np.asarray(turn_sigma, float)[ids] ** 2
-    if G < 3 and not np.any(s2 > 0):
+    c2 = np.radians([c.rotation_std_deg for c in rig.cameras]) ** 2  # the rest rotations' calibration
+    if G < 3 and not np.any(s2 > 0) and not np.any(c2 > 0):
         return C
     red = _reduced_jacobians(rig, obs, res, huber_k, priors, gravity_information)
     out = C if G < 3 else _jackknife_covariance(red, cl, G, C, res.information)
-    if np.any(s2 > 0):
-        out = larger_in_every_direction(out, C + _turn_covariance(red, C, cl, s2))
+    if np.any(s2 > 0) or np.any(c2 > 0):
+        extra = _turn_covariance(red.Jr, red.D, C, cl, s2) if np.any(s2 > 0) else 0.0
+        if np.any(c2 > 0):
+            extra = extra + _turn_covariance(red.Jr, red.Dc, C, obs.cam, c2)
+        out = larger_in_every_direction(out, C + extra)
     return out
 
 

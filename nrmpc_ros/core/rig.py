@@ -16,7 +16,7 @@ import yaml
 
 from ..errors import InputError
 from ..safeio import YAML_MAX_BYTES, atomic_write, load_yaml
-from .so3 import matrix_to_quat_xyzw, quat_xyzw_to_matrix, skew
+from .so3 import exp_so3, matrix_to_quat_xyzw, quat_xyzw_to_matrix, skew
 
 CAMERA_MODELS = ("pinhole", "equidistant")
 
@@ -42,8 +42,9 @@ _TOP_KEYS = {"body_frame", "gravity_magnitude", "imu", "cameras"}
 _IMU_KEYS = {"topic", "mount", "rotation_xyzw"}
 _CAMERA_KEYS = {
     "name", "image_topic", "info_topic", "model", "intrinsics", "distortion",
-    "resolution", "position", "rotation_xyzw", "bar",
+    "resolution", "position", "rotation_xyzw", "rotation_std_deg", "bar",
 }
+MAX_ROTATION_STD_DEG = 10.0  # a calibration of a camera's rotation worse than this is no calibration
 _BAR_KEYS = {"mass", "EI", "damping", "frequency_hz", "damping_std", "frequency_std_hz"}  # all but mass, EI:
 # section 13 (the dynamics; nrmpc calibrate-bars writes them)
 
@@ -65,6 +66,7 @@ class Camera:
     damping_std: float | None = None  # its std (the bar calibration's); None: not given
     frequency_hz: float | None = None  # the bar's identified natural frequency (Hz); None: not given
     frequency_std_hz: float | None = None  # its std (Hz); None: not given
+    rotation_std_deg: float = 0.0  # std per axis (deg) of the calibration of V_i: how well it is known; 0: exact
     image_topic: str = ""
     info_topic: str = ""
 
@@ -169,6 +171,16 @@ class Rig:
             cams.append(replace(c, mass=mass if k > 0 else c.mass, EI=ei))
         return replace(self, cameras=tuple(cams))
 
+    def with_rotation_errors(self, std_deg: float, rng: np.random.Generator) -> Rig:
+        """The rig as a calibration good to ``std_deg`` (per axis) gives it: each camera's rest rotation V_i turned
+        about the camera's own axes by a random rotation of that std per axis, and ``rotation_std_deg`` saying
+        so (the rig file of a real rig: never exact, at best with its std)."""
+        cams = []
+        for c in self.cameras:
+            turn = exp_so3(rng.normal(scale=math.radians(std_deg), size=3))
+            cams.append(replace(c, rotation=_frozen(c.rotation @ turn), rotation_std_deg=float(std_deg)))
+        return replace(self, cameras=tuple(cams))
+
     def with_bar_ei(self, EI: float) -> Rig:
         """The rig with every bar that has a tip mass set to flexural rigidity EI (N m^2); inf = rigid."""
         return replace(self, cameras=tuple(replace(c, EI=float(EI)) if c.mass > 0 else c for c in self.cameras))
@@ -194,6 +206,8 @@ class Rig:
                 "position": [float(x) for x in c.position],
                 "rotation_xyzw": [float(x) for x in matrix_to_quat_xyzw(c.rotation)],
             }
+            if c.rotation_std_deg > 0:
+                d["rotation_std_deg"] = float(c.rotation_std_deg)
             if c.info_topic and c.info_topic != _default_info_topic(c.image_topic):
                 d["info_topic"] = c.info_topic
             if c.mass > 0 or math.isfinite(c.EI):
@@ -447,6 +461,9 @@ def _parse_camera(src, i, d, gm) -> Camera:
         raise InputError(src, f"|position| = {math.hypot(*pos):.3g} m is beyond the plausible "
                               f"{MAX_POSITION_M:g} m from the body centre", f"{p}.position")
     rot = _rotation(src, f"{p}.rotation_xyzw", d["rotation_xyzw"])
+    rot_std = 0.0 if d.get("rotation_std_deg") is None else _number(src, f"{p}.rotation_std_deg",
+                                                                     d["rotation_std_deg"])
+    _in_range(src, f"{p}.rotation_std_deg", rot_std, 0.0, MAX_ROTATION_STD_DEG, "deg")
     mass, ei, damping, dyn = 0.0, math.inf, None, {}
     if d.get("bar") is not None:
         mass, ei = _bar(src, p, name, d["bar"], pos, gm)
@@ -457,7 +474,7 @@ def _parse_camera(src, i, d, gm) -> Camera:
     return Camera(
         name=name, model=model, intrinsics=tuple(intr), distortion=tuple(dist), resolution=tuple(int(x) for x in res),
         position=pos, rotation=rot, mass=mass, EI=ei, damping=damping, image_topic=image_topic, info_topic=info_topic,
-        **dyn,
+        rotation_std_deg=rot_std, **dyn,
     )
 
 

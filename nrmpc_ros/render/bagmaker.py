@@ -38,7 +38,10 @@ every trigger instant, and ``/ground_truth/extrinsics/<camera>`` (the camera's b
 in the body frame at the trigger, stamped like the camera's image) with every image
 (docs/CONVENTIONS.md, "The rig in motion"). Deterministic for a seed, with separate random streams
 for the trajectory, the IMU, the image noise, the jitter, the drops, the
-exposure, the IMU's stamps and its lost samples.
+exposure, the IMU's stamps and its lost samples. Someone may walk through the
+room (``walker_speed``: :class:`MovingScene`): a person-sized textured box
+goes back and forth along a lane 1.2-1.5 m from the rig's start, through holds
+and moves alike, so what a camera sees of it moves while the rig holds still.
 """
 
 from __future__ import annotations
@@ -63,7 +66,7 @@ from ..errors import InputError, OptionError
 from ..frontend.topics import bag_topic
 from .bars import CameraLoads, bent_extrinsics
 from .raycast import Renderer
-from .scene import contains, make_scene
+from .scene import BOXES, WALKER, WALKER_LANE_X, Scene, contains, make_scene, walker_offset, with_box_moved
 from .sequence import MotionOptions, Trajectory, make_trajectory
 
 POSE_TOPIC = "/ground_truth/pose"
@@ -78,6 +81,7 @@ IMU_FRAME = "imu"
 # A still camera is re-rendered only when its bar's load moved by more than this (m/s^2): for the bars of
 # this project (c_r <= 0.1 rad per m/s^2, f <= 1000 px) that shifts the image by less than 1e-4 px.
 CACHE_LOAD_TOLERANCE = 1e-6
+WALKER_MAX_SPEED = 3.0  # m/s: a person running through the room
 # A shutter's motion blur is rendered as the mean of instants this far apart along each pixel's path (px), at most
 # BLUR_MAX_INSTANTS of them (a longer smear is sampled more sparsely; at 2 x 2 rays per pixel the mean of instants
 # 1 px apart is the smear's integral within the noise)
@@ -145,6 +149,8 @@ class BagOptions:
     camera_burst_s: float = 0.0  # images received in bursts: at the end of every such interval (0: one by one)
     camera_burst_stagger_ms: float = 0.0  # within a burst camera i's images are received i x this after its end:
     # a driver or link that delivers a burst topic by topic (0: the images of a burst in stamp order)
+    walker_speed: float = 0.0  # m/s: a person-sized textured box walks back and forth through the room at this
+    # speed, through holds and moves alike (0: nobody): what a camera sees of it moves while the rig holds still
 
     def validate(self) -> None:
         """One OptionError naming the field of the first bad option."""
@@ -200,6 +206,9 @@ class BagOptions:
         if not (_real(self.imu_loss_burst_ms) and 0 <= self.imu_loss_burst_ms <= 10000):
             raise OptionError(_OWNER, "imu_loss_burst_ms", f"must be a finite number in [0, 10000], "
                               f"got {self.imu_loss_burst_ms!r}")
+        if not (_real(self.walker_speed) and 0 <= self.walker_speed <= WALKER_MAX_SPEED):
+            raise OptionError(_OWNER, "walker_speed", f"must be a finite number of m/s in [0, {WALKER_MAX_SPEED:g}] "
+                              f"(0: nobody walks), got {self.walker_speed!r}")
         if not (_real(self.drop_rate) and 0 <= self.drop_rate < 1):
             raise OptionError(_OWNER, "drop_rate", f"must be in [0, 1), got {self.drop_rate!r}")
         if self.damping is not None:
@@ -316,8 +325,37 @@ def _lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float, unit_noise: bool =
     return y
 
 
+class MovingScene:
+    """The scene at an instant: the room's boxes stand still; the walker (its last box, with ``walker_speed``
+    > 0) walks its lane (:func:`.scene.walker_offset`, time from the recording's start)."""
+
+    def __init__(self, scene: Scene, walker_speed: float, start_ns: int):
+        self.scene, self.speed, self.start_ns = scene, float(walker_speed), int(start_ns)
+        self.walker = scene.num_boxes - 1 if self.speed > 0 else None
+
+    @property
+    def moves(self) -> bool:
+        return self.walker is not None
+
+    def at(self, t_ns: int) -> Scene:
+        if self.walker is None:
+            return self.scene
+        return with_box_moved(self.scene, self.walker, walker_offset((int(t_ns) - self.start_ns) * 1e-9,
+                                                                     self.speed)[0])
+
+    def swept(self) -> Scene:
+        """The scene with the walker's box stretched over its whole lane: where no camera may go."""
+        if self.walker is None:
+            return self.scene
+        lo, hi = self.scene.lo.copy(), self.scene.hi.copy()
+        lo[self.walker, 0] += WALKER_LANE_X[0]
+        hi[self.walker, 0] += WALKER_LANE_X[1]
+        return Scene(lo, hi, self.scene.texels_per_metre, self.scene.atlas, self.scene.face_offset,
+                     self.scene.face_width, self.scene.face_height, self.scene.face_shade)
+
+
 def _check_inside(rig: Rig, traj: Trajectory, scene, loads: CameraLoads) -> None:
-    """Every (bent) camera must stay inside the room and outside the boxes."""
+    """Every (bent) camera must stay inside the room and outside the boxes (and the walker's lane)."""
     t = np.arange(traj.start_ns, traj.end_ns, traj.period_ns // 2 or 1, dtype=np.int64)
     R, p, _, _ = traj.state(t)
     w, _ = bent_extrinsics(rig, loads.at(t))
@@ -344,8 +382,9 @@ class ShutterRenderer:
     it, as many as the camera's image moves by (its turn and the shift of its centre during the shutter, in
     pixels, :data:`BLUR_STEP_PX` apart); one render at the shutter's middle when it moves by less."""
 
-    def __init__(self, renderer, traj: Trajectory, loads: CameraLoads, shutter_ns: int):
+    def __init__(self, renderer, traj: Trajectory, loads: CameraLoads, shutter_ns: int, scenes: MovingScene):
         self.renderer, self.traj, self.loads, self.shutter_ns = renderer, traj, loads, int(shutter_ns)
+        self.scenes = scenes
         self.instants = Counter()  # renders per image: how many images took how many instants
 
     def _poses(self, t_ns: np.ndarray) -> list:
@@ -365,8 +404,8 @@ class ShutterRenderer:
         """Camera i's image exposed from t_ns for the shutter time, the mean of ``count`` instants."""
         ts = t_ns + np.rint((np.arange(count) + 0.5) / count * self.shutter_ns).astype(np.int64)
         img = None
-        for Rs, cs in self._poses(ts):
-            one = self.renderer.render_camera(i, Rs[i], cs[i])
+        for t, (Rs, cs) in zip(ts, self._poses(ts)):
+            one = self.renderer.render_camera(i, Rs[i], cs[i], scene=self.scenes.at(t))
             img = one if img is None else img + one
         self.instants[count] += 1
         return img / count
@@ -443,12 +482,14 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
     ss = np.random.SeedSequence(int(opts.seed))
     rng_traj, rng_imu, rng_img, rng_jitter, rng_drop, rng_exposure, rng_stamp, rng_loss = (
         np.random.default_rng(s) for s in ss.spawn(8))  # a seed's first streams as before later ones were added
-    scene = make_scene(int(opts.seed))
+    scene = make_scene(int(opts.seed), boxes=BOXES + ((WALKER,) if opts.walker_speed else ()))
     traj = make_trajectory(rng_traj, opts.motion, rig.gravity_magnitude)
     loads = CameraLoads(rig, traj, opts.damping)
-    _check_inside(rig, traj, scene, loads)
+    scenes = MovingScene(scene, opts.walker_speed, traj.start_ns)
+    _check_inside(rig, traj, scenes.swept(), loads)
     renderer = Renderer(rig, scene, opts.supersample)
-    shutter = ShutterRenderer(renderer, traj, loads, int(round(opts.shutter_ms * 1e6))) if opts.shutter_ms else None
+    shutter = (ShutterRenderer(renderer, traj, loads, int(round(opts.shutter_ms * 1e6)), scenes)
+               if opts.shutter_ms else None)
     frame_t, frame_view, fires = traj.camera_triggers(opts.motion, rig.num_cameras)
     M = rig.num_cameras
     jitter_ns = np.rint(rng_jitter.uniform(-1.0, 1.0, size=(len(frame_t), M)) * opts.jitter_ms * 1e6).astype(np.int64)
@@ -538,13 +579,14 @@ def make_bag(rig: Rig, out, opts: BagOptions, progress: bool = True) -> dict:
                     push_imu(j)
                     j += 1
                 Rs, cs = renderer.camera_poses(R[n], p[n], cam_loads[n])
-                key = view if view < 0 or not creeping[view] else -1  # a creeping body is re-rendered every time
+                # a creeping body, or a scene in which someone walks, is re-rendered every time
+                key = view if view >= 0 and not creeping[view] and not scenes.moves else -1
                 for i in np.flatnonzero(fires[n]):
                     cam = rig.cameras[i]
                     img = cache.get(i, key, cam_loads[n, i])
                     if img is None and not dropped[n, i]:
                         if shutter is None:
-                            img = renderer.render_camera(i, Rs[i], cs[i])
+                            img = renderer.render_camera(i, Rs[i], cs[i], scene=scenes.at(t))
                         else:  # blurred where the image moves during the shutter
                             count = shutter.instant_count(i, t)
                             img = shutter.render(i, t, count)

@@ -120,21 +120,23 @@ class Renderer:
             self._bearings[i] = pixels_to_bearings(cam, uv).astype(np.float32)
         return self._bearings[i]
 
-    def render_camera(self, i: int, R_world_cam, c_world, return_points: bool = False):
+    def render_camera(self, i: int, R_world_cam, c_world, return_points: bool = False, scene: Scene | None = None):
         """Image (H, W) float32 of camera i with orientation R_world_cam (camera -> world) at c_world.
 
         With ``return_points`` also the (H*W, 3) world points the pixels see (through the sample nearest each
-        pixel centre: the centre itself for an odd ``supersample``).
+        pixel centre: the centre itself for an odd ``supersample``). ``scene``: the scene at this instant where
+        something in it moves (default: the renderer's).
         """
+        scene = self.scene if scene is None else scene
         cam = self.rig.cameras[i]
         w, h = cam.resolution
         # einsum, not a BLAS product: a (H*W, 3) x (3, 3) product gains nothing from threads, and waking
         # BLAS threads on a busy machine costs more than the product itself.
         d = np.einsum("nj,ij->ni", self.bearings(i), np.asarray(R_world_cam, dtype=np.float32))
         c = np.asarray(c_world, dtype=np.float32)
-        t, face = cast_rays(self.scene, c, d)
+        t, face = cast_rays(scene, c, d)
         pts = c + t[:, None] * d
-        img = shade(self.scene, pts, face).reshape(-1, h, w).mean(axis=0)
+        img = shade(scene, pts, face).reshape(-1, h, w).mean(axis=0)
         mid = (self.supersample * self.supersample) // 2
         return (img, pts[mid * h * w:(mid + 1) * h * w]) if return_points else img
 

@@ -12,7 +12,7 @@ face.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -28,6 +28,11 @@ BOXES = (
     ((1.2, 1.7, 0.9), (2.2, 2.9, 1.3)),
 )
 _LIGHT = np.array([0.3, -0.5, 0.81])
+# A person walking through the room (:func:`walker_offset`): a box of a person's size standing on the floor, its
+# nominal place the middle of its lane, which runs along x at y 1.2-1.5 m (clear of the boxes' ranges the rig
+# sees most of, and of a rig within 0.6 m of the origin)
+WALKER = ((-0.22, 1.2, -1.3), (0.22, 1.5, 0.45))
+WALKER_LANE_X = (-2.3, 2.3)  # the x range its middle walks, back and forth
 
 
 @dataclass(frozen=True)
@@ -131,6 +136,24 @@ def make_scene(seed: int = 0, texels_per_metre: float = 160.0, room=ROOM, boxes=
         face_offset=np.array(offsets, dtype=np.int64), face_width=np.array(widths, dtype=np.int64),
         face_height=np.array(heights, dtype=np.int64), face_shade=np.array(shades, dtype=np.float32),
     )
+
+
+def walker_offset(t_s, speed_m_s: float) -> np.ndarray:
+    """(N, 3) shift of the walker from its nominal place at times ``t_s`` (s): back and forth along its lane at
+    ``speed_m_s``, turning at the lane's ends, starting from its middle towards +x."""
+    t = np.atleast_1d(np.asarray(t_s, dtype=float))
+    half = 0.5 * (WALKER_LANE_X[1] - WALKER_LANE_X[0])
+    phase = np.mod(speed_m_s * t + half, 4.0 * half)  # a triangle wave of amplitude ``half``
+    x = np.where(phase < 2.0 * half, phase, 4.0 * half - phase) - half
+    return np.stack([x + 0.5 * sum(WALKER_LANE_X), np.zeros_like(x), np.zeros_like(x)], axis=1)
+
+
+def with_box_moved(scene: Scene, box: int, offset) -> Scene:
+    """The scene with box ``box`` shifted by ``offset`` (3,) m; its faces' textures move with it (they are
+    addressed from the box's low corner)."""
+    d = np.zeros_like(scene.lo)
+    d[box] = np.asarray(offset, dtype=float).reshape(3)
+    return replace(scene, lo=scene.lo + d, hi=scene.hi + d)
 
 
 def contains(scene: Scene, points) -> np.ndarray:
