@@ -18,7 +18,7 @@ from nrmpc_ros.core.bundle import (
 )
 from nrmpc_ros.core.deformation import deformed_extrinsics
 from nrmpc_ros.core.lm import Stop, inv3
-from nrmpc_ros.core.so3 import angle_between, exp_so3, normalize, rotation_angle
+from nrmpc_ros.core.so3 import angle_between, exp_so3, log_so3, normalize, rotation_angle
 from nrmpc_ros.sim.synthetic import RigSpec, Scenario, make_problem, make_rig
 
 
@@ -112,6 +112,40 @@ def test_jacobians_match_finite_differences(rng):
         P2[:, a] += eps
         e2 = prob.residuals(BundleState(st.R, st.t, st.gravity, P2, st.compliance, st.bias))
         assert np.abs((e2 - e) / eps - dX[:, :, a]).max() < 1e-5
+
+
+def test_rest_turn_jacobians_and_prior_match_finite_differences(rng):
+    """The cameras' rest turns (their rig-file rotations' calibration errors, estimated where the rig file gives
+    ``rotation_std_deg``): each observation's Jacobian on its camera's turn and the turns' prior, against finite
+    differences, with a camera whose rotation is taken as exact left out of the layout."""
+    from dataclasses import replace
+
+    from nrmpc_ros.core.bundle import BundleState
+
+    rig = make_rig(RigSpec(num_cameras=3, layout="ring", EI=0.5, focal=500.0))
+    rig = replace(rig, cameras=tuple(replace(c, rotation_std_deg=s) for c, s in zip(rig.cameras, (0.1, 0.0, 0.3))))
+    obs, R, t, g0, X = _sequence(rig, 4, rng, points_per_camera=10)
+    Rs, ts, gs = _perturb(R, t, g0, rng)
+    layout = ParameterLayout(4, [1, 2, 3], True, rest_turn_cameras=[True, False, True])
+    assert layout.rest_turn == slice(20, 26) and list(layout.rest_turn_offset) == [20, -1, 23]
+    prob = SequenceBundleProblem(rig, obs, layout, 1e-3)
+    turns = exp_so3(0.003 * rng.normal(size=(3, 3)))
+    st = BundleState(Rs, ts, gs, X + 0.01 * rng.normal(size=X.shape), rest_turns=turns)
+    e, Jc, _ = prob.jacobians(st)
+    r, J = prob.prior_terms(st)
+    cols = prob.structure.cols
+    eps = 1e-7
+    for j in range(layout.size):
+        dc = np.zeros(layout.size)
+        dc[j] = eps
+        moved = prob.step(st, dc, None)
+        num = (prob.residuals(moved) - e) / eps
+        ana = np.where((cols == j)[:, None, :], Jc, 0.0).sum(axis=2)
+        assert np.abs(num - ana).max() < 1e-4 * max(1.0, np.abs(ana).max()), j
+        r2, _ = prob.prior_terms(moved)
+        assert np.abs((r2 - r) / eps - J[:, j]).max() < 1e-3 * max(1.0, np.abs(J[:, j]).max()), j
+    assert np.array_equal(prob.step(st, np.ones(layout.size) * 1e-3, None).rest_turns[1], turns[1])  # exact one
+    assert np.allclose(r, np.concatenate([log_so3(turns[0]) / np.radians(0.1), log_so3(turns[2]) / np.radians(0.3)]))
 
 
 def test_the_gyros_rotations_separate_the_accelerometers_tilt_from_gravity():

@@ -213,10 +213,11 @@ class GravityInformation:
 class ParameterLayout:
     """Where each unknown sits in the camera block: poses of the free views (6 each, in view order: dr of
     Exp(dr) R_k in view 0's frame, then t_k), then
-    gravity (2), then compliances (one per bar group), then the gravity-measurement bias (3)."""
+    gravity (2), then compliances (one per bar group), then the gravity-measurement bias (3), then the rest
+    turns (3 per camera whose rest rotation is estimated, ``rest_turn_cameras`` (M,) bool)."""
 
     def __init__(self, num_views: int, free_views, gravity: bool, num_compliance: int = 0, bias: bool = False,
-                 num_sequences: int = 1):
+                 num_sequences: int = 1, rest_turn_cameras=None):
         free = np.zeros(num_views, bool)
         free[np.asarray(free_views, dtype=int)] = True
         self.num_views = int(num_views)
@@ -231,6 +232,13 @@ class ParameterLayout:
         n += num_compliance
         self.bias = slice(n, n + BIAS_DIM) if bias else None
         n += BIAS_DIM if bias else 0
+        on = None if rest_turn_cameras is None else np.asarray(rest_turn_cameras, bool)
+        self.rest_turn_offset = None  # (M,) each camera's first rest-turn column, -1 where not estimated
+        self.rest_turn = None
+        if on is not None and on.any():
+            self.rest_turn_offset = np.where(on, n + 3 * (np.cumsum(on) - 1), -1)
+            self.rest_turn = slice(n, n + 3 * int(on.sum()))
+            n += 3 * int(on.sum())
         self.size = n
 
     def pose(self, k: int) -> slice | None:
@@ -243,9 +251,10 @@ class ParameterLayout:
         return None if g is None else slice(g.start + GRAVITY_DIM * sequence, g.start + GRAVITY_DIM * (sequence + 1))
 
     def local_columns(self, view: np.ndarray, compliance_col: np.ndarray | None,
-                      sequence: np.ndarray | None = None) -> np.ndarray:
-        """Camera-block columns (N, 8 [+1]) of observations: pose of their view, their sequence's gravity,
-        their compliance; ``size`` where a column does not exist (fixed view, fixed gravity, rigid camera)."""
+                      sequence: np.ndarray | None = None, camera: np.ndarray | None = None) -> np.ndarray:
+        """Camera-block columns (N, 8 [+1] [+3]) of observations: pose of their view, their sequence's gravity,
+        their compliance, their camera's rest turn; ``size`` where a column does not exist (fixed view, fixed
+        gravity, rigid camera, a camera whose rest rotation is not estimated)."""
         n = self.size
         off = self.pose_offset[view]
         pose = np.where(off[:, None] >= 0, off[:, None] + np.arange(POSE_DIM), n)
@@ -256,6 +265,9 @@ class ParameterLayout:
         if compliance_col is not None:
             c = self.compliance
             cols.append(np.where(compliance_col >= 0, c.start + compliance_col, n)[:, None])
+        if self.rest_turn_offset is not None and camera is not None:
+            off = self.rest_turn_offset[camera]
+            cols.append(np.where(off[:, None] >= 0, off[:, None] + np.arange(3), n))
         return np.concatenate(cols, axis=1)
 
 
@@ -263,7 +275,8 @@ class ParameterLayout:
 class BundleState:
     """Poses (K, 3, 3), (K, 3) of view k in view 0; gravity of view 0 (m/s^2), (3,) -- or (S, 3), one per
     sequence, for independent sequences -- or None; landmarks (P, 3) in view 0; compliance per group (or None);
-    bias (3,) of the measured gravity directions (or None)."""
+    bias (3,) of the measured gravity directions (or None); each camera's rest turn E_i (or None: the rig
+    file's rest rotations as given)."""
 
     R: np.ndarray
     t: np.ndarray
@@ -272,6 +285,7 @@ class BundleState:
     compliance: np.ndarray | None = None
     bias: np.ndarray | None = None
     view_sequence: np.ndarray | None = None  # (K,) with several sequences
+    rest_turns: np.ndarray | None = None  # (M, 3, 3): camera i's rest rotation is V_i E_i (its calibration's error)
 
     def origin_gravity(self) -> np.ndarray | None:
         """(K, 3) gravity of each view's sequence origin (body frame of that sequence's first view)."""
@@ -436,8 +450,11 @@ class SequenceBundleProblem:
         self.M = rig.num_cameras
         self.groups = None if compliance_groups is None else np.asarray(compliance_groups, dtype=np.int64)
         comp_col = None if self.groups is None else self.groups[obs.cam]
-        self.structure = SchurStructure(layout.local_columns(obs.view, comp_col, obs.sequence_of_view[obs.view]),
+        self.structure = SchurStructure(layout.local_columns(obs.view, comp_col, obs.sequence_of_view[obs.view],
+                                                             obs.cam),
                                         layout.size, obs.point, obs.num_points)
+        # the rest turns' prior: each estimated camera's rig-file rotation std (rad per axis)
+        self.rest_turn_sigma = np.radians([c.rotation_std_deg for c in rig.cameras])
         self.Tt = np.swapaxes(tangent_basis(obs.f), 1, 2)  # (N, 2, 3): residual = T^T p / |p|
         self._anchor = self._anchors()
         self._vc = obs.view * self.M + obs.cam
@@ -489,6 +506,8 @@ class SequenceBundleProblem:
         R = state.R[:, None]  # (K, 1, 3, 3)
         RT = np.swapaxes(R, -1, -2)
         w, W, D, Kd = deformation_jacobians(rig, gk)  # (K, M, ...) in each view's body frame
+        if state.rest_turns is not None:  # the rest rotation V_i E_i: a turn about the camera's own axes
+            W = W @ state.rest_turns[None]
         Q = (R @ W).reshape(-1, 3, 3)  # camera -> view 0
         c = (np.einsum("kaij,kmj->kmi", R, w) + state.t[:, None]).reshape(-1, 3)  # centre in view 0
         # d(W^T y)/dg and dw/dg turned into view 0's frame, stacked (Kw; -Dw) for one product per observation
@@ -575,6 +594,8 @@ class SequenceBundleProblem:
         else:
             Jc[:, :, 6:] = 0.0
         Jc[:, :, 0:3] = dr
+        if self.layout.rest_turn is not None:  # Q <- Q Exp(eps): p <- Exp(-eps) p, dp/deps = [p]_x
+            Jc[:, :, -3:] = cross(A, p[:, None, :])
         return e, Jc, dX
 
     def chart(self, state: BundleState, rig: Rig) -> _ChartByPoint:
@@ -632,6 +653,14 @@ class SequenceBundleProblem:
                 J[:, sa.start:sa.start + 3] = -Jb
             rows.append(r / turn.sigma_rad)
             jacs.append(J)
+        if lay.rest_turn is not None and state.rest_turns is not None:
+            for i in np.flatnonzero(lay.rest_turn_offset >= 0):  # the rest turn's prior, N(0, std^2) per axis
+                r = log_so3(state.rest_turns[i])
+                J = np.zeros((3, nc))
+                o = int(lay.rest_turn_offset[i])
+                J[:, o:o + 3] = np.linalg.inv(right_jacobian(r)) / self.rest_turn_sigma[i]
+                rows.append(r / self.rest_turn_sigma[i])
+                jacs.append(J)
         gi = self.gravity_information
         if gi is not None and state.gravity is not None and lay.gravity is not None:
             g0 = normalize(state.origin_gravity()[0])
@@ -705,12 +734,17 @@ class SequenceBundleProblem:
         bias = state.bias
         if lay.bias is not None and bias is not None:
             bias = bias + dc[lay.bias]
+        turns = state.rest_turns
+        if lay.rest_turn is not None and turns is not None:
+            on = np.flatnonzero(lay.rest_turn_offset >= 0)
+            turns = turns.copy()
+            turns[on] = turns[on] @ exp_so3(dc[lay.rest_turn].reshape(-1, 3))
         P = state.points
         if dp is not None:
             hit = self.workspace.linearization
             chart = hit[5] if hit is not None and hit[0] is state else self.chart(state, self.model_rig(state))
             P = chart.retract(dp)
-        return BundleState(R, t, g, P, comp, bias, state.view_sequence)
+        return BundleState(R, t, g, P, comp, bias, state.view_sequence, turns)
 
     def unwhitened(self, e: np.ndarray) -> np.ndarray:
         """Residuals (N, 2) on the nominal noise scale, from which sigma is estimated: times each
@@ -798,7 +832,7 @@ class _ChartByPoint:
 def _same_camera_block(a: BundleState, b: BundleState) -> bool:
     """Whether two states share their poses, gravity and compliances (the same arrays: landmarks may differ)."""
     return a.R is b.R and a.t is b.t and a.gravity is b.gravity and a.compliance is b.compliance \
-        and a.view_sequence is b.view_sequence
+        and a.view_sequence is b.view_sequence and a.rest_turns is b.rest_turns
 
 
 def _smallest_eigenvalue(A: np.ndarray) -> np.ndarray:
@@ -987,11 +1021,19 @@ def estimable_covariance(info: np.ndarray, J: np.ndarray) -> np.ndarray:
 # Entry points
 # ---------------------------------------------------------------------------
 
+def rest_turns_start(rig: Rig) -> np.ndarray | None:
+    """The cameras' rest turns to start an adjustment that estimates them from: the identity (M, 3, 3) where a
+    camera's ``rotation_std_deg`` says its rest rotation is known only to a calibration's std, else None."""
+    if not any(c.rotation_std_deg > 0 for c in rig.cameras):
+        return None
+    return np.tile(np.eye(3), (rig.num_cameras, 1, 1))
+
+
 def adjust_bundle(rig: Rig, obs: Observations, R, t, gravity=None, points=None, *, free_views=None,
                   optimize_gravity: bool = True, priors: GravityPriors | None = None,
                   gravity_information: GravityInformation | None = None, compliance_groups=None,
                   compliance=None, bias=None, huber_k: float = 3.0, sigma_rad: float | None = None,
-                  max_iterations: int = 30, tol: float = 1e-6, camera_scale=None) -> BundleResult:
+                  max_iterations: int = 30, tol: float = 1e-6, camera_scale=None, rest_turns=None) -> BundleResult:
     """Robust joint bundle adjustment of the views' poses, one gravity, the landmarks (and compliances).
 
     R (K, 3, 3), t (K, 3): starting poses of view k in view 0 (view 0 is kept as given: the identity for a
@@ -1003,7 +1045,10 @@ def adjust_bundle(rig: Rig, obs: Observations, R, t, gravity=None, points=None, 
     group (-1: not estimated) with starting ``compliance`` per group estimates bar compliances too.
     ``priors.bias_sigma_rad`` estimates a constant tilt of the measured gravity; ``bias`` starts it.
     ``camera_scale`` (M,): each camera's angular noise relative to sigma (:func:`camera_noise_factors` of an
-    earlier solve; default all 1); the returned ``sigma_rad`` is that of a camera of scale 1.
+    earlier solve; default all 1); the returned ``sigma_rad`` is that of a camera of scale 1. ``rest_turns``
+    (M, 3, 3): starting turns E_i of the cameras' rest rotations (V_i E_i), estimated for every camera whose
+    ``rotation_std_deg`` is above 0, under that std as their prior (docs/PIPELINE.md, "The rig file's
+    calibration"); None: the rest rotations as the rig file gives them.
     """
     K = obs.num_views
     R = np.array(R, dtype=float).reshape(K, 3, 3)
@@ -1024,11 +1069,13 @@ def adjust_bundle(rig: Rig, obs: Observations, R, t, gravity=None, points=None, 
                 and bool(priors.active.any()))
     if gravity_information is not None and obs.num_sequences > 1:
         raise ValueError("gravity_information applies to a single sequence")
-    layout = ParameterLayout(K, free_views, optimize_gravity, num_comp, use_bias, obs.num_sequences)
+    turned = None if rest_turns is None else np.array([c.rotation_std_deg > 0 for c in rig.cameras])
+    layout = ParameterLayout(K, free_views, optimize_gravity, num_comp, use_bias, obs.num_sequences, turned)
     state = BundleState(R, t, gravity, np.zeros((obs.num_points, 3)),
                         None if groups is None else np.asarray(compliance, dtype=float).copy(),
                         (np.zeros(3) if bias is None else np.asarray(bias, float).copy()) if use_bias else None,
-                        obs.view_sequence)
+                        obs.view_sequence,
+                        None if rest_turns is None else np.array(rest_turns, dtype=float).reshape(-1, 3, 3))
     prob = SequenceBundleProblem(rig, obs, layout, 1.0 if sigma_rad is None else sigma_rad, huber_k,
                                  priors if optimize_gravity else None,
                                  gravity_information if optimize_gravity else None, groups,
@@ -1083,7 +1130,6 @@ class _Reduced(NamedTuple):
     e: np.ndarray
     Jr: np.ndarray
     D: np.ndarray
-    Dc: np.ndarray  # D for a turn about the camera's own axes
 
 
 def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: float,
@@ -1097,15 +1143,11 @@ def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: 
     Jp = dX @ prob.chart(state, mrig).M[obs.point]
     # a turn of the camera about its centre c moves the landmark's ray d = X - c in the camera like the
     # opposite turn of d: de/d(turn) = de/dX [d]_x, rows a^T [d]_x
-    vm = prob._views(state, mrig)
-    D = cross(dX, (state.points[obs.point] - vm.c[prob._vc])[:, None, :])
-    # the same turn in the camera's own axes (a calibration error of its rest rotation): world turn = Q turn
-    Dc = np.einsum("nrk,nkl->nrl", D, vm.Q[prob._vc])
+    D = cross(dX, (state.points[obs.point] - prob._views(state, mrig).c[prob._vc])[:, None, :])
     e = e / prob._noise()
     _, wts = prob._robust(e)
     sw = np.sqrt(wts)[:, None] / prob._noise()
-    Jc, Jp, e, D, Dc = (Jc * sw[:, :, None], Jp * sw[:, :, None], e * np.sqrt(wts)[:, None], D * sw[:, :, None],
-                        Dc * sw[:, :, None])
+    Jc, Jp, e, D = Jc * sw[:, :, None], Jp * sw[:, :, None], e * np.sqrt(wts)[:, None], D * sw[:, :, None]
     N = len(Jc)
     cols = prob.structure.cols
     # every observation's Jacobian on the whole camera block (N, 2, nc), the spare column collecting none
@@ -1119,13 +1161,13 @@ def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: 
     Hpp += 1e-12 * np.eye(3) * np.maximum(np.trace(Hpp, axis1=1, axis2=2), 1e-300)[:, None, None]
     Hpc = group_sum(obs.point, JpT @ Jfull, P)
     # with the landmark eliminated, an observation also moves the camera block through its landmark
-    return _Reduced(e, Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point], D, Dc)
+    return _Reduced(e, Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point], D)
 
 
-def _turn_covariance(Jr: np.ndarray, D: np.ndarray, C: np.ndarray, cl: np.ndarray, s2: np.ndarray) -> np.ndarray:
+def _turn_covariance(red: _Reduced, C: np.ndarray, cl: np.ndarray, s2: np.ndarray) -> np.ndarray:
     """C (sum_c s2_c A_c A_c^T) C: what random turns of the clusters' cameras (variance ``s2`` (G,) per axis,
     ``cl`` (N,) each observation's cluster 0..G-1) move the solution by; A_c = sum over the cluster of Jr^T D."""
-    A = group_sum(cl, np.einsum("nrc,nrk->nck", Jr, D), len(s2))  # (G, nc, 3)
+    A = group_sum(cl, np.einsum("nrc,nrk->nck", red.Jr, red.D), len(s2))  # (G, nc, 3)
     return C @ np.einsum("g,gck,gdk->cd", s2, A, A) @ C
 
 
@@ -1164,10 +1206,8 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     centre (a residual ringing nothing measured; 0: none). A turn delta_c moves the residuals by D delta_c and
     the solution by -C A_c delta_c, A_c the sum over the cluster of Jr^T D (landmarks eliminated, as the solve's
     last step weighed them); where a camera's landmarks are seen in two holds only it leaves no residual, and no
-    jackknife sees it. Each camera's ``rotation_std_deg`` (the rig file's word on how well its rest rotation is
-    calibrated) is such a turn too, about the camera's own axes and the same in every hold: A_i sums over
-    every observation of camera i (docs/PIPELINE.md, "The rig file's calibration"). The covariance is then in
-    every direction at least the model's plus C (sum_c sigma_c^2 A_c A_c^T) C over both kinds."""
+    jackknife sees it. The covariance is then in every direction at least the model's plus
+    C (sum_c sigma_c^2 A_c A_c^T) C."""
     C = res.covariance
     nc = C.shape[0]
     cluster = np.asarray(cluster, np.int64)
@@ -1176,16 +1216,12 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     ids, cl = np.unique(cluster, return_inverse=True)
     G = len(ids)
     s2 = np.zeros(G) if turn_sigma is None else np.asarray(turn_sigma, float)[ids] ** 2
-    c2 = np.radians([c.rotation_std_deg for c in rig.cameras]) ** 2  # the rest rotations' calibration
-    if G < 3 and not np.any(s2 > 0) and not np.any(c2 > 0):
+    if G < 3 and not np.any(s2 > 0):
         return C
     red = _reduced_jacobians(rig, obs, res, huber_k, priors, gravity_information)
     out = C if G < 3 else _jackknife_covariance(red, cl, G, C, res.information)
-    if np.any(s2 > 0) or np.any(c2 > 0):
-        extra = _turn_covariance(red.Jr, red.D, C, cl, s2) if np.any(s2 > 0) else 0.0
-        if np.any(c2 > 0):
-            extra = extra + _turn_covariance(red.Jr, red.Dc, C, obs.cam, c2)
-        out = larger_in_every_direction(out, C + extra)
+    if np.any(s2 > 0):
+        out = larger_in_every_direction(out, C + _turn_covariance(red, C, cl, s2))
     return out
 
 

@@ -55,6 +55,7 @@ from .bundle import (
     RotationPrior,
     condense_gravity,
     covariance_from_information,
+    rest_turns_start,
 )
 from .estimators import MINIMAL_SAMPLE, Estimate, EstimatorOptions, estimate, pair_method
 from .matches import Matches
@@ -384,6 +385,9 @@ class IncrementalSequence:
         self.model_rig = rig.as_rigid() if method == "6pt-nonbending" else rig
         self.with_gravity = method != "6pt-nonbending" and rig.is_flexible
         self.parallel_bars = parallel_bars(rig)  # vision only: a young sequence publishes no gravity yet
+        # the cameras' rest turns (their rest rotations' calibration errors, docs/PIPELINE.md, "The rig file's
+        # calibration"), a property of the rig: estimated by every window solve, carried across sequences
+        self.rest_turns = rest_turns_start(rig) if self.with_gravity else None
         focal = float(np.mean([c.focal_px for c in rig.cameras]))
         self._focal_px = focal
         self.threshold = self.options.estimator.threshold_px / focal
@@ -929,8 +933,11 @@ class IncrementalSequence:
                                    huber_k=self.options.estimator.huber_k, inliers=start,
                                    min_rounds=1 if warm else 2, tol=self.options.relative_tolerance,
                                    camera_noise=self.options.camera_noise,
-                                   inlier_sigmas=self.options.inlier_sigmas, offset_sigma=s.unknown_turns(k + 1))
+                                   inlier_sigmas=self.options.inlier_sigmas, offset_sigma=s.unknown_turns(k + 1),
+                                   rest_turns=self.rest_turns)
         st = res.state
+        if st.rest_turns is not None and np.all(np.isfinite(st.rest_turns)):
+            self.rest_turns = st.rest_turns
         for i in free:
             s.views[i].R, s.views[i].t = st.R[i], st.t[i]
         if self.with_gravity and st.gravity is not None:

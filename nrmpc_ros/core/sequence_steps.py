@@ -31,6 +31,7 @@ from .bundle import (
     adjust_bundle,
     camera_noise_factors,
     cluster_robust_covariance,
+    rest_turns_start,
     robust_sigma,
 )
 from .estimators import RIGID_REASON, EstimatorOptions, estimate, pair_method
@@ -493,7 +494,7 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
                     gravity_information: GravityInformation | None = None, points=None, free_views=None,
                     max_iterations: int = 50, rounds: int = 4, huber_k: float = 3.0, start_factor: float = 4.0,
                     inliers=None, min_rounds: int = 2, tol: float = 1e-6, camera_noise: bool = False,
-                    inlier_sigmas: float | None = None, offset_sigma=None):
+                    inlier_sigmas: float | None = None, offset_sigma=None, rest_turns=None):
     """Robust joint adjustment: classify observations as inliers (angular error below ``threshold``, rad,
     ``start_factor`` times that at the start, where the poses are only roughly right, and within the given
     ``inliers`` mask, for a start that is already adjusted and classified), adjust on the inliers, re-classify every
@@ -509,11 +510,12 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
     gravity priors that disagree with the solve beyond their stds, vision's noise is inflated by the excess
     (:func:`measured_gravity_excess`). ``offset_sigma`` (K, M): the std (rad per axis) of an unknown turn of
     each hold's camera (a residual ringing nothing measured), which the covariance carries too
-    (:func:`.bundle.cluster_robust_covariance`). Returns
-    (BundleResult on the inliers, inlier mask over obs)."""
+    (:func:`.bundle.cluster_robust_covariance`). ``rest_turns`` (M, 3, 3): start of the cameras' rest turns,
+    estimated under the rig file's ``rotation_std_deg`` (:func:`.bundle.adjust_bundle`; None: not estimated).
+    Returns (BundleResult on the inliers, inlier mask over obs)."""
     state = BundleState(np.asarray(R, float), np.asarray(t, float), gravity,
                         np.zeros((obs.num_points, 3)) if points is None else np.asarray(points, float),
-                        view_sequence=obs.view_sequence)
+                        view_sequence=obs.view_sequence, rest_turns=rest_turns)
     full, prob = triangulated(rig, obs, state)
     if points is not None:
         full = replace(full, points=np.asarray(points, float))
@@ -527,7 +529,7 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
         res = adjust_bundle(rig, sub, full.R, full.t, full.gravity, None, priors=priors,
                             gravity_information=gravity_information, free_views=free_views,
                             max_iterations=max_iterations if r == 0 else max(10, max_iterations // 3),
-                            huber_k=huber_k, tol=tol)
+                            huber_k=huber_k, tol=tol, rest_turns=full.rest_turns)
         new_full, prob = triangulated(rig, obs, res.state)
         new_full.points[used] = res.state.points
         full = new_full
@@ -551,7 +553,7 @@ def refine_sequence(rig: Rig, obs: Observations, R, t, gravity, threshold: float
         weighed = adjust_bundle(rig, sub, st.R, st.t, st.gravity, st.points, priors=priors,
                                 gravity_information=gravity_information, free_views=free_views,
                                 max_iterations=max(10, max_iterations // 3), huber_k=huber_k, tol=tol,
-                                sigma_rad=res.sigma_rad, bias=st.bias)
+                                sigma_rad=res.sigma_rad, bias=st.bias, rest_turns=st.rest_turns)
         if np.all(np.isfinite(weighed.covariance)) or not np.all(np.isfinite(res.covariance)):
             res = weighed  # (a weighing that leaves the information singular keeps the solve before it)
             # errors shared within a hold's camera: the covariance holds for them too (cluster-robust)
@@ -671,7 +673,8 @@ def adjust_sequence(model_rig: Rig, tracks: Tracks, obs: Observations, obs_index
     robust adjustment (:func:`refine_sequence`) is followed by the repair of broken links (:func:`repair_links`);
     every view's gravity and its std come from the adjusted sequence's one gravity."""
     refine = dict(priors=priors, max_iterations=opts.max_iterations, rounds=opts.inlier_rounds,
-                  huber_k=opts.estimator.huber_k, tol=opts.relative_tolerance, inlier_sigmas=opts.inlier_sigmas)
+                  huber_k=opts.estimator.huber_k, tol=opts.relative_tolerance, inlier_sigmas=opts.inlier_sigmas,
+                  rest_turns=rest_turns_start(model_rig) if with_gravity else None)
     res, inl = refine_sequence(model_rig, obs, R, t, gravity, threshold, **refine)
     res, inl, repairs = repair_links(model_rig, tracks, obs, res, inl, method, threshold, opts, seed, **refine)
     inliers = np.zeros(len(tracks), bool)
