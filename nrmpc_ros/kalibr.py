@@ -210,4 +210,7 @@ def rig_from_kalibr(camchain, imu_chain=None, body_frame: str = "cam0", imu_topi
         notes.append("no T_cam_imu: no imu block (4pt-bending will need gravity from elsewhere)")
     notes.append("all bars are RIGID: Kalibr does not know them. Fill in 'bar: {mass: KG, EI: N_M2}' for every "
                  "camera on a flexible bar, otherwise gravity is unobservable and the bending methods report none")
+    notes.append("the rotations are taken as exact: add each camera's 'rotation_std_deg' (how well the calibration "
+                 "knows it, e.g. 0.05) and the estimates take its error as an unknown (docs/PIPELINE.md, \"The rig "
+                 "file's calibration\")")
     return rig_from_dict(out, source=src), notes

@@ -62,7 +62,7 @@ def test_body_at_imu(tmp_path):
     assert rig.cameras[0].intrinsics == (460.0, 461.0, 320.5, 240.5)
     assert not rig.is_flexible
     assert rig.imu is not None and np.allclose(rig.imu.rotation, np.eye(3))
-    assert any("RIGID" in n for n in notes)
+    assert any("RIGID" in n for n in notes) and any("rotation_std_deg" in n for n in notes)
 
 
 def test_body_at_camera_chains_extrinsics(tmp_path):
