@@ -152,3 +152,32 @@ def test_a_low_pass_filtered_imu_whose_driver_claims_a_fifth_of_its_noise_loses_
     medians = [float(ln.split("median")[1].split()[0]) for ln in text.splitlines()
                if ln.strip().startswith("gravity vs ground truth")]
     assert medians and max(medians) < 0.2
+
+
+@pytest.mark.slow
+def test_a_rig_file_whose_rotations_are_off_by_its_stated_std(bag, tmp_path, capsys):
+    """Each camera's rotation in the rig file off by 0.2 deg per axis, and rotation_std_deg saying so: the replay
+    estimates the rest rotations' errors, says how far each came out, and its gravities lie closer to the ground
+    truth than with the same rig file taken as exact."""
+    from nrmpc_ros.core import load_rig, save_rig
+
+    path, rig_file = bag
+    off = load_rig(rig_file).with_rotation_errors(0.2, np.random.default_rng(3))
+    save_rig(off, tmp_path / "stated.yaml")
+    d = yaml.safe_load((tmp_path / "stated.yaml").read_text())
+    for cam in d["cameras"]:
+        del cam["rotation_std_deg"]
+    (tmp_path / "exact.yaml").write_text(yaml.safe_dump(d))
+    errors = {}
+    for name in ("exact", "stated"):
+        csv_path = tmp_path / f"{name}.csv"
+        assert main(["replay", str(path), "--rig", str(tmp_path / f"{name}.yaml"), "--out", str(csv_path),
+                     "--no-progress", "--quiet"]) == 0
+        text = capsys.readouterr().out
+        lines = [ln for ln in text.splitlines() if ln.startswith("rig file's rest rotations")]
+        assert len(lines) == (name == "stated")
+        if lines:
+            assert all(f"{c.name} " in lines[0] and "(0.2)" in lines[0] for c in off.cameras)
+        errors[name] = float(next(ln for ln in text.splitlines() if "gravity vs ground truth" in ln)
+                             .split("median")[1].split()[0])
+    assert errors["stated"] < errors["exact"], errors

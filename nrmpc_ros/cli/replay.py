@@ -14,6 +14,7 @@ import numpy as np
 from ..bag.reader import BagReader, bag_root
 from ..config import from_mapping, load_mapping
 from ..core import load_rig
+from ..core.so3 import rotation_angle
 from ..errors import InputError
 from ..frontend.accel_tilt import describe_tilt
 from ..frontend.droplog import DropLog
@@ -318,6 +319,11 @@ def run(args) -> int:
     print(f"frames {st.frames}, holds {st.holds}, estimates {st.estimates} "
           f"({', '.join(f'{m}: {n}' for m, n in sorted(st.methods.items())) or 'none'}), sequences {st.sequences}"
           + (f" ({st.merges} merged back, {st.bridges} bridged by the gyro)" if st.merges or st.bridges else ""))
+    turns = runner.pipeline.sequence.rest_turns
+    if turns is not None:  # the rig file gave rotation_std_deg: the rest rotations' errors were estimated
+        print("rig file's rest rotations, estimated off by (deg, rotation_std_deg beside): " + ", ".join(
+            f"{c.name} {math.degrees(rotation_angle(E)):.3f} ({c.rotation_std_deg:g})"
+            for c, E in zip(rig.cameras, turns) if c.rotation_std_deg > 0))
     if st.holds:
         print(f"holds: median settle {d['median_settle_s']:.2f} s after the stop (slowest bar period "
               f"{runner.pipeline.bar_period_s:.3f} s), residual motion {d['median_residual_px']:.3f} px, track noise "
