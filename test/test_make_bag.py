@@ -724,6 +724,8 @@ def test_bar_hz_sets_the_bars_natural_frequency():
     (["--shutter-ms", "200"], "--shutter-ms"),  # longer than the frame period
     (["--walker-speed", "-1"], "--walker-speed"), (["--walker-speed", "5"], "--walker-speed"),
     (["--rig-rotation-error-deg", "0.1"], "--rig-rotation-error-deg"),  # no --save-rig to turn it in
+    (["--rig-position-error-m", "0.001"], "--rig-position-error-m"),
+    (["--rig-position-error-m", "0.5", "--save-rig", "never.yaml"], "--rig-position-error-m"),
 ])
 def test_bad_new_options_name_the_flag(tmp_path, capsys, args, flag):
     rig_flags = ["--no-progress"] if "--rig" in args else TINY
@@ -915,20 +917,24 @@ def test_a_rig_file_with_the_imu_axes_turned_keeps_the_bag_as_recorded(tmp_path)
 
 def test_a_rig_file_calibrated_to_a_std_keeps_the_bag_as_recorded(tmp_path):
     """--rig-rotation-error-deg S writes each camera's rest rotation turned by a random turn of S deg per axis and
-    says so (rotation_std_deg: S), the same turns for the same seed; the images are those of the true rig."""
+    says so (rotation_std_deg: S), the same turns for the same seed, --rig-position-error-m its rest position
+    moved (position_std_m); the images are those of the true rig."""
     from nrmpc_ros.core import load_rig
     from nrmpc_ros.core.so3 import rotation_angle
 
     args = [*TINY, "--views", "2", "--capture", "snapshot", "--seed", "4"]
-    for name, extra in (("a", []), ("b", ["--rig-rotation-error-deg", "0.2"]), ("c", ["--rig-rotation-error-deg",
-                                                                                     "0.2"])):
+    off_flags = ["--rig-rotation-error-deg", "0.2", "--rig-position-error-m", "0.002"]
+    for name, extra in (("a", []), ("b", off_flags), ("c", off_flags)):
         assert main(["make-bag", *args, "--out", str(tmp_path / name), "--save-rig", str(tmp_path / f"{name}.yaml"),
                      *extra]) == 0
     true, off, again = (load_rig(tmp_path / f"{n}.yaml") for n in "abc")
     turns = [math.degrees(rotation_angle(a.rotation.T @ b.rotation)) for a, b in zip(true.cameras, off.cameras)]
     assert all(0.0 < t < 1.0 for t in turns) and [c.rotation_std_deg for c in off.cameras] == [0.2, 0.2]
     assert all(np.array_equal(b.rotation, c.rotation) for b, c in zip(off.cameras, again.cameras))
-    assert np.array_equal(true.positions, off.positions) and true.cameras[0].rotation_std_deg == 0.0
+    shifts = np.linalg.norm(off.positions - true.positions, axis=1)
+    assert np.all((shifts > 0) & (shifts < 0.01)) and [c.position_std_m for c in off.cameras] == [0.002, 0.002]
+    assert np.array_equal(off.positions, again.positions)
+    assert true.cameras[0].rotation_std_deg == 0.0 and true.cameras[0].position_std_m == 0.0
     a, b = read_bag(tmp_path / "a")[0], read_bag(tmp_path / "b")[0]
     assert all(x.data.tobytes() == y.data.tobytes()
                for (_, x), (_, y) in zip(a["/cam0/image_raw"], b["/cam0/image_raw"]))

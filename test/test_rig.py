@@ -258,18 +258,23 @@ def test_bar_dynamics_stds_are_read_checked_and_written(tmp_path):
             load_rig(write(tmp_path, bad, "bad.yaml"))
 
 
-def test_a_cameras_calibration_std_is_read_checked_and_written(tmp_path):
-    """docs/CONVENTIONS.md (Files): ``rotation_std_deg``, optional (0: the rotation is taken as exact), how well
-    the camera's rest rotation is calibrated; negative or beyond 10 deg is refused, naming the key."""
-    d = _mutate(lambda d: d["cameras"][0].update(rotation_std_deg=0.03))
+def test_a_cameras_calibration_stds_are_read_checked_and_written(tmp_path):
+    """docs/CONVENTIONS.md (Files): ``rotation_std_deg`` and ``position_std_m``, optional (0: taken as exact), how
+    well the camera's rest rotation and position are calibrated; negative, or beyond 10 deg and 0.1 m, is
+    refused, naming the key."""
+    d = _mutate(lambda d: d["cameras"][0].update(rotation_std_deg=0.03, position_std_m=0.002))
     rig = load_rig(write(tmp_path, d))
-    assert rig.cameras[0].rotation_std_deg == 0.03 and rig.cameras[1].rotation_std_deg == 0.0
+    assert (rig.cameras[0].rotation_std_deg, rig.cameras[0].position_std_m) == (0.03, 0.002)
+    assert (rig.cameras[1].rotation_std_deg, rig.cameras[1].position_std_m) == (0.0, 0.0)
     save_rig(rig, tmp_path / "out.yaml")
-    assert [c.rotation_std_deg for c in load_rig(tmp_path / "out.yaml").cameras] == [0.03, 0.0]
-    assert "rotation_std_deg" not in yaml.safe_load((tmp_path / "out.yaml").read_text())["cameras"][1]
-    for value in (-0.01, 11.0, "a lot"):
-        bad = _mutate(lambda d, v=value: d["cameras"][0].update(rotation_std_deg=v))
-        with pytest.raises(InputError, match=r"cameras\[0\].rotation_std_deg"):
+    back = load_rig(tmp_path / "out.yaml").cameras
+    assert [(c.rotation_std_deg, c.position_std_m) for c in back] == [(0.03, 0.002), (0.0, 0.0)]
+    written = yaml.safe_load((tmp_path / "out.yaml").read_text())["cameras"][1]
+    assert "rotation_std_deg" not in written and "position_std_m" not in written
+    for key, value in (("rotation_std_deg", -0.01), ("rotation_std_deg", 11.0), ("rotation_std_deg", "a lot"),
+                       ("position_std_m", -1e-3), ("position_std_m", 0.5)):
+        bad = _mutate(lambda d, kv={key: value}: d["cameras"][0].update(kv))
+        with pytest.raises(InputError, match=rf"cameras\[0\].{key}"):
             load_rig(write(tmp_path, bad, "bad.yaml"))
 
 
@@ -288,6 +293,9 @@ def test_a_rig_with_rotation_errors_is_a_calibration_good_to_its_std():
         assert np.array_equal(off.positions, rig.positions)
         angles += [math.degrees(rotation_angle(a.rotation.T @ b.rotation)) for a, b in zip(rig.cameras, off.cameras)]
     assert np.sqrt(np.mean(np.square(angles))) == pytest.approx(0.1 * math.sqrt(3), rel=0.1)
+    shifts = np.concatenate([np.linalg.norm(rig.with_position_errors(0.002, rng).positions - rig.positions, axis=1)
+                             for _ in range(50)])
+    assert np.sqrt(np.mean(np.square(shifts))) == pytest.approx(0.002 * math.sqrt(3), rel=0.1)
 
 
 def test_with_bar_ei_sets_every_bar_with_a_tip_mass():

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..bag.writer import ENCODINGS, STORAGES
-from ..core.rig import MAX_ROTATION_STD_DEG, load_rig, save_rig
+from ..core.rig import MAX_POSITION_STD_M, MAX_ROTATION_STD_DEG, load_rig, save_rig
 from ..core.so3 import exp_so3
 from ..errors import InputError, OptionError
 from ..render.bagmaker import ACCEL_UNITS, EXPOSURE_OFFSET_GREY, GYRO_UNITS, BagOptions
@@ -60,6 +60,7 @@ DEFAULTS = {
     "camera_burst_s": _B.camera_burst_s, "camera_burst_stagger_ms": _B.camera_burst_stagger_ms,
     "gyro_unit": _B.gyro_unit, "accel_unit": _B.accel_unit,
     "imu_in_camera": None, "rig_imu_turn_deg": None, "rig_rotation_error_deg": None,
+    "rig_position_error_m": None,
 }
 _INTERNAL = {"func", "command", "make_bag_parser", "scenario"}
 
@@ -299,6 +300,9 @@ def register(sub):
                     help="--save-rig writes every camera's rest rotation turned by a random rotation of S deg per "
                          "axis (about the camera's own axes, drawn from --seed) and rotation_std_deg: S: the rig "
                          "file of a calibration good to S deg, as a real rig's is (default: the true rotations)")
+    se.add_argument("--rig-position-error-m", type=float, metavar="S",
+                    help="--save-rig writes every camera's rest position moved by a random shift of S m per axis "
+                         "and position_std_m: S (default: the true positions)")
     se.add_argument("--shutter-ms", type=float, metavar="MS",
                     help="each image integrates the scene over MS ms from its trigger, its stamp (a camera's "
                          "exposure time: 5-30 ms indoors): motion blur while the rig moves or its bars ring, up to "
@@ -518,14 +522,15 @@ def _check_outputs(o: dict, scenario) -> None:
         raise InputError("--out", f"{o['out']} already exists; remove it or choose another path")
     if o["save_rig"] and not Path(o["save_rig"]).resolve().parent.is_dir():
         raise InputError("--save-rig", f"no such directory {Path(o['save_rig']).resolve().parent}")
-    if o["rig_rotation_error_deg"] is not None:
+    for key, top, unit in (("rig_rotation_error_deg", MAX_ROTATION_STD_DEG, "deg"),
+                           ("rig_position_error_m", MAX_POSITION_STD_M, "m")):
+        flag, error = "--" + key.replace("_", "-"), o[key]
+        if error is None:
+            continue
         if not o["save_rig"]:
-            raise InputError("--rig-rotation-error-deg", "turns the cameras of the rig file --save-rig writes: "
-                                                         "needs --save-rig")
-        error = o["rig_rotation_error_deg"]
-        if not (math.isfinite(error) and 0 <= error <= MAX_ROTATION_STD_DEG):
-            raise InputError("--rig-rotation-error-deg", f"must be a finite number of deg in [0, "
-                                                         f"{MAX_ROTATION_STD_DEG:g}], got {error!r}")
+            raise InputError(flag, "changes the cameras of the rig file --save-rig writes: needs --save-rig")
+        if not (math.isfinite(error) and 0 <= error <= top):
+            raise InputError(flag, f"must be a finite number of {unit} in [0, {top:g}], got {error!r}")
     if o["rig_imu_turn_deg"] is not None and (not o["save_rig"] or o["no_imu"]):
         raise InputError("--rig-imu-turn-deg", "turns the IMU of the rig file --save-rig writes: needs --save-rig "
                                                "and an IMU (not --no-imu)")
@@ -549,9 +554,11 @@ def run(args) -> int:
         if o["rig_imu_turn_deg"] is not None:
             turn = exp_so3(np.radians(o["rig_imu_turn_deg"]))
             rig = replace(rig, imu=replace(rig.imu, rotation=turn @ rig.imu.rotation))
-        if o["rig_rotation_error_deg"] is not None:  # its own random stream: the bag is the same without it
-            rig = rig.with_rotation_errors(o["rig_rotation_error_deg"],
-                                           np.random.default_rng(np.random.SeedSequence([o["seed"], 0xCA1])))
+        rng = np.random.default_rng(np.random.SeedSequence([o["seed"], 0xCA1]))  # its own: the bag is the same
+        if o["rig_rotation_error_deg"] is not None:
+            rig = rig.with_rotation_errors(o["rig_rotation_error_deg"], rng)
+        if o["rig_position_error_m"] is not None:
+            rig = rig.with_position_errors(o["rig_position_error_m"], rng)
         save_rig(rig, o["save_rig"], header="rig written by nrmpc make-bag", flag="--save-rig")
     traj = summary["trajectory"]
     tilts = [math.degrees(math.acos(max(-1.0, min(1.0, float(R[2, 2]))))) for R in traj.R]

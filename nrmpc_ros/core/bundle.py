@@ -1130,6 +1130,7 @@ class _Reduced(NamedTuple):
     e: np.ndarray
     Jr: np.ndarray
     D: np.ndarray
+    S: np.ndarray  # ... and by a shift of its camera's rest position, body frame (N, 2, 3)
 
 
 def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: float,
@@ -1144,10 +1145,13 @@ def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: 
     # a turn of the camera about its centre c moves the landmark's ray d = X - c in the camera like the
     # opposite turn of d: de/d(turn) = de/dX [d]_x, rows a^T [d]_x
     D = cross(dX, (state.points[obs.point] - prob._views(state, mrig).c[prob._vc])[:, None, :])
+    # a shift s of the camera's rest position (body frame) moves its centre by R_k s: de/ds = -de/dX R_k
+    S = -dX @ state.R[obs.view]
     e = e / prob._noise()
     _, wts = prob._robust(e)
     sw = np.sqrt(wts)[:, None] / prob._noise()
-    Jc, Jp, e, D = Jc * sw[:, :, None], Jp * sw[:, :, None], e * np.sqrt(wts)[:, None], D * sw[:, :, None]
+    Jc, Jp, e, D, S = (Jc * sw[:, :, None], Jp * sw[:, :, None], e * np.sqrt(wts)[:, None], D * sw[:, :, None],
+                       S * sw[:, :, None])
     N = len(Jc)
     cols = prob.structure.cols
     # every observation's Jacobian on the whole camera block (N, 2, nc), the spare column collecting none
@@ -1161,13 +1165,17 @@ def _reduced_jacobians(rig: Rig, obs: Observations, res: BundleResult, huber_k: 
     Hpp += 1e-12 * np.eye(3) * np.maximum(np.trace(Hpp, axis1=1, axis2=2), 1e-300)[:, None, None]
     Hpc = group_sum(obs.point, JpT @ Jfull, P)
     # with the landmark eliminated, an observation also moves the camera block through its landmark
-    return _Reduced(e, Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point], D)
+    return _Reduced(e, Jfull - Jp @ np.linalg.solve(Hpp, Hpc)[obs.point], D, S)
 
 
-def _turn_covariance(red: _Reduced, C: np.ndarray, cl: np.ndarray, s2: np.ndarray) -> np.ndarray:
-    """C (sum_c s2_c A_c A_c^T) C: what random turns of the clusters' cameras (variance ``s2`` (G,) per axis,
-    ``cl`` (N,) each observation's cluster 0..G-1) move the solution by; A_c = sum over the cluster of Jr^T D."""
-    A = group_sum(cl, np.einsum("nrc,nrk->nck", red.Jr, red.D), len(s2))  # (G, nc, 3)
+def _considered_covariance(Jr: np.ndarray, D: np.ndarray, C: np.ndarray, cl: np.ndarray, s2: np.ndarray
+                           ) -> np.ndarray:
+    """C (sum_c s2_c A_c A_c^T) C: what random unknowns of 3 per cluster (variance ``s2`` (G,) per axis, ``cl``
+    (N,) each observation's cluster 0..G-1, ``D`` (N, 2, 3) the residuals' derivative by them: a camera's turn,
+    a shift of its rest position) move the solution by; A_c = sum over the cluster of Jr^T D."""
+    if not np.any(s2 > 0):
+        return np.zeros_like(C)
+    A = group_sum(cl, np.einsum("nrc,nrk->nck", Jr, D), len(s2))  # (G, nc, 3)
     return C @ np.einsum("g,gck,gdk->cd", s2, A, A) @ C
 
 
@@ -1207,7 +1215,9 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     the solution by -C A_c delta_c, A_c the sum over the cluster of Jr^T D (landmarks eliminated, as the solve's
     last step weighed them); where a camera's landmarks are seen in two holds only it leaves no residual, and no
     jackknife sees it. The covariance is then in every direction at least the model's plus
-    C (sum_c sigma_c^2 A_c A_c^T) C."""
+    C (sum_c sigma_c^2 A_c A_c^T) C. Each camera's ``position_std_m`` (how well the rig file's calibration knows
+    its rest position) is carried alike: a shift of that camera's rest position, the same in every hold, A_i
+    summing over all of camera i's observations (docs/PIPELINE.md, "The rig file's calibration")."""
     C = res.covariance
     nc = C.shape[0]
     cluster = np.asarray(cluster, np.int64)
@@ -1216,12 +1226,14 @@ def cluster_robust_covariance(rig: Rig, obs: Observations, res: BundleResult, cl
     ids, cl = np.unique(cluster, return_inverse=True)
     G = len(ids)
     s2 = np.zeros(G) if turn_sigma is None else np.asarray(turn_sigma, float)[ids] ** 2
-    if G < 3 and not np.any(s2 > 0):
+    p2 = np.array([c.position_std_m for c in rig.cameras]) ** 2  # the rest positions' calibration
+    if G < 3 and not np.any(s2 > 0) and not np.any(p2 > 0):
         return C
     red = _reduced_jacobians(rig, obs, res, huber_k, priors, gravity_information)
     out = C if G < 3 else _jackknife_covariance(red, cl, G, C, res.information)
-    if np.any(s2 > 0):
-        out = larger_in_every_direction(out, C + _turn_covariance(red, C, cl, s2))
+    if np.any(s2 > 0) or np.any(p2 > 0):
+        out = larger_in_every_direction(out, C + _considered_covariance(red.Jr, red.D, C, cl, s2)
+                                        + _considered_covariance(red.Jr, red.S, C, obs.cam, p2))
     return out
 
 

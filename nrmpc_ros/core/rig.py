@@ -42,9 +42,10 @@ _TOP_KEYS = {"body_frame", "gravity_magnitude", "imu", "cameras"}
 _IMU_KEYS = {"topic", "mount", "rotation_xyzw"}
 _CAMERA_KEYS = {
     "name", "image_topic", "info_topic", "model", "intrinsics", "distortion",
-    "resolution", "position", "rotation_xyzw", "rotation_std_deg", "bar",
+    "resolution", "position", "rotation_xyzw", "rotation_std_deg", "position_std_m", "bar",
 }
 MAX_ROTATION_STD_DEG = 10.0  # a calibration of a camera's rotation worse than this is no calibration
+MAX_POSITION_STD_M = 0.1  # ... of its position
 _BAR_KEYS = {"mass", "EI", "damping", "frequency_hz", "damping_std", "frequency_std_hz"}  # all but mass, EI:
 # section 13 (the dynamics; nrmpc calibrate-bars writes them)
 
@@ -67,6 +68,7 @@ class Camera:
     frequency_hz: float | None = None  # the bar's identified natural frequency (Hz); None: not given
     frequency_std_hz: float | None = None  # its std (Hz); None: not given
     rotation_std_deg: float = 0.0  # std per axis (deg) of the calibration of V_i: how well it is known; 0: exact
+    position_std_m: float = 0.0  # std per axis (m) of the calibration of v_i; 0: exact
     image_topic: str = ""
     info_topic: str = ""
 
@@ -181,6 +183,13 @@ class Rig:
             cams.append(replace(c, rotation=_frozen(c.rotation @ turn), rotation_std_deg=float(std_deg)))
         return replace(self, cameras=tuple(cams))
 
+    def with_position_errors(self, std_m: float, rng: np.random.Generator) -> Rig:
+        """The rig as a calibration good to ``std_m`` (per axis) gives it: each camera's rest position v_i moved by
+        a random shift of that std per axis (body frame), and ``position_std_m`` saying so."""
+        cams = tuple(replace(c, position=_frozen(c.position + rng.normal(scale=std_m, size=3)),
+                             position_std_m=float(std_m)) for c in self.cameras)
+        return replace(self, cameras=cams)
+
     def with_bar_ei(self, EI: float) -> Rig:
         """The rig with every bar that has a tip mass set to flexural rigidity EI (N m^2); inf = rigid."""
         return replace(self, cameras=tuple(replace(c, EI=float(EI)) if c.mass > 0 else c for c in self.cameras))
@@ -206,8 +215,9 @@ class Rig:
                 "position": [float(x) for x in c.position],
                 "rotation_xyzw": [float(x) for x in matrix_to_quat_xyzw(c.rotation)],
             }
-            if c.rotation_std_deg > 0:
-                d["rotation_std_deg"] = float(c.rotation_std_deg)
+            for key in ("rotation_std_deg", "position_std_m"):
+                if getattr(c, key) > 0:
+                    d[key] = float(getattr(c, key))
             if c.info_topic and c.info_topic != _default_info_topic(c.image_topic):
                 d["info_topic"] = c.info_topic
             if c.mass > 0 or math.isfinite(c.EI):
@@ -461,9 +471,11 @@ def _parse_camera(src, i, d, gm) -> Camera:
         raise InputError(src, f"|position| = {math.hypot(*pos):.3g} m is beyond the plausible "
                               f"{MAX_POSITION_M:g} m from the body centre", f"{p}.position")
     rot = _rotation(src, f"{p}.rotation_xyzw", d["rotation_xyzw"])
-    rot_std = 0.0 if d.get("rotation_std_deg") is None else _number(src, f"{p}.rotation_std_deg",
-                                                                     d["rotation_std_deg"])
-    _in_range(src, f"{p}.rotation_std_deg", rot_std, 0.0, MAX_ROTATION_STD_DEG, "deg")
+    stds = {}
+    for key, top, unit in (("rotation_std_deg", MAX_ROTATION_STD_DEG, "deg"), ("position_std_m", MAX_POSITION_STD_M,
+                                                                                "m")):
+        stds[key] = 0.0 if d.get(key) is None else _in_range(src, f"{p}.{key}", _number(src, f"{p}.{key}", d[key]),
+                                                             0.0, top, unit)
     mass, ei, damping, dyn = 0.0, math.inf, None, {}
     if d.get("bar") is not None:
         mass, ei = _bar(src, p, name, d["bar"], pos, gm)
@@ -474,7 +486,7 @@ def _parse_camera(src, i, d, gm) -> Camera:
     return Camera(
         name=name, model=model, intrinsics=tuple(intr), distortion=tuple(dist), resolution=tuple(int(x) for x in res),
         position=pos, rotation=rot, mass=mass, EI=ei, damping=damping, image_topic=image_topic, info_topic=info_topic,
-        rotation_std_deg=rot_std, **dyn,
+        **stds, **dyn,
     )
 
 
