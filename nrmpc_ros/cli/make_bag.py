@@ -296,13 +296,13 @@ def register(sub):
                          "was recorded with: a rig file whose IMU axes are wrong, as a hand-written one for a flight "
                          "controller mounted sideways (0,0,90) or FRD axes taken for FLU (180,0,0) (default: the "
                          "IMU's true rotation)")
-    se.add_argument("--rig-rotation-error-deg", type=float, metavar="S",
-                    help="--save-rig writes every camera's rest rotation turned by a random rotation of S deg per "
-                         "axis (about the camera's own axes, drawn from --seed) and rotation_std_deg: S: the rig "
-                         "file of a calibration good to S deg, as a real rig's is (default: the true rotations)")
-    se.add_argument("--rig-position-error-m", type=float, metavar="S",
-                    help="--save-rig writes every camera's rest position moved by a random shift of S m per axis "
-                         "and position_std_m: S (default: the true positions)")
+    for flag, what in (("--rig-rotation-error-deg", "rest rotation turned by a random rotation of S deg per axis "
+                                                     "(about the camera's own axes, drawn from --seed) and "
+                                                     "rotation_std_deg: S: the rig file of a calibration good to S "
+                                                     "deg, as a real rig's is (default: the true rotations)"),
+                       ("--rig-position-error-m", "rest position moved by a random shift of S m per axis and "
+                                                  "position_std_m: S (default: the true positions)")):
+        se.add_argument(flag, type=float, metavar="S", help=f"--save-rig writes every camera's {what}")
     se.add_argument("--shutter-ms", type=float, metavar="MS",
                     help="each image integrates the scene over MS ms from its trigger, its stamp (a camera's "
                          "exposure time: 5-30 ms indoors): motion blur while the rig moves or its bars ring, up to "
