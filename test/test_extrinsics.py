@@ -9,7 +9,7 @@ import pytest
 from nrmpc_ros.cli.main import main
 from nrmpc_ros.core.bar_state import BarPropagator
 from nrmpc_ros.core.deformation import deformed_extrinsics
-from nrmpc_ros.core.so3 import quat_xyzw_to_matrix, rotation_angle
+from nrmpc_ros.core.so3 import exp_so3, quat_xyzw_to_matrix, rotation_angle
 from nrmpc_ros.frontend.drops import Drop
 from nrmpc_ros.frontend.extrinsics import EXTRINSICS_HEADER, ExtrinsicsCsv, ExtrinsicsSource, hold_poses
 from nrmpc_ros.frontend.pipeline import FrameSet, Pipeline
@@ -398,3 +398,21 @@ def test_the_smoothed_poses_are_the_recording_again_with_the_final_bias_from_the
     before = [np.abs(c.rotations - s.rotations).max() for c, s in zip(causal, smooth) if c.stamps[0] < t[2500]]
     after = [np.abs(c.rotations - s.rotations).max() for c, s in zip(causal, smooth) if c.stamps[0] > t[2501]]
     assert min(before) > 1e-5 and max(after) < 1e-9
+
+
+def test_the_cameras_rest_turns_turn_the_published_rotations():
+    """Where the joint estimate found the cameras' rest turns (a rig file's rotations off by their calibration),
+    every published camera rotation is the bent rotation times its camera's turn; the positions stay."""
+    from nrmpc_ros.frontend.extrinsics import FrameExtrinsics
+
+    rig = _rig()
+    fx = FrameExtrinsics(rig)
+    for k in range(50):
+        fx.add_imu(0.005 * k, -rig.imu.rotation.T @ np.array([0.0, 0.0, -9.81]), (0.0, 0.0, 0.0))
+    plain = fx.at(0.2)
+    turns = exp_so3(np.radians(0.1) * np.random.default_rng(5).normal(size=(rig.num_cameras, 3)))
+    fx.rest_turns = turns
+    turned = fx.at(0.2, present=[i != 1 for i in range(rig.num_cameras)])
+    cams = turned.cameras
+    assert 1 not in cams and np.allclose(turned.rotations, plain.rotations[cams] @ turns[cams])
+    assert np.array_equal(turned.positions, plain.positions[cams])

@@ -226,6 +226,9 @@ class FrameExtrinsics:
         self.accel_bias = None if bias_prior_ms2 == 0.0 else AccelBias(rig.gravity_magnitude, bias_prior_ms2,
                                                                         floor_ms2)
         self.keep_samples = keep_samples
+        # the cameras' rest turns the joint estimate found (M, 3, 3; docs/PIPELINE.md, "The rig file's
+        # calibration"): each camera's rotation is its bent rotation times its turn; None: the rig file's as given
+        self.rest_turns: np.ndarray | None = None
         self._samples: list = []  # (stamp, ax, ay, az, gx, gy, gz) as received, with keep_samples
         self._sample_blocks: list = []  # the older ones, (SAMPLE_BLOCK, 7) arrays (8 bytes a number)
         self._queries: list = []  # (stamps (K,), cameras (K,)) of every answered frame set, with keep_samples
@@ -321,7 +324,11 @@ class FrameExtrinsics:
         w, W = self.bars.extrinsics_at(q[cams], cams)
         if self.keep_samples:
             self._queries.append((q[cams], cams))
-        return CameraPoses(q[cams], cams, w, W, ExtrinsicsSource.IMU)
+        return CameraPoses(q[cams], cams, w, self._turned(W, cams), ExtrinsicsSource.IMU)
+
+    def _turned(self, W: np.ndarray, cams: np.ndarray) -> np.ndarray:
+        """The cameras' bent rotations (K, 3, 3) with their rest turns (the latest estimate's), where known."""
+        return W if self.rest_turns is None else W @ self.rest_turns[cams]
 
     def smoothed(self):
         """Every answered frame set again (offline, ``keep_samples``): the bars propagated over all samples with
@@ -338,7 +345,7 @@ class FrameExtrinsics:
             if not bars.ready:
                 continue
             w, W = bars.extrinsics_at(q, cams)
-            yield CameraPoses(q, cams, w, W, ExtrinsicsSource.SMOOTHED)
+            yield CameraPoses(q, cams, w, self._turned(W, cams), ExtrinsicsSource.SMOOTHED)
 
 
 def imu_mount_warning(rig: Rig) -> str | None:

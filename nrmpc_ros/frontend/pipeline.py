@@ -310,9 +310,11 @@ class Pipeline:
         return self.extrinsics.at(frames.stamp, frames.stamps, present)
 
     def _observe_gravity(self) -> None:
-        """The holds estimated since the last call tell the bars' state the accelerometer's bias."""
+        """The holds estimated since the last call tell the bars' state the accelerometer's bias (and the cameras'
+        rest turns, where the rig file lets the joint estimate find them)."""
         while self._gravity_inbox:
             self.extrinsics.observe_sequence(*self._gravity_inbox.popleft())
+        self.extrinsics.rest_turns = self.sequence.rest_turns
 
     def _check(self, frames: FrameSet) -> list:
         src = f"frame set at {frames.stamp!r}"
