@@ -402,7 +402,8 @@ def test_the_smoothed_poses_are_the_recording_again_with_the_final_bias_from_the
 
 def test_the_cameras_rest_turns_turn_the_published_rotations():
     """Where the joint estimate found the cameras' rest turns (a rig file's rotations off by their calibration),
-    every published camera rotation is the bent rotation times its camera's turn; the positions stay."""
+    every published camera rotation, at a frame set or a hold, is the bent rotation times its camera's turn;
+    the positions stay."""
     from nrmpc_ros.frontend.extrinsics import FrameExtrinsics
 
     rig = _rig()
@@ -416,3 +417,9 @@ def test_the_cameras_rest_turns_turn_the_published_rotations():
     cams = turned.cameras
     assert 1 not in cams and np.allclose(turned.rotations, plain.rotations[cams] @ turns[cams])
     assert np.array_equal(turned.positions, plain.positions[cams])
+    from nrmpc_ros.frontend.extrinsics import hold_poses
+
+    g = np.array([0.5, -0.3, -9.79])
+    held, held_turned = hold_poses(rig, 3.0, g), hold_poses(rig, 3.0, g, turns)
+    assert np.allclose(held_turned.rotations, held.rotations @ turns)
+    assert np.array_equal(held_turned.positions, held.positions)

@@ -533,3 +533,18 @@ def test_an_imu_read_in_batches_and_filtered_under_a_claim_of_a_fifth_of_its_noi
     values = s.diagnostics()[1].values
     assert "not used" in values["covariances"] and "read in batches" in values["samples stamped alike"]
     assert not any("out of order" in str(k) for k in values)
+
+
+def test_diagnostics_say_the_rest_turns_where_the_rig_file_states_its_calibration(rig):
+    """A rig file with rotation_std_deg: /diagnostics carries each such camera's estimated rest turn (0 before
+    any hold); a rig file without says nothing of them."""
+    from dataclasses import replace
+
+    plain, _, _ = service(rig)
+    assert not any(k.startswith("rest turn:") for k in plain.diagnostics()[2].values)
+    stated = replace(rig, cameras=tuple(replace(c, rotation_std_deg=0.05 if i else 0.0)
+                                        for i, c in enumerate(rig.cameras)))
+    s, _, _ = service(stated)
+    values = s.diagnostics()[2].values
+    turns = {k: v for k, v in values.items() if k.startswith("rest turn:")}
+    assert turns == {f"rest turn: {c.name} (deg)": "0.000" for c in stated.cameras[1:]}

@@ -214,7 +214,7 @@ def _replay_pass(args, bag, rig, cfg, inputs: FeederConfig, image_topics, imu_to
                 rows.append(row)
                 ests.append(est)
                 if by_hold:
-                    extrinsics.write(hold_poses(rig, est.stamp, est.gravity))
+                    extrinsics.write(hold_poses(rig, est.stamp, est.gravity, runner.pipeline.sequence.rest_turns))
         if extrinsics is not None and not by_hold and runner.pipeline.extrinsics is not None:
             for poses in runner.pipeline.extrinsics.smoothed():  # the final bias from the first sample on
                 extrinsics.write(poses)

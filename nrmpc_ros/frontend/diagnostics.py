@@ -225,6 +225,10 @@ class ServiceDiagnostics:
                            "last: residual ringing (px)": f"{e.hold.ringing_px:.3f} ({e.hold.ringing_source.value})",
                            "last: noise scale": f"{e.noise_scale:.3f}"})
         values["holds carrying residual ringing"] = st.penalized_holds
+        turns = s.runner.pipeline.sequence.rest_turns  # the rig file stated rotation_std_deg: estimated
+        if turns is not None:
+            values.update({f"rest turn: {c.name} (deg)": f"{math.degrees(rotation_angle(E)):.3f}"
+                           for c, E in zip(s.rig.cameras, turns) if c.rotation_std_deg > 0})
         failed = sum(n for (src, r), n in s.drops.counts().items() if r is Drop.ESTIMATION_FAILED)
         if self._new_drops("failed", failed):
             level, message = ERROR, "estimation failed (see dropped: pipeline: *)"

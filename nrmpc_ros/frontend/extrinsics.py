@@ -366,11 +366,13 @@ def imu_mount_warning(rig: Rig) -> str | None:
             "calibrate-bars measures both)")
 
 
-def hold_poses(rig: Rig, stamp: float, gravity) -> CameraPoses:
-    """Every camera at a hold: the static model at the hold's gravity (canonical when it has none)."""
+def hold_poses(rig: Rig, stamp: float, gravity, rest_turns=None) -> CameraPoses:
+    """Every camera at a hold: the static model at the hold's gravity (canonical when it has none), each
+    rotation times its camera's rest turn (M, 3, 3) where the joint estimate found them."""
     w, W = deformed_extrinsics(rig, np.zeros(3) if gravity is None else np.asarray(gravity, dtype=float))
     M = rig.num_cameras
-    return CameraPoses(np.full(M, float(stamp)), np.arange(M), w, W, ExtrinsicsSource.HOLD)
+    return CameraPoses(np.full(M, float(stamp)), np.arange(M), w, W if rest_turns is None else W @ rest_turns,
+                       ExtrinsicsSource.HOLD)
 
 
 class ExtrinsicsCsv:
