@@ -324,11 +324,7 @@ class FrameExtrinsics:
         w, W = self.bars.extrinsics_at(q[cams], cams)
         if self.keep_samples:
             self._queries.append((q[cams], cams))
-        return CameraPoses(q[cams], cams, w, self._turned(W, cams), ExtrinsicsSource.IMU)
-
-    def _turned(self, W: np.ndarray, cams: np.ndarray) -> np.ndarray:
-        """The cameras' bent rotations (K, 3, 3) with their rest turns (the latest estimate's), where known."""
-        return W if self.rest_turns is None else W @ self.rest_turns[cams]
+        return CameraPoses(q[cams], cams, w, with_rest_turns(W, self.rest_turns, cams), ExtrinsicsSource.IMU)
 
     def smoothed(self):
         """Every answered frame set again (offline, ``keep_samples``): the bars propagated over all samples with
@@ -345,7 +341,7 @@ class FrameExtrinsics:
             if not bars.ready:
                 continue
             w, W = bars.extrinsics_at(q, cams)
-            yield CameraPoses(q, cams, w, self._turned(W, cams), ExtrinsicsSource.SMOOTHED)
+            yield CameraPoses(q, cams, w, with_rest_turns(W, self.rest_turns, cams), ExtrinsicsSource.SMOOTHED)
 
 
 def imu_mount_warning(rig: Rig) -> str | None:
@@ -371,8 +367,14 @@ def hold_poses(rig: Rig, stamp: float, gravity, rest_turns=None) -> CameraPoses:
     rotation times its camera's rest turn (M, 3, 3) where the joint estimate found them."""
     w, W = deformed_extrinsics(rig, np.zeros(3) if gravity is None else np.asarray(gravity, dtype=float))
     M = rig.num_cameras
-    return CameraPoses(np.full(M, float(stamp)), np.arange(M), w, W if rest_turns is None else W @ rest_turns,
+    return CameraPoses(np.full(M, float(stamp)), np.arange(M), w, with_rest_turns(W, rest_turns, np.arange(M)),
                        ExtrinsicsSource.HOLD)
+
+
+def with_rest_turns(W: np.ndarray, rest_turns: np.ndarray | None, cams: np.ndarray) -> np.ndarray:
+    """The bent rotations W (K, 3, 3) of cameras ``cams`` (K,) times their rest turns (M, 3, 3; docs/PIPELINE.md,
+    "The rig file's calibration"), or W as they are where none are known."""
+    return W if rest_turns is None else W @ rest_turns[cams]
 
 
 class ExtrinsicsCsv:

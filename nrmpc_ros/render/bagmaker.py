@@ -52,7 +52,7 @@ import math
 import numbers
 import shutil
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -350,8 +350,7 @@ class MovingScene:
         lo, hi = self.scene.lo.copy(), self.scene.hi.copy()
         lo[self.walker, 0] += WALKER_LANE_X[0]
         hi[self.walker, 0] += WALKER_LANE_X[1]
-        return Scene(lo, hi, self.scene.texels_per_metre, self.scene.atlas, self.scene.face_offset,
-                     self.scene.face_width, self.scene.face_height, self.scene.face_shade)
+        return replace(self.scene, lo=lo, hi=hi)
 
 
 def _check_inside(rig: Rig, traj: Trajectory, scene, loads: CameraLoads) -> None:
