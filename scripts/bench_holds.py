@@ -644,9 +644,9 @@ def score_cell(path: Path, rig_file: Path, method: str, bound: bool = True,
 
 def run_cell(job) -> list:
     """Render (if missing) and score one (out, style, rig, methods, pipeline settings file or None, rays per
-    pixel side) cell; one result dict per method."""
-    out, style, rig_name, methods, config, supersample = job
-    path, rig_file = render_cell(out, style, rig_name, supersample=supersample)
+    pixel side, seed) cell; one result dict per method."""
+    out, style, rig_name, methods, config, supersample, seed = job
+    path, rig_file = render_cell(out, style, rig_name, seed=seed, supersample=supersample)
     cfg = None if config is None else from_mapping(PipelineConfig, load_mapping(config, "--config"), config)
     results = []
     with_imu = matrix_styles()[style](1)[1].get("imu", True)
@@ -654,7 +654,7 @@ def run_cell(job) -> list:
         if method == "auto" and not with_imu:  # auto is 6pt-bending there, and no IMU-only error to compare with
             continue
         r = score_cell(path, rig_file, method, config=cfg)
-        r.update(style=style, rig=rig_name, method=method)
+        r.update(style=style, rig=rig_name, method=method, seed=seed)
         results.append(r)
     return results
 
@@ -687,7 +687,8 @@ def table(results: list) -> str:
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in results:
         ratio = r["gravity_deg"] / r["imu_only_deg"] if r["method"] == "auto" else math.nan
-        lines.append(f"| {r['style']} | {r['rig']} | {r['method']} | {r['covered']}/{r['still_holds'] - 1} "
+        style = r["style"] if not r.get("seed") else f"{r['style']} (seed {r['seed']})"
+        lines.append(f"| {style} | {r['rig']} | {r['method']} | {r['covered']}/{r['still_holds'] - 1} "
                      f"| {r['bad']} | {_f(r['gravity_deg'], '.3f')} | {_f(r.get('bound_deg'), '.3f')} / "
                      f"{_f(r.get('ringing_bound_deg'), '.3f')} / {_f(r.get('truth_bound_deg'), '.3f')} | "
                      f"{_f(r.get('error_over_bound'), '.2f')} / "
@@ -695,6 +696,23 @@ def table(results: list) -> str:
                      f"{_f(r['imu_only_deg'], '.3f')} | "
                      f"{_f(ratio, '.2f')} | {_f(r['within1'], '.0%')} / {_f(r['within2'], '.0%')} / "
                      f"{_f(r['within3'], '.0%')} ({r['published']}) | {verdict(r)} |")
+    return "\n".join(lines)
+
+
+def pooled(results: list) -> str:
+    """Per method, every published gravity of every recording together: the share within 1, 2 and 3 of its own
+    std of the truth (the promise a std makes), and the recordings with the fewest within 2."""
+    lines = ["| method | published | within 1 std | within 2 | within 3 | fewest within 2 (recording) |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for method in sorted({r["method"] for r in results}):
+        mine = [r for r in results if r["method"] == method]
+        z = np.concatenate([np.array(r["errors_deg"], float) / np.array(r["sigmas_deg"], float) for r in mine])
+        z = z[np.isfinite(z)]
+        worst = min(mine, key=lambda r: (r["within2"] if r["published"] else math.inf))
+        name = f"{worst['style']}:{worst['rig']}" + (f" seed {worst['seed']}" if worst.get("seed") else "")
+        lines.append(f"| {method} | {len(z)} | " + " | ".join(_f(float(np.mean(z <= k)) if len(z) else math.nan,
+                                                              ".1%") for k in (1, 2, 3))
+                     + f" | {_f(worst['within2'], '.0%')} ({name}) |")
     return "\n".join(lines)
 
 
@@ -711,6 +729,8 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=1, help="bags rendered and replayed in parallel (default 1)")
     p.add_argument("--methods", default="auto,6pt-bending", help="comma-separated methods")
     p.add_argument("--cells", help="comma-separated style:rig cells instead of --quick/--full")
+    p.add_argument("--seeds", type=int, default=1, help="bags per cell, seeds 0 to N-1 (default 1): other noise, "
+                   "IMU biases and hold attitudes for the same style and rig")
     p.add_argument("--json", help="also write the results as JSON")
     p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig, as for nrmpc replay)")
     p.add_argument("--supersample", type=int, default=SUPERSAMPLE, choices=range(1, 9), metavar="{1..8}",
@@ -720,7 +740,8 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cells = [tuple(c.split(":")) for c in args.cells.split(",")] if args.cells else matrix_cells(args.full)
-    jobs = [(out, s, r, args.methods.split(","), args.config, args.supersample) for s, r in cells]
+    jobs = [(out, s, r, args.methods.split(","), args.config, args.supersample, seed)
+            for seed in range(args.seeds) for s, r in cells]
     t0 = time.perf_counter()
     if args.workers > 1:
         from multiprocessing import Pool
@@ -734,7 +755,8 @@ def main(argv=None) -> int:
             results += cell
             print("\n".join(table(cell).split("\n")[2:]), file=sys.stderr, flush=True)
     print(table(results))
-    print(f"\n{len(cells)} bags, {len(results)} replays in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    print("\n" + pooled(results))
+    print(f"\n{len(jobs)} bags, {len(results)} replays in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=str))
     return 0

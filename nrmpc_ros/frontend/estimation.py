@@ -127,6 +127,32 @@ class SequenceReset:
     """Start a new sequence here: the next measured hold is its origin."""
 
 
+@dataclass(frozen=True)
+class InputEnded:
+    """The input ended (a bag's end, every camera silent): no later hold links the hold that started the current
+    sequence, if it is still alone."""
+
+
+IMU_ONLY_METHOD = "imu-only"
+"""The method of an estimate whose gravity is the hold's averaged accelerometer alone: a hold no other hold shares
+landmarks with (docs/PIPELINE.md, "A hold no other hold links")."""
+
+
+@dataclass
+class _PendingOrigin:
+    """The hold that started the current sequence, waiting for its first estimate (it comes with the solve of
+    the sequence's next hold): its measured hold, why it started a sequence, its noise scale, the sequence's
+    number, whether its IMU gravity passed the agreement test (it may then stand alone) and whether its IMU-only
+    estimate is out (the input ended; a hold after a restart of the input may still link it)."""
+
+    item: MeasuredHold
+    reason: StartReason
+    noise_scale: float
+    sequence: int
+    imu_used: bool
+    alone: bool = False
+
+
 IMAGES_GRAVITIES_KEPT = 200
 """Holds whose images' gravity (beside their IMU's) the stage keeps: a recording's worth of holds."""
 
@@ -173,14 +199,17 @@ class HoldEstimator:
         self._hold_stamps: list = []  # stamp of every hold of the current sequence
         self._broken_stamps: dict = {}  # sequence number -> its holds' stamps, for the sequences a break ended
         # the hold that started the current sequence after a break, and why: a merge estimates it at last
-        self._origin: tuple | None = None
+        self._origin: _PendingOrigin | None = None
 
     def run(self, item) -> list:
-        """Run one item of the intake (a :class:`MeasuredHold`, :class:`SettledAnchors` or
-        :class:`SequenceReset`); returns the hold estimates it gave (0 or more)."""
+        """Run one item of the intake (a :class:`MeasuredHold`, :class:`SettledAnchors`, :class:`SequenceReset` or
+        :class:`InputEnded`); returns the hold estimates it gave (0 or more)."""
+        if isinstance(item, InputEnded):
+            return self._alone(keep=True)
         if isinstance(item, SequenceReset):
+            alone = self._alone()
             self.reset()
-            return []
+            return alone
         if isinstance(item, SettledAnchors):  # work ahead, not a hold: the intake does not count it
             self.linker.align_ahead(item.anchors, item.images)
             return []
@@ -223,6 +252,7 @@ class HoldEstimator:
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):
+            alone = self._alone()  # the hold that started the sequence this one could not join: no other links it
             if out.reason is not StartReason.FIRST_VIEW:
                 self._broke(number)
             if out.reason is not StartReason.FIRST_VIEW and item.turn is not None and \
@@ -230,12 +260,16 @@ class HoldEstimator:
                 st.bridges += 1
             self._hold_stamps = [hold.stamp]
             st.sequences = max(st.sequences, out.sequence + 1)
-            self._origin = (item, out.reason, scale)  # its estimate comes with the sequence's next hold
+            # its estimate comes with the sequence's next hold
+            self._origin = _PendingOrigin(item, out.reason, scale, out.sequence,
+                                          g is not None and self.sequence.method == "4pt-bending")
             if out.reason is not StartReason.FIRST_VIEW:
                 st.dropped[Drop.new_sequence(out.reason)] += 1
-            return []
+            return alone
+        alone = []
         if out.continued:  # no sequence of its own: the one it broke is kept for a later merge, as a break keeps it
             self._broke(number)
+            alone = self._alone()  # (the hold that started the sequence it broke had no other)
             self._hold_stamps, self._origin = [], None
         if out.merged is not None:  # this sequence's holds now follow those of the earlier one, in its origin
             st.merges += 1
@@ -279,23 +313,59 @@ class HoldEstimator:
             st.dropped[withheld] += 1
             if attempt is not None:
                 attempt.why = withheld.message
-            return []  # (the origin's estimate from the same solve likewise)
-        done = [] if origin is None else [self._origin_estimate(*origin)]
+            return alone  # (the origin's estimate from the same solve likewise)
+        done = alone + ([] if origin is None else [self._origin_estimate(*origin)])
         est = self._hold_estimate(out, hold, imu, obs.links, time.perf_counter() - t0, scale)
         if attempt is not None:
             attempt.estimate = est
         return done + [est]
 
-    def _origin_estimate(self, v: ViewEstimate, started: tuple) -> HoldEstimate:
-        """The first estimate of the hold that started the current sequence (``started``: its measured hold,
-        why it started one and its noise scale), from the solve that placed a later hold."""
-        first, reason, first_scale = started
-        if reason is not StartReason.FIRST_VIEW:
-            self.stats.dropped[Drop.new_sequence(reason)] -= 1
-        est = self._hold_estimate(v, first.hold, first.imu, Counter(), 0.0, first_scale)
+    def _origin_estimate(self, v: ViewEstimate, started: _PendingOrigin) -> HoldEstimate:
+        """The first estimate of the hold that started the current sequence (``started``), from the solve that
+        placed a later hold."""
+        first = started.item
+        if started.reason is not StartReason.FIRST_VIEW and not started.alone:
+            self.stats.dropped[Drop.new_sequence(started.reason)] -= 1
+        est = self._hold_estimate(v, first.hold, first.imu, Counter(), 0.0, started.noise_scale)
         if first.attempt is not None:
             first.attempt.estimate = est
         return est
+
+    def _alone(self, keep: bool = False) -> list:
+        """The hold that started the current sequence where no later hold will link it (the next hold starts or
+        continues another sequence, a reset comes, or the input ends): its gravity from its averaged accelerometer
+        alone, at the std of that average and of the accelerometer's tilt the sequence would have estimated (its
+        prior), as :data:`IMU_ONLY_METHOD`; its pose the identity in its own origin (docs/PIPELINE.md, "A hold no
+        other hold links"). Nothing where the hold's IMU gravity was not used (none, refused, or vision only) or
+        this estimate is out already. ``keep``: the hold still waits for a later hold's solve (the input ended,
+        and may start again)."""
+        started = self._origin
+        self._origin = started if keep else None
+        if started is None or not started.imu_used or started.alone:
+            return []
+        started.alone = True
+        first = started.item
+        g = np.asarray(first.imu.gravity, dtype=float).reshape(3)
+        tilt = first.tilt_sigma_rad if first.tilt_sigma_rad is not None else \
+            (self.sequence.options.gravity_bias_sigma or 0.0)
+        sigma = math.hypot(first.imu_sigma_rad or 0.0, tilt)
+        u = g / np.linalg.norm(g)
+        cov = (np.linalg.norm(g) * sigma) ** 2 * (np.eye(3) - np.outer(u, u))
+        if started.reason is not StartReason.FIRST_VIEW:
+            self.stats.dropped[Drop.new_sequence(started.reason)] -= 1
+        st = self.stats
+        st.estimates += 1
+        st.methods[IMU_ONLY_METHOD] += 1
+        hold = first.hold
+        est = HoldEstimate(
+            stamp=hold.stamp, ref_stamp=hold.stamp, method=IMU_ONLY_METHOD, R=np.eye(3), t=np.zeros(3), gravity=g,
+            gravity_sigma_deg=math.degrees(sigma), cov_gravity=cov, num_inliers=0, num_observations=0,
+            time_ms=0.0, origin_stamp=hold.stamp, R_origin=np.eye(3), t_origin=np.zeros(3),
+            cov_pose=np.zeros((6, 6)), sequence=started.sequence, hold_index=0, hold=hold, imu_gravity=g,
+            noise_scale=started.noise_scale, ref_hold_index=0)
+        if first.attempt is not None:
+            first.attempt.estimate = est
+        return [est]
 
     def _corner_scales(self, obs) -> np.ndarray | None:
         """Each observation's noise over the nominal one (None: all nominal): a link at a corner found in this
@@ -416,4 +486,5 @@ class HoldEstimator:
         return out
 
 
-__all__ = ["HoldEstimate", "HoldEstimator", "MeasuredHold", "SequenceReset", "ringing_noise_rad"]
+__all__ = ["IMU_ONLY_METHOD", "HoldEstimate", "HoldEstimator", "InputEnded", "MeasuredHold", "SequenceReset",
+           "ringing_noise_rad"]

@@ -217,8 +217,9 @@ class PipelineRunner:
             if attempt is not None and self._base:
                 if attempt.sequence is not None:
                     attempt.sequence += self._base
-                if attempt.estimate is not None and out:
-                    attempt.estimate = out[0]
+                if attempt.estimate is not None:
+                    attempt.estimate = next((b for a, b in zip(estimates, out) if a is attempt.estimate),
+                                            attempt.estimate)
             return out
         log = self.pipeline.hold_log
         if log is not None and self._base:  # the hold log numbers sequences as the estimates do
