@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The pipeline on bags recorded the way users record them: a matrix of styles x rigs against the targets.
 
-    python scripts/bench_holds.py [--quick | --full] [--out /tmp/nrmpc_bench_matrix] [--workers 1]
+    python scripts/bench_holds.py [--quick | --full] [--seeds 1] [--out /tmp/nrmpc_bench_matrix] [--workers 1]
                                   [--methods auto,6pt-bending] [--json results.json]
     python scripts/bench_holds.py --vga [--styles all] [--rigs all] [--seeds 1]   # the VGA style table
 
@@ -49,7 +49,10 @@ back and forth through the room at 1.2 m/s, through the holds (its corners move 
 say so (``rotation_std_deg``), as a real rig's calibration is (gravity rests on the bends those rotations
 measure: docs/PIPELINE.md, "The rig file's calibration").
 ``--full`` runs every style on every rig; ``--quick`` (the default) one rig per style, every camera count and
-both bar stiffnesses among them.
+both bar stiffnesses among them. ``--seeds N`` renders every cell with seeds 0 to N-1 (other hold attitudes,
+noise and IMU biases: one seed is one draw of the accelerometer's bias for every cell, so a share within the stds
+over one seed tells little), and the table ends with the share within 1, 2 and 3 stds of every published gravity
+together, per method.
 
 Every bag is replayed with each method through the same loop as ``nrmpc replay``. Per bag and method:
 coverage of the still holds after the first (target >= 0.9); estimates stamped in a creeping hold or while
