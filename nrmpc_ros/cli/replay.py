@@ -37,7 +37,7 @@ from ..frontend.runner import PipelineRunner
 from ..frontend.topics import bag_image_topics
 from ..frontend.trajectory import describe as describe_trajectories
 from ..frontend.trajectory import sequence_errors, write_trajectories
-from ..frontend.zupt import IMAGES_STILL_WINDOWS, REFRESH_STILL_WINDOWS, describe_noise
+from ..frontend.zupt import IMAGES_STILL_WINDOWS, describe_noise
 from ..safeio import check_outputs
 from .argtypes import nonnegative_seconds, number, positive_int, seed
 from .common import add_trajectory_arguments
@@ -370,10 +370,6 @@ def run(args) -> int:
         noise = runner.pipeline.zupt.noise_in_use
         if noise is not None:
             print(f"IMU stillness test: {describe_noise(noise, runner.pipeline.zupt.config)}")
-            if st.noise_refreshes:
-                print(f"IMU noise: estimated again {st.noise_refreshes} time(s) early, where the images held still for "
-                      f"{REFRESH_STILL_WINDOWS} stillness-test windows while it read motion (a gyro bias taken from "
-                      f"a creep?)")
             since = st.covariance_distrusted_at
             if since is not None:
                 print(f"IMU covariances: not used from {since:.3f} s: the images held still for "

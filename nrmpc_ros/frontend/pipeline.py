@@ -54,7 +54,6 @@ from .sync import MIN_FRAME_PERIOD_S
 from .tracking import HoldThinning, KltTracker, TrackingConfig
 from .zupt import (
     IMAGES_STILL_WINDOWS,
-    REFRESH_STILL_WINDOWS,
     ZuptConfig,
     ZuptDetector,
     claim_disputed,
@@ -187,7 +186,6 @@ class PipelineStats:
     averaged_noise_px: list = field(default_factory=list)
     settled_frames: list = field(default_factory=list)
     covariance_distrusted_at: float | None = None  # stamp (s) from which the IMU's noise is the samples' own
-    noise_refreshes: int = 0  # IMU noise estimates the images asked for early (zupt.REFRESH_STILL_WINDOWS)
 
     def as_dict(self) -> dict:
         def med(v):
@@ -202,7 +200,7 @@ class PipelineStats:
                 "methods": dict(self.methods), "dropped": {k.message: n for k, n in sorted_counts(self.dropped)},
                 "median_settle_s": med(self.settle_s), "median_residual_px": med(self.residual_px),
                 "median_noise_px": med(self.noise_px), "median_averaged_noise_px": med(self.averaged_noise_px),
-                "covariance_distrusted_at": self.covariance_distrusted_at, "noise_refreshes": self.noise_refreshes}
+                "covariance_distrusted_at": self.covariance_distrusted_at}
 
 
 class Pipeline:
@@ -221,8 +219,6 @@ class Pipeline:
         self.imu = ImuBuffer(rig, self.config.imu, zupt.mount_ringing_hz or 0.0, ringing_damping(zupt))
         self.zupt = ZuptDetector(zupt, buffer=self.imu)
         self._images_still_s = 0.0  # how long the images have held still while the IMU read motion (s)
-        self._refreshed_s = 0.0  # that time when the IMU's noise was last estimated again for it (s)
-        self._images_drift_px = np.zeros((rig.num_cameras, 2))  # each camera's image shift over that time (px)
         self.bar_period_s = slowest_bar_period(rig)
         # the bars' state from the IMU: every camera's extrinsics at any frame set (docs/PIPELINE.md)
         # the accelerometer's bias: prior std and floor are the configured tilts at the rig's gravity
@@ -534,33 +530,19 @@ class Pipeline:
 
     def _dispute_imu(self, t0: float, t1: float, steps: list) -> None:
         """The IMU read motion between two frames: where every camera's image held still (no track lost, a step
-        of at most ``still_step_px``) for :data:`~.zupt.REFRESH_STILL_WINDOWS` stillness-test windows in a row,
-        and drifted by at most that step over them all (a creep that steps less per frame drifts more), the IMU's
-        noise, gyro bias and still norm are estimated again from every sample so far (and again after as many
-        more); for :data:`~.zupt.IMAGES_STILL_WINDOWS` while the noise in use is a claim the quietest
-        windows dispute, the claim is dropped for the samples' own noise and a new sequence starts
-        (docs/PIPELINE.md, Holds)."""
+        of at most ``still_step_px``) for :data:`~.zupt.IMAGES_STILL_WINDOWS` stillness-test windows in a row
+        while the noise in use is a claim the quietest windows dispute, the claim is dropped for the samples' own
+        noise and a new sequence starts (docs/PIPELINE.md, Holds)."""
         limit = self.config.holds.still_step_px
         quiet = [s for s in steps if s is not None]
         if not quiet or any(s.lost or not (math.isfinite(s.motion_px) and s.motion_px <= limit) for s in quiet):
-            self._images_still_s = self._refreshed_s = 0.0
-            self._images_drift_px[:] = 0.0
+            self._images_still_s = 0.0
             return
         self._images_still_s += t1 - t0
-        for i, s in enumerate(steps):
-            if s is not None and np.all(np.isfinite(s.shift_px)):
-                self._images_drift_px[i] += s.shift_px
-        window = self.zupt.window_s
-        drift = float(np.max(np.linalg.norm(self._images_drift_px, axis=1)))
-        if self._images_still_s - self._refreshed_s >= REFRESH_STILL_WINDOWS * window and drift <= limit and \
-                self.zupt.refresh_noise():
-            self._refreshed_s = self._images_still_s
-            self.stats.noise_refreshes += 1
-        if self._images_still_s >= IMAGES_STILL_WINDOWS * window and \
+        if self._images_still_s >= IMAGES_STILL_WINDOWS * self.zupt.window_s and \
                 claim_disputed(self.zupt.noise_in_use) and self.zupt.distrust_covariance():
             self.stats.covariance_distrusted_at = t1
-            self._images_still_s = self._refreshed_s = 0.0
-            self._images_drift_px[:] = 0.0
+            self._images_still_s = 0.0
             # no hold is open (the claim read the last second as motion), but the last one may have been cut
             # by it from the hold about to open at the same pose: a pair without motion. A new sequence starts.
             self.reset()

@@ -23,6 +23,9 @@ faster the IMU the more holds at some attitude read as motion (a 1 kHz IMU
 with a 0.05 m/s^2 bias split every hold into dozens). s_n comes from the
 data (the robust spread of the norms of the windows whose spread and rates
 pass) and is never below ``accel_norm_floor_m_s2``.
+The gyro bias is the median rate of the quietest windows; a creep is as quiet
+as a still rig, so windows through which the accelerometer's direction turns
+(:func:`_turning`: a creep about any axis but the vertical) have no vote.
 For a still rig with white Gaussian noise T is chi-square with
 nu = 3n + 3(n - 1) + 1 = 6n - 2 degrees of freedom, and a window is still
 when T < chi2.isf(significance, nu): ``significance`` is the false-alarm
@@ -711,14 +714,6 @@ def still_intervals(t, accel, gyro, noise: ImuNoise, cfg: ZuptConfig | None = No
     return [(float(tv[i]), float(tv[j])) for i, j in zip(starts, ends)]
 
 
-REFRESH_STILL_WINDOWS = 3
-"""Stillness-test windows' worth of frames the images must hold still for, while the IMU reads motion, before the
-noise, the gyro's bias and the still norm are estimated again from every sample so far
-(:meth:`ZuptDetector.refresh_noise`; otherwise only when the data has doubled): from data in which the rig crept
-longer than it stood still the gyro's bias is the creep's rate, and every still window after reads as a turn at
-that rate. A refresh costs one estimate; where the images were fooled (a slow turn that stays below their step
-limit) it changes nothing."""
-
 IMAGES_STILL_WINDOWS = 10
 """Stillness-test windows' worth of frames the images must hold still for, while every window reads as motion
 with the noise the covariances claim and the quietest windows show more than the claim, before the claim is
@@ -785,15 +780,6 @@ class ZuptDetector:
                 self._covariance = covariance
                 self._noise = None  # estimated again, now from the covariances
         return self.buffer.add(t, accel, gyro)
-
-    def refresh_noise(self) -> bool:
-        """Estimate the noise, gyro bias and still norm again at the next query, from every sample so far
-        (:data:`REFRESH_STILL_WINDOWS`); False where the noise is fixed, not estimated yet, or no stillness-test
-        window of samples has come since the last estimate."""
-        if self._fixed or self._noise is None or self.buffer.last_stamp - self._noise_stamp < self.window_s:
-            return False
-        self._noise_stamp = -math.inf
-        return True
 
     def distrust_covariance(self) -> bool:
         """Estimate the noise from the samples alone from now on (as ``use_covariance: false``): the images held
