@@ -102,6 +102,25 @@ def test_a_calibrated_prior_no_narrower_than_the_uncalibrated_one_is_kept_and_th
     assert describe_tilt(_evidence(_holds(1, 0.05)[0])) is None  # nothing beyond the calibrated tilt
 
 
+def test_a_chip_nobody_calibrated_carries_the_tilt_its_axes_scales_may_give():
+    """Norms that show a 60 mg bias: the chip is uncalibrated, so each attitude's gravity carries the tilt that
+    axes' scales within 2 % may give it (their spread over many such chips, 0.4 deg at 30 deg of tilt; none at a
+    level hold, where gravity lies along one axis); a calibrated chip's, or one whose calibrated prior the user
+    keeps, carries none."""
+    tilt = _evidence(_holds(2, 0.6)[0])
+    assert tilt.shows_bias
+    up = np.array([0.0, math.sin(math.radians(30.0)), math.cos(math.radians(30.0))])
+    rng = np.random.default_rng(5)
+    s = rng.uniform(-0.02, 0.02, size=(20000, 3))
+    turned = (1.0 + s) * up  # each chip's reading of the same gravity
+    angles = np.arccos(np.clip(turned @ up / np.linalg.norm(turned, axis=1), -1.0, 1.0))
+    assert tilt.scale_tilt_rad(G * up) == pytest.approx(math.sqrt(np.mean(angles ** 2)), rel=0.05)
+    assert math.degrees(tilt.scale_tilt_rad(G * up)) == pytest.approx(0.4, abs=0.02)
+    assert tilt.scale_tilt_rad(np.array([0.0, 0.0, G])) == 0.0
+    assert _evidence(_holds(2, 0.05)[0]).scale_tilt_rad(G * up) == 0.0
+    assert _evidence(_holds(2, 0.6)[0], wide=0.0).scale_tilt_rad(G * up) == 0.0
+
+
 def test_holds_that_tell_nothing_are_skipped():
     """A mean that is not finite, zero, or a variance that is not finite: not a hold."""
     tilt = AccelTiltEvidence(CALIBRATED, WIDE)

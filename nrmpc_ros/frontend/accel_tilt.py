@@ -34,8 +34,16 @@ gravity tilts nothing until the attitudes spread, and then it is measured).
 An uncalibrated prior no wider than the calibrated one keeps the calibrated
 prior throughout: the user's word for a calibrated IMU.
 Unequal scales of the three axes make the norm vary with attitude too, and
-tilt the direction alike: they widen the prior, the safe way. Nothing here is
-refused: the evidence only grades how far the IMU's absolute tilt is trusted.
+tilt the direction alike: they widen the prior, the safe way. But the tilt an
+axis reading (1 + s_i) times the truth gives is no constant: P (s * u) turns
+with the attitude u (2 % between two axes: 0.3-0.5 deg between holds 30 deg
+apart), which the joint estimate's constant tilt cannot follow. Nine holds'
+norms do not measure s (the bias's part along gravity varies alike), but a
+chip whose norms show a bias beyond the calibrated one
+(:attr:`AccelTiltEvidence.shows_bias`) is one nobody calibrated, scales
+included: each hold's gravity then carries the tilt such scales may give its
+attitude as extra noise (:meth:`AccelTiltEvidence.scale_tilt_rad`). Nothing
+here is refused: the evidence only grades how far the IMU's tilt is trusted.
 """
 
 from __future__ import annotations
@@ -51,6 +59,10 @@ from ..core.so3 import tangent_basis
 UNCALIBRATED_TILT_DEG = math.degrees(math.atan(0.08))
 """The tilt a raw consumer MEMS accelerometer's zero-g offset may give its gravity (deg): 80 mg per axis, the widest
 of the common chips' specifications (50 mg x/y and 80 mg z for one, 20-40 mg for newer ones)."""
+
+UNCALIBRATED_SCALE = 0.02
+"""The sensitivity error of an uncalibrated MEMS accelerometer's axis, each within +-this (1-3 % on common chips'
+datasheets; uniform: its std is this over sqrt(3))."""
 
 TILT_HOLDS = 50
 """The still holds kept for the fit: the recent ones (a bias drifts slowly with temperature)."""
@@ -86,6 +98,25 @@ class AccelTiltEvidence:
             self._holds.append((a, float(norm_var)))
             self.evidence = self._fit()
         return self.evidence
+
+    @property
+    def shows_bias(self) -> bool:
+        """Whether the norms show a tilt beyond twice the calibrated prior and beyond what they leave open (three
+        holds or more): an accelerometer whose bias nobody calibrated out."""
+        ev = self.evidence
+        return ev.holds >= 3 and ev.tilt_rad > 2.0 * max(self.calibrated_sigma_rad, ev.open_rad)
+
+    def scale_tilt_rad(self, accel_mean) -> float:
+        """The std (rad) of the tilt the axes' unequal scales may give a hold whose mean accelerometer is
+        ``accel_mean`` (the sensor's axes), on a chip that :attr:`shows_bias` with a graded prior: the axes'
+        errors s_i independent, uniform within :data:`UNCALIBRATED_SCALE`, the tilt P (s * u) has variance
+        var(s) sum_i u_i^2 (1 - u_i^2). 0 otherwise (a calibrated chip's scales tilt nothing measurable)."""
+        a = np.asarray(accel_mean, dtype=float).reshape(3)
+        n = float(np.linalg.norm(a))
+        if not (self.graded and self.shows_bias and n > 0 and math.isfinite(n)):
+            return 0.0
+        u2 = (a / n) ** 2
+        return UNCALIBRATED_SCALE / math.sqrt(3.0) * math.sqrt(float(np.sum(u2 * (1.0 - u2))))
 
     @property
     def graded(self) -> bool:
@@ -127,7 +158,7 @@ def describe_tilt(tilt: AccelTiltEvidence, extrinsics=None) -> str | None:
     :class:`~nrmpc_ros.frontend.extrinsics.FrameExtrinsics`, None without an IMU) the bias vector to calibrate
     out, where vision's gravity informed its estimate."""
     ev, calibrated = tilt.evidence, tilt.calibrated_sigma_rad
-    if ev.holds < 3 or not ev.tilt_rad > 2.0 * max(calibrated, ev.open_rad):
+    if not tilt.shows_bias:
         return None
     said = (f"the accelerometer's still norm varies with attitude as a bias that tilts its gravity by up to "
             f"{math.degrees(ev.tilt_rad):.2f} deg would make it ({ev.holds} holds)")

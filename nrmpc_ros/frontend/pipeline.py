@@ -843,8 +843,11 @@ class Pipeline:
         sigma = tilt = None
         if imu is not None:
             white = imu.accel_mean_std / self.rig.gravity_magnitude
-            sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg))
             tilt = self.accel_tilt.observe_still(imu.accel_mean, imu.accel_mean_std ** 2).prior_sigma_rad
+            # the averaged noise, the floor, and on a chip nobody calibrated the tilt its axes' scales may give
+            # this attitude, which the joint estimate's constant tilt cannot take (:mod:`.accel_tilt`)
+            sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg),
+                               self.accel_tilt.scale_tilt_rad(imu.accel_mean))
             if self.extrinsics is not None:  # every still hold tells the accelerometer's bias, under that prior
                 self.extrinsics.set_bias_prior(self.rig.gravity_magnitude * math.tan(tilt))
                 self.extrinsics.observe_still(hold.stamp, imu.accel_mean, imu.accel_mean_std, 1)
