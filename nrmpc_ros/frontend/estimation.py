@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.bundle import gravity_covariance
 from ..core.incremental import IncrementalSequence, NewSequence, StartReason, ViewEstimate
 from ..core.rig import Rig
 from .drops import Drop
@@ -349,8 +350,7 @@ class HoldEstimator:
         tilt = first.tilt_sigma_rad if first.tilt_sigma_rad is not None else \
             (self.sequence.options.gravity_bias_sigma or 0.0)
         sigma = math.hypot(first.imu_sigma_rad or 0.0, tilt)
-        u = g / np.linalg.norm(g)
-        cov = (np.linalg.norm(g) * sigma) ** 2 * (np.eye(3) - np.outer(u, u))
+        cov = gravity_covariance(g, sigma ** 2 * np.eye(2))
         if started.reason is not StartReason.FIRST_VIEW:
             self.stats.dropped[Drop.new_sequence(started.reason)] -= 1
         st = self.stats
