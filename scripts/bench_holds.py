@@ -444,7 +444,8 @@ def still_holds(bag, ref) -> list:
     """(start, end) stamps of the ground truth's holds in which the body is still (zero angular velocity at
     every ground-truth stamp but those within the stamp tolerance of the ends: a hold's last pose, the same to
     a hundredth of a degree, may be a camera's trigger a few ms into the next move): static_holds minus the
-    creeping ones."""
+    creeping ones (a creep's poses, a few ms apart between cameras of other rates, may repeat to the tolerance:
+    a run at no stamp of which the body is still is no hold either)."""
     holds = static_holds(ref)
     if not bag.has_topic(ANGULAR_VELOCITY_TOPIC):
         return holds
@@ -454,7 +455,8 @@ def still_holds(bag, ref) -> list:
         w.append(math.sqrt(msg.vector.x ** 2 + msg.vector.y ** 2 + msg.vector.z ** 2))
     t, w = np.array(t), np.array(w)
     tol = STAMP_TOLERANCE_S
-    return [(a, b) for a, b in holds if not np.any(w[(t > a + tol) & (t < b - tol)] > 0)]
+    return [(a, b) for a, b in holds if not np.any(w[(t > a + tol) & (t < b - tol)] > 0)
+            and np.any(w[(t >= a) & (t <= b)] == 0)]
 
 
 def _truth_at(ref, stamp: float):

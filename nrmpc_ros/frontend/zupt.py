@@ -441,9 +441,12 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     white_null = (np.ones(1), np.ones(1))
     var_a, var_w, quiet = _quantile_variances(ssa[ok], ssw[ok], n[ok], extra, white_null, cfg)
     if not extra:  # (on a ringing mount the accelerometer's direction swings with the bar)
-        turning = _turning(t, mean_a, ssa, ssw, n, ok, var_a, var_w, period)[ok]
-        if np.any(quiet & ~turning):
-            quiet = quiet & ~turning
+        smooth = _smooth(ssa, ssw, n, ok, var_a, var_w)
+        turning = _turning(t, a, smooth, var_a, period)
+        kept, calm = quiet & ~turning[ok], (smooth & ~turning)[ok]
+        # the quietest windows that do not turn; where hardly any are left, every smooth one that does not
+        quiet = kept if kept.sum() >= min(_min_samples(cfg), calm.sum()) and kept.any() else \
+            calm if calm.any() else quiet
     bias = np.median(mean_w[ok][quiet], axis=0)
     size = float(np.linalg.norm(bias))
     if size > cfg.max_gyro_bias_rad_s:  # a rig turning steadily the whole time is moving, whatever its rate
@@ -506,39 +509,91 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
     return _bias_through_vibration(noise, t, a, w, cfg)
 
 
-TURN_SPAN_S = 1.0
-"""How far apart (s) the two windows lie whose accelerometer directions tell whether the body turned in between
-(:func:`_turning`): a creep of 0.2 deg/s about a horizontal axis turns it by 0.2 deg, 5.5 times the noise of two
-windows' means at 200 Hz (0.35 deg/s at 50 Hz)."""
+CREEP_RAD_S = math.radians(0.2)
+"""The slowest creep the accelerometer is to tell from a still rig (:func:`_turning`): 0.2 deg/s, a hold that turns
+by a few tenths of a degree over its settled part."""
 
 TURN_SIGMAS = 5.0
-"""The accelerometer's direction turned between two windows where it moved by more than this many stds of their
-means' difference (white noise: 4 in 10^6 pairs of a still rig, which then only lose their vote on the bias)."""
+"""The accelerometer's direction turned between two blocks of samples where it moved by more than this many stds
+of their means' difference (white noise: 4 in 10^6 pairs of a still rig, which then only lose their vote on the
+bias)."""
+
+TURN_SPAN_S = (0.25, 2.0)
+"""The shortest and longest block (s) :func:`_turning` compares: at least a few dozen samples, at most the length
+of a short hold."""
 
 
-def _turning(t, mean_a, ssa, ssw, n, ok, var_a: float, var_w: float, period: float) -> np.ndarray:
+def turn_span_s(accel_sigma: float, rate_hz: float, gravity: float) -> float:
+    """The length (s) of each of two adjacent blocks of samples whose mean directions tell a creep of
+    :data:`CREEP_RAD_S` by TURN_SIGMAS of their noise: their centres S apart see it turn by CREEP_RAD_S S, their
+    difference's std is accel_sigma sqrt(2 / (rate S)) / gravity, so S^(3/2) = TURN_SIGMAS accel_sigma
+    sqrt(2 / rate) / (gravity CREEP_RAD_S); within :data:`TURN_SPAN_S`. 0.45 s at 200 Hz and 0.02 m/s^2 per
+    sample, 0.7 s at 50 Hz, 0.8 s at 400 Hz and 0.065 m/s^2: the shorter the blocks, the nearer a still part
+    next to a creep keeps its vote."""
+    if not (accel_sigma > 0 and rate_hz > 0 and gravity > 0):
+        return TURN_SPAN_S[1]
+    span = (TURN_SIGMAS * accel_sigma * math.sqrt(2.0 / rate_hz) / (gravity * CREEP_RAD_S)) ** (2.0 / 3.0)
+    return min(max(span, TURN_SPAN_S[0]), TURN_SPAN_S[1])
+
+
+def _smooth(ssa, ssw, n, ok, var_a: float, var_w: float) -> np.ndarray:
+    """Per window: both sensors' spreads within twice the noise's variance (a move's are tens of times that): a
+    still rig, or one that creeps."""
+    dof = np.maximum(3 * (n - 1), 1)
+    return ok & (ssa < 2.0 * dof * var_a) & (ssw < 2.0 * dof * var_w)
+
+
+def _turning(t, a, smooth, var_a: float, period: float) -> np.ndarray:
     """Per window: whether the body turns through it while the gyro and the accelerometer are smooth (a creep).
     A creep is as quiet as a still rig (a steady turn has no spread), and where more of the data crept than
     stood still the quiet windows' median rate is the creep's: the gyro's bias comes out as that rate, and every
     still window after reads as a turn. The accelerometer tells them apart where the turn is not about the
-    vertical: its direction in a smooth window and in the one TURN_SPAN_S later (smooth too, no gap between)
-    differs by more than TURN_SIGMAS of its noise; both are turning. Smooth: both sensors' spreads within twice
-    the noise's variance (a move's are tens of times that)."""
+    vertical: the mean directions of its samples over a block and over the block after (one segment, every
+    window in both smooth; each :func:`turn_span_s` long, from the IMU's rate and noise) differ by more than
+    TURN_SIGMAS of their noise, which falls as the root of the samples; the windows about the blocks' boundary,
+    half a block either side, are turning (the whole outer block at either end of a run of such pairs: the
+    newest samples are tested by no later pair). ``smooth``: per window, :func:`_smooth`."""
     N = len(t)
-    k = int(round(TURN_SPAN_S / period)) if math.isfinite(period) and period > 0 else 0
     out = np.zeros(N, dtype=bool)
-    if k < 1 or N <= k or not (var_a > 0 and var_w > 0):
+    if N < 2 or not var_a > 0 or not (math.isfinite(period) and period > 0):
         return out
-    dof = np.maximum(3 * (n - 1), 1)
-    smooth = ok & (ssa < 2.0 * dof * var_a) & (ssw < 2.0 * dof * var_w)
-    a, b = np.arange(N - k), np.arange(k, N)
-    near = np.abs((t[b] - t[a]) - k * period) <= 0.25 * k * period  # no gap between them
-    norm = np.linalg.norm(mean_a, axis=1)
-    moved = np.linalg.norm(np.cross(mean_a[a] / norm[a, None], mean_a[b] / norm[b, None]), axis=1)
-    sigma = np.sqrt(var_a * (1.0 / n[a] + 1.0 / n[b])) / np.sqrt(norm[a] * norm[b])
-    turned = near & smooth[a] & smooth[b] & (moved > TURN_SIGMAS * sigma)
-    out[a] |= turned
-    out[b] |= turned
+    if not smooth.any():
+        return out
+    gravity = float(np.median(np.linalg.norm(a[smooth], axis=1)))
+    span = turn_span_s(math.sqrt(var_a), 1.0 / period, gravity)
+    # block [t_i, t_i + S) and the next, by cumulative sums over the samples (windows are the samples' own)
+    idx = np.arange(N)
+    mid = np.searchsorted(t, t + span, side="left")
+    end = np.searchsorted(t, t + 2.0 * span, side="left")
+    full = (end < N) & (t[np.minimum(end, N - 1)] - t <= 2.0 * span + 2.0 * period)
+    rough = np.concatenate([[0], np.cumsum(~smooth)])
+    steady = full & (rough[np.minimum(end, N)] - rough[idx] == 0) & (mid - idx >= 2) & (end - mid >= 2)
+    if not steady.any():
+        return out
+    i = np.flatnonzero(steady)
+    ca = np.concatenate([np.zeros((1, 3)), np.cumsum(a - a[0], axis=0)])
+    n_a, n_b = mid[i] - i, end[i] - mid[i]
+    mean_a = (ca[mid[i]] - ca[i]) / n_a[:, None]
+    mean_b = (ca[end[i]] - ca[mid[i]]) / n_b[:, None]
+    mean_a, mean_b = mean_a + a[0], mean_b + a[0]
+    norm_a, norm_b = np.linalg.norm(mean_a, axis=1), np.linalg.norm(mean_b, axis=1)
+    moved = np.linalg.norm(np.cross(mean_a / norm_a[:, None], mean_b / norm_b[:, None]), axis=1)
+    sigma = np.sqrt(var_a * (1.0 / n_a + 1.0 / n_b)) / np.sqrt(norm_a * norm_b)
+    turned = i[moved > TURN_SIGMAS * sigma]
+    if len(turned):  # the windows within half a block of each turning pair's boundary; at the ends of a run of
+        # pairs (the data's newest samples, a gap, a move) the whole outer block, which no later pair tests
+        # (to the smooth run's ends: the same windows a later pair would have tested, had there been one)
+        first = np.r_[True, ~steady[:-1]][turned]
+        last = np.r_[~steady[1:], True][turned]
+        rough_at = np.flatnonzero(~smooth)
+        run_start = np.r_[-1, rough_at][np.searchsorted(rough_at, turned, side="left")] + 1
+        run_end = np.r_[rough_at, N][np.searchsorted(rough_at, end[turned], side="left")]
+        lo = np.where(first, run_start, np.searchsorted(t, t[mid[turned]] - 0.5 * span, side="left"))
+        hi = np.where(last, run_end, np.searchsorted(t, t[mid[turned]] + 0.5 * span, side="left"))
+        mark = np.zeros(N + 1, dtype=np.int64)
+        np.add.at(mark, lo, 1)
+        np.add.at(mark, hi, -1)
+        out = np.cumsum(mark[:N]) > 0
     return out
 
 
