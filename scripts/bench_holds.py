@@ -4,6 +4,7 @@
     python scripts/bench_holds.py [--quick | --full] [--seeds 1] [--out /tmp/nrmpc_bench_matrix] [--workers 1]
                                   [--methods auto,6pt-bending] [--json results.json]
     python scripts/bench_holds.py --vga [--styles all] [--rigs all] [--seeds 1]   # the VGA style table
+    python scripts/bench_holds.py --random 24 [--random-start 0] [--workers 2]   # recordings drawn at random
 
 Matrix (the default, docs/RESULTS.md): small bags (320x240, f = 235 px, one ray per pixel, six holds, bars
 ringing with damping ratio 0.05) rendered once into --out with :func:`nrmpc_ros.render.bagmaker.make_bag`
@@ -53,6 +54,11 @@ both bar stiffnesses among them. ``--seeds N`` renders every cell with seeds 0 t
 noise and IMU biases: one seed is one draw of the accelerometer's bias for every cell, so a share within the stds
 over one seed tells little), and the table ends with the share within 1, 2 and 3 stds of every published gravity
 together, per method.
+
+``--random N`` replaces the matrix by N recordings drawn at random (:func:`random_recording`, seeds from
+``--random-start``): every feature of the styles above, combined as no style combines them (a 5 Hz camera beside
+a 20 Hz one on a 1.6 Hz bar ringing through 2 s holds, a third of them creeping, under a noisy 400 Hz IMU); each
+recording's recipe is printed after the table. The styles test one habit each; users have several at once.
 
 Every bag is replayed with each method through the same loop as ``nrmpc replay``. Per bag and method:
 coverage of the still holds after the first (target >= 0.9); estimates stamped in a creeping hold or while
@@ -396,6 +402,95 @@ QUICK = [("imu100", "ring3-stiff"), ("imu200", "ring3-stiff"), ("imu500", "cross
          ("calib", "ring3-soft"), ("calib", "cross4-stiff")]
 
 
+RANDOM_HABITS = (("encoding", "jpeg"), ("walker_speed", 1.2), ("vibration", 1.5), ("gyro_unit", "deg/s"),
+                 ("accel_unit", "g"), ("imu_lowpass_hz", 40.0), ("imu_stamp_jitter_ms", 6.0), ("imu_loss", 0.05),
+                 ("camera_latency_ms", 40.0), ("shutter_ms", 20.0), ("imu_clock_start_s", 1000.0),
+                 ("imu_covariance_scale", 0.2), ("imu_bias", 0.6))
+"""Habits a random recording takes, each with probability RANDOM_HABIT_P (with its companions: an uncalibrated
+chip's scales, lost samples' bursts, a motor's frequency)."""
+RANDOM_HABIT_P = 0.12
+
+
+def random_recording(seed: int) -> tuple:
+    """(rig, MotionOptions kwargs, BagOptions kwargs, recipe) of a recording drawn at random: 2 to 6 cameras,
+    each bar its own frequency within 1.5-8 Hz, damping 0.02-0.12, holds of random length, snapshots at any time
+    after the stop, streams or holds at 5-60 Hz, each camera its own rate and phase in some, an IMU at 50-1000 Hz
+    (or none) with its noise, biases and clock offset drawn, inside a camera in some, creeping holds in some, and
+    each of :data:`RANDOM_HABITS` in some: the styles' features combined as no style combines them."""
+    r = np.random.default_rng(seed)
+    M = int(r.integers(2, 7))
+    hz = np.exp(r.uniform(math.log(1.5), math.log(8.0), M))
+    rig = matrix_rigs()[f"{LAYOUT[M]}{M}-soft"]
+    rig = replace(rig, cameras=tuple(replace(c, EI=_bar_EI(float(h))) for c, h in zip(rig.cameras, hz)),
+                  source=f"<{M} cameras, bars {hz.min():.1f}-{hz.max():.1f} Hz>")
+    capture = str(r.choice(["holds", "snapshot", "stream"], p=[0.45, 0.25, 0.3]))
+    rate = float(r.choice([5, 10, 15, 20, 30, 60], p=[0.1, 0.3, 0.2, 0.15, 0.15, 0.1]))
+    imu = bool(r.random() > 0.12)
+    imu_rate = float(r.choice([50, 100, 200, 400, 1000]))
+    mo = {"views": int(r.integers(5, 9)), "rate": rate, "imu_rate": imu_rate, "capture": capture,
+          "hold_seconds_range": (float(r.uniform(1.2, 2.5)), float(r.uniform(2.5, 5.0))),
+          "min_move_seconds": float(r.uniform(0.5, 1.5)), "speed": float(r.uniform(15, 60)),
+          "move_profile": str(r.choice(["cosine", "min-jerk", "trapezoid"]))}
+    if capture == "snapshot":
+        mo["snapshot_delay"] = float(r.uniform(0.08, 1.0))
+    if r.random() < 0.25:
+        mo["camera_rates"] = tuple(float(x) for x in r.choice([5, 10, 12, 15, 20, 25, 30], M))
+        mo["camera_phases_ms"] = tuple(float(r.uniform(0, 1000.0 / x)) * 0.9 for x in mo["camera_rates"])
+    if r.random() < 0.15 and capture != "snapshot":
+        mo["creep_fraction"] = 1 / 3
+
+    def sometimes(p, draw):  # the coin first, then the value: the draws' order is the recordings' identity
+        return draw() if r.random() < p else 0.0
+
+    bo = {"damping": float(np.exp(r.uniform(math.log(0.02), math.log(0.12)))), "imu": imu,
+          "imu_bias": float(r.choice([0.02, 0.05, 0.1, 0.3])), "gyro_bias": float(r.uniform(0.0005, 0.01)),
+          "imu_noise": float(r.uniform(0.01, 0.08)), "gyro_noise": float(r.uniform(0.001, 0.006)),
+          "imu_time_offset_ms": sometimes(0.4, lambda: float(r.uniform(-20, 20))),
+          "jitter_ms": sometimes(0.4, lambda: float(r.uniform(0, 8))),
+          "drop_rate": sometimes(0.3, lambda: float(r.uniform(0, 0.03))),
+          "exposure_drift": 0.3 if r.random() < 0.2 else 0.0, "exposure_period_s": 10.0}
+    if bo["imu"] and r.random() < 0.2:
+        bo["imu_camera"] = int(r.integers(0, M))
+    for key, value in RANDOM_HABITS:
+        if r.random() < RANDOM_HABIT_P:
+            bo[key] = value
+            bo.update({"imu_bias": {"accel_scale_error": 0.02}, "imu_loss": {"imu_loss_burst_ms": 30.0},
+                       "vibration": {"vibration_hz": 45.0}}.get(key, {}))
+    if not bo["imu"]:
+        mo.pop("imu_rate")
+    recipe = ", ".join([f"{capture} at {mo['rate']:g} Hz"] + [f"{k}={_recipe_value(v)}" for k, v in
+                                                               sorted({**mo, **bo}.items())
+                                                               if k not in ("capture", "rate")])
+    return rig, mo, bo, recipe
+
+
+def _recipe_value(v) -> str:
+    if isinstance(v, (tuple, list)):
+        return "(" + ",".join(_recipe_value(x) for x in v) + ")"
+    return f"{v:.3g}" if isinstance(v, float) else str(v)
+
+
+def render_random(out: Path, seed: int) -> tuple:
+    """(bag dir, rig file, rig, recipe) of random recording ``seed`` (:func:`random_recording`), rendered if
+    missing (written beside, then renamed)."""
+    rig, mo, bo, recipe = random_recording(seed)
+    rig, bo, _ = style_rig(rig, bo)
+    rig_file = out / f"random-{seed}.yaml"
+    if not rig_file.exists():
+        save_rig(rig, rig_file, header=f"rig of scripts/bench_holds.py --random ({recipe})")
+    path = out / f"random-{seed}"
+    if not path.exists():
+        tmp = out / (path.name + ".partial")
+        if tmp.exists():
+            import shutil
+
+            shutil.rmtree(tmp)
+        make_bag(rig, tmp, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=SUPERSAMPLE, **bo),
+                 progress=False)
+        tmp.rename(path)
+    return path, rig_file, rig, recipe
+
+
 def file_rig(rig: Rig, bag: dict) -> Rig:
     """The rig the style's rig file carries: the rendered one, its IMU turned by ``rig_imu_turn_deg`` (a rotation
     vector in deg, as ``nrmpc make-bag --rig-imu-turn-deg``) and its cameras' rest rotations calibrated to
@@ -651,15 +746,20 @@ def run_cell(job) -> list:
     """Render (if missing) and score one (out, style, rig, methods, pipeline settings file or None, rays per
     pixel side, seed) cell; one result dict per method."""
     out, style, rig_name, methods, config, supersample, seed = job
-    path, rig_file = render_cell(out, style, rig_name, seed=seed, supersample=supersample)
+    recipe = None
+    if style == "random":  # a recording drawn at random (--random): its rig and habits from the seed
+        path, rig_file, rig, recipe = render_random(out, seed)
+        rig_name, with_imu = rig.source.strip("<>"), rig.imu is not None
+    else:
+        path, rig_file = render_cell(out, style, rig_name, seed=seed, supersample=supersample)
+        with_imu = matrix_styles()[style](1)[1].get("imu", True)
     cfg = None if config is None else from_mapping(PipelineConfig, load_mapping(config, "--config"), config)
     results = []
-    with_imu = matrix_styles()[style](1)[1].get("imu", True)
     for method in methods:
         if method == "auto" and not with_imu:  # auto is 6pt-bending there, and no IMU-only error to compare with
             continue
         r = score_cell(path, rig_file, method, config=cfg)
-        r.update(style=style, rig=rig_name, method=method, seed=seed)
+        r.update(style=style, rig=rig_name, method=method, seed=seed, recipe=recipe)
         results.append(r)
     return results
 
@@ -736,6 +836,9 @@ def main(argv=None) -> int:
     p.add_argument("--cells", help="comma-separated style:rig cells instead of --quick/--full")
     p.add_argument("--seeds", type=int, default=1, help="bags per cell, seeds 0 to N-1 (default 1): other noise, "
                    "IMU biases and hold attitudes for the same style and rig")
+    p.add_argument("--random", type=int, default=0, metavar="N", help="instead of the matrix, N recordings drawn "
+                   "at random, the styles' features combined (random_recording), seeds from --random-start")
+    p.add_argument("--random-start", type=int, default=0, help="the first random recording's seed (default 0)")
     p.add_argument("--json", help="also write the results as JSON")
     p.add_argument("--config", help="pipeline settings YAML (keys of PipelineConfig, as for nrmpc replay)")
     p.add_argument("--supersample", type=int, default=SUPERSAMPLE, choices=range(1, 9), metavar="{1..8}",
@@ -747,6 +850,9 @@ def main(argv=None) -> int:
     cells = [tuple(c.split(":")) for c in args.cells.split(",")] if args.cells else matrix_cells(args.full)
     jobs = [(out, s, r, args.methods.split(","), args.config, args.supersample, seed)
             for seed in range(args.seeds) for s, r in cells]
+    if args.random:
+        jobs = [(out, "random", "", args.methods.split(","), args.config, SUPERSAMPLE, seed)
+                for seed in range(args.random_start, args.random_start + args.random)]
     t0 = time.perf_counter()
     if args.workers > 1:
         from multiprocessing import Pool
@@ -761,6 +867,9 @@ def main(argv=None) -> int:
             print("\n".join(table(cell).split("\n")[2:]), file=sys.stderr, flush=True)
     print(table(results))
     print("\n" + pooled(results))
+    recipes = {r["seed"]: r["recipe"] for r in results if r.get("recipe")}
+    if recipes:
+        print("\n" + "\n".join(f"- random seed {seed}: {recipe}" for seed, recipe in sorted(recipes.items())))
     print(f"\n{len(jobs)} bags, {len(results)} replays in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=str))

@@ -31,6 +31,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
+import numpy as np
+
 from .imu_clock import MAX_LAG_S, ClockOffset, FarClockOffset
 from .imu_clock_holds import MAX_OFFSET_S, HoldsClockOffset, offset_from_turns
 
@@ -69,7 +71,12 @@ def measure_imu_clock(pipeline, ref, rig, estimates: list) -> MeasuredClockOffse
     if far is not None and far.unique:
         return None  # the moves single out no offset: the holds are not asked
     turns = _turns_between_holds(estimates, bool(pipeline.estimator.imu_check.refuted))
-    found = offset_from_turns(ref.imu_t, ref.imu_w, rig.imu, turns)
+    # the gyro's bias taken out (the stillness test's, from the IMU's own still samples: no clock in it): over a
+    # hold, a move and a hold, a bias of 0.5 deg/s turns the integral by degrees, beyond the pairs' agreement,
+    # and some shift of seconds then agreed better than the stamps
+    noise = pipeline.zupt.noise_in_use
+    w = ref.imu_w if noise is None else ref.imu_w - np.asarray(noise.gyro_bias, float).reshape(1, 3)
+    found = offset_from_turns(ref.imu_t, w, rig.imu, turns)
     if found is not None and found.refutes_stamps:
         return MeasuredClockOffset(found.offset_s, ClockEvidence.HOLDS, found)
     return None
