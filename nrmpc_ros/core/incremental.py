@@ -71,7 +71,7 @@ from .sequence_steps import (
     resect_on_landmarks,
     triangulated,
 )
-from .so3 import angle_between, normalize, tangent_basis
+from .so3 import angle_between, log_so3, normalize, tangent_basis
 from .tracks import Tracks
 
 RECONSIDER_SIGMAS = 3.0  # a pair's gravity contradicts the joint one beyond this many of its own stds only
@@ -250,6 +250,15 @@ class _View:
     def keys(self) -> np.ndarray:
         """:func:`_landmark_keys` of its observations."""
         return _landmark_keys(self.cam, self.track)
+
+
+ONE_ATTITUDE_DEG = 1.0
+"""Views of a sequence all within this rotation of the first share one attitude: pieces of one hold (split where
+the images or the IMU read motion in its middle), where the rig's holds lie 5-30 deg apart. Their bending differs
+by nothing a gravity could explain, so what gravity the images seem to tell there is the bars' state in each piece
+(a ringing bar's offset read as static bending: a split hold's first pieces published 93 deg off at a std of
+0.12 deg). Vision only, such a sequence publishes no gravity; with measured gravities, none surer than the
+measured one under its tilt's prior (the tilt and gravity are one thing at one attitude)."""
 
 
 @dataclass
@@ -1007,6 +1016,14 @@ class IncrementalSequence:
             return 0.0
         return max(float(angle_between(g, s.gravity)) for g in s.rivals)
 
+    def one_attitude(self) -> bool:
+        """Whether every view the current sequence has so far lies within :data:`ONE_ATTITUDE_DEG` of its first
+        view's attitude: a hold split into pieces, whose bending differs between them by nothing gravity
+        explains."""
+        views = self.seq.views
+        R0 = views[0].R
+        return all(float(np.linalg.norm(log_so3(R0.T @ v.R))) < math.radians(ONE_ATTITUDE_DEG) for v in views[1:])
+
     def _estimate(self, k, j, pm, res, first, elapsed) -> ViewEstimate:
         s = self.seq
         self._noise_rad = res.sigma_rad
@@ -1023,6 +1040,18 @@ class IncrementalSequence:
             if spread > 0.0 and np.all(np.isfinite(cov)):
                 u = normalize(g)
                 cov = cov + spread ** 2 * float(g @ g) * (np.eye(3) - np.outer(u, u))
+            if self.one_attitude():  # (docs/PIPELINE.md, "Gravity of a young sequence")
+                priors = self._priors(len(s.views))
+                if priors is None:
+                    g = cov = None
+                    sigma = math.inf
+                else:  # no better than the measured gravity under its tilt's prior
+                    active = priors.active
+                    floor = math.hypot(float(np.min(priors.sigma_rad[active])) if active.any() else 0.0,
+                                       priors.bias_sigma_rad or 0.0)
+                    if sigma < floor and np.all(np.isfinite(cov)):
+                        cov = cov * (floor / max(sigma, 1e-300)) ** 2
+                        sigma = floor
         if g is not None:
             self._last_gravity = (k, g, sigma)
         vk = s.views[k]
@@ -1049,4 +1078,5 @@ class IncrementalSequence:
                                self.threshold, self.options, self.seed, t0)
 
 
-__all__ = ["IncrementalSequence", "NewSequence", "SequenceRecord", "StartReason", "ViewEstimate", "parallel_bars"]
+__all__ = ["ONE_ATTITUDE_DEG", "IncrementalSequence", "NewSequence", "SequenceRecord", "StartReason", "ViewEstimate",
+           "parallel_bars"]
