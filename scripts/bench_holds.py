@@ -479,16 +479,23 @@ def render_random(out: Path, seed: int) -> tuple:
     if not rig_file.exists():
         save_rig(rig, rig_file, header=f"rig of scripts/bench_holds.py --random ({recipe})")
     path = out / f"random-{seed}"
-    if not path.exists():
-        tmp = out / (path.name + ".partial")
-        if tmp.exists():
-            import shutil
-
-            shutil.rmtree(tmp)
-        make_bag(rig, tmp, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=SUPERSAMPLE, **bo),
-                 progress=False)
-        tmp.rename(path)
+    _render_once(path, rig, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=SUPERSAMPLE, **bo))
     return path, rig_file, rig, recipe
+
+
+def _render_once(path: Path, rig: Rig, options: BagOptions) -> None:
+    """Render the bag ``path`` unless it exists: written beside it, then renamed (never half a bag)."""
+    if path.exists():
+        return
+    tmp = path.parent / (path.name + ".partial")
+    if tmp.exists():
+        import shutil
+
+        shutil.rmtree(tmp)
+    t0 = time.perf_counter()
+    make_bag(rig, tmp, options, progress=False)
+    tmp.rename(path)
+    print(f"rendered {path.name} in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
 
 
 def file_rig(rig: Rig, bag: dict) -> Rig:
@@ -521,17 +528,7 @@ def render_cell(out: Path, style: str, rig_name: str, seed: int = 0, supersample
     if not rig_file.exists():
         save_rig(file_rig(rig, style_bag), rig_file, header="rig of scripts/bench_holds.py (matrix)")
     path = out / (f"{style}-{rig_name}-{seed}" + ("" if supersample == SUPERSAMPLE else f"-ss{supersample}"))
-    if not path.exists():
-        tmp = out / (path.name + ".partial")
-        if tmp.exists():
-            import shutil
-
-            shutil.rmtree(tmp)
-        t0 = time.perf_counter()
-        make_bag(rig, tmp, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=supersample, **bo),
-                 progress=False)
-        tmp.rename(path)
-        print(f"rendered {path.name} in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    _render_once(path, rig, BagOptions(motion=MotionOptions(**mo), seed=seed, supersample=supersample, **bo))
     return path, rig_file
 
 

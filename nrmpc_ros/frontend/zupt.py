@@ -567,15 +567,14 @@ def _turning(t, a, smooth, var_a: float, period: float) -> np.ndarray:
     end = np.searchsorted(t, t + 2.0 * span, side="left")
     full = (end < N) & (t[np.minimum(end, N - 1)] - t <= 2.0 * span + 2.0 * period)
     rough = np.concatenate([[0], np.cumsum(~smooth)])
-    steady = full & (rough[np.minimum(end, N)] - rough[idx] == 0) & (mid - idx >= 2) & (end - mid >= 2)
+    steady = full & (rough[end] - rough[idx] == 0) & (mid - idx >= 2) & (end - mid >= 2)
     if not steady.any():
         return out
     i = np.flatnonzero(steady)
     ca = np.concatenate([np.zeros((1, 3)), np.cumsum(a - a[0], axis=0)])
     n_a, n_b = mid[i] - i, end[i] - mid[i]
-    mean_a = (ca[mid[i]] - ca[i]) / n_a[:, None]
-    mean_b = (ca[end[i]] - ca[mid[i]]) / n_b[:, None]
-    mean_a, mean_b = mean_a + a[0], mean_b + a[0]
+    mean_a = (ca[mid[i]] - ca[i]) / n_a[:, None] + a[0]
+    mean_b = (ca[end[i]] - ca[mid[i]]) / n_b[:, None] + a[0]
     norm_a, norm_b = np.linalg.norm(mean_a, axis=1), np.linalg.norm(mean_b, axis=1)
     moved = np.linalg.norm(np.cross(mean_a / norm_a[:, None], mean_b / norm_b[:, None]), axis=1)
     sigma = np.sqrt(var_a * (1.0 / n_a + 1.0 / n_b)) / np.sqrt(norm_a * norm_b)
