@@ -533,11 +533,11 @@ def render_cell(out: Path, style: str, rig_name: str, seed: int = 0, supersample
 
 
 def still_holds(bag, ref) -> list:
-    """(start, end) stamps of the ground truth's holds in which the body is still (zero angular velocity at
-    every ground-truth stamp but those within the stamp tolerance of the ends: a hold's last pose, the same to
-    a hundredth of a degree, may be a camera's trigger a few ms into the next move): static_holds minus the
-    creeping ones (a creep's poses, a few ms apart between cameras of other rates, may repeat to the tolerance:
-    a run at no stamp of which the body is still is no hold either)."""
+    """(start, end) stamps of the ground truth's holds in which the body is still: of each of static_holds, the
+    stamps from its first to its last of zero angular velocity, where none between turns. A hold's ends, the same
+    pose to a hundredth of a degree, may be a move's slow start or end (a minimum-jerk move turns at 0.02 rad/s 30
+    ms before it stops): trimmed off. A creep's poses, a few ms apart between cameras of other rates, may repeat
+    to the tolerance: a run at no stamp of which the body is still is no hold."""
     holds = static_holds(ref)
     if not bag.has_topic(ANGULAR_VELOCITY_TOPIC):
         return holds
@@ -546,9 +546,13 @@ def still_holds(bag, ref) -> list:
         t.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
         w.append(math.sqrt(msg.vector.x ** 2 + msg.vector.y ** 2 + msg.vector.z ** 2))
     t, w = np.array(t), np.array(w)
-    tol = STAMP_TOLERANCE_S
-    return [(a, b) for a, b in holds if not np.any(w[(t > a + tol) & (t < b - tol)] > 0)
-            and np.any(w[(t >= a) & (t <= b)] == 0)]
+    out = []
+    for a, b in holds:
+        inside = (t >= a) & (t <= b)
+        zero = t[inside & (w == 0)]
+        if len(zero) and not np.any(w[(t > zero[0]) & (t < zero[-1])] > 0):
+            out.append((float(zero[0]), float(zero[-1])))
+    return out
 
 
 def _truth_at(ref, stamp: float):

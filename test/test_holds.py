@@ -282,6 +282,22 @@ def test_without_an_imu_settled_frames_that_drift_are_a_creep(period):
     assert still is not None and still.settled_frames == F, why
 
 
+@pytest.mark.parametrize("period", [0.0, 1.0 / 7.0, 2.0])
+def test_without_an_imu_two_frames_of_a_stream_do_not_show_the_rig_still(period):
+    """A slow creep moves the image less than its noise from one frame to the next: two frames of a stream (a
+    pause in a creep that the moves around it cut short) show no drift, nor does a line through them show a
+    ringing, yet nothing shows the rig at rest there. Without an IMU they are refused; three frames that do
+    not drift, or an IMU that says still, make a hold."""
+    cfg = HoldConfig()
+    two, why = record(np.zeros((2, 2)), noise=0.01, seed=5)[0].measure(cfg, bar_period_s=period)
+    assert two is None and why.rule is Refusal.NOT_STILL, two
+    told, why = record(np.zeros((2, 2)), noise=0.01, seed=5)[0].measure(cfg, bar_period_s=period,
+                                                                        imu_still_since=0.0)
+    assert told is not None, why
+    three, why = record(np.zeros((3, 2)), noise=0.01, seed=5)[0].measure(cfg, bar_period_s=period)
+    assert three is not None and three.settled_frames == 3, why
+
+
 def test_a_short_hold_ringing_as_far_as_its_measured_stop_allows_is_used():
     """A hold shorter than a bar period after an abrupt stop (too few frames to fit the ringing): its frames are
     used with their spread as the penalty when they ring no further than the stop the IMU measured sets off,

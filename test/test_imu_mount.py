@@ -9,7 +9,14 @@ import pytest
 
 from nrmpc_ros.core.so3 import exp_so3, log_so3, rotation_angle
 from nrmpc_ros.frontend.gyro import GyroRotation
-from nrmpc_ros.frontend.imu_mount import AxesVerdict, describe_imu_axes, imu_axes_from_turns, wahba
+from nrmpc_ros.frontend.imu_mount import (
+    AxesVerdict,
+    describe_imu_axes,
+    imu_axes_from_turns,
+    turn_refutes_axes,
+    turns_share_axes,
+    wahba,
+)
 
 GYRO_SIGMA = math.radians(0.2)
 READ_NOISE = math.radians(0.02)
@@ -132,3 +139,26 @@ def test_turns_that_fit_no_rotation_the_others_fit_are_left_out():
         assert f"{n_bad} more that fit none left out" in describe_imu_axes(axes, np.eye(3))
     worse = [off(k, np.eye(3)[k]) for k in range(3)] + turns[3:]
     assert imu_axes_from_turns(worse, _gravities(rng, D, 2)).verdict is AxesVerdict.NOT_MEASURABLE
+
+
+def test_turns_that_refute_the_axes_each_its_own_way_do_not_put_them_off():
+    """Axes off turn every turn's rotation vector by one rotation and keep its angle. Two images' turns in other
+    basins (a snapshot rig of three cameras: 7.7 deg off the gyro's at a std of 1.9, and 15 deg off at 1.4, the
+    gyro right to a tenth) each refute the rig file's axes, but no one rotation fits both: the axes stand. A turn
+    whose angle differs from the gyro's refutes nothing of them; two turns of axes 40 deg off share them."""
+    rng = np.random.default_rng(11)
+
+    def turn(r_images_deg, r_gyro_deg, images_sigma_deg):
+        return (exp_so3(np.radians(r_images_deg)), math.radians(images_sigma_deg),
+                GyroRotation(exp_so3(np.radians(r_gyro_deg)), math.radians(0.3), 100))
+
+    turned = turn([22.99, 11.02, -2.28], [22.42, 3.30, -1.53], 1.9)  # 7.7 deg off, the same angle within its std
+    longer = turn([-29.75, 2.12, 17.79], [-19.25, 13.0, 15.17], 1.4)  # 6.4 deg longer than the gyro's
+    assert turn_refutes_axes(turned) and not turn_refutes_axes(longer)
+    other = turn([-14.0, 18.0, 9.0], [-19.25, 13.0, 15.17], 1.4)  # turned otherwise, the angle the gyro's
+    assert turn_refutes_axes(other) and not turns_share_axes([turned, other])
+    D = exp_so3(np.radians([0.0, 0.0, 40.0]))  # turns of 25 deg about x and y differ from the gyro's by 17 deg
+    off = [(R, math.radians(0.3), g) for R, _, g in _turns(rng, D, 2, axes=[[1.0, 0.0, 0.2], [0.0, 1.0, -0.2]],
+                                                             noise_rad=math.radians(0.3))]
+    assert all(turn_refutes_axes(t) for t in off) and turns_share_axes(off)
+    assert not turns_share_axes(off[:1])  # one turn alone: not enough to put them off

@@ -14,6 +14,7 @@ from nrmpc_ros.errors import InputError
 from nrmpc_ros.frontend.imu import ImuReject
 from nrmpc_ros.frontend.mount_ringing import MountBar, static_bend
 from nrmpc_ros.frontend.noise_correlation import mean_variance_factor
+from nrmpc_ros.frontend.steady_turn import steady_turn
 from nrmpc_ros.frontend.zupt import (
     ImuNoise,
     NoiseSource,
@@ -187,6 +188,30 @@ def test_a_motors_vibration_the_covariances_do_not_claim_is_noise_not_motion(rng
         assert h0 - 0.25 <= f0 < h0 + 0.3 and h1 - 0.3 < f1 <= h1 + 0.25
     quiet = estimate_noise(*still_trace(rng, rate=rate), covariance=(cov_a, cov_w))
     assert quiet.source is NoiseSource.COVARIANCE  # no vibration: the claim stands
+
+
+@pytest.mark.parametrize("rate, hz, rms", [(50.0, 20.0, 0.3), (200.0, 45.0, 1.5), (400.0, 45.0, 1.5),
+                                           (200.0, 12.0, 0.5), (1000.0, 35.0, 1.0)])
+def test_under_a_vibration_a_still_run_ends_where_the_move_starts(rate, hz, rms):
+    """A vibration's rocking makes the gyro's noise per sample degrees a second: the windows' sum of squares
+    takes a move's first and last tenths of a second (turning at a degree a second) for noise, and the still
+    run they join turns through its span, so the steady-turn test refuses the hold (a snapshot 0.8 s after its
+    stop: 6 of 7 holds lost). The rocking's sine averages out of a window's mean rate, which sees those ends: each
+    run ends within 0.08 s of its hold, and no run turns."""
+    rng = np.random.default_rng(3)
+    plan = [("hold", 3.0), ("move", 1.0), ("hold", 3.0), ("move", 1.2), ("hold", 3.0)]
+    t, a, w, holds = trace(rng, rate, plan)
+    shake = np.sqrt(2.0) * rms * np.array([0.6, 0.5, 0.62]) / np.linalg.norm([0.6, 0.5, 0.62])
+    a = a + shake * np.sin(2 * np.pi * hz * t[:, None] + np.array([0.3, 1.9, 4.0]))
+    w = w + shake / (0.2 * 2 * np.pi * hz) * np.sin(2 * np.pi * hz * t[:, None] + np.array([2.1, 0.4, 5.0]))
+    cov_a, cov_w = (np.eye(3) * 0.02 ** 2).ravel(), (np.eye(3) * 0.002 ** 2).ravel()
+    noise = estimate_noise(t, a, w, covariance=(cov_a, cov_w))
+    found = still_intervals(t, a, w, noise)
+    assert len(found) == len(holds)
+    for (f0, f1), (h0, h1) in zip(found, holds):
+        assert h0 - 0.08 <= f0 and f1 <= h1 + 0.08
+        inside = (t >= f0) & (t <= f1)
+        assert not steady_turn(t[inside], w[inside], noise, ZuptConfig()).turning
 
 
 def test_noise_from_covariance_or_data(rng):
@@ -902,6 +927,38 @@ def test_a_creep_the_accelerometer_sees_turn_is_no_bias(rng, rate, creep_deg_s):
     assert np.linalg.norm(noise.gyro_bias - BIAS) < 0.4 * np.deg2rad(creep_deg_s)
     if creep_deg_s >= 0.5:  # (0.2 deg/s is about the windowed test's limit: the steady-turn test's to find)
         assert not still_mask(t, accel, gyro, noise)[(t > 4.0) & (t < 6.0)].any()
+
+
+@pytest.mark.parametrize("rate, accel_sigma, gyro_sigma", [(50.0, 0.056, 0.0045), (200.0, 0.03, 0.003),
+                                                         (1000.0, 0.1, 0.004)])
+def test_creeps_that_together_outlast_the_still_hold_are_no_bias(rate, accel_sigma, gyro_sigma):
+    """A still hold of 2.1 s, then two holds that each creep at 0.5 deg/s for 1.7 s, one about a level axis and
+    one about the vertical (which the accelerometer does not see), moves between: the creeps' windows outnumber
+    the still ones (their median was the creeps'). The still windows share the bias and each creep is a cluster
+    of its own: the bias is the densest of the windows' mean rates, and the turn the accelerometer sees is told
+    over a creep hold's two halves where it is shorter than two of the blocks the IMU's noise asks for (1.4 s
+    at 50 Hz). (A lone creep about the vertical as long as every still hold so far is as dense: nothing the IMU
+    reads tells them apart.)"""
+    rng = np.random.default_rng(7)
+    plan = [("still", 2.1, None), ("move", 1.0, AXIS), ("creep", 1.7, np.array([0.6, 0.8, 0.0])),
+            ("move", 1.0, -AXIS), ("creep", 1.7, np.array([0.0, 0.0, 1.0])), ("move", 0.2, AXIS)]
+    t = np.arange(0.0, sum(d for _, d, _ in plan), 1.0 / rate)
+    w, t0 = np.zeros((len(t), 3)), 0.0
+    for kind, d, axis in plan:
+        m = (t >= t0) & (t < t0 + d)
+        if kind == "move":
+            w[m] = 0.6 * np.sin(np.pi * (t[m] - t0) / d)[:, None] ** 2 * axis
+        elif kind == "creep":
+            w[m] = np.deg2rad(0.5) * axis
+        t0 += d
+    R = [np.eye(3)]
+    for k in range(1, len(t)):
+        R.append(R[-1] @ exp_so3(0.5 * (w[k] + w[k - 1]) * (t[k] - t[k - 1])))
+    accel = np.einsum("nji,j->ni", np.array(R), np.array([0.0, 0.0, 9.81])) + \
+        rng.normal(scale=accel_sigma, size=(len(t), 3))
+    gyro = w + BIAS + rng.normal(scale=gyro_sigma, size=(len(t), 3))
+    noise = estimate_noise(t, accel, gyro)
+    assert np.linalg.norm(noise.gyro_bias - BIAS) < 0.1 * np.deg2rad(0.5)
 
 
 @pytest.mark.parametrize("rate, accel_sigma", [(50.0, 0.08), (400.0, 0.065), (1000.0, 0.1)])

@@ -31,7 +31,7 @@ from .gyro import GyroRotation
 from .holds import Hold, RingingSource
 from .imu import ImuGravity, ImuRefusal
 from .imu_agreement import Agreement, ImuGravityCheck
-from .imu_mount import MIN_TURNS, TURNS_KEPT, imu_axes_from_turns, turn_refutes_axes
+from .imu_mount import TURNS_KEPT, imu_axes_from_turns, turn_refutes_axes, turns_share_axes
 from .linking import CORNER_BIAS_PX, HoldLinker
 
 
@@ -195,7 +195,8 @@ class HoldEstimator:
         # a hold and its test's reference, the gyro's turns between composed) and sequences' without its gravity
         self.axes_turns: deque = deque(maxlen=TURNS_KEPT)
         self._gyro_turns: dict = {}  # hold stamp -> (the hold before's stamp, R, std rad): the gyro's turns
-        self._turns_refuting = 0  # of them, those that refute the gyro's turn as the rig file reads it
+        self._turns_refuting: deque = deque(maxlen=TURNS_KEPT)  # of them, those that refute the gyro's turn as
+        # the rig file reads it
         self.consumed = 0  # measured holds run so far (the intake counts those it made: the difference waits)
         self._hold_stamps: list = []  # stamp of every hold of the current sequence
         self._broken_stamps: dict = {}  # sequence number -> its holds' stamps, for the sequences a break ended
@@ -225,7 +226,7 @@ class HoldEstimator:
         self.imu_check.reset()
         self.axes_turns.clear()
         self._gyro_turns.clear()
-        self._turns_refuting = 0
+        self._turns_refuting.clear()
         self.images_gravities.clear()
         self._hold_stamps = []
         self._broken_stamps = {}
@@ -411,12 +412,12 @@ class HoldEstimator:
     def _axes_verdict(self, item: MeasuredHold, off: bool) -> ImuRefusal | None:
         """What the turn (and the gravity) the pair test's images-only estimate just measured says of the IMU's
         axes, with the earlier ones (:mod:`.imu_mount`): :attr:`ImuRefusal.AXES_OFF` where they put them off the
-        rig file's, or where this turn and an earlier one each refute the gyro's turn as the rig file reads it (the
-        IMU's gravity is not used again: :meth:`~.imu_agreement.ImuGravityCheck.refuse_axes`);
-        :attr:`ImuRefusal.TURN_REFUTED` where this turn alone does (this hold's is not used); else None. The turn
-        goes to ``on_turn`` too. A sequence resting on the IMU's gravity also takes the gyro's turns as priors: the
-        first refuted turn is the first hold that would have been published off. ``off``: the axes are off already
-        (the turn is only kept)."""
+        rig file's, or where this turn and the earlier ones that each refute the gyro's turn as the rig file reads it
+        fit one rotation (:func:`~.imu_mount.turns_share_axes`; the IMU's gravity is not used again:
+        :meth:`~.imu_agreement.ImuGravityCheck.refuse_axes`); :attr:`ImuRefusal.TURN_REFUTED` where this turn
+        alone does (this hold's is not used); else None. The turn goes to ``on_turn`` too. A sequence resting on
+        the IMU's gravity also takes the gyro's turns as priors: the first refuted turn is the first hold that
+        would have been published off. ``off``: the axes are off already (the turn is only kept)."""
         check = self.imu_check
         if item.turn is not None:
             self._gyro_turns[item.hold.stamp] = item.turn
@@ -433,10 +434,11 @@ class HoldEstimator:
         if off:
             return None
         refutes = turn_refutes_axes(turn)
-        self._turns_refuting += refutes
+        if refutes:
+            self._turns_refuting.append(turn)
         sigma = math.hypot(item.imu_sigma_rad, item.tilt_sigma_rad or 0.0)
         axes = imu_axes_from_turns(list(self.axes_turns), list(self.images_gravities.values()), sigma)
-        if (axes is not None and axes.off) or (refutes and self._turns_refuting >= MIN_TURNS):
+        if (axes is not None and axes.off) or (refutes and turns_share_axes(self._turns_refuting)):
             check.refuse_axes()
             return ImuRefusal.AXES_OFF
         return ImuRefusal.TURN_REFUTED if refutes else None

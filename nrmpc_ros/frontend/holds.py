@@ -51,6 +51,7 @@ from .ringing_turns import turn_back
 EXPLAINED_NOISE_SIGMAS = 3.0  # a fit explains a camera's offsets: residual within this many of their noise ...
 EXPLAINED_SHARE = 0.1  # ... or within this share of the offsets' spread (the ringing it removed)
 CREEP_SIGMAS = 3.0  # without an IMU a hold whose ringing's rest moves beyond this many stds (and thr) creeps
+CREEP_MIN_FRAMES = 3  # a rest that moves is judged over at least this many frames (a line and its scatter)
 TRIMMED_SHARES = (0.125, 0.25, 0.375)  # without an IMU, a fit is tried again without this share of the last frames
 TAIL_MISFIT = 3.0  # ... where the first fit's residual RMS in those frames is at least this many times the rest's
 OUTLIER_FACTOR = 5.0  # a frame further off a camera's fit than this many times its median frame is left out
@@ -411,6 +412,13 @@ class HoldRecorder:
             settled = _longest_run(at_rest) if at_rest.any() else at_rest
             creep = _creep_px([None] * M, cams, own_tau, offsets, settled) \
                 if imu_still_since is None and settled.sum() >= max(need, 1) else None
+            if creep is None and imu_still_since is None and not self.snapshot and settled.sum() >= max(need, 1):
+                # a stream's settled frames too few for any camera's drift to be judged: as with one frame,
+                # nothing shows the rig at rest there (a slow creep moves the image less than its noise from one
+                # frame to the next; only a line through CREEP_MIN_FRAMES of them shows it)
+                return None, HoldRefusal(Refusal.NOT_STILL, (
+                    f"{int(settled.sum())} settled frames of a stream, fewer than the {CREEP_MIN_FRAMES} that show "
+                    f"the images do not drift"))
             if creep is not None and creep[1] > max(thr, CREEP_SIGMAS * creep[2]):
                 # the images alone judge stillness: settled frames whose image drifts are a creep (the frames
                 # within the bound of the rest are then the few the drift passes through)
@@ -557,7 +565,7 @@ def _oscillates(tau: np.ndarray, offsets: np.ndarray, period_s: float) -> bool:
     a bar period and a straight line through them drifts less than twice their spread about their mean (a
     ramp drifts 3.5 times its spread, an oscillation over a period or more less than 1.5 times)."""
     span = float(tau[-1] - tau[0]) if len(tau) > 1 else 0.0
-    if span < period_s:
+    if span < period_s or len(tau) < CREEP_MIN_FRAMES:  # a line passes through two frames, whatever they show
         return False
     x = tau - tau.mean()
     y = offsets - np.nanmean(offsets, axis=0)
@@ -617,12 +625,12 @@ def _creep_px(fits: list, cams: list, tau: np.ndarray, offsets: np.ndarray, sett
     (``fits[i]``) is judged with its ringing about a rest that moves linearly (:meth:`.ringing.RingingFit.drift`;
     a hold that creeps slowly while its bars ring keeps its frames near their first one and its ringing
     explained; only its rest moves) over at least MIN_FIT_FRAMES frames; the others with a rest alone that moves
-    (:func:`.ringing.rest_drift`) over at least three."""
+    (:func:`.ringing.rest_drift`) over at least CREEP_MIN_FRAMES."""
     worst = None
     for k, i in enumerate(cams):
         tau_i = tau[:, i]
         use = settled & np.isfinite(offsets[:, k]).all(axis=1)
-        if use.sum() < (MIN_FIT_FRAMES if fits[i] is not None else 3):
+        if use.sum() < (MIN_FIT_FRAMES if fits[i] is not None else CREEP_MIN_FRAMES):
             continue
         v, sd = fits[i].drift(tau_i[use], offsets[use, k]) if fits[i] is not None else \
             rest_drift(tau_i[use], offsets[use, k], np.ones((int(use.sum()), 1)))

@@ -111,6 +111,10 @@ TURN_REFUTES_DEG = 3.0
 file's axes (beside its chi-square): axes 10 deg off differ by 3-5 deg on turns of 20-30 deg, a bars' model off by
 two by about 1 deg."""
 
+SAME_ANGLE_CHI2 = 10.8
+"""A turn's angle agrees with the gyro's within this chi-square (1 degree of freedom, at 1 - 1e-3) of their
+difference in the turn's std per axis: the axes may be off (:func:`turn_refutes_axes`)."""
+
 MAX_AXES_SIGMA_DEG = 5.0
 """The largest std (deg) of the measured axes about any direction that still gives a verdict: turns about one axis
 leave the angle about it unknown."""
@@ -268,11 +272,31 @@ def imu_axes_from_turns(turns, gravities=(), gravity_sigma_rad: float = 0.0) -> 
 def turn_refutes_axes(turn) -> bool:
     """Whether one turn (R_images, its std rad per axis, GyroRotation) refutes the rig file's axes: the images'
     rotation vector differs from the gyro's by more than :data:`ONE_TURN_CHI2` in their stds (D = I) and by more
-    than :data:`TURN_REFUTES_DEG`. A turn about D's own axis cannot show D; any other shows it at once."""
+    than :data:`TURN_REFUTES_DEG`, while their angles agree within :data:`SAME_ANGLE_CHI2`. A turn about D's own
+    axis cannot show D; any other shows it at once. Axes off turn the rotation vector and keep its length: a turn
+    whose angle differs from the gyro's is an images' estimate in another basin (or a gyro in other units), and
+    refutes nothing of the axes."""
     R, s, g = turn
-    residual = log_so3(np.asarray(R, dtype=float)) - log_so3(g.R)
+    r_i, r_g = log_so3(np.asarray(R, dtype=float)), log_so3(g.R)
+    residual = r_i - r_g
     squared = float(residual @ residual)
-    return squared * _turn_weight(s, g) > ONE_TURN_CHI2 and squared > math.radians(TURN_REFUTES_DEG) ** 2
+    w = _turn_weight(s, g)
+    same_angle = (float(np.linalg.norm(r_i)) - float(np.linalg.norm(r_g))) ** 2 * w <= SAME_ANGLE_CHI2
+    return squared * w > ONE_TURN_CHI2 and squared > math.radians(TURN_REFUTES_DEG) ** 2 and same_angle
+
+
+def turns_share_axes(turns) -> bool:
+    """Whether turns that each refute the rig file's axes (:func:`turn_refutes_axes`) fit one rotation D: every
+    one of them within :data:`ONE_TURN_CHI2` of the D they fit together. Axes off turn every turn by the same D
+    and keep its angle; two-hold estimates in other basins are off each its own way (and often by the angle too,
+    which no D changes): they refute the images' turns, not the axes."""
+    if len(turns) < MIN_TURNS:
+        return False
+    r_i = np.array([log_so3(np.asarray(R, dtype=float)) for R, _, _ in turns])
+    r_g = np.array([log_so3(g.R) for _, _, g in turns])
+    w = np.array([_turn_weight(s, g) for _, s, g in turns])
+    _, chi2_turns, _ = _fit(r_i, r_g, w)
+    return bool(np.all(chi2_turns <= ONE_TURN_CHI2))
 
 
 def _turn_weight(sigma_images_rad: float, gyro) -> float:
@@ -418,5 +442,5 @@ class AxesMeasuringPass:
 
 __all__ = ["AXES_PRECISION_DEG", "AXES_TOLERANCE_DEG", "AxesMeasuringPass", "AxesVerdict", "FIT_SPREAD",
            "GRAVITY_AGREEMENT_QUANTILE", "IMAGES_TURN_SIGMA_RAD", "MAX_AXES_SIGMA_DEG", "MIN_TURNS", "MeasuredImuAxes",
-           "ONE_TURN_CHI2", "TURNS_KEPT", "TURN_REFUTES_DEG", "WRONG_AXES_CHI2", "describe_imu_axes", "imu_axes",
-           "imu_axes_from_turns", "turn_refutes_axes", "wahba"]
+           "ONE_TURN_CHI2", "SAME_ANGLE_CHI2", "TURNS_KEPT", "TURN_REFUTES_DEG", "WRONG_AXES_CHI2", "describe_imu_axes",
+           "imu_axes", "imu_axes_from_turns", "turn_refutes_axes", "turns_share_axes", "wahba"]

@@ -112,7 +112,15 @@ from ..core.loss import MAD_TO_STD
 from ..errors import InputError
 from .imu import ImuBuffer, ImuReject
 from .mount_ringing import RINGING_PARAMETERS, MountBar, MountTurn, mount_bar, mount_ringing_hz, ringing_moments
-from .noise_correlation import autocorrelation, per_value, periodic, spread_null, statistic_null, vibration_period
+from .noise_correlation import (
+    autocorrelation,
+    mean_variance_factor,
+    per_value,
+    periodic,
+    spread_null,
+    statistic_null,
+    vibration_period,
+)
 
 # A window on a ringing mount spans at least this many periods of its ringing to be tested (a hair less than
 # one: a window of one period holds samples over one period less one sample's spacing, plus stamp jitter).
@@ -447,7 +455,11 @@ def estimate_noise(t, accel, gyro, cfg: ZuptConfig | None = None, covariance=Non
         # the quietest windows that do not turn; where hardly any are left, every smooth one that does not
         quiet = kept if kept.sum() >= min(_min_samples(cfg), calm.sum()) and kept.any() else \
             calm if calm.any() else quiet
-    bias = np.median(mean_w[ok][quiet], axis=0)
+    if extra:
+        bias = np.median(mean_w[ok][quiet], axis=0)
+    else:  # the densest of the calm windows' mean rates (not the quiet ones' median: creeps pull it)
+        pool = calm if calm.any() else quiet
+        bias = _bias_mode(mean_w[ok][pool], max(var_w, cfg.gyro_floor_rad_s ** 2) / n[ok][pool])
     size = float(np.linalg.norm(bias))
     if size > cfg.max_gyro_bias_rad_s:  # a rig turning steadily the whole time is moving, whatever its rate
         bias = bias * (cfg.max_gyro_bias_rad_s / size)
@@ -560,9 +572,18 @@ def _turning(t, a, smooth, var_a: float, period: float) -> np.ndarray:
     if not smooth.any():
         return out
     gravity = float(np.median(np.linalg.norm(a[smooth], axis=1)))
-    span = turn_span_s(math.sqrt(var_a), 1.0 / period, gravity)
-    # block [t_i, t_i + S) and the next, by cumulative sums over the samples (windows are the samples' own)
+    # each block S long, or half the smooth run it lies in where that is shorter (a creep shorter than two blocks
+    # is told by its two halves: a faster one, 0.2 deg/s times (S / its half)^(3/2), but a creep hold lasts as
+    # long as a still one, and a lone creep longer than the still holds so far outnumbers their windows)
     idx = np.arange(N)
+    edge = np.flatnonzero(np.diff(np.r_[0, smooth.astype(np.int8), 0]))
+    starts, ends = edge[::2], edge[1::2]  # the smooth runs [start, end)
+    length = np.zeros(N)
+    for s0, s1 in zip(starts, ends):  # (runs, not samples)
+        length[s0:s1] = t[s1 - 1] - t[s0]
+    span = np.clip(np.minimum(turn_span_s(math.sqrt(var_a), 1.0 / period, gravity), 0.5 * length),
+                   TURN_SPAN_S[0], TURN_SPAN_S[1])
+    # block [t_i, t_i + S) and the next, by cumulative sums over the samples (windows are the samples' own)
     mid = np.searchsorted(t, t + span, side="left")
     end = np.searchsorted(t, t + 2.0 * span, side="left")
     full = (end < N) & (t[np.minimum(end, N - 1)] - t <= 2.0 * span + 2.0 * period)
@@ -587,13 +608,49 @@ def _turning(t, a, smooth, var_a: float, period: float) -> np.ndarray:
         rough_at = np.flatnonzero(~smooth)
         run_start = np.r_[-1, rough_at][np.searchsorted(rough_at, turned, side="left")] + 1
         run_end = np.r_[rough_at, N][np.searchsorted(rough_at, end[turned], side="left")]
-        lo = np.where(first, run_start, np.searchsorted(t, t[mid[turned]] - 0.5 * span, side="left"))
-        hi = np.where(last, run_end, np.searchsorted(t, t[mid[turned]] + 0.5 * span, side="left"))
+        lo = np.where(first, run_start, np.searchsorted(t, t[mid[turned]] - 0.5 * span[turned], side="left"))
+        hi = np.where(last, run_end, np.searchsorted(t, t[mid[turned]] + 0.5 * span[turned], side="left"))
         mark = np.zeros(N + 1, dtype=np.int64)
         np.add.at(mark, lo, 1)
         np.add.at(mark, hi, -1)
         out = np.cumsum(mark[:N]) > 0
     return out
+
+
+BIAS_MODE_CHI2 = 16.3
+"""A window's mean rate lies within this chi-square (3 degrees of freedom, at 1 - 1e-3) of the gyro's bias in its
+std when the rig stood still through it (:func:`_bias_mode`)."""
+
+MEDIAN_CHI2_3 = 2.366
+"""The median of chi-square with 3 degrees of freedom: half of the still windows' mean rates lie within it of the
+bias."""
+
+BIAS_CANDIDATES = 256
+"""The windows' mean rates tried as the centre of the still windows' cluster (:func:`_bias_mode`; evenly spread)."""
+
+BIAS_POOL = 4096
+"""The windows (evenly spread) whose mean rates :func:`_bias_mode` counts about each candidate."""
+
+
+def _bias_mode(means: np.ndarray, var_mean: np.ndarray) -> np.ndarray:
+    """The gyro's bias from windows' mean rates (K, 3) and each one's variance per axis (K,): the densest of them
+    (the median of those within :data:`MEDIAN_CHI2_3` of the mean rate that gathers most there), then the median
+    of those within :data:`BIAS_MODE_CHI2` of it. Still windows share the bias; a creeping hold's windows read it
+    plus their creep, each hold its own way, so where a creep lasts as long as a still hold the still holds
+    together still gather most (a median of the windows is pulled by a share of every creep: a third of the
+    holds creeping at 0.5 deg/s under a 50 Hz gyro put it 0.17-0.6 deg/s off, and the still holds after read as
+    turns)."""
+    if len(means) == 0:
+        return np.zeros(3)
+    # neighbouring windows share most of their samples: every few of them tell the clusters as well
+    pool = np.arange(0, len(means), max(len(means) // BIAS_POOL, 1))
+    m, v = means[pool], var_mean[pool]
+    c = m[::max(len(m) // BIAS_CANDIDATES, 1)]
+    d2 = (np.sum(c ** 2, axis=1)[:, None] + np.sum(m ** 2, axis=1)[None, :] - 2.0 * c @ m.T) / v[None, :]  # (C, K)
+    near = d2 <= MEDIAN_CHI2_3  # the densest: a wider ball about a point between two clusters gathers both
+    b = np.median(m[near[int(np.argmax(near.sum(axis=1)))]], axis=0)
+    inside = np.sum((means - b) ** 2, axis=1) / var_mean <= BIAS_MODE_CHI2
+    return np.median(means[inside], axis=0) if inside.any() else b
 
 
 def _bias_through_vibration(noise: ImuNoise, t, a, w, cfg: ZuptConfig) -> ImuNoise:
@@ -690,8 +747,8 @@ def _statistic(t, a, w, noise: ImuNoise, cfg: ZuptConfig):
     s_w = max(float(noise.gyro_sigma), cfg.gyro_floor_rad_s)
     s_a = max(float(noise.accel_sigma), cfg.accel_floor_m_s2)
     bias = np.asarray(noise.gyro_bias, dtype=float).reshape(3)
-    (mean_a, ssa, _), (_, _, ssw), extra = _ringing_moments(a, w, t, i0, i1, np.median(a, axis=0) if len(a) else
-                                                            np.zeros(3), bias, cfg)
+    (mean_a, ssa, _), (mean_w, _, ssw), extra = _ringing_moments(a, w, t, i0, i1, np.median(a, axis=0) if len(a)
+                                                                 else np.zeros(3), bias, cfg)
     stat = ssw / s_w ** 2 + ssa / s_a ** 2
     ok = _testable(t, i0, i1, period, cfg)
     out = np.full(len(t), np.nan)
@@ -705,7 +762,22 @@ def _statistic(t, a, w, noise: ImuNoise, cfg: ZuptConfig):
                 s_a ** 2 * mean_factor + spread ** 2)
         from scipy.special import chdtri  # a chi-square quantile; imported where used (0.3-0.5 s)
         out[ok] = stat / (c * per_value(lambda k: chdtri(k, cfg.significance), nu))  # c chi2.isf(significance, nu)
+        if not extra:  # (on a ringing mount the window's mean rate holds part of a period of the swing)
+            out[ok] = np.maximum(out[ok], _mean_rate_statistic(mean_w[ok] - bias, n[ok], s_w, noise, cfg))
     return out, brk
+
+
+def _mean_rate_statistic(rate: np.ndarray, n: np.ndarray, s_w: float, noise: ImuNoise, cfg: ZuptConfig):
+    """Per window: its mean rate less the bias (K, 3), n samples, against what a still rig's mean holds (the
+    noise's s_w^2 times the correlated mean's factor over n, and the bias's stability), over its chi-square(3)
+    threshold at the test's significance. The sum of squares weighs a slow turn's rate as one part among the
+    noise's 3 n; a vibration makes that noise large, and the ends of a move at a degree a second pass under it,
+    while its sine averages out of the window's mean: the mean alone sees the turn (docs/PIPELINE.md, "Holds")."""
+    from scipy.special import chdtri  # imported where used
+
+    factor = per_value(lambda k: np.array([mean_variance_factor(noise.gyro_correlation, int(v)) for v in k]), n)
+    var = s_w ** 2 * factor / np.maximum(n, 1) + cfg.gyro_bias_stability_rad_s ** 2
+    return np.einsum("ij,ij->i", rate, rate) / var / float(chdtri(3, cfg.significance))
 
 
 def still_statistic(t, accel, gyro, noise: ImuNoise, cfg: ZuptConfig | None = None,
