@@ -161,6 +161,16 @@ def test_noise_free_imu_uses_the_floors(rng):
     assert len(iv) == 2 and iv[0][1] < 2.0 and iv[1][0] > 3.0
 
 
+def vibrating_trace(rng, rate, hz, rms):
+    """:func:`trace` of three holds and two moves under a motor's vibration of ``rms`` m/s^2 at ``hz``: on each
+    accelerometer axis a sine of its own amplitude and phase, and the gyro's rocking with it (a pivot 0.2 m away)."""
+    t, a, w, holds = trace(rng, rate, [("hold", 3.0), ("move", 1.0), ("hold", 3.0), ("move", 1.2), ("hold", 3.0)])
+    shake = np.sqrt(2.0) * rms * np.array([0.6, 0.5, 0.62]) / np.linalg.norm([0.6, 0.5, 0.62])
+    a = a + shake * np.sin(2 * np.pi * hz * t[:, None] + np.array([0.3, 1.9, 4.0]))
+    w = w + shake / (0.2 * 2 * np.pi * hz) * np.sin(2 * np.pi * hz * t[:, None] + np.array([2.1, 0.4, 5.0]))
+    return t, a, w, holds
+
+
 @pytest.mark.parametrize("rate, hz, rms", [(50.0, 20.0, 0.3), (100.0, 30.0, 0.5), (200.0, 45.0, 1.5),
                                            (200.0, 120.0, 2.0), (1000.0, 35.0, 1.0), (1000.0, 150.0, 3.0),
                                            (100.0, 8.0, 0.5), (200.0, 12.0, 0.5), (100.0, 95.0, 0.5)])
@@ -172,11 +182,7 @@ def test_a_motors_vibration_the_covariances_do_not_claim_is_noise_not_motion(rng
     vibration slower than a window (an engine at idle, 8-12 Hz; 95 Hz read at 100 Hz, aliased to 5) returns
     within four windows' lags, and the gyro's bias is its mean over the still samples, not the quietest
     windows' means (which catch its rocking at one phase)."""
-    plan = [("hold", 3.0), ("move", 1.0), ("hold", 3.0), ("move", 1.2), ("hold", 3.0)]
-    t, a, w, holds = trace(rng, rate, plan)
-    shake = np.sqrt(2.0) * rms * np.array([0.6, 0.5, 0.62]) / np.linalg.norm([0.6, 0.5, 0.62])
-    a = a + shake * np.sin(2 * np.pi * hz * t[:, None] + np.array([0.3, 1.9, 4.0]))
-    w = w + shake / (0.2 * 2 * np.pi * hz) * np.sin(2 * np.pi * hz * t[:, None] + np.array([2.1, 0.4, 5.0]))
+    t, a, w, holds = vibrating_trace(rng, rate, hz, rms)
     cov_a, cov_w = (np.eye(3) * 0.02 ** 2).ravel(), (np.eye(3) * 0.002 ** 2).ravel()
     noise = estimate_noise(t, a, w, covariance=(cov_a, cov_w))
     assert noise.source is NoiseSource.VIBRATION and noise.claimed == (0.02, 0.002)
@@ -199,11 +205,7 @@ def test_under_a_vibration_a_still_run_ends_where_the_move_starts(rate, hz, rms)
     stop: 6 of 7 holds lost). The rocking's sine averages out of a window's mean rate, which sees those ends: each
     run ends within 0.08 s of its hold, and no run turns."""
     rng = np.random.default_rng(3)
-    plan = [("hold", 3.0), ("move", 1.0), ("hold", 3.0), ("move", 1.2), ("hold", 3.0)]
-    t, a, w, holds = trace(rng, rate, plan)
-    shake = np.sqrt(2.0) * rms * np.array([0.6, 0.5, 0.62]) / np.linalg.norm([0.6, 0.5, 0.62])
-    a = a + shake * np.sin(2 * np.pi * hz * t[:, None] + np.array([0.3, 1.9, 4.0]))
-    w = w + shake / (0.2 * 2 * np.pi * hz) * np.sin(2 * np.pi * hz * t[:, None] + np.array([2.1, 0.4, 5.0]))
+    t, a, w, holds = vibrating_trace(rng, rate, hz, rms)
     cov_a, cov_w = (np.eye(3) * 0.02 ** 2).ravel(), (np.eye(3) * 0.002 ** 2).ravel()
     noise = estimate_noise(t, a, w, covariance=(cov_a, cov_w))
     found = still_intervals(t, a, w, noise)
