@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from nrmpc_ros.core.incremental import IncrementalSequence, NewSequence, StartReason, ViewEstimate
+from nrmpc_ros.core.incremental import GravityWithheld, IncrementalSequence, NewSequence, StartReason, ViewEstimate
 from nrmpc_ros.core.so3 import angle_between, exp_so3, rotation_angle
 from nrmpc_ros.sim.sequence import SequenceScenario, make_sequence
 from nrmpc_ros.sim.synthetic import RigSpec
@@ -47,8 +47,9 @@ def test_noise_free_views_are_exact_through_the_window(rig):
         assert rotation_angle(p.R[k].T @ v.R) < 1e-6 and np.linalg.norm(v.t - p.t[k]) < 1e-6
         if k < 3 and rig is LINE2:
             assert v.gravity is None and v.gravity_sigma_rad == math.inf
+            assert v.gravity_withheld is GravityWithheld.YOUNG_PARALLEL_BARS  # said, not silent
         else:
-            assert float(angle_between(v.gravity, p.gravity[k])) < 1e-6
+            assert float(angle_between(v.gravity, p.gravity[k])) < 1e-6 and v.gravity_withheld is None
 
 
 def test_window_keeps_the_information_of_retired_views(noisy):
@@ -522,6 +523,7 @@ def test_pieces_of_one_hold_tell_no_gravity_of_their_own(method):
     for v in pieces:
         if method == "6pt-bending":
             assert v.gravity is None and v.gravity_sigma_rad == math.inf
+            assert v.gravity_withheld is GravityWithheld.ONE_ATTITUDE
         else:
             assert v.gravity_sigma_rad >= 0.9 * math.radians(4.6)
     assert all(v.gravity is not None and v.gravity_sigma_rad < math.radians(4.0) for v in later)

@@ -337,6 +337,9 @@ def run(args) -> int:
                  if st.penalized_holds else ""))
     if st.dropped:
         print("not estimated: " + "; ".join(f"{k.message}: {v}" for k, v in sorted_counts(st.dropped)))
+    if st.gravity_withheld:
+        print("estimated without gravity: " + "; ".join(f"{k.value}: {v}"
+                                                       for k, v in sorted_counts(st.gravity_withheld)))
     if not st.holds:
         print(runner.pipeline.no_hold_report() or "no hold found: no frame set reached the pipeline")
     print(f"inputs dropped: {replay.drops.summary()}")

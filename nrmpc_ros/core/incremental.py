@@ -126,6 +126,16 @@ class StartReason(Enum):
     FEW_INLIERS = "too few of its landmarks kept by the joint solve"
 
 
+class GravityWithheld(Enum):
+    """Why a view's estimate carries no gravity though its sequence has one (docs/PIPELINE.md, "Gravity of a young
+    sequence"); the value is the phrase shown."""
+
+    YOUNG_PARALLEL_BARS = ("its sequence is young and every bar lies along one axis: their bending says nothing of "
+                           "gravity's component along it, and a few holds leave two basins (vision only)")
+    ONE_ATTITUDE = ("every hold of its sequence lies within 1 deg of the first one's attitude: pieces of one hold, "
+                    "whose bending differs by nothing gravity explains (vision only)")
+
+
 @dataclass(frozen=True)
 class NewSequence:
     """:meth:`IncrementalSequence.add_view`'s result for a view that starts a sequence: the sequence number,
@@ -187,6 +197,7 @@ class ViewEstimate:
     # continues: that sequence (``merged``) is current again, the one it could not join was broken (a sequence
     # of its own it never had)
     continued: bool = False
+    gravity_withheld: GravityWithheld | None = None  # why gravity is None where the sequence has one
 
 
 @dataclass
@@ -1031,6 +1042,9 @@ class IncrementalSequence:
         self._gravity_inflation = gravity_inflation(res)
         g = cov = None
         sigma = math.inf
+        withheld = None
+        if self.with_gravity and s.gravity is not None and not self.gravity_resolved(k):
+            withheld = GravityWithheld.YOUNG_PARALLEL_BARS
         if self.with_gravity and s.gravity is not None and self.gravity_resolved(k):
             g = s.views[k].R.T @ s.gravity
             # the local std knows one basin only: the spread to rival basins enters it (docs/PIPELINE.md)
@@ -1045,6 +1059,7 @@ class IncrementalSequence:
                 if priors is None:
                     g = cov = None
                     sigma = math.inf
+                    withheld = GravityWithheld.ONE_ATTITUDE
                 else:  # no better than the measured gravity under its tilt's prior
                     active = priors.active
                     floor = math.hypot(float(np.min(priors.sigma_rad[active])) if active.any() else 0.0,
@@ -1059,7 +1074,7 @@ class IncrementalSequence:
                             gravity=g, gravity_sigma_rad=sigma, cov_gravity=cov,
                             cov_pose=res.pose_covariance(k, body=True), num_observations=len(vk.cam),
                             num_inliers=int(np.count_nonzero(vk.inlier)), window=k + 1 - first,
-                            time_s=elapsed)
+                            time_s=elapsed, gravity_withheld=withheld)
 
     # ----------------------------------------------------------------- batch
     def batch(self) -> SequenceEstimate:
@@ -1078,5 +1093,5 @@ class IncrementalSequence:
                                self.threshold, self.options, self.seed, t0)
 
 
-__all__ = ["ONE_ATTITUDE_DEG", "IncrementalSequence", "NewSequence", "SequenceRecord", "StartReason", "ViewEstimate",
-           "parallel_bars"]
+__all__ = ["ONE_ATTITUDE_DEG", "GravityWithheld", "IncrementalSequence", "NewSequence", "SequenceRecord", "StartReason",
+           "ViewEstimate", "parallel_bars"]

@@ -214,6 +214,7 @@ class ServiceDiagnostics:
                   "hold estimate median (ms)": _median(estimate)}
         values.update({f"methods: {m}": n for m, n in sorted(st.methods.items())})
         values.update({f"not estimated: {k.message}": n for k, n in sorted_counts(st.dropped)})
+        values.update({f"estimated without gravity: {k.value}": n for k, n in sorted_counts(st.gravity_withheld)})
         inputs = set(s.camera_topics) | {s.imu_topic}
         total, dropped = self._drops_of({src for src, _ in s.drops.counts()} - inputs)
         values.update(dropped)

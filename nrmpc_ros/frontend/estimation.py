@@ -461,6 +461,8 @@ class HoldEstimator:
         st = self.stats
         st.estimates += 1
         st.methods[v.method] += 1
+        if v.gravity_withheld is not None:
+            st.gravity_withheld[v.gravity_withheld] += 1
         R, t = self.sequence.relative_pose(v.view, v.reference)
         if self.on_gravity is not None and imu is not None and v.gravity is not None:
             # the accelerometer's bias: the sequence's gravity with every hold's rotation into this one's frame

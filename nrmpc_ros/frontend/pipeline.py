@@ -179,6 +179,7 @@ class PipelineStats:
     merges: int = 0  # sequences a later hold linked to an earlier one, merged into it
     bridges: int = 0  # breaks the gyro bridged (the new sequence's gravity carried over)
     methods: Counter = field(default_factory=Counter)
+    gravity_withheld: Counter = field(default_factory=Counter)  # GravityWithheld -> estimates published without
     dropped: Counter = field(default_factory=Counter)  # Drop -> count (frames, holds, IMU samples)
     settle_s: list = field(default_factory=list)  # per measured hold
     residual_px: list = field(default_factory=list)
@@ -198,6 +199,7 @@ class PipelineStats:
                 "estimates": self.estimates,
                 "sequences": self.sequences, "merges": self.merges, "bridges": self.bridges,
                 "methods": dict(self.methods), "dropped": {k.message: n for k, n in sorted_counts(self.dropped)},
+                "gravity_withheld": {k.value: n for k, n in sorted_counts(self.gravity_withheld)},
                 "median_settle_s": med(self.settle_s), "median_residual_px": med(self.residual_px),
                 "median_noise_px": med(self.noise_px), "median_averaged_noise_px": med(self.averaged_noise_px),
                 "covariance_distrusted_at": self.covariance_distrusted_at}
