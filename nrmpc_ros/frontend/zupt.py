@@ -355,6 +355,17 @@ def _windows(t: np.ndarray, period: float, cfg: ZuptConfig):
     lo = np.minimum(np.maximum(t - half, first), np.maximum(last - 2.0 * half, first))
     i0 = np.maximum(np.searchsorted(t, lo, side="left"), starts[seg])
     i1 = np.minimum(np.searchsorted(t, lo + 2.0 * half, side="right"), ends[seg])
+    # a link that loses samples (one or two at a time, shorter than a gap) leaves some windows short of the
+    # samples a test needs: such a window spans as many samples as it needs about its own (within its segment),
+    # not an untestable verdict that cuts the still run around it (5 % lost in 30 ms bursts at 50 Hz: 7 % of the
+    # windows, every hold cut into two or three)
+    m = _min_samples(cfg)
+    short = np.flatnonzero(i1 - i0 < m)
+    if len(short):
+        s0, s1 = starts[seg[short]], ends[seg[short]]
+        first_i = np.clip(short - (m - 1) // 2, s0, np.maximum(s1 - m, s0))
+        i0[short] = np.minimum(i0[short], first_i)
+        i1[short] = np.minimum(np.maximum(i1[short], first_i + m), s1)
     return i0, i1, brk
 
 
