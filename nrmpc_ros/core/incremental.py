@@ -248,6 +248,8 @@ class _View:
     key: object = None  # what names the view (the hold's stamp), for the turns of later views
     turn: tuple | None = None  # (key of the view before it, R: p_before = R p_this, std rad) from the gyro
     tilt_sigma: float | None = None  # prior std (rad) of the measured gravity's tilt known at this view
+    scale_tilt: float = 0.0  # std (rad) of the tilt uncalibrated axis scales may give this view's measured gravity
+    scales_unknown: bool | None = None  # whether the accelerometer's scales are known to be uncalibrated at this view
     obs_scale: np.ndarray | None = None  # (n,) each observation's noise over the view's (None: all 1)
 
     def __post_init__(self):
@@ -318,8 +320,13 @@ class _Sequence:
         return np.array([v.measured for v in self.views[:upto]])
 
     def measured_sigmas(self, upto: int | None = None) -> np.ndarray:
-        """(K,) the measured gravity's std (rad) of views [0, upto)."""
-        return np.array([v.measured_sigma for v in self.views[:upto]])
+        """(K,) the measured gravity's std (rad) of views [0, upto): with the tilt its axes' scales may give each
+        view where the newest of them that knows says the scales are uncalibrated (as for the tilt's prior: the
+        evidence grows, and a view measured before it showed keeps the same attitude-dependent error)."""
+        vs = self.views[:upto]
+        known = [v.scales_unknown for v in vs if v.scales_unknown is not None]
+        unknown = known[-1] if known else False
+        return np.array([math.hypot(v.measured_sigma, v.scale_tilt) if unknown else v.measured_sigma for v in vs])
 
     def tilt_sigma(self, upto: int | None, default: float | None) -> float | None:
         """The prior std (rad) of the measured gravity's tilt in a solve of views [0, upto): the newest of them
@@ -521,7 +528,8 @@ class IncrementalSequence:
     def add_view(self, cam, track, f, measured_gravity=None, measured_sigma_rad: float | None = None,
                  noise_scale: float = 1.0, key=None, turn: tuple | None = None,
                  offset_rad: float = 0.0, unknown_turn_rad=None,
-                 tilt_sigma_rad: float | None = None, obs_scale=None) -> ViewEstimate | NewSequence:
+                 tilt_sigma_rad: float | None = None, obs_scale=None, scale_tilt_rad: float = 0.0,
+                 scales_unknown: bool | None = None) -> ViewEstimate | NewSequence:
         """Add the next view's observations; returns its :class:`ViewEstimate`, or :class:`NewSequence` for a
         view that is the origin of a sequence (the first one, or one no earlier view links to).
         ``noise_scale`` (>= 1): the view's bearing noise std over the nominal one (a hold measured while
@@ -537,6 +545,9 @@ class IncrementalSequence:
         sequence's from then on (None: ``options.gravity_bias_sigma``; no tilt where that is None). ``obs_scale``
         (n,), each >= 1: an observation's own noise over the view's (a link whose position is a corner found in
         this hold, not the landmark's reference patch aligned: it carries the corner's viewpoint bias).
+        ``scale_tilt_rad``: the std of the tilt uncalibrated axis scales may give this view's measured gravity (its
+        attitude's), and ``scales_unknown`` whether the accelerometer is known so far to be such a chip (None: not
+        known); the newest view's word holds for every view of the sequence (:meth:`_Sequence.measured_sigmas`).
         """
         t0 = time.perf_counter()
         cam = np.asarray(cam, dtype=np.int64)
@@ -554,7 +565,9 @@ class IncrementalSequence:
                     float(offset_rad) if offset_rad > 0 and math.isfinite(offset_rad) else 0.0,
                     unknown_turn_rad=turned, key=key, turn=turn,
                     tilt_sigma=float(tilt_sigma_rad) if tilt_sigma_rad is not None and tilt_sigma_rad > 0 else None,
-                    obs_scale=_observation_scales(obs_scale, len(cam)))
+                    obs_scale=_observation_scales(obs_scale, len(cam)),
+                    scale_tilt=float(scale_tilt_rad) if math.isfinite(scale_tilt_rad) and scale_tilt_rad > 0 else 0.0,
+                    scales_unknown=scales_unknown)
         s.views.append(new)
         if k == 0:
             new.R, new.t = np.eye(3), np.zeros(3)

@@ -108,12 +108,18 @@ class AccelTiltEvidence:
 
     def scale_tilt_rad(self, accel_mean) -> float:
         """The std (rad) of the tilt the axes' unequal scales may give a hold whose mean accelerometer is
-        ``accel_mean`` (the sensor's axes), on a chip that :attr:`shows_bias` with a graded prior: the axes'
-        errors s_i independent, uniform within :data:`UNCALIBRATED_SCALE`, the tilt P (s * u) has variance
-        var(s) sum_i u_i^2 (1 - u_i^2). 0 otherwise (a calibrated chip's scales tilt nothing measurable)."""
+        ``accel_mean`` (the sensor's axes), on a chip that :attr:`shows_bias` with a graded prior
+        (:meth:`axes_scale_tilt_rad`); 0 otherwise (a calibrated chip's scales tilt nothing measurable)."""
+        return self.axes_scale_tilt_rad(accel_mean) if self.shows_bias else 0.0
+
+    def axes_scale_tilt_rad(self, accel_mean) -> float:
+        """The std (rad) of the tilt uncalibrated axis scales would give a hold whose mean accelerometer is
+        ``accel_mean``, with a graded prior (0 without): the axes' errors s_i independent, uniform within
+        :data:`UNCALIBRATED_SCALE`, the tilt P (s * u) has variance var(s) sum_i u_i^2 (1 - u_i^2). Kept with each
+        hold: a hold measured before the norms showed the chip uncalibrated has the same error."""
         a = np.asarray(accel_mean, dtype=float).reshape(3)
         n = float(np.linalg.norm(a))
-        if not (self.graded and self.shows_bias and n > 0 and math.isfinite(n)):
+        if not (self.graded and n > 0 and math.isfinite(n)):
             return 0.0
         u2 = (a / n) ** 2
         return UNCALIBRATED_SCALE / math.sqrt(3.0) * math.sqrt(float(np.sum(u2 * (1.0 - u2))))

@@ -111,6 +111,15 @@ class MeasuredHold:
     turn: tuple | None
     attempt: object | None = None
     tilt_sigma_rad: float | None = None
+    scale_tilt_rad: float = 0.0  # the tilt uncalibrated axis scales may give its IMU gravity (.accel_tilt)
+    scales_unknown: bool | None = None  # whether the norms show the accelerometer uncalibrated so far
+
+    @property
+    def gravity_sigma_rad(self) -> float | None:
+        """The IMU gravity's std as the sequence takes it now: with the scales' tilt where they are unknown."""
+        if self.imu_sigma_rad is None:
+            return None
+        return math.hypot(self.imu_sigma_rad, self.scale_tilt_rad) if self.scales_unknown else self.imu_sigma_rad
 
 
 @dataclass
@@ -250,7 +259,8 @@ class HoldEstimator:
             hold.unknown_ringing_px / np.array([c.focal_px for c in self.rig.cameras])
         out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale,
                                      key=hold.stamp, turn=item.turn, offset_rad=offset, unknown_turn_rad=unknown,
-                                     tilt_sigma_rad=item.tilt_sigma_rad, obs_scale=self._corner_scales(obs))
+                                     tilt_sigma_rad=item.tilt_sigma_rad, obs_scale=self._corner_scales(obs),
+                                     scale_tilt_rad=item.scale_tilt_rad, scales_unknown=item.scales_unknown)
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):
@@ -350,7 +360,7 @@ class HoldEstimator:
         g = np.asarray(first.imu.gravity, dtype=float).reshape(3)
         tilt = first.tilt_sigma_rad if first.tilt_sigma_rad is not None else \
             (self.sequence.options.gravity_bias_sigma or 0.0)
-        sigma = math.hypot(first.imu_sigma_rad or 0.0, tilt)
+        sigma = math.hypot(first.gravity_sigma_rad or 0.0, tilt)
         cov = gravity_covariance(g, sigma ** 2 * np.eye(2))
         if started.reason is not StartReason.FIRST_VIEW:
             self.stats.dropped[Drop.new_sequence(started.reason)] -= 1
@@ -436,7 +446,7 @@ class HoldEstimator:
         refutes = turn_refutes_axes(turn)
         if refutes:
             self._turns_refuting.append(turn)
-        sigma = math.hypot(item.imu_sigma_rad, item.tilt_sigma_rad or 0.0)
+        sigma = math.hypot(item.gravity_sigma_rad, item.tilt_sigma_rad or 0.0)
         axes = imu_axes_from_turns(list(self.axes_turns), list(self.images_gravities.values()), sigma)
         if (axes is not None and axes.off) or (refutes and turns_share_axes(self._turns_refuting)):
             check.refuse_axes()

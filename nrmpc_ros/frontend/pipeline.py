@@ -843,13 +843,15 @@ class Pipeline:
         st.settled_frames.append(hold.settled_frames)
         imu = self._imu_gravity(hold)
         sigma = tilt = None
+        scale_tilt = 0.0
         if imu is not None:
             white = imu.accel_mean_std / self.rig.gravity_magnitude
             tilt = self.accel_tilt.observe_still(imu.accel_mean, imu.accel_mean_std ** 2).prior_sigma_rad
-            # the averaged noise, the floor, and on a chip nobody calibrated the tilt its axes' scales may give
-            # this attitude, which the joint estimate's constant tilt cannot take (:mod:`.accel_tilt`)
-            sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg),
-                               self.accel_tilt.scale_tilt_rad(imu.accel_mean))
+            # the averaged noise and the floor; on a chip nobody calibrated, the tilt its axes' scales may give
+            # this attitude, which the joint estimate's constant tilt cannot take, goes with it (:mod:`.accel_tilt`;
+            # the sequence adds it to every hold once the norms show such a chip)
+            sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg))
+            scale_tilt = self.accel_tilt.axes_scale_tilt_rad(imu.accel_mean)
             if self.extrinsics is not None:  # every still hold tells the accelerometer's bias, under that prior
                 self.extrinsics.set_bias_prior(self.rig.gravity_magnitude * math.tan(tilt))
                 self.extrinsics.observe_still(hold.stamp, imu.accel_mean, imu.accel_mean_std, 1)
@@ -859,7 +861,7 @@ class Pipeline:
             self._last_hold = hold
         self._handed += 1
         return self._hand_over(MeasuredHold(hold, imu, sigma, turn, attempt if self.hold_log is not None else None,
-                                            tilt))
+                                            tilt, scale_tilt, self.accel_tilt.shows_bias if imu is not None else None))
 
     def _gyro_rotation(self, before: Hold, after: Hold):
         """(``before``'s stamp, R, std rad): the body's rotation from hold ``after`` into hold ``before`` from the
