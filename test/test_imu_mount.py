@@ -14,6 +14,7 @@ from nrmpc_ros.frontend.imu_mount import (
     describe_imu_axes,
     imu_axes_from_turns,
     turn_refutes_axes,
+    turn_refutes_gyro,
     turns_share_axes,
     wahba,
 )
@@ -155,6 +156,7 @@ def test_turns_that_refute_the_axes_each_its_own_way_do_not_put_them_off():
     turned = turn([22.99, 11.02, -2.28], [22.42, 3.30, -1.53], 1.9)  # 7.7 deg off, the same angle within its std
     longer = turn([-29.75, 2.12, 17.79], [-19.25, 13.0, 15.17], 1.4)  # 6.4 deg longer than the gyro's
     assert turn_refutes_axes(turned) and not turn_refutes_axes(longer)
+    assert turn_refutes_gyro(longer)  # its hold's IMU gravity is not used (a gyro in other units turns so too)
     other = turn([-14.0, 18.0, 9.0], [-19.25, 13.0, 15.17], 1.4)  # turned otherwise, the angle the gyro's
     assert turn_refutes_axes(other) and not turns_share_axes([turned, other])
     D = exp_so3(np.radians([0.0, 0.0, 40.0]))  # turns of 25 deg about x and y differ from the gyro's by 17 deg

@@ -31,7 +31,7 @@ from .gyro import GyroRotation
 from .holds import Hold, RingingSource
 from .imu import ImuGravity, ImuRefusal
 from .imu_agreement import Agreement, ImuGravityCheck
-from .imu_mount import TURNS_KEPT, imu_axes_from_turns, turn_refutes_axes, turns_share_axes
+from .imu_mount import TURNS_KEPT, imu_axes_from_turns, turn_refutes_axes, turn_refutes_gyro, turns_share_axes
 from .linking import CORNER_BIAS_PX, HoldLinker
 
 
@@ -422,12 +422,13 @@ class HoldEstimator:
     def _axes_verdict(self, item: MeasuredHold, off: bool) -> ImuRefusal | None:
         """What the turn (and the gravity) the pair test's images-only estimate just measured says of the IMU's
         axes, with the earlier ones (:mod:`.imu_mount`): :attr:`ImuRefusal.AXES_OFF` where they put them off the
-        rig file's, or where this turn and the earlier ones that each refute the gyro's turn as the rig file reads it
-        fit one rotation (:func:`~.imu_mount.turns_share_axes`; the IMU's gravity is not used again:
-        :meth:`~.imu_agreement.ImuGravityCheck.refuse_axes`); :attr:`ImuRefusal.TURN_REFUTED` where this turn
-        alone does (this hold's is not used); else None. The turn goes to ``on_turn`` too. A sequence resting on
-        the IMU's gravity also takes the gyro's turns as priors: the first refuted turn is the first hold that
-        would have been published off. ``off``: the axes are off already (the turn is only kept)."""
+        rig file's, or where this turn and the earlier ones that each refute the axes (:func:`~.imu_mount.
+        turn_refutes_axes`) fit one rotation (:func:`~.imu_mount.turns_share_axes`; the IMU's gravity is not used
+        again: :meth:`~.imu_agreement.ImuGravityCheck.refuse_axes`); :attr:`ImuRefusal.TURN_REFUTED` where this
+        turn refutes the gyro's (:func:`~.imu_mount.turn_refutes_gyro`: this hold's is not used); else None. The
+        turn goes to ``on_turn`` too. A sequence resting on the IMU's gravity also takes the gyro's turns as
+        priors: the first refuted turn is the first hold that would have been published off. ``off``: the axes
+        are off already (the turn is only kept)."""
         check = self.imu_check
         if item.turn is not None:
             self._gyro_turns[item.hold.stamp] = item.turn
@@ -443,8 +444,8 @@ class HoldEstimator:
         self.axes_turns.append(turn)
         if off:
             return None
-        refutes = turn_refutes_axes(turn)
-        if refutes:
+        refutes = turn_refutes_gyro(turn)
+        if refutes and turn_refutes_axes(turn):
             self._turns_refuting.append(turn)
         sigma = math.hypot(item.gravity_sigma_rad, item.tilt_sigma_rad or 0.0)
         axes = imu_axes_from_turns(list(self.axes_turns), list(self.images_gravities.values()), sigma)

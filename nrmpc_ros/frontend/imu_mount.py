@@ -269,20 +269,27 @@ def imu_axes_from_turns(turns, gravities=(), gravity_sigma_rad: float = 0.0) -> 
     return MeasuredImuAxes(D, cov, int(keep.sum()), spread, angles, chi2, int((~keep).sum()), fitted)
 
 
+def turn_refutes_gyro(turn) -> bool:
+    """Whether one turn (R_images, its std rad per axis, GyroRotation) refutes the gyro's turn as the rig file
+    reads it: the images' rotation vector differs from the gyro's by more than :data:`ONE_TURN_CHI2` in their
+    stds and by more than :data:`TURN_REFUTES_DEG` (axes off, a gyro in other units, or an images' estimate in
+    another basin: one turn does not tell which)."""
+    R, s, g = turn
+    residual = log_so3(np.asarray(R, dtype=float)) - log_so3(g.R)
+    squared = float(residual @ residual)
+    return squared * _turn_weight(s, g) > ONE_TURN_CHI2 and squared > math.radians(TURN_REFUTES_DEG) ** 2
+
+
 def turn_refutes_axes(turn) -> bool:
-    """Whether one turn (R_images, its std rad per axis, GyroRotation) refutes the rig file's axes: the images'
-    rotation vector differs from the gyro's by more than :data:`ONE_TURN_CHI2` in their stds (D = I) and by more
-    than :data:`TURN_REFUTES_DEG`, while their angles agree within :data:`SAME_ANGLE_CHI2`. A turn about D's own
-    axis cannot show D; any other shows it at once. Axes off turn the rotation vector and keep its length: a turn
-    whose angle differs from the gyro's is an images' estimate in another basin (or a gyro in other units), and
-    refutes nothing of the axes."""
+    """Whether one turn refutes the rig file's axes: it refutes the gyro's turn (:func:`turn_refutes_gyro`) while
+    their angles agree within :data:`SAME_ANGLE_CHI2`. A turn about D's own axis cannot show D; any other shows it
+    at once. Axes off turn the rotation vector and keep its length: a turn whose angle differs from the gyro's is
+    an images' estimate in another basin, or a gyro in other units, and refutes nothing of the axes."""
     R, s, g = turn
     r_i, r_g = log_so3(np.asarray(R, dtype=float)), log_so3(g.R)
-    residual = r_i - r_g
-    squared = float(residual @ residual)
-    w = _turn_weight(s, g)
-    same_angle = (float(np.linalg.norm(r_i)) - float(np.linalg.norm(r_g))) ** 2 * w <= SAME_ANGLE_CHI2
-    return squared * w > ONE_TURN_CHI2 and squared > math.radians(TURN_REFUTES_DEG) ** 2 and same_angle
+    same_angle = (float(np.linalg.norm(r_i)) - float(np.linalg.norm(r_g))) ** 2 * _turn_weight(s, g) <= \
+        SAME_ANGLE_CHI2
+    return same_angle and turn_refutes_gyro(turn)
 
 
 def turns_share_axes(turns) -> bool:
@@ -443,4 +450,4 @@ class AxesMeasuringPass:
 __all__ = ["AXES_PRECISION_DEG", "AXES_TOLERANCE_DEG", "AxesMeasuringPass", "AxesVerdict", "FIT_SPREAD",
            "GRAVITY_AGREEMENT_QUANTILE", "IMAGES_TURN_SIGMA_RAD", "MAX_AXES_SIGMA_DEG", "MIN_TURNS", "MeasuredImuAxes",
            "ONE_TURN_CHI2", "SAME_ANGLE_CHI2", "TURNS_KEPT", "TURN_REFUTES_DEG", "WRONG_AXES_CHI2", "describe_imu_axes",
-           "imu_axes", "imu_axes_from_turns", "turn_refutes_axes", "turns_share_axes", "wahba"]
+           "imu_axes", "imu_axes_from_turns", "turn_refutes_axes", "turn_refutes_gyro", "turns_share_axes", "wahba"]
