@@ -589,9 +589,11 @@ def _turning(t, a, smooth, var_a: float, period: float) -> np.ndarray:
     idx = np.arange(N)
     edge = np.flatnonzero(np.diff(np.r_[0, smooth.astype(np.int8), 0]))
     starts, ends = edge[::2], edge[1::2]  # the smooth runs [start, end)
-    length = np.zeros(N)
-    for s0, s1 in zip(starts, ends):  # (runs, not samples)
-        length[s0:s1] = t[s1 - 1] - t[s0]
+    run_len = t[ends - 1] - t[starts] if len(starts) else np.zeros(0)
+    mark = np.zeros(N + 1)
+    np.add.at(mark, starts, run_len)
+    np.add.at(mark, ends, -run_len)
+    length = np.cumsum(mark[:N])  # each sample's smooth run's length (0 outside one)
     span = np.clip(np.minimum(turn_span_s(math.sqrt(var_a), 1.0 / period, gravity), 0.5 * length),
                    TURN_SPAN_S[0], TURN_SPAN_S[1])
     # block [t_i, t_i + S) and the next, by cumulative sums over the samples (windows are the samples' own)
