@@ -121,6 +121,40 @@ def test_a_chip_nobody_calibrated_carries_the_tilt_its_axes_scales_may_give():
     assert _evidence(_holds(2, 0.6)[0], wide=0.0).scale_tilt_rad(G * up) == 0.0
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_the_norms_weigh_calibrated_against_uncalibrated(seed):
+    """The odds the joint estimate's two priors of the tilt get (:mod:`nrmpc_ros.core.tilt_mixture`): even
+    before a hold; a calibrated chip's norms at several attitudes favour the calibrated prior (the tilt they
+    show fits it), more so than holds at one attitude do; a 60 mg bias all but rules the calibrated prior out
+    (the norms show it); the user's calibrated word keeps one prior."""
+    before = AccelTiltEvidence(CALIBRATED, WIDE).calibration_odds()
+    assert before.log_odds == 0.0 and before.calibrated_sigma_rad == pytest.approx(CALIBRATED)
+    spread = _evidence(_holds(seed, 0.05)[0]).calibration_odds()
+    assert spread.log_odds > 2.0
+    assert CALIBRATED <= spread.calibrated_sigma_rad < 2 * CALIBRATED
+    assert spread.calibrated_sigma_rad == CALIBRATED
+    same = _holds(seed, 0.05, n=8, min_tilt_deg=20.0, max_tilt_deg=20.0)[0]
+    same = [same[0] + np.random.default_rng(k).normal(scale=0.002, size=3) for k in range(8)]
+    assert _evidence(same).calibration_odds().log_odds < spread.log_odds
+    biased = _evidence(_holds(seed, 0.6)[0])
+    assert biased.shows_bias and biased.calibration_odds().log_odds < -10.0
+    assert _evidence(_holds(seed, 0.05)[0], wide=0.0).calibration_odds() is None
+
+
+def test_a_few_holds_scattered_beyond_their_noise_show_no_bias_on_a_calibrated_chip():
+    """Five holds of a 2 mg chip whose averaged noise is twice what the samples' spread claims: the fitted tilt
+    is anything within the wide prior along the holds' mean direction (the old rule, the fitted tilt beyond twice
+    the calibrated prior, took 18 of 40 such chips for uncalibrated), but the norms' evidence does not favour an
+    uncalibrated chip: none is. A 30 mg bias on the same five holds is shown in most draws, a 60 mg one in all
+    but one."""
+    def shown(bias_ms2):
+        return sum(_evidence(_holds(seed, bias_ms2, n=5, noise_ms2=0.008)[0], noise_ms2=0.004).shows_bias
+                   for seed in range(40))
+
+    assert shown(0.02) == 0
+    assert shown(0.3) >= 20 and shown(0.6) >= 38
+
+
 def test_holds_that_tell_nothing_are_skipped():
     """A mean that is not finite, zero, or a variance that is not finite: not a hold."""
     tilt = AccelTiltEvidence(CALIBRATED, WIDE)
@@ -150,8 +184,8 @@ def _z_scores(bag, csv_path) -> np.ndarray:
 def test_replay_of_an_uncalibrated_accelerometer_keeps_every_gravity_within_its_std(tmp_path, capsys):
     """An accelerometer 80 mg off (4.7 deg at most; the IMU alone about 4 deg off): replay says the bias the norms
     show, and the bias vector to calibrate out (the bars' estimate under the same graded prior: 0.8 m/s^2 within
-    0.02, where the calibrated prior shrank it to 0.77), and estimates every hold within 3 of its std of the
-    truth. The calibrated prior kept (imu_bias_max_deg: 0) leaves estimates several stds off: what the evidence
+    0.02, where the calibrated prior shrank it to 0.77), weighs a calibrated chip's prior at nearly nothing, and
+    estimates every hold within 3 of its std of the truth. The calibrated prior kept (imu_bias_max_deg: 0) leaves estimates several stds off: what the evidence
     repairs."""
     from nrmpc_ros.cli.main import main
 
@@ -168,8 +202,11 @@ def test_replay_of_an_uncalibrated_accelerometer_keeps_every_gravity_within_its_
     assert abs(np.linalg.norm(np.array(vector.split(), dtype=float)) - 0.8) < 0.02, said[0]
     z = _z_scores(bag, tmp_path / "x.csv")
     assert len(z) == 6 and np.all(z < 3.0), z  # every hold (the first one's with the second's)
+    weighed = [ln for ln in text.splitlines() if ln.startswith("IMU calibration:")]
+    assert len(weighed) == 1 and float(weighed[0].split("weighed ")[1].split()[0]) < 0.05, weighed
     (tmp_path / "kept.yaml").write_text("imu_bias_max_deg: 0\n")
     assert main(["replay", str(bag), "--rig", str(rig), "--out", str(tmp_path / "y.csv"), "--no-progress",
                  "--config", str(tmp_path / "kept.yaml")]) == 0
-    assert "raise imu_bias_max_deg" in capsys.readouterr().out
+    kept = capsys.readouterr().out
+    assert "raise imu_bias_max_deg" in kept and "IMU calibration:" not in kept  # one prior: nothing weighed
     assert np.sum(_z_scores(bag, tmp_path / "y.csv") > 3.0) >= 2

@@ -11,6 +11,7 @@ from rendered_bags import IMU, rig_file, stream_bag
 
 from nrmpc_ros.core import load_rig
 from nrmpc_ros.core.so3 import angle_between
+from nrmpc_ros.core.tilt_mixture import prior_sigma_rad
 from nrmpc_ros.frontend.estimation import IMU_ONLY_METHOD, InputEnded, MeasuredHold, SequenceReset
 from nrmpc_ros.frontend.pipeline import Pipeline, PipelineConfig, RigState
 from nrmpc_ros.frontend.runner import PipelineRunner
@@ -67,9 +68,10 @@ def _stage_work(tmp_path_factory, method: str = "auto") -> tuple:
 @pytest.mark.slow
 def test_a_hold_no_later_hold_links_gets_the_imus_gravity_at_its_std(tmp_path_factory):
     """A reset right after the first hold leaves it alone: it is estimated from its averaged accelerometer at the
-    std of that average with the accelerometer's tilt prior, its pose the identity in its own origin; the holds
-    after the reset are estimated as a sequence of their own. The end of the input does the same for a last hold
-    alone, once, and a vision-only method never does it."""
+    std of that average with the accelerometer's tilt prior (its two, calibrated or not, as the norms weigh
+    them), its pose the identity in its own origin; the holds after the reset are estimated as a sequence of
+    their own. The end of the input does the same for a last hold alone, once, and a vision-only method never
+    does it."""
     rig, deferred, work = _stage_work(tmp_path_factory)
     holds = [w for w in work if w.is_hold]
     stage = deferred.pipeline.estimator
@@ -79,7 +81,7 @@ def test_a_hold_no_later_hold_links_gets_the_imus_gravity_at_its_std(tmp_path_fa
     e = alone[0]
     assert e.method == IMU_ONLY_METHOD and e.stamp == e.ref_stamp == e.origin_stamp == first.hold.stamp
     assert np.array_equal(e.gravity, first.imu.gravity) and np.array_equal(e.R, np.eye(3))
-    sigma = math.hypot(first.imu_sigma_rad, first.tilt_sigma_rad)
+    sigma = math.hypot(first.imu_sigma_rad, prior_sigma_rad(first.tilt_sigma_rad, first.calibration))
     assert e.gravity_sigma_deg == pytest.approx(math.degrees(sigma))
     u = e.gravity / np.linalg.norm(e.gravity)
     assert np.allclose(e.cov_gravity @ u, 0.0, atol=1e-12)

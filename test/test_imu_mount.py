@@ -146,7 +146,9 @@ def test_turns_that_refute_the_axes_each_its_own_way_do_not_put_them_off():
     """Axes off turn every turn's rotation vector by one rotation and keep its angle. Two images' turns in other
     basins (a snapshot rig of three cameras: 7.7 deg off the gyro's at a std of 1.9, and 15 deg off at 1.4, the
     gyro right to a tenth) each refute the rig file's axes, but no one rotation fits both: the axes stand. A turn
-    whose angle differs from the gyro's refutes nothing of them; two turns of axes 40 deg off share them."""
+    whose angle differs from the gyro's refutes nothing of them; three turns of axes 40 deg off share them (two
+    are not enough: each hold is refused, the axes stand); turns that a rotation fits each barely, but not
+    together over the fit's degrees of freedom, do not."""
     rng = np.random.default_rng(11)
 
     def turn(r_images_deg, r_gyro_deg, images_sigma_deg):
@@ -160,7 +162,16 @@ def test_turns_that_refute_the_axes_each_its_own_way_do_not_put_them_off():
     other = turn([-14.0, 18.0, 9.0], [-19.25, 13.0, 15.17], 1.4)  # turned otherwise, the angle the gyro's
     assert turn_refutes_axes(other) and not turns_share_axes([turned, other])
     D = exp_so3(np.radians([0.0, 0.0, 40.0]))  # turns of 25 deg about x and y differ from the gyro's by 17 deg
-    off = [(R, math.radians(0.3), g) for R, _, g in _turns(rng, D, 2, axes=[[1.0, 0.0, 0.2], [0.0, 1.0, -0.2]],
+    off = [(R, math.radians(0.3), g) for R, _, g in _turns(rng, D, 3, axes=[[1.0, 0.0, 0.2], [0.0, 1.0, -0.2],
+                                                                             [1.0, 1.0, 0.3]],
                                                              noise_rad=math.radians(0.3))]
     assert all(turn_refutes_axes(t) for t in off) and turns_share_axes(off)
-    assert not turns_share_axes(off[:1])  # one turn alone: not enough to put them off
+    assert not turns_share_axes(off[:2])  # two turns: each hold refused, the axes not yet put off
+    # the same snapshot rig on another pass: two turns 8 and 18 deg off, each a few deg longer than the gyro's.
+    # A 31 deg rotation fits each within 12.3 (the single turn's bound is 16.3), but the two together at 24.5
+    # over the three degrees of freedom the fit leaves: no one rotation
+    first = turn([23.01, 11.62, -2.37], [22.42, 3.30, -1.53], 1.884)
+    second = turn([-26.85, -3.16, 16.12], [-19.25, 13.0, 15.17], 1.151)
+    third = turn([-22.8, -2.8, 14.34], [-19.25, 13.0, 15.17], 2.44)  # the second's hold on yet another pass
+    assert turn_refutes_axes(first) and turn_refutes_axes(second) and turn_refutes_axes(third)
+    assert not turns_share_axes([first, second, third])

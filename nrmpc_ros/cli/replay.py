@@ -385,6 +385,12 @@ def run(args) -> int:
             tilt = describe_tilt(runner.pipeline.accel_tilt, runner.pipeline.extrinsics)
             if tilt:
                 print(f"IMU bias: {tilt}")
+            weights = [w for w in (r.extra.get("imu_calibrated_weight") for r in rows) if w is not None]
+            if weights:
+                print(f"IMU calibration: a calibrated accelerometer's tilt ({cfg.imu_bias_sigma_deg:g} deg) weighed "
+                      f"{np.median(weights):.2f} against its bias as the norms leave it open (median of "
+                      f"{len(weights)} estimates; 1: the images and norms agree with a calibrated chip, 0: they "
+                      f"refute one)")
             gyro_noise = describe_gyro_noise(noise) if args.imu_gyro_scale is None and \
                 replay.feeder.config.imu_gyro_scale == 1.0 else None  # (a scale given: the user's word stands)
             if gyro_noise:

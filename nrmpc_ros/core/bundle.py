@@ -904,11 +904,27 @@ class BundleResult:
     def points(self) -> np.ndarray:
         return self.state.points
 
-    def gravity_tangent_covariance(self, k: int = 0) -> np.ndarray:
-        """(2, 2) covariance (rad^2) of view k's gravity direction in tangent_basis(g_k)."""
+    def gravity_tilt_covariance(self, k: int = 0) -> np.ndarray | None:
+        """(5, 5) joint covariance of view k's gravity direction (rad, tangent_basis(g_k)) and the measured
+        gravity's tilt (3, ``state.bias``); None without a tilt or gravity, or where they are not observable
+        (:mod:`.tilt_mixture`)."""
         lay = self.layout
-        if lay.gravity is None or self.state.gravity is None:
-            return np.full((2, 2), np.inf)
+        if lay.gravity is None or lay.bias is None or self.state.gravity is None or self.state.bias is None:
+            return None
+        idx, Jm = self._gravity_jacobian(k)
+        cols = np.concatenate([idx, np.arange(lay.bias.start, lay.bias.stop)])
+        C = self.covariance[np.ix_(cols, cols)]
+        if not np.all(np.isfinite(C)):  # the gravity or the tilt not fixed by what was solved
+            return None
+        J = np.zeros((5, len(cols)))
+        J[:2, :len(idx)] = Jm
+        J[2:, len(idx):] = np.eye(3)
+        return J @ C @ J.T
+
+    def _gravity_jacobian(self, k: int) -> tuple:
+        """(columns, J (2, len)): view k's gravity direction in tangent_basis(g_k) per unit of the camera block's
+        columns it depends on (the origin's gravity and view k's rotation)."""
+        lay = self.layout
         g0 = normalize(self.state.origin_gravity()[k])
         Rk = self.state.R[k]
         Bk = tangent_basis(Rk.T @ g0)
@@ -919,8 +935,14 @@ class BundleResult:
         if sl is not None:  # g_k = R_k^T g_0 moves with R_k too
             cols.insert(0, slice(sl.start, sl.start + 3))
             J.insert(0, Bk.T @ Rk.T @ skew(g0))
-        idx = np.concatenate([np.arange(s.start, s.stop) for s in cols])
-        Jm = np.concatenate(J, axis=1)
+        return np.concatenate([np.arange(s.start, s.stop) for s in cols]), np.concatenate(J, axis=1)
+
+    def gravity_tangent_covariance(self, k: int = 0) -> np.ndarray:
+        """(2, 2) covariance (rad^2) of view k's gravity direction in tangent_basis(g_k)."""
+        lay = self.layout
+        if lay.gravity is None or self.state.gravity is None:
+            return np.full((2, 2), np.inf)
+        idx, Jm = self._gravity_jacobian(k)
         C = self.covariance[np.ix_(idx, idx)]
         if not np.all(np.isfinite(C)):
             # a singular information (e.g. the yaw and position of holds that only their IMU gravities tie to

@@ -55,6 +55,7 @@ from .bundle import (
     RotationPrior,
     condense_gravity,
     covariance_from_information,
+    gravity_covariance,
     rest_turns_start,
 )
 from .estimators import MINIMAL_SAMPLE, Estimate, EstimatorOptions, estimate, pair_method
@@ -72,6 +73,7 @@ from .sequence_steps import (
     triangulated,
 )
 from .so3 import angle_between, log_so3, normalize, tangent_basis
+from .tilt_mixture import CalibrationOdds, MixedGravity, mixed_gravity, prior_sigma_rad
 from .tracks import Tracks
 
 RECONSIDER_SIGMAS = 3.0  # a pair's gravity contradicts the joint one beyond this many of its own stds only
@@ -198,6 +200,9 @@ class ViewEstimate:
     # of its own it never had)
     continued: bool = False
     gravity_withheld: GravityWithheld | None = None  # why gravity is None where the sequence has one
+    # the weight of the calibrated accelerometer's prior of the tilt in this gravity (:mod:`.tilt_mixture`; None:
+    # one prior)
+    imu_calibrated_weight: float | None = None
 
 
 @dataclass
@@ -211,6 +216,14 @@ class SequenceRecord:
     gravity: np.ndarray | None
     measured_sigma: np.ndarray
     noise_scale: np.ndarray | None = None  # (K,) each view's bearing noise over the nominal one (None: all 1)
+
+
+def _largest_sigma(tangent: np.ndarray, spread: float = 0.0) -> float:
+    """Largest angular std (rad) of a (2, 2) tangent covariance, with a spread (rad) beside it; inf where the
+    covariance is not finite."""
+    if not np.all(np.isfinite(tangent)):
+        return math.inf
+    return math.hypot(math.sqrt(max(float(np.linalg.eigvalsh(tangent).max()), 0.0)), spread)
 
 
 def _observation_scales(scale, n: int) -> np.ndarray | None:
@@ -250,6 +263,7 @@ class _View:
     tilt_sigma: float | None = None  # prior std (rad) of the measured gravity's tilt known at this view
     scale_tilt: float = 0.0  # std (rad) of the tilt uncalibrated axis scales may give this view's measured gravity
     scales_unknown: bool | None = None  # whether the accelerometer's scales are known to be uncalibrated at this view
+    calibration: CalibrationOdds | None = None  # the tilt's calibrated prior and its odds known at this view
     obs_scale: np.ndarray | None = None  # (n,) each observation's noise over the view's (None: all 1)
 
     def __post_init__(self):
@@ -337,6 +351,12 @@ class _Sequence:
         known = [v.tilt_sigma for v in self.views[:upto] if v.tilt_sigma is not None]
         return known[-1] if known else default
 
+    def calibration(self, upto: int | None) -> CalibrationOdds | None:
+        """The tilt's calibrated prior and its odds in a solve of views [0, upto): the newest view's that knows
+        them (None: the one prior)."""
+        known = [v.calibration for v in self.views[:upto] if v.calibration is not None]
+        return known[-1] if known else None
+
     def turns(self, upto: int | None = None) -> tuple:
         """The gyro's rotations between consecutive views [0, upto) (:class:`~.bundle.RotationPrior` each): a
         view's turn counts where the view before it is the one it was measured from."""
@@ -421,6 +441,10 @@ class IncrementalSequence:
         self._pair_options = self.options.pair_estimator()
         self._noise_rad = self.threshold / 2.0  # angular noise of the latest solve (condenses retired landmarks)
         self._noise_solved = False  # whether a solve has measured it (else it is the threshold's guess)
+        self._tilt_priors = None  # (the tilt's prior std of the latest window solve, its calibrated alternative)
+        # the least evidence any solve since the last reset gave the calibrated prior of the accelerometer's tilt
+        # (the chip is the same across sequences; .tilt_mixture)
+        self._images_log_bayes = math.inf
         # the latest solve's gravity variance, cluster-robust over model (>= 1): what retired landmarks condense
         # to is a model information and is deflated by it (docs/PIPELINE.md, "The joint estimate over the
         # sequence", step 6)
@@ -444,6 +468,7 @@ class IncrementalSequence:
         reset on request merges with nothing before it."""
         self._new_sequence()
         self._broken.clear()
+        self._images_log_bayes = math.inf  # the user may have changed the IMU
 
     def _new_sequence(self) -> None:
         if self.keep_history and self.seq.num_views >= 2:
@@ -529,7 +554,8 @@ class IncrementalSequence:
                  noise_scale: float = 1.0, key=None, turn: tuple | None = None,
                  offset_rad: float = 0.0, unknown_turn_rad=None,
                  tilt_sigma_rad: float | None = None, obs_scale=None, scale_tilt_rad: float = 0.0,
-                 scales_unknown: bool | None = None) -> ViewEstimate | NewSequence:
+                 scales_unknown: bool | None = None,
+                 calibration: CalibrationOdds | None = None) -> ViewEstimate | NewSequence:
         """Add the next view's observations; returns its :class:`ViewEstimate`, or :class:`NewSequence` for a
         view that is the origin of a sequence (the first one, or one no earlier view links to).
         ``noise_scale`` (>= 1): the view's bearing noise std over the nominal one (a hold measured while
@@ -548,6 +574,9 @@ class IncrementalSequence:
         ``scale_tilt_rad``: the std of the tilt uncalibrated axis scales may give this view's measured gravity (its
         attitude's), and ``scales_unknown`` whether the accelerometer is known so far to be such a chip (None: not
         known); the newest view's word holds for every view of the sequence (:meth:`_Sequence.measured_sigmas`).
+        ``calibration``: the tilt's prior were the accelerometer calibrated and the odds that it is, known at this
+        view (the newest view's word holds): each view's gravity is then the two priors' mixture
+        (:mod:`.tilt_mixture`; None: the one prior).
         """
         t0 = time.perf_counter()
         cam = np.asarray(cam, dtype=np.int64)
@@ -567,7 +596,7 @@ class IncrementalSequence:
                     tilt_sigma=float(tilt_sigma_rad) if tilt_sigma_rad is not None and tilt_sigma_rad > 0 else None,
                     obs_scale=_observation_scales(obs_scale, len(cam)),
                     scale_tilt=float(scale_tilt_rad) if math.isfinite(scale_tilt_rad) and scale_tilt_rad > 0 else 0.0,
-                    scales_unknown=scales_unknown)
+                    scales_unknown=scales_unknown, calibration=calibration)
         s.views.append(new)
         if k == 0:
             new.R, new.t = np.eye(3), np.zeros(3)
@@ -956,12 +985,16 @@ class IncrementalSequence:
         s = self.seq
         first = max(0, k + 1 - self.window)
         obs, idx, free = self._window_problem(k, first)
+        priors = self._priors(k + 1)
+        # the tilt's prior of this solve and its calibrated alternative: each view's gravity weighs the two
+        self._tilt_priors = None if priors is None or not priors.bias_sigma_rad else \
+            (priors.bias_sigma_rad, s.calibration(k + 1))
         start = None
         if warm:  # the inliers so far, and the observations of landmarks not seen twice before view k
             before = np.bincount(obs.point, weights=obs.view < k, minlength=obs.num_points)
             start = s.column("inlier")[idx] | (before[obs.point] < 2)
         res, inl = refine_sequence(self.model_rig, obs, *s.poses(), s.gravity, self.threshold,
-                                   priors=self._priors(k + 1), gravity_information=s.information(), free_views=free,
+                                   priors=priors, gravity_information=s.information(), free_views=free,
                                    max_iterations=self.options.max_iterations, rounds=self.options.window_rounds,
                                    huber_k=self.options.estimator.huber_k, inliers=start,
                                    min_rounds=1 if warm else 2, tol=self.options.relative_tolerance,
@@ -1048,22 +1081,41 @@ class IncrementalSequence:
         R0 = views[0].R
         return all(float(np.linalg.norm(log_so3(R0.T @ v.R))) < math.radians(ONE_ATTITUDE_DEG) for v in views[1:])
 
+    def _calibrated_or_not(self, k: int, res) -> MixedGravity | None:
+        """View k's gravity under the mixture of the tilt's two priors of the latest window solve ``res``
+        (:mod:`.tilt_mixture`): None where that solve had one prior only."""
+        if self._tilt_priors is None or self._tilt_priors[1] is None:
+            return None
+        C = res.gravity_tilt_covariance(k)
+        mixed = None if C is None else mixed_gravity(res.state.bias, C, *self._tilt_priors,
+                                                     images_log_bayes_cap=self._images_log_bayes)
+        if mixed is not None:  # the chip's: what one solve refuted stays refuted (.tilt_mixture)
+            self._images_log_bayes = min(self._images_log_bayes, mixed.images_log_bayes)
+        return mixed
+
     def _estimate(self, k, j, pm, res, first, elapsed) -> ViewEstimate:
         s = self.seq
         self._noise_rad = res.sigma_rad
         self._noise_solved = True
         self._gravity_inflation = gravity_inflation(res)
-        g = cov = None
+        g = cov = mixed = None
         sigma = math.inf
         withheld = None
         if self.with_gravity and s.gravity is not None and not self.gravity_resolved(k):
             withheld = GravityWithheld.YOUNG_PARALLEL_BARS
         if self.with_gravity and s.gravity is not None and self.gravity_resolved(k):
-            g = s.views[k].R.T @ s.gravity
+            wide = s.views[k].R.T @ s.gravity
             # the local std knows one basin only: the spread to rival basins enters it (docs/PIPELINE.md)
             spread = self.ambiguity_rad()
-            sigma = math.hypot(res.gravity_sigma_rad(k), spread)
-            cov = res.gravity_covariance(k)
+            wide_sigma = _largest_sigma(res.gravity_tangent_covariance(k), spread)
+            g, tangent = wide, res.gravity_tangent_covariance(k)
+            mixed = self._calibrated_or_not(k, res)
+            if mixed is not None:  # the tilt's two priors weighed (docs/PIPELINE.md, "Calibrated or not")
+                g = float(np.linalg.norm(wide)) * normalize(normalize(wide) + tangent_basis(normalize(wide)) @
+                                                            mixed.shift)
+                tangent = mixed.covariance
+            sigma = _largest_sigma(tangent, spread)
+            cov = gravity_covariance(g, tangent)
             if spread > 0.0 and np.all(np.isfinite(cov)):
                 u = normalize(g)
                 cov = cov + spread ** 2 * float(g @ g) * (np.eye(3) - np.outer(u, u))
@@ -1073,21 +1125,24 @@ class IncrementalSequence:
                     g = cov = None
                     sigma = math.inf
                     withheld = GravityWithheld.ONE_ATTITUDE
-                else:  # no better than the measured gravity under its tilt's prior
+                else:  # no better than the measured gravity under its tilt's prior (the two, as weighed)
                     active = priors.active
-                    floor = math.hypot(float(np.min(priors.sigma_rad[active])) if active.any() else 0.0,
-                                       priors.bias_sigma_rad or 0.0)
+                    measured = float(np.min(priors.sigma_rad[active])) if active.any() else 0.0
+                    tilt = priors.bias_sigma_rad or 0.0
+                    wide_sigma = max(wide_sigma, math.hypot(measured, tilt))
+                    floor = math.hypot(measured, prior_sigma_rad(tilt, s.calibration(len(s.views))))
                     if sigma < floor and np.all(np.isfinite(cov)):
                         cov = cov * (floor / max(sigma, 1e-300)) ** 2
                         sigma = floor
-        if g is not None:
-            self._last_gravity = (k, g, sigma)
+            if g is not None:  # a break carries the sequence's own solve's gravity (the wide prior's)
+                self._last_gravity = (k, wide, wide_sigma)
         vk = s.views[k]
         return ViewEstimate(sequence=s.number, view=k, reference=j, method=pm, R=vk.R.copy(), t=vk.t.copy(),
                             gravity=g, gravity_sigma_rad=sigma, cov_gravity=cov,
                             cov_pose=res.pose_covariance(k, body=True), num_observations=len(vk.cam),
                             num_inliers=int(np.count_nonzero(vk.inlier)), window=k + 1 - first,
-                            time_s=elapsed, gravity_withheld=withheld)
+                            time_s=elapsed, gravity_withheld=withheld,
+                            imu_calibrated_weight=None if mixed is None or g is None else mixed.calibrated_weight)
 
     # ----------------------------------------------------------------- batch
     def batch(self) -> SequenceEstimate:

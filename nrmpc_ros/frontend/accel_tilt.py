@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.so3 import tangent_basis
+from ..core.tilt_mixture import CalibrationOdds
 
 UNCALIBRATED_TILT_DEG = math.degrees(math.atan(0.08))
 """The tilt a raw consumer MEMS accelerometer's zero-g offset may give its gravity (deg): 80 mg per axis, the widest
@@ -63,6 +64,14 @@ of the common chips' specifications (50 mg x/y and 80 mg z for one, 20-40 mg for
 UNCALIBRATED_SCALE = 0.02
 """The sensitivity error of an uncalibrated MEMS accelerometer's axis, each within +-this (1-3 % on common chips'
 datasheets; uniform: its std is this over sqrt(3))."""
+
+CALIBRATED_LOG_PRIOR_ODDS = 0.0
+"""The log prior odds that an IMU is calibrated before its data say (even): drivers of packaged IMUs publish
+calibrated readings, raw chips' do not, and neither is assumed."""
+
+SHOWS_BIAS_LOG_BAYES = math.log(20.0)
+"""The norms show an uncalibrated chip where their evidence favours its prior of the bias over a calibrated chip's
+by more than 20 : 1 (:attr:`AccelTiltEvidence.shows_bias`)."""
 
 TILT_HOLDS = 50
 """The still holds kept for the fit: the recent ones (a bias drifts slowly with temperature)."""
@@ -78,6 +87,9 @@ class TiltEvidence:
     tilt_rad: float
     open_rad: float
     prior_sigma_rad: float
+    # log of the norms' evidence for a calibrated chip (the bias under the calibrated prior) over an uncalibrated
+    # one's (under the uncalibrated prior): 0 before any hold
+    log_bayes_calibrated: float = 0.0
 
 
 class AccelTiltEvidence:
@@ -101,10 +113,15 @@ class AccelTiltEvidence:
 
     @property
     def shows_bias(self) -> bool:
-        """Whether the norms show a tilt beyond twice the calibrated prior and beyond what they leave open (three
-        holds or more): an accelerometer whose bias nobody calibrated out."""
+        """Whether the norms show an accelerometer whose bias nobody calibrated out (three holds or more): a
+        fitted tilt beyond twice the calibrated prior, and their evidence for an uncalibrated chip's prior over
+        the calibrated one beyond :data:`SHOWS_BIAS_LOG_BAYES`. The fitted tilt alone is no evidence: its part
+        along the holds' mean direction shares the norms' regressor with the scale, and a few holds' noise puts
+        it anywhere within the wide prior (five holds 0.008 m/s^2 apart fitted a 1.1 deg tilt to a 0.12 deg
+        chip); the evidence weighs what the fit could explain by chance."""
         ev = self.evidence
-        return ev.holds >= 3 and ev.tilt_rad > 2.0 * max(self.calibrated_sigma_rad, ev.open_rad)
+        return ev.holds >= 3 and ev.tilt_rad > 2.0 * self.calibrated_sigma_rad and \
+            ev.log_bayes_calibrated < -SHOWS_BIAS_LOG_BAYES
 
     def scale_tilt_rad(self, accel_mean) -> float:
         """The std (rad) of the tilt the axes' unequal scales may give a hold whose mean accelerometer is
@@ -142,20 +159,46 @@ class AccelTiltEvidence:
         u = a / norms[:, None]
         design = np.column_stack([np.ones(len(u)), u])
         weight = 1.0 / np.maximum(var, 1e-30)
-        normal = design.T @ (design * weight[:, None])
+        data = design.T @ (design * weight[:, None])
+        rhs = design.T @ (weight * (norms / scale))
+        normal = data.copy()
         normal[1:, 1:] += np.eye(3) / wide ** 2
         cov = np.linalg.pinv(normal)
-        theta = cov @ (design.T @ (weight * (norms / scale)))
+        theta = cov @ rhs
         beta, c_beta = theta[1:], cov[1:, 1:]
         mean = np.sum(u * weight[:, None], axis=0)
         across = tangent_basis(mean / np.linalg.norm(mean))  # (3, 2)
         open_rad = math.sqrt(max(float(np.trace(across.T @ c_beta @ across)) / 2.0, 0.0))
-        return self._evidence(len(u), float(np.linalg.norm(beta)), open_rad)
+        # (a calibrated prior of 0, the user's word for a perfect chip, is weighed as the norms' own floor)
+        narrow = max(self.calibrated_sigma_rad, self.floor_rad, 1e-9)
+        bayes = _log_evidence(data, rhs, narrow) - _log_evidence(data, rhs, wide) if narrow < wide else 0.0
+        return self._evidence(len(u), float(np.linalg.norm(beta)), open_rad, bayes)
 
-    def _evidence(self, holds: int, tilt: float, open_rad: float) -> TiltEvidence:
+    def _evidence(self, holds: int, tilt: float, open_rad: float, bayes: float = 0.0) -> TiltEvidence:
         prior = math.sqrt(self.calibrated_sigma_rad ** 2 + tilt ** 2 + open_rad ** 2) if self.graded else \
             self.calibrated_sigma_rad
-        return TiltEvidence(holds, tilt, open_rad, prior)
+        return TiltEvidence(holds, tilt, open_rad, prior, bayes)
+
+    def calibration_odds(self) -> CalibrationOdds | None:
+        """What the norms say of the chip's calibration, for the joint estimate's two priors of the tilt
+        (:mod:`nrmpc_ros.core.tilt_mixture`): a calibrated chip's prior and the log odds calibrated : not (even
+        odds before the norms' evidence). None where the prior is not graded (the user's word for a calibrated
+        IMU: one prior)."""
+        ev = self.evidence
+        if not self.graded:
+            return None
+        return CalibrationOdds(self.calibrated_sigma_rad, CALIBRATED_LOG_PRIOR_ODDS + ev.log_bayes_calibrated)
+
+
+def _log_evidence(data: np.ndarray, rhs: np.ndarray, sigma: float) -> float:
+    """log of the norms' marginal likelihood (up to a constant any prior shares) under beta ~ N(0, sigma^2 I), c
+    flat: 1/2 h' N^-1 h - 1/2 log det N - 3 log sigma with N the data's normal matrix plus the prior's."""
+    normal = data.copy()
+    normal[1:, 1:] += np.eye(3) / sigma ** 2
+    sign, logdet = np.linalg.slogdet(normal)
+    if sign <= 0:
+        return 0.0
+    return 0.5 * float(rhs @ np.linalg.solve(normal, rhs)) - 0.5 * logdet - 3.0 * math.log(sigma)
 
 
 def describe_tilt(tilt: AccelTiltEvidence, extrinsics=None) -> str | None:

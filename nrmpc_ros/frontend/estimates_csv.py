@@ -21,7 +21,7 @@ CSV_HEADER = ["stamp", "ref_stamp", "method", "qx", "qy", "qz", "qw", "tx", "ty"
 ORIGIN_COLUMNS = ["origin_stamp", "oqx", "oqy", "oqz", "oqw", "otx", "oty", "otz"]  # pose in the sequence origin
 CSV_EXTRA = ["gravity_sigma_deg", "num_observations", *ORIGIN_COLUMNS, "sequence", "hold", "window", "hold_frames",
              "settled_frames", "settle_s", "residual_px", "noise_px", "averaged_noise_px", "links_klt",
-             "links_descriptor", "ringing_px", "ringing_source", "noise_scale"]
+             "links_descriptor", "ringing_px", "ringing_source", "noise_scale", "imu_calibrated_weight"]
 CSV_MAX_BYTES = 256 * MiB  # a row per hold is ~500 bytes: half a million holds, far beyond any recording
 
 
@@ -49,7 +49,8 @@ def row_from_estimate(e) -> EstimateRow:
              "settled_frames": h.settled_frames, "settle_s": h.settle_s, "residual_px": h.residual_px,
              "noise_px": h.noise_px, "averaged_noise_px": h.averaged_noise_px,
              "links_klt": e.links.get("klt", 0), "links_descriptor": e.links.get("descriptor", 0),
-             "ringing_px": h.ringing_px, "ringing_source": h.ringing_source.value, "noise_scale": e.noise_scale}
+             "ringing_px": h.ringing_px, "ringing_source": h.ringing_source.value, "noise_scale": e.noise_scale,
+             "imu_calibrated_weight": e.imu_calibrated_weight}
     g = None if e.gravity is None else np.asarray(e.gravity)
     return EstimateRow(e.stamp, e.ref_stamp, e.method, np.asarray(e.R), np.asarray(e.t), g, int(e.num_inliers),
                        float(e.time_ms), extra, (e.origin_stamp, np.asarray(e.R_origin), np.asarray(e.t_origin)))

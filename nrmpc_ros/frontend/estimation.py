@@ -26,6 +26,7 @@ import numpy as np
 from ..core.bundle import gravity_covariance
 from ..core.incremental import IncrementalSequence, NewSequence, StartReason, ViewEstimate
 from ..core.rig import Rig
+from ..core.tilt_mixture import CalibrationOdds, prior_sigma_rad, prior_weight
 from .drops import Drop
 from .gyro import GyroRotation
 from .holds import Hold, RingingSource
@@ -94,6 +95,9 @@ class HoldEstimate:
     window: int = 0
     noise_scale: float = 1.0  # the hold's bearing noise over the nominal one: its residual ringing's penalty
     ref_hold_index: int | None = None  # the reference hold's index in the sequence (its TF frame's name)
+    # the weight the calibrated accelerometer's prior of the tilt got in the gravity (None: one prior;
+    # docs/PIPELINE.md, "Calibrated or not")
+    imu_calibrated_weight: float | None = None
 
 
 @dataclass
@@ -113,6 +117,7 @@ class MeasuredHold:
     tilt_sigma_rad: float | None = None
     scale_tilt_rad: float = 0.0  # the tilt uncalibrated axis scales may give its IMU gravity (.accel_tilt)
     scales_unknown: bool | None = None  # whether the norms show the accelerometer uncalibrated so far
+    calibration: CalibrationOdds | None = None  # the tilt's calibrated prior and its odds (.accel_tilt)
 
     @property
     def gravity_sigma_rad(self) -> float | None:
@@ -260,7 +265,8 @@ class HoldEstimator:
         out = self.sequence.add_view(obs.cam, obs.landmark, obs.f, g, item.imu_sigma_rad, noise_scale=scale,
                                      key=hold.stamp, turn=item.turn, offset_rad=offset, unknown_turn_rad=unknown,
                                      tilt_sigma_rad=item.tilt_sigma_rad, obs_scale=self._corner_scales(obs),
-                                     scale_tilt_rad=item.scale_tilt_rad, scales_unknown=item.scales_unknown)
+                                     scale_tilt_rad=item.scale_tilt_rad, scales_unknown=item.scales_unknown,
+                                     calibration=item.calibration)
         if attempt is not None:
             attempt.sequence, attempt.index = self.sequence.number, self.sequence.num_views - 1
         if isinstance(out, NewSequence):
@@ -360,7 +366,8 @@ class HoldEstimator:
         g = np.asarray(first.imu.gravity, dtype=float).reshape(3)
         tilt = first.tilt_sigma_rad if first.tilt_sigma_rad is not None else \
             (self.sequence.options.gravity_bias_sigma or 0.0)
-        sigma = math.hypot(first.gravity_sigma_rad or 0.0, tilt)
+        # calibrated or not, as the norms weigh them (docs/PIPELINE.md, "Calibrated or not")
+        sigma = math.hypot(first.gravity_sigma_rad or 0.0, prior_sigma_rad(tilt, first.calibration))
         cov = gravity_covariance(g, sigma ** 2 * np.eye(2))
         if started.reason is not StartReason.FIRST_VIEW:
             self.stats.dropped[Drop.new_sequence(started.reason)] -= 1
@@ -373,7 +380,8 @@ class HoldEstimator:
             gravity_sigma_deg=math.degrees(sigma), cov_gravity=cov, num_inliers=0, num_observations=0,
             time_ms=0.0, origin_stamp=hold.stamp, R_origin=np.eye(3), t_origin=np.zeros(3),
             cov_pose=np.zeros((6, 6)), sequence=started.sequence, hold_index=0, hold=hold, imu_gravity=g,
-            noise_scale=started.noise_scale, ref_hold_index=0)
+            noise_scale=started.noise_scale, ref_hold_index=0,
+            imu_calibrated_weight=prior_weight(first.calibration))
         if first.attempt is not None:
             first.attempt.estimate = est
         return [est]
@@ -485,7 +493,8 @@ class HoldEstimator:
             num_inliers=v.num_inliers, num_observations=v.num_observations, time_ms=1000.0 * elapsed_s,
             origin_stamp=self._hold_stamps[0], R_origin=v.R, t_origin=v.t, cov_pose=v.cov_pose,
             sequence=v.sequence, hold_index=v.view, hold=hold, imu_gravity=None if imu is None else imu.gravity,
-            links=links, window=v.window, noise_scale=noise_scale, ref_hold_index=v.reference)
+            links=links, window=v.window, noise_scale=noise_scale, ref_hold_index=v.reference,
+            imu_calibrated_weight=v.imu_calibrated_weight)
 
     def batch(self) -> list:
         """Every hold of the current sequence estimated jointly at once: (stamp, R_origin, t_origin, gravity,

@@ -60,6 +60,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import chdtri
 
 from ..core.so3 import angle_between, log_so3, matrix_to_quat_xyzw, rotation_angle
 
@@ -84,6 +85,16 @@ ONE_TURN_CHI2 = 16.3
 """A turn's own chi-square (3 degrees of freedom, at 1 - 1e-3) within which one rotation fits it: the turns one
 rotation fits, at least half of them, measure the axes (:func:`_consensus`); the others are left out (an images'
 turn from a two-hold estimate in another basin)."""
+
+SHARED_AXES_MIN_TURNS = 3
+"""Turns that each refute the axes needed before one rotation they share puts the axes off: two leave the fit
+three degrees of freedom, and two-hold estimates of a snapshot rig 2 deg uncertain, 8 and 16 deg off the gyro
+each its own way, fitted one 27 deg rotation within them. Each refuting turn's hold is refused on its own
+(:func:`turn_refutes_gyro`), so waiting for a third costs no hold."""
+
+SHARED_AXES_SIGNIFICANCE = 1e-3
+"""The significance at which turns that each refute the axes are tested for one rotation together (that of
+:data:`ONE_TURN_CHI2`), over the fit's degrees of freedom (:func:`turns_share_axes`)."""
 
 WRONG_AXES_CHI2 = 21.1
 """The squared distance (in its information) of the measured axes from the rig file's beyond which they are wrong:
@@ -294,16 +305,20 @@ def turn_refutes_axes(turn) -> bool:
 
 def turns_share_axes(turns) -> bool:
     """Whether turns that each refute the rig file's axes (:func:`turn_refutes_axes`) fit one rotation D: every
-    one of them within :data:`ONE_TURN_CHI2` of the D they fit together. Axes off turn every turn by the same D
-    and keep its angle; two-hold estimates in other basins are off each its own way (and often by the angle too,
-    which no D changes): they refute the images' turns, not the axes."""
-    if len(turns) < MIN_TURNS:
+    one of them within :data:`ONE_TURN_CHI2` of the D they fit together, and all of them together within the
+    chi-square quantile of the fit's degrees of freedom (3 per turn, 3 taken by D) at the same significance. Axes
+    off turn every turn by the same D and keep its angle; two-hold estimates in other basins are off each its own
+    way (and often by the angle too, which no D changes): they refute the images' turns, not the axes. The joint
+    test counts what the fit took: two turns whose angles are each 2-3 stds off the gyro's fit a D at 12 each,
+    within the single turn's 16.3, but at 24 over three degrees of freedom no one rotation."""
+    if len(turns) < SHARED_AXES_MIN_TURNS:
         return False
     r_i = np.array([log_so3(np.asarray(R, dtype=float)) for R, _, _ in turns])
     r_g = np.array([log_so3(g.R) for _, _, g in turns])
     w = np.array([_turn_weight(s, g) for _, s, g in turns])
     _, chi2_turns, _ = _fit(r_i, r_g, w)
-    return bool(np.all(chi2_turns <= ONE_TURN_CHI2))
+    together = float(chdtri(3 * len(turns) - 3, SHARED_AXES_SIGNIFICANCE))
+    return bool(np.all(chi2_turns <= ONE_TURN_CHI2) and float(np.sum(chi2_turns)) <= together)
 
 
 def _turn_weight(sigma_images_rad: float, gyro) -> float:

@@ -842,7 +842,7 @@ class Pipeline:
         st.averaged_noise_px.append(hold.averaged_noise_px)
         st.settled_frames.append(hold.settled_frames)
         imu = self._imu_gravity(hold)
-        sigma = tilt = None
+        sigma = tilt = odds = None
         scale_tilt = 0.0
         if imu is not None:
             white = imu.accel_mean_std / self.rig.gravity_magnitude
@@ -852,6 +852,7 @@ class Pipeline:
             # the sequence adds it to every hold once the norms show such a chip)
             sigma = math.hypot(white, math.radians(self.config.imu_gravity_floor_deg))
             scale_tilt = self.accel_tilt.axes_scale_tilt_rad(imu.accel_mean)
+            odds = self.accel_tilt.calibration_odds()  # calibrated or not: the tilt's two priors (.accel_tilt)
             if self.extrinsics is not None:  # every still hold tells the accelerometer's bias, under that prior
                 self.extrinsics.set_bias_prior(self.rig.gravity_magnitude * math.tan(tilt))
                 self.extrinsics.observe_still(hold.stamp, imu.accel_mean, imu.accel_mean_std, 1)
@@ -861,7 +862,8 @@ class Pipeline:
             self._last_hold = hold
         self._handed += 1
         return self._hand_over(MeasuredHold(hold, imu, sigma, turn, attempt if self.hold_log is not None else None,
-                                            tilt, scale_tilt, self.accel_tilt.shows_bias if imu is not None else None))
+                                            tilt, scale_tilt, self.accel_tilt.shows_bias if imu is not None else None,
+                                            odds))
 
     def _gyro_rotation(self, before: Hold, after: Hold):
         """(``before``'s stamp, R, std rad): the body's rotation from hold ``after`` into hold ``before`` from the
