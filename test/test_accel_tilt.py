@@ -185,8 +185,8 @@ def test_replay_of_an_uncalibrated_accelerometer_keeps_every_gravity_within_its_
     """An accelerometer 80 mg off (4.7 deg at most; the IMU alone about 4 deg off): replay says the bias the norms
     show, and the bias vector to calibrate out (the bars' estimate under the same graded prior: 0.8 m/s^2 within
     0.02, where the calibrated prior shrank it to 0.77), weighs a calibrated chip's prior at nearly nothing, and
-    estimates every hold within 3 of its std of the truth. The calibrated prior kept (imu_bias_max_deg: 0) leaves estimates several stds off: what the evidence
-    repairs."""
+    estimates every hold within 3 of its std of the truth. The calibrated prior kept (imu_bias_max_deg: 0) leaves
+    estimates several stds off: what the evidence repairs."""
     from nrmpc_ros.cli.main import main
 
     bag, rig = tmp_path / "biased", tmp_path / "rig.yaml"
