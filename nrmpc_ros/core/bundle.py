@@ -954,10 +954,7 @@ class BundleResult:
 
     def gravity_sigma_rad(self, k: int = 0) -> float:
         """Largest angular std (rad) of view k's gravity."""
-        C = self.gravity_tangent_covariance(k)
-        if not np.all(np.isfinite(C)):
-            return math.inf
-        return float(math.sqrt(max(np.linalg.eigvalsh(C).max(), 0.0)))
+        return largest_sigma(self.gravity_tangent_covariance(k))
 
     def gravity_covariance(self, k: int = 0) -> np.ndarray:
         """(3, 3) covariance (m^2/s^4) of view k's gravity vector (rank 2, tangent to the sphere)."""
@@ -976,6 +973,13 @@ class BundleResult:
             T[:3, :3] = self.state.R[k].T
             C = _propagate(T, C)
         return C
+
+
+def largest_sigma(cov: np.ndarray) -> float:
+    """The largest std of a covariance (the root of its largest eigenvalue); inf where it is not finite."""
+    if not np.all(np.isfinite(cov)):
+        return math.inf
+    return float(math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0)))
 
 
 def gravity_covariance(g, cov_dg) -> np.ndarray:

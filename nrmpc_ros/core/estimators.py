@@ -17,7 +17,7 @@ from numpy.random import default_rng  # imported here, not lazily at the first e
 
 from ..config import check, from_mapping, option
 from ..errors import EstimationError, InputError
-from .bundle import gravity_covariance, refine_two_view, two_view_priors
+from .bundle import gravity_covariance, largest_sigma, refine_two_view, two_view_priors
 from .deformation import deformed_extrinsics, rays
 from .gravity_init import (
     camera_rotations,
@@ -335,7 +335,7 @@ def _record_pose(info: EstimateInfo, res, optimize_gravity: bool) -> EstimateInf
     if optimize_gravity and res.g is not None:
         cg = cov[6:8, 6:8]
         info.cov_gravity_tangent, info.cov_gravity = cg, np.asarray(gravity_covariance(res.g, cg), dtype=float)
-        info.gravity_sigma_rad = float(math.sqrt(max(np.linalg.eigvalsh(cg).max(), 0.0)))
+        info.gravity_sigma_rad = largest_sigma(cg)
     return info
 
 

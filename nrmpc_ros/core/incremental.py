@@ -56,6 +56,7 @@ from .bundle import (
     condense_gravity,
     covariance_from_information,
     gravity_covariance,
+    largest_sigma,
     rest_turns_start,
 )
 from .estimators import MINIMAL_SAMPLE, Estimate, EstimatorOptions, estimate, pair_method
@@ -216,14 +217,6 @@ class SequenceRecord:
     gravity: np.ndarray | None
     measured_sigma: np.ndarray
     noise_scale: np.ndarray | None = None  # (K,) each view's bearing noise over the nominal one (None: all 1)
-
-
-def _largest_sigma(tangent: np.ndarray, spread: float = 0.0) -> float:
-    """Largest angular std (rad) of a (2, 2) tangent covariance, with a spread (rad) beside it; inf where the
-    covariance is not finite."""
-    if not np.all(np.isfinite(tangent)):
-        return math.inf
-    return math.hypot(math.sqrt(max(float(np.linalg.eigvalsh(tangent).max()), 0.0)), spread)
 
 
 def _observation_scales(scale, n: int) -> np.ndarray | None:
@@ -1107,14 +1100,14 @@ class IncrementalSequence:
             wide = s.views[k].R.T @ s.gravity
             # the local std knows one basin only: the spread to rival basins enters it (docs/PIPELINE.md)
             spread = self.ambiguity_rad()
-            wide_sigma = _largest_sigma(res.gravity_tangent_covariance(k), spread)
             g, tangent = wide, res.gravity_tangent_covariance(k)
+            wide_sigma = math.hypot(largest_sigma(tangent), spread)
             mixed = self._calibrated_or_not(k, res)
             if mixed is not None:  # the tilt's two priors weighed (docs/PIPELINE.md, "Calibrated or not")
                 g = float(np.linalg.norm(wide)) * normalize(normalize(wide) + tangent_basis(normalize(wide)) @
                                                             mixed.shift)
                 tangent = mixed.covariance
-            sigma = _largest_sigma(tangent, spread)
+            sigma = math.hypot(largest_sigma(tangent), spread)
             cov = gravity_covariance(g, tangent)
             if spread > 0.0 and np.all(np.isfinite(cov)):
                 u = normalize(g)

@@ -62,6 +62,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtri
 
+from ..core.bundle import largest_sigma
 from ..core.so3 import angle_between, log_so3, matrix_to_quat_xyzw, rotation_angle
 
 IMAGES_TURN_SIGMA_RAD = math.radians(0.05)
@@ -184,7 +185,7 @@ class MeasuredImuAxes:
     @property
     def sigma_rad(self) -> float:
         """The largest std about any direction."""
-        return _largest_sigma(self.cov_rad2)
+        return largest_sigma(self.cov_rad2)
 
     @property
     def distance_chi2(self) -> float:
@@ -257,7 +258,7 @@ def imu_axes_from_turns(turns, gravities=(), gravity_sigma_rad: float = 0.0) -> 
     g_images = _unit(np.array([g for _, g, _ in gravities], dtype=float).reshape(-1, 3))
     g_var = np.array([s for _, _, s in gravities], dtype=float) ** 2 + gravity_sigma_rad ** 2
     info = _information(r_g @ D.T, w)
-    fitted = len(gravities) > 0 and _largest_sigma(_inverse(info / max(spread, 1.0))) > math.radians(
+    fitted = len(gravities) > 0 and largest_sigma(_inverse(info / max(spread, 1.0))) > math.radians(
         MAX_AXES_SIGMA_DEG)
     if fitted:
         # the turns leave a direction open (their axes alike): the holds' gravities, which turn with D about
@@ -346,10 +347,6 @@ def _information(v: np.ndarray, w: np.ndarray) -> np.ndarray:
     the turn about every axis but its own, by its length squared."""
     return np.sum(w[:, None, None] * (np.sum(v * v, axis=1)[:, None, None] * np.eye(3)
                                       - v[:, :, None] * v[:, None, :]), axis=0)
-
-
-def _largest_sigma(cov: np.ndarray) -> float:
-    return float(math.sqrt(max(np.linalg.eigvalsh(cov)[-1], 0.0))) if np.all(np.isfinite(cov)) else math.inf
 
 
 def _gravity_bound(n: int, fitted: bool = False) -> float:
